@@ -1,0 +1,1 @@
+"""isorig application wiring: the command line. Numerics live in sim/, the service in backend/."""

@@ -1,0 +1,5 @@
+import sys
+
+from isorig.cli import main
+
+sys.exit(main())

@@ -1,0 +1,1 @@
+"""One module per `isorig` subcommand, each with register(subparsers)."""

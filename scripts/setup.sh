@@ -1,0 +1,11 @@
+#!/usr/bin/env bash
+# Create .venv and install isorig with its test tools. Safe to run again (fast when up to date).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PYTHON=${PYTHON:-python3}
+if [ ! -x .venv/bin/python ]; then
+  "$PYTHON" -m venv .venv
+fi
+.venv/bin/python -m pip install -q --upgrade pip >/dev/null 2>&1 || true
+.venv/bin/python -m pip install -q -e ".[test]" 2>&1 | grep -v -E "^WARNING: Location|^$" || true
+.venv/bin/python -c "import sim, numba, fastapi" # fail loudly if the install did not work

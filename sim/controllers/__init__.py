@@ -1,0 +1,30 @@
+"""Controllers behind one interface (see base.py). ``make_controller(name)`` builds one by name."""
+
+from __future__ import annotations
+
+from numba import njit
+
+from . import mrac, pid
+from .base import Controller
+from .mrac import make_mrac, mrac_step
+from .pid import make_pid, pid_step
+
+FACTORIES = {"mrac": make_mrac, "pid": make_pid}
+CONTROLLER_NAMES = tuple(FACTORIES)
+
+
+def make_controller(name: str, **options) -> Controller:
+    """A controller by name with its defaults, overridden by ``options``."""
+    if name not in FACTORIES:
+        raise ValueError(f"unknown controller {name!r}; allowed: {', '.join(CONTROLLER_NAMES)}")
+    return FACTORIES[name](**options)
+
+
+@njit(cache=True)
+def controller_step(kind, params, state, meas, dt, report):
+    """Dispatch one control period to the controller's compiled kernel."""
+    if kind == mrac.KIND:
+        return mrac_step(params, state, meas, dt, report)
+    if kind == pid.KIND:
+        return pid_step(params, state, meas, dt, report)
+    return 0.0

@@ -1,0 +1,62 @@
+"""Fixed-gain PID position controller with anti-windup: the conventional baseline the paper argues against.
+
+    u = K_p e + K_i integral(e) + K_d d(e)/dt (filtered),  e = r - y
+
+The derivative acts on the measurement (no kick on target steps) through a first-order filter
+of time constant ``derivative_filter_s``. Anti-windup by conditional integration: the integral is
+frozen while the command is saturated and the error would drive it further into saturation.
+Gains were tuned once on IUT_a at 100 bar, 0.5 Hz, 20 mm by scripts/tune_pid.py (best RMS error with a
+gain margin of 2) and are never retuned: that is the point of a baseline.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .base import M_POSITION, M_TARGET, R_AR, R_AS, R_AY, R_MODEL, Controller
+
+KIND = 2
+KP, KI, KD, TF, ULIM = range(5)
+S_INTEGRAL, S_DFILT, S_YPREV, S_STARTED = range(4)
+
+TUNED_DEFAULTS = {
+    "kp_v_per_m": 2000.0,
+    "ki_v_per_m_s": 80000.0,
+    "kd_v_s_per_m": 0.0,
+    "derivative_filter_s": 0.005,
+    "command_limit_v": 10.0,
+}
+
+
+def make_pid(**options) -> Controller:
+    unknown = set(options) - set(TUNED_DEFAULTS)
+    if unknown:
+        raise ValueError(f"unknown pid option(s) {sorted(unknown)}; allowed: {sorted(TUNED_DEFAULTS)}")
+    o = {**TUNED_DEFAULTS, **options}
+    params = np.array([o["kp_v_per_m"], o["ki_v_per_m_s"], o["kd_v_s_per_m"], o["derivative_filter_s"],
+                       o["command_limit_v"]])
+    return Controller("pid", KIND, params, np.zeros(4), o)
+
+
+@njit(cache=True)
+def pid_step(p, s, meas, dt, report):
+    y = meas[M_POSITION]
+    e = meas[M_TARGET] - y
+    if s[S_STARTED] < 0.5:
+        s[S_YPREV] = y
+        s[S_STARTED] = 1.0
+    # filtered derivative of -y
+    alpha = dt / (p[TF] + dt)
+    s[S_DFILT] += alpha * (-(y - s[S_YPREV]) / dt - s[S_DFILT])
+    s[S_YPREV] = y
+    u = p[KP] * e + p[KI] * s[S_INTEGRAL] + p[KD] * s[S_DFILT]
+    saturated_up = u > p[ULIM] and e > 0.0
+    saturated_down = u < -p[ULIM] and e < 0.0
+    if not (saturated_up or saturated_down):
+        s[S_INTEGRAL] += e * dt
+    report[R_MODEL] = np.nan
+    report[R_AR] = np.nan
+    report[R_AY] = np.nan
+    report[R_AS] = np.nan
+    return u

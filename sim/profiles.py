@@ -1,0 +1,213 @@
+"""Target displacement profiles: tapered sines (and sequences of them), checked against the rig envelope.
+
+A sine block of ``cycles`` cycles has its first and last ``taper_cycles`` cycles ramped in and out
+with a raised-cosine envelope (so the target and its velocity start and end at zero). ``offset_m``
+is approached smoothly over the first cycle and then held. A profile is packed into an array of
+blocks for the compiled engine.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from numba import njit
+
+from .isolator import Isolator
+from .rig import BAR_PA, LITRE_PER_MIN_M3_S, RigParameters
+
+MAX_FREQUENCY_HZ = 10.0  # well below the valve's 40 Hz
+MAX_CYCLES = 100_000
+
+
+class ProfileError(ValueError):
+    """A profile is malformed or outside the rig's envelope. ``field``, ``value`` and ``limit`` say why."""
+
+    def __init__(self, field: str, value, limit: str, message: str):
+        super().__init__(message)
+        self.field = field
+        self.value = value
+        self.limit = limit
+
+
+@dataclass(frozen=True)
+class SineProfile:
+    """Sine displacement target: r(t) = offset + A env(t) sin(2 pi f t)."""
+
+    amplitude_m: float
+    frequency_hz: float
+    cycles: int
+    taper_cycles: int = 1
+    offset_m: float = 0.0
+
+    @property
+    def duration_s(self) -> float:
+        return self.cycles / self.frequency_hz
+
+    def to_dict(self) -> dict:
+        return {"kind": "sine", **asdict(self)}
+
+    def blocks(self) -> list[SineProfile]:
+        return [self]
+
+
+# Packed block columns.
+B_START, B_AMPLITUDE, B_FREQUENCY, B_CYCLES, B_TAPER, B_OFFSET = range(6)
+N_BLOCK_COLUMNS = 6
+
+
+def pack_profile(blocks: list[SineProfile]) -> np.ndarray:
+    """One row per block: start time, amplitude, frequency, cycles, taper cycles, offset."""
+    rows = np.zeros((len(blocks), N_BLOCK_COLUMNS))
+    start = 0.0
+    for i, b in enumerate(blocks):
+        rows[i] = (start, b.amplitude_m, b.frequency_hz, b.cycles, b.taper_cycles, b.offset_m)
+        start += b.duration_s
+    return rows
+
+
+def profile_duration_s(blocks: list[SineProfile]) -> float:
+    return sum(b.duration_s for b in blocks)
+
+
+@njit(cache=True)
+def _raised_cosine(x):
+    """0 at x <= 0, 1 at x >= 1, smooth in between; returns (value, derivative)."""
+    if x <= 0.0:
+        return 0.0, 0.0
+    if x >= 1.0:
+        return 1.0, 0.0
+    return 0.5 * (1.0 - np.cos(np.pi * x)), 0.5 * np.pi * np.sin(np.pi * x)
+
+
+@njit(cache=True)
+def target(t, blocks):
+    """Target displacement r(t) in m and its rate r'(t) in m/s."""
+    n = blocks.shape[0]
+    i = n - 1
+    for j in range(n):
+        if t < blocks[j, B_START] + blocks[j, B_CYCLES] / blocks[j, B_FREQUENCY]:
+            i = j
+            break
+    f = blocks[i, B_FREQUENCY]
+    cycles = blocks[i, B_CYCLES]
+    tau = (t - blocks[i, B_START]) * f  # time in cycles within the block
+    if tau > cycles:
+        tau = cycles
+    taper = blocks[i, B_TAPER]
+    if taper > 0.0:
+        up, dup = _raised_cosine(tau / taper)
+        down, ddown = _raised_cosine((cycles - tau) / taper)
+        env = up * down
+        denv = (dup * down - up * ddown) * f / taper
+    else:
+        env, denv = 1.0, 0.0
+    omega = 2.0 * np.pi * f
+    phase = omega * (t - blocks[i, B_START])
+    amp = blocks[i, B_AMPLITUDE]
+    r = amp * env * np.sin(phase)
+    rdot = amp * (denv * np.sin(phase) + env * omega * np.cos(phase))
+    # offset: approached over the first cycle of the first block, then held
+    f0 = blocks[0, B_FREQUENCY]
+    ramp, dramp = _raised_cosine(t * f0)
+    r += blocks[0, B_OFFSET] * ramp
+    rdot += blocks[0, B_OFFSET] * dramp * f0
+    return r, rdot
+
+
+def target_series(blocks: np.ndarray, t_s: np.ndarray) -> np.ndarray:
+    return np.array([target(t, blocks)[0] for t in np.asarray(t_s, float)])
+
+
+def _number(field, value, lo, hi, unit, integer=False):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ProfileError(field, value, f"a finite number in [{lo:g}, {hi:g}] {unit}",
+                           f"{field} = {value!r} is not a finite number (unit {unit})")
+    if integer and float(value) != int(value):
+        raise ProfileError(field, value, "a whole number", f"{field} = {value!r} must be a whole number")
+    if not (lo <= value <= hi):
+        raise ProfileError(field, value, f"[{lo:g}, {hi:g}] {unit}",
+                           f"{field} = {value:g} {unit} is outside the allowed range [{lo:g}, {hi:g}] {unit}")
+
+
+def check_supply(supply_pa: float, rig: RigParameters) -> None:
+    lo, hi = rig.min_supply_pa / BAR_PA, rig.max_supply_pa / BAR_PA
+    value = supply_pa / BAR_PA if isinstance(supply_pa, (int, float)) else supply_pa
+    _number("supply_bar", value, lo, hi, "bar")
+
+
+def envelope_problem(block: SineProfile, rig: RigParameters, isolator: Isolator, supply_pa: float):
+    """The first envelope limit a sine block violates, as a ProfileError, or None.
+
+    Limits: stroke; pump flow A_p * 2 pi f A <= Q_pump; force kd A + kw + friction + viscous and
+    inertial forces <= A_p P_s; valve flow capacity at the load pressure of the peak-velocity point.
+    """
+    a, f = block.amplitude_m, block.frequency_hz
+    reach = abs(block.offset_m) + a
+    if reach > rig.stroke_m:
+        return ProfileError("amplitude_m", a, f"|offset_m| + amplitude_m <= stroke {rig.stroke_m:g} m",
+                            f"amplitude_m = {a:g} m with offset_m = {block.offset_m:g} m reaches {reach:g} m, "
+                            f"beyond the rig's stroke of +-{rig.stroke_m:g} m")
+    omega = 2 * math.pi * f
+    v_peak = omega * a
+    flow = rig.piston_area_m2 * v_peak
+    if flow > rig.pump_max_flow_m3_per_s:
+        f_max = rig.pump_max_flow_m3_per_s / (rig.piston_area_m2 * 2 * math.pi * a)
+        return ProfileError("frequency_hz", f, f"pump flow {rig.pump_max_flow_m3_per_s / LITRE_PER_MIN_M3_S:.0f} l/min",
+                            f"peak flow demand {flow / LITRE_PER_MIN_M3_S:.0f} l/min (amplitude_m = {a:g} m at "
+                            f"frequency_hz = {f:g} Hz) exceeds the pump's "
+                            f"{rig.pump_max_flow_m3_per_s / LITRE_PER_MIN_M3_S:.0f} l/min; at this amplitude "
+                            f"frequency_hz must be <= {f_max:.3g} Hz")
+    force = (isolator.peak_force_n(a) + rig.friction_force_n + rig.viscous_n_s_per_m * v_peak
+             + rig.mass_kg * omega ** 2 * a)
+    f_max = rig.max_force_n(supply_pa)
+    if force > f_max:
+        return ProfileError("amplitude_m", a, f"A_p P_s = {f_max:.4g} N",
+                            f"the test needs up to {force:.4g} N (isolator {isolator.name} at amplitude_m = {a:g} m) "
+                            f"but the rig can push at most A_p P_s = {f_max:.4g} N at {supply_pa / BAR_PA:g} bar; "
+                            f"lower the amplitude or raise supply_bar")
+    # valve capacity where the velocity peaks (d = 0): load pressure from hysteretic + friction forces
+    p_load = (isolator.kw_n + rig.friction_force_n + rig.viscous_n_s_per_m * v_peak) / rig.piston_area_m2
+    opening = rig.driver_gain_positive * rig.command_limit_v - rig.dead_zone_v
+    dp = max(supply_pa - p_load, 0.0)
+    valve_flow = rig.flow_gain_m3_per_s_v_sqrt_pa * opening * math.sqrt(dp)
+    if flow > 0.9 * valve_flow:
+        capacity = f"90 % of the valve capacity {valve_flow / LITRE_PER_MIN_M3_S:.0f} l/min"
+        return ProfileError("frequency_hz", f, capacity,
+                            f"peak flow demand {flow / LITRE_PER_MIN_M3_S:.0f} l/min exceeds 90 % of what the valve "
+                            f"passes at {supply_pa / BAR_PA:g} bar ({valve_flow / LITRE_PER_MIN_M3_S:.0f} l/min); "
+                            f"lower amplitude_m or frequency_hz, or raise supply_bar")
+    return None
+
+
+def validate_profile(blocks: list[SineProfile], rig: RigParameters, isolator: Isolator, supply_pa: float) -> None:
+    """Raise ProfileError if any block is malformed or outside the envelope (before anything runs)."""
+    check_supply(supply_pa, rig)
+    if not blocks:
+        raise ProfileError("profile", [], "at least one block", "the profile has no sine block")
+    for b in blocks:
+        _number("amplitude_m", b.amplitude_m, 1e-5, rig.stroke_m, "m")
+        _number("frequency_hz", b.frequency_hz, 1e-3, MAX_FREQUENCY_HZ, "Hz")
+        _number("cycles", b.cycles, 1, MAX_CYCLES, "cycles", integer=True)
+        _number("taper_cycles", b.taper_cycles, 0, MAX_CYCLES, "cycles", integer=True)
+        _number("offset_m", b.offset_m, -rig.stroke_m, rig.stroke_m, "m")
+        if 2 * b.taper_cycles > b.cycles:
+            raise ProfileError("taper_cycles", b.taper_cycles, f"<= cycles / 2 = {b.cycles / 2:g}",
+                               f"taper_cycles = {b.taper_cycles} ramps in and out, so it must be at most half of "
+                               f"cycles = {b.cycles}")
+        problem = envelope_problem(b, rig, isolator, supply_pa)
+        if problem is not None:
+            raise problem
+
+
+def max_amplitude_m(frequency_hz: float, rig: RigParameters, isolator: Isolator, supply_pa: float) -> float:
+    """Largest amplitude the envelope allows at this frequency (bisection on envelope_problem)."""
+    lo, hi = 0.0, rig.stroke_m
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        if envelope_problem(SineProfile(mid, frequency_hz, 1, 0), rig, isolator, supply_pa) is None:
+            lo = mid
+        else:
+            hi = mid
+    return lo

@@ -1,0 +1,223 @@
+"""The test rig: fifth-order model of the paper, eqs. (1)-(3), its parameters and its envelope.
+
+State x = [y, y', P_L, v_e, v_e', w]:
+
+    m y'' + (mu N + F_c) sgn(y') + sigma y' + F_BW = A_p P_L               (3), first line
+    V_0 / (2 beta) P_L' = -A_p y' + K_q DZ(v_e) sqrt(P_s - sgn(v_e) P_L)   (3), second line
+    v_e'' = -w_mv^2 v_e - 2 xi_v w_mv v_e' + w_mv^2 v_c                    (3), third line
+    v_c = k_ep u + v_e0 (u > 0),  v_e0 (u = 0),  k_en u + v_e0 (u < 0)     (2)
+
+plus the Bouc-Wen variable w of eq. (4). Three additions keep the model physical and defined, each
+documented where it lives: a stick band for the friction (the table can rest), the valve flow gain
+K_q written explicitly (the paper folds it into DZ), and a regularised orifice law below a small
+pressure drop (the square root has infinite slope at 0 and is undefined below it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields, replace
+
+import numpy as np
+from numba import njit
+
+from .isolator import Isolator, bouc_wen_rate
+
+BAR_PA = 1.0e5
+LITRE_PER_MIN_M3_S = 1.0e-3 / 60.0
+
+
+def _p(value, unit, origin, note):
+    return field(default=value, metadata={"unit": unit, "origin": origin, "note": note})
+
+
+@dataclass(frozen=True)
+class RigParameters:
+    """Every rig parameter in one place, with unit and origin (paper / calibrated / assumed)."""
+
+    mass_kg: float = _p(1200.0, "kg", "assumed", "table, rod and part of the isolator (rig-notes)")
+    friction_coefficient: float = _p(0.015, "-", "assumed", "mu of the linear guides, eq. (1)")
+    vertical_load_n: float = _p(1.25e5, "N", "paper", "vertical load on the specimen, section V")
+    coulomb_force_n: float = _p(1500.0, "N", "assumed", "F_c, seal friction, eq. (1)")
+    viscous_n_s_per_m: float = _p(2.0e4, "N s/m", "assumed", "sigma, viscous friction, eq. (1)")
+    piston_area_m2: float = _p(0.01435, "m2", "calibrated", "A_p, static balance of the step tests")
+    half_volume_m3: float = _p(2.5e-3, "m3", "assumed", "V_0, oil volume per side at mid-stroke")
+    bulk_modulus_pa: float = _p(1.0e9, "Pa", "assumed", "beta, effective with hoses")
+    flow_gain_m3_per_s_v_sqrt_pa: float = _p(2.63e-7, "m3/(s V sqrt(Pa))", "calibrated", "K_q inside DZ(v_e)")
+    dead_zone_v: float = _p(0.84, "V", "calibrated", "half width of DZ(v_e), spool overlap")
+    valve_natural_frequency_rad_s: float = _p(2 * np.pi * 40.0, "rad/s", "assumed", "omega_mv, eq. (3)")
+    valve_damping_ratio: float = _p(0.7, "-", "assumed", "xi_v, eq. (3)")
+    driver_gain_positive: float = _p(1.0, "V/V", "assumed", "k_ep, eq. (2)")
+    driver_gain_negative: float = _p(1.0, "V/V", "assumed", "k_en, eq. (2)")
+    driver_offset_v: float = _p(0.02, "V", "assumed", "v_e0, eq. (2), valve null offset")
+    orifice_regularisation_pa: float = _p(6.8e5, "Pa", "assumed", "sqrt(dp) linear below this drop")
+    stick_velocity_m_per_s: float = _p(1.0e-4, "m/s", "assumed", "below this speed static friction may hold")
+    stick_time_constant_s: float = _p(1.0e-3, "s", "assumed", "how fast a held table comes to rest")
+    stroke_m: float = _p(0.15, "m", "assumed", "half stroke: |y| must stay below this")
+    pump_max_flow_m3_per_s: float = _p(313.0 * LITRE_PER_MIN_M3_S, "m3/s", "paper", "pump, 313 l/min")
+    max_supply_pa: float = _p(210.0 * BAR_PA, "Pa", "paper", "pump and relief valve, 210 bar")
+    min_supply_pa: float = _p(10.0 * BAR_PA, "Pa", "assumed", "below this the valve law is not meaningful")
+    command_limit_v: float = _p(10.0, "V", "paper", "valve command saturation +-10 V")
+
+    @property
+    def friction_force_n(self) -> float:
+        """mu N + F_c of eq. (1)."""
+        return self.friction_coefficient * self.vertical_load_n + self.coulomb_force_n
+
+    def max_force_n(self, supply_pa: float) -> float:
+        """The largest force the cylinder can push: A_p P_s."""
+        return self.piston_area_m2 * supply_pa
+
+    def with_changes(self, **changes) -> RigParameters:
+        return replace(self, **changes)
+
+    def describe(self) -> list[dict]:
+        """Each parameter with its value, unit, origin and note (for docs, API and reports)."""
+        return [
+            {"name": f.name, "value": getattr(self, f.name), **f.metadata}
+            for f in fields(self)
+        ]
+
+
+DEFAULT_RIG = RigParameters()
+
+# Packed parameter vector for the compiled right-hand side (indices are compile-time constants).
+P_MASS, P_FRICTION, P_VISCOUS, P_AREA, P_VOLUME, P_BETA, P_KQ, P_DZ = range(8)
+P_WV, P_XIV, P_KEP, P_KEN, P_VE0, P_DPREG, P_VSTICK, P_TSTICK = range(8, 16)
+P_SUPPLY, P_RHO, P_SIGMA, P_N, P_KD, P_KW, P_ULIM = range(16, 23)
+N_PLANT_PARAMS = 23
+
+# State indices.
+X_Y, X_V, X_PL, X_VE, X_VED, X_W = range(6)
+N_STATES = 6
+
+
+def pack_plant(rig: RigParameters, isolator: Isolator, supply_pa: float) -> np.ndarray:
+    """Parameter vector of the rig with one isolator at one supply pressure."""
+    p = np.empty(N_PLANT_PARAMS)
+    p[P_MASS] = rig.mass_kg
+    p[P_FRICTION] = rig.friction_force_n
+    p[P_VISCOUS] = rig.viscous_n_s_per_m
+    p[P_AREA] = rig.piston_area_m2
+    p[P_VOLUME] = rig.half_volume_m3
+    p[P_BETA] = rig.bulk_modulus_pa
+    p[P_KQ] = rig.flow_gain_m3_per_s_v_sqrt_pa
+    p[P_DZ] = rig.dead_zone_v
+    p[P_WV] = rig.valve_natural_frequency_rad_s
+    p[P_XIV] = rig.valve_damping_ratio
+    p[P_KEP] = rig.driver_gain_positive
+    p[P_KEN] = rig.driver_gain_negative
+    p[P_VE0] = rig.driver_offset_v
+    p[P_DPREG] = rig.orifice_regularisation_pa
+    p[P_VSTICK] = rig.stick_velocity_m_per_s
+    p[P_TSTICK] = rig.stick_time_constant_s
+    p[P_SUPPLY] = supply_pa
+    p[P_RHO] = isolator.rho_bw_per_m
+    p[P_SIGMA] = isolator.sigma_bw
+    p[P_N] = isolator.n
+    p[P_KD] = isolator.kd_n_per_m
+    p[P_KW] = isolator.kw_n
+    p[P_ULIM] = rig.command_limit_v
+    return p
+
+
+@njit(cache=True)
+def valve_command(u, p):
+    """v_c from the control action u, eq. (2)."""
+    if u > 0.0:
+        return p[P_KEP] * u + p[P_VE0]
+    if u < 0.0:
+        return p[P_KEN] * u + p[P_VE0]
+    return p[P_VE0]
+
+
+@njit(cache=True)
+def dead_zone(v, width):
+    """DZ(v_e): zero inside +-width, shifted linear outside."""
+    if v > width:
+        return v - width
+    if v < -width:
+        return v + width
+    return 0.0
+
+
+@njit(cache=True)
+def regularised_sqrt(dp, dp_reg):
+    """sqrt(dp) above dp_reg, the secant line dp / sqrt(dp_reg) below it (continuous, odd for dp < 0).
+
+    Below dp_reg the orifice is treated as laminar: this removes the infinite slope at dp = 0
+    and keeps the flow defined (and reversing) when the pressure drop is zero or negative.
+    """
+    if dp >= dp_reg:
+        return np.sqrt(dp)
+    return dp / np.sqrt(dp_reg)
+
+
+@njit(cache=True)
+def load_flow(v_e, p_load, p):
+    """Q_L = K_q DZ(v_e) sqrt(P_s - sgn(v_e) P_L), eq. (3), second line, in m3/s."""
+    opening = dead_zone(v_e, p[P_DZ])
+    if opening == 0.0:
+        return 0.0
+    sgn = 1.0 if v_e > 0.0 else -1.0
+    return p[P_KQ] * opening * regularised_sqrt(p[P_SUPPLY] - sgn * p_load, p[P_DPREG])
+
+
+@njit(cache=True)
+def table_acceleration(v, net_force, p):
+    """y'' from eq. (3), first line, with Coulomb friction and a stick band.
+
+    ``net_force`` is A_p P_L - F_BW - sigma y'. Outside the stick band the friction is
+    (mu N + F_c) sgn(y'). Inside it (|y'| < v_stick), static friction holds the table when
+    |net_force| does not exceed mu N + F_c, and the residual speed decays with time constant
+    t_stick; otherwise the table breaks away in the direction of the net force.
+    """
+    friction = p[P_FRICTION]
+    if abs(v) < p[P_VSTICK]:
+        if abs(net_force) <= friction:
+            return -v / p[P_TSTICK]
+        direction = 1.0 if net_force > 0.0 else -1.0
+        return (net_force - friction * direction) / p[P_MASS]
+    direction = 1.0 if v > 0.0 else -1.0
+    return (net_force - friction * direction) / p[P_MASS]
+
+
+@njit(cache=True)
+def rig_derivatives(x, v_c, p, dx):
+    """Right-hand side of eq. (3) with eq. (4) for the isolator; writes dx."""
+    y = x[X_Y]
+    v = x[X_V]
+    p_load = x[X_PL]
+    f_bw = p[P_KD] * y + p[P_KW] * x[X_W]
+    net = p[P_AREA] * p_load - f_bw - p[P_VISCOUS] * v
+    dx[X_Y] = v
+    dx[X_V] = table_acceleration(v, net, p)
+    q = load_flow(x[X_VE], p_load, p)
+    dx[X_PL] = 2.0 * p[P_BETA] / p[P_VOLUME] * (-p[P_AREA] * v + q)
+    wv = p[P_WV]
+    dx[X_VE] = x[X_VED]
+    dx[X_VED] = -wv * wv * x[X_VE] - 2.0 * p[P_XIV] * wv * x[X_VED] + wv * wv * v_c
+    dx[X_W] = bouc_wen_rate(x[X_W], v, p[P_RHO], p[P_SIGMA], p[P_N])
+
+
+@njit(cache=True)
+def rk4_step(x, v_c, p, h, k1, k2, k3, k4, tmp):
+    """One classical Runge-Kutta step of length h with v_c held (zero-order hold); in place."""
+    rig_derivatives(x, v_c, p, k1)
+    for i in range(N_STATES):
+        tmp[i] = x[i] + 0.5 * h * k1[i]
+    rig_derivatives(tmp, v_c, p, k2)
+    for i in range(N_STATES):
+        tmp[i] = x[i] + 0.5 * h * k2[i]
+    rig_derivatives(tmp, v_c, p, k3)
+    for i in range(N_STATES):
+        tmp[i] = x[i] + h * k3[i]
+    rig_derivatives(tmp, v_c, p, k4)
+    for i in range(N_STATES):
+        x[i] += h * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]) / 6.0
+
+
+def rig_derivatives_py(t, x, v_c, p):
+    """Python wrapper of rig_derivatives for scipy integrators (t unused: the model is autonomous)."""
+    dx = np.empty(N_STATES)
+    rig_derivatives(np.asarray(x, dtype=np.float64), v_c, p, dx)
+    return dx

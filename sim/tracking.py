@@ -1,0 +1,86 @@
+"""Tracking quality of a closed-loop run: per-cycle errors, fitted-sine amplitude and phase, saturation."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .rig import LITRE_PER_MIN_M3_S
+
+
+def cycle_windows(scenario) -> list[tuple[int, int, int, float]]:
+    """(block index, first sample, end sample, frequency) of every target cycle, from the profile."""
+    from .engine import CONTROL_PERIOD_S
+
+    windows = []
+    start = 0.0
+    for b_index, block in enumerate(scenario.profile):
+        period = 1.0 / block.frequency_hz
+        for c in range(block.cycles):
+            t0 = start + c * period
+            windows.append((b_index, int(round(t0 / CONTROL_PERIOD_S)),
+                            int(round((t0 + period) / CONTROL_PERIOD_S)), block.frequency_hz))
+        start += block.cycles * period
+    return windows
+
+
+def fitted_sine(t: np.ndarray, y: np.ndarray, frequency_hz: float) -> tuple[float, float]:
+    """Least-squares amplitude and phase (rad) of y ~ c + A sin(2 pi f t + phi)."""
+    w = 2 * math.pi * frequency_hz
+    basis = np.column_stack([np.sin(w * t), np.cos(w * t), np.ones_like(t)])
+    (a, b, _), *_ = np.linalg.lstsq(basis, y, rcond=None)
+    return math.hypot(a, b), math.atan2(b, a)
+
+
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(x * x))) if x.size else float("nan")
+
+
+def tracking_summary(samples: np.ndarray, scenario) -> dict:
+    """Per-cycle RMS of y - y_m and y - r, and figures over the last two full-amplitude cycles."""
+    from .engine import C_FLOW, C_MODEL, C_TARGET, C_TIME, C_U, C_URAW, C_Y
+
+    n = samples.shape[0]
+    limit = scenario.rig.command_limit_v
+    per_cycle = []
+    windows = cycle_windows(scenario)
+    for number, (b_index, i0, i1, _f) in enumerate(windows, start=1):
+        if i1 > n:
+            break
+        seg = samples[i0:i1]
+        e_model = seg[:, C_Y] - seg[:, C_MODEL]
+        e_target = seg[:, C_Y] - seg[:, C_TARGET]
+        per_cycle.append({
+            "cycle": number,
+            "block": b_index,
+            "rms_y_minus_ym_m": _rms(e_model) if np.all(np.isfinite(e_model)) else None,
+            "rms_y_minus_r_m": _rms(e_target),
+            "peak_abs_y_minus_r_m": float(np.max(np.abs(e_target))),
+        })
+    finite = bool(np.all(np.isfinite(samples[:, [C_Y, C_U, C_TARGET]])))
+    summary = {
+        "samples": n,
+        "all_finite": finite,
+        "saturated_share": float(np.mean(np.abs(samples[:, C_URAW]) >= limit)) if n else 0.0,
+        "peak_flow_l_per_min": float(np.max(np.abs(samples[:, C_FLOW])) / LITRE_PER_MIN_M3_S) if n else 0.0,
+        "rms_y_minus_r_m": _rms(samples[:, C_Y] - samples[:, C_TARGET]),
+        "cycles": per_cycle,
+    }
+    # last two cycles at full amplitude (outside the taper) of the last block
+    block = scenario.profile[-1]
+    last_block = [w for w in windows if w[0] == len(scenario.profile) - 1]
+    full = last_block[block.taper_cycles:block.cycles - block.taper_cycles]
+    if len(full) >= 2 and full[-1][2] <= n:
+        seg = samples[full[-2][1]:full[-1][2]]
+        amp_y, ph_y = fitted_sine(seg[:, C_TIME], seg[:, C_Y], block.frequency_hz)
+        amp_r, ph_r = fitted_sine(seg[:, C_TIME], seg[:, C_TARGET], block.frequency_hz)
+        dphi = math.degrees(math.atan2(math.sin(ph_y - ph_r), math.cos(ph_y - ph_r)))
+        e = seg[:, C_Y] - seg[:, C_TARGET]
+        summary["last_two_cycles"] = {
+            "rms_y_minus_r_m": _rms(e),
+            "rms_y_minus_r_over_amplitude": _rms(e) / block.amplitude_m,
+            "amplitude_error": amp_y / amp_r - 1.0,
+            "phase_error_deg": dphi,
+        }
+    return summary

@@ -1,0 +1,65 @@
+import csv
+import json
+import subprocess
+import sys
+
+import pytest
+
+from isorig.cli import main
+from sim.engine import CSV_COLUMNS
+
+
+def test_simulate_writes_csv_and_summary(tmp_path):
+    rc = main(["simulate", "--isolator", "IUT_b", "--supply-bar", "70", "--amplitude-m", "0.03",
+               "--frequency-hz", "1", "--cycles", "3", "--out", str(tmp_path)])
+    assert rc == 0
+    with open(tmp_path / "timeseries.csv") as fh:
+        rows = list(csv.reader(fh))
+    assert tuple(rows[0]) == CSV_COLUMNS
+    assert len(rows) == 1 + 3000
+    assert float(rows[2][0]) == pytest.approx(0.001)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["scenario"]["isolator"]["name"] == "IUT_b"
+    assert summary["all_finite"] is True
+    assert len(summary["cycles"]) == 3
+
+
+def test_pid_leaves_adapted_columns_empty(tmp_path):
+    assert main(["simulate", "--controller", "pid", "--cycles", "2", "--out", str(tmp_path)]) == 0
+    with open(tmp_path / "timeseries.csv") as fh:
+        row = list(csv.DictReader(fh))[100]
+    assert row["ar_hat"] == "" and row["model_m"] == "" and row["displacement_m"] != ""
+
+
+def test_user_isolator_file(tmp_path):
+    iso = tmp_path / "iso.json"
+    iso.write_text(json.dumps({"name": "mine", "rho_bw_per_m": 120, "sigma_bw": 0.5, "n": 1,
+                               "kd_n_per_m": 8e5, "kw_n": 1e4}))
+    assert main(["simulate", "--isolator", str(iso), "--cycles", "2", "--out", str(tmp_path / "o")]) == 0
+
+
+@pytest.mark.parametrize("args, words", [
+    (["simulate", "--out", "x", "--supply-bar", "abc"], "--supply-bar"),
+    (["simulate", "--out", "x", "--amplitude-m", "0.1"], "frequency_hz"),
+    (["simulate", "--out", "x", "--supply-bar", "300"], "supply_bar"),
+    (["simulate", "--out", "x", "--isolator", "nope"], "unknown isolator"),
+    (["simulate", "--out", "x", "--controller", "lqr"], "--controller"),
+    (["simulate"], "--out"),
+    (["frobnicate"], "invalid choice"),
+])
+def test_bad_arguments_exit_2_with_one_line(args, words, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    proc = subprocess.run([sys.executable, "-m", "isorig", *args], capture_output=True, text=True)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert words in lines[0]
+    assert "Traceback" not in proc.stderr
+
+
+def test_bench_json_short(capsys):
+    assert main(["bench", "--json", "--duration-s", "0.3"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert set(out) == {"engine_rtf", "solve_ivp_rtf", "speedup", "max_abs_dy_m"}
+    assert out["max_abs_dy_m"] < 1e-5
+    assert out["speedup"] > 1
