@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from .controllers import Controller, controller_step, make_controller
+from .controllers import DEFAULT_CONTROLLER, Controller, controller_step, make_controller
 from .controllers.base import (
     M_LOAD_PRESSURE,
     M_POSITION,
@@ -71,14 +71,14 @@ class Scenario:
     isolator: Isolator
     supply_pa: float
     profile: list[SineProfile]
-    controller: str = "mrac"
+    controller: str = DEFAULT_CONTROLLER
     controller_options: dict = field(default_factory=dict)
     rig: RigParameters = DEFAULT_RIG
     label: str = ""
 
     @classmethod
     def sine(cls, isolator: str | Isolator, supply_bar: float, amplitude_m: float, frequency_hz: float,
-             cycles: int, controller: str = "mrac", taper_cycles: int = 1, offset_m: float = 0.0,
+             cycles: int, controller: str = DEFAULT_CONTROLLER, taper_cycles: int = 1, offset_m: float = 0.0,
              **kwargs) -> Scenario:
         iso = isolator if isinstance(isolator, Isolator) else load_isolator(isolator)
         prof = SineProfile(amplitude_m, frequency_hz, cycles, taper_cycles, offset_m)

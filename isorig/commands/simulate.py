@@ -10,7 +10,7 @@ from isorig.cli import Progress, UsageError, whole_number
 
 
 def register(sub) -> None:
-    from sim.controllers import CONTROLLER_NAMES
+    from sim.controllers import CONTROLLER_NAMES, DEFAULT_CONTROLLER
     from sim.isolator import PRESETS
 
     p = sub.add_parser("simulate", help="run one closed-loop test on the simulated rig")
@@ -22,7 +22,8 @@ def register(sub) -> None:
     p.add_argument("--cycles", type=whole_number, default=30, help="number of cycles (default 30)")
     p.add_argument("--taper-cycles", type=whole_number, default=1, help="ramp-in/out cycles (default 1)")
     p.add_argument("--offset-m", type=float, default=0.0, help="mean displacement in m (default 0)")
-    p.add_argument("--controller", choices=CONTROLLER_NAMES, default="mrac")
+    p.add_argument("--controller", choices=CONTROLLER_NAMES, default=DEFAULT_CONTROLLER,
+                   help=f"controller (default {DEFAULT_CONTROLLER})")
     p.add_argument("--out", required=True, help="output directory for timeseries.csv and summary.json")
     p.set_defaults(func=run)
 

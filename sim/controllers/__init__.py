@@ -11,6 +11,7 @@ from .pid import make_pid, pid_step
 
 FACTORIES = {"mrac": make_mrac, "pid": make_pid}
 CONTROLLER_NAMES = tuple(FACTORIES)
+DEFAULT_CONTROLLER = "mrac"  # what `isorig simulate` and the dashboard use when none is chosen
 
 
 def make_controller(name: str, **options) -> Controller:
