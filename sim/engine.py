@@ -165,7 +165,8 @@ def run_periods(x, plant, kind, cparams, cstate, blocks, k0, n, substeps, dt, ou
 class Simulation:
     """A scenario in progress; ``advance`` runs it forward in chunks and returns the new samples."""
 
-    def __init__(self, scenario: Scenario, validate: bool = True, controller: Controller | None = None):
+    def __init__(self, scenario: Scenario, validate: bool = True, controller: Controller | None = None,
+                 plant_substeps: int = PLANT_SUBSTEPS):
         if validate:
             scenario.validate()
         self.scenario = scenario
@@ -177,6 +178,7 @@ class Simulation:
         self.period = 0
         self.total_periods = scenario.n_periods
         self.diverged = False
+        self.plant_substeps = plant_substeps
 
     @property
     def done(self) -> bool:
@@ -193,7 +195,7 @@ class Simulation:
             return np.empty((0, len(COLUMNS)))
         out = np.empty((n, len(COLUMNS)))
         written = run_periods(self.state, self.plant, self.controller.kind, self.controller.params,
-                              self.controller_state, self.blocks, self.period, n, PLANT_SUBSTEPS,
+                              self.controller_state, self.blocks, self.period, n, self.plant_substeps,
                               CONTROL_PERIOD_S, out)
         self.period += written
         if written < n:
