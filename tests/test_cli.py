@@ -63,3 +63,18 @@ def test_bench_json_short(capsys):
     assert set(out) == {"engine_rtf", "solve_ivp_rtf", "speedup", "max_abs_dy_m"}
     assert out["max_abs_dy_m"] < 1e-5
     assert out["speedup"] > 1
+
+
+def test_controller_option_reaches_the_controller(tmp_path):
+    base = ["simulate", "--cycles", "3", "--frequency-hz", "1"]
+    assert main([*base, "--out", str(tmp_path / "lit")]) == 0
+    assert main([*base, "--controller-option", "dimensionless_as=true", "--out", str(tmp_path / "dim")]) == 0
+    lit = json.loads((tmp_path / "lit" / "summary.json").read_text())
+    dim = json.loads((tmp_path / "dim" / "summary.json").read_text())
+    assert lit["scenario"]["controller_options"] == {}
+    assert dim["scenario"]["controller_options"] == {"dimensionless_as": True}
+    assert lit["rms_y_minus_r_m"] != dim["rms_y_minus_r_m"]
+
+
+def test_bad_controller_option_is_one_line(tmp_path):
+    assert main(["simulate", "--controller-option", "gama=3", "--out", str(tmp_path)]) == 2

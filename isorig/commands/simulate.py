@@ -24,8 +24,25 @@ def register(sub) -> None:
     p.add_argument("--offset-m", type=float, default=0.0, help="mean displacement in m (default 0)")
     p.add_argument("--controller", choices=CONTROLLER_NAMES, default=DEFAULT_CONTROLLER,
                    help=f"controller (default {DEFAULT_CONTROLLER})")
+    p.add_argument("--controller-option", action="append", default=[], metavar="NAME=VALUE", type=option_pair,
+                   help="override a controller default, e.g. dimensionless_as=true or gamma=5e4 (repeatable)")
     p.add_argument("--out", required=True, help="output directory for timeseries.csv and summary.json")
     p.set_defaults(func=run)
+
+
+def option_pair(text: str) -> tuple[str, float | bool]:
+    """NAME=VALUE with a number or true/false."""
+    import argparse
+
+    name, sep, raw = text.partition("=")
+    if not sep or not name:
+        raise argparse.ArgumentTypeError(f"{text!r} is not NAME=VALUE")
+    if raw.lower() in ("true", "false"):
+        return name, raw.lower() == "true"
+    try:
+        return name, float(raw)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"value of {name!r} must be a number or true/false, not {raw!r}") from None
 
 
 def run(args) -> int:
@@ -33,7 +50,8 @@ def run(args) -> int:
     from sim.records import write_csv
 
     scenario = Scenario.sine(args.isolator, args.supply_bar, args.amplitude_m, args.frequency_hz, args.cycles,
-                             controller=args.controller, taper_cycles=args.taper_cycles, offset_m=args.offset_m)
+                             controller=args.controller, taper_cycles=args.taper_cycles, offset_m=args.offset_m,
+                             controller_options=dict(args.controller_option))
     scenario.validate()
     out = Path(args.out)
     try:
