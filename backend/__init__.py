@@ -1,0 +1,1 @@
+"""isorig backend: the FastAPI service that runs rig tests in a worker process, streams them and stores them."""

@@ -1,0 +1,107 @@
+"""Database tables (SQLAlchemy 2): tests, sample chunks, cycles, events (audit log), user isolators.
+
+Samples are stored in compressed chunks of about one second (see backend.codec), never one row per sample.
+Events keep a plain ``test_id`` (no foreign key) so the audit log outlives a deleted test.
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+
+from sqlalchemy import JSON, DateTime, Float, ForeignKey, Integer, LargeBinary, String, Text
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
+
+STATUSES = ("ready", "running", "completed", "stopped", "aborted", "interrupted", "failed")
+FINAL_STATUSES = ("completed", "stopped", "aborted", "interrupted", "failed")
+
+
+def utcnow() -> datetime:
+    return datetime.now(UTC)
+
+
+class Base(DeclarativeBase):
+    pass
+
+
+class TestRecord(Base):
+    __tablename__ = "tests"
+    __test__ = False  # not a pytest test class
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow, index=True)
+    started_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    ended_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    status: Mapped[str] = mapped_column(String(16), default="ready", index=True)
+    reason: Mapped[str | None] = mapped_column(Text)
+    label: Mapped[str] = mapped_column(String(200), default="")
+    isolator: Mapped[str] = mapped_column(String(64), index=True)
+    supply_bar: Mapped[float] = mapped_column(Float)
+    controller: Mapped[str] = mapped_column(String(32))
+    speed: Mapped[float] = mapped_column(Float, default=1.0)
+    driver: Mapped[str] = mapped_column(String(32), default="simulated")
+    request: Mapped[dict] = mapped_column(JSON)  # the POST body as accepted
+    scenario: Mapped[dict] = mapped_column(JSON)  # sim.engine.Scenario.describe()
+    limits: Mapped[dict] = mapped_column(JSON)  # safety limits in force
+    duration_s: Mapped[float] = mapped_column(Float)
+    cycles_total: Mapped[int] = mapped_column(Integer)
+    samples_stored: Mapped[int] = mapped_column(Integer, default=0)
+    time_s: Mapped[float] = mapped_column(Float, default=0.0)  # last stored sample time
+    summary: Mapped[dict | None] = mapped_column(JSON)
+
+    chunks: Mapped[list[SampleChunk]] = relationship(back_populates="test", cascade="all, delete-orphan",
+                                                     passive_deletes=True)
+    cycles: Mapped[list[CycleRecord]] = relationship(back_populates="test", cascade="all, delete-orphan",
+                                                     passive_deletes=True)
+
+
+class SampleChunk(Base):
+    __tablename__ = "sample_chunks"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    test_id: Mapped[int] = mapped_column(ForeignKey("tests.id", ondelete="CASCADE"), index=True)
+    seq: Mapped[int] = mapped_column(Integer)
+    t0_s: Mapped[float] = mapped_column(Float)
+    n_rows: Mapped[int] = mapped_column(Integer)
+    n_columns: Mapped[int] = mapped_column(Integer)
+    codec: Mapped[str] = mapped_column(String(32))
+    data: Mapped[bytes] = mapped_column(LargeBinary)
+
+    test: Mapped[TestRecord] = relationship(back_populates="chunks")
+
+
+class CycleRecord(Base):
+    __tablename__ = "cycles"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    test_id: Mapped[int] = mapped_column(ForeignKey("tests.id", ondelete="CASCADE"), index=True)
+    cycle: Mapped[int] = mapped_column(Integer)  # 1-based
+    block: Mapped[int] = mapped_column(Integer, default=0)
+    t_start_s: Mapped[float] = mapped_column(Float)
+    t_end_s: Mapped[float] = mapped_column(Float)
+    metrics: Mapped[dict] = mapped_column(JSON)
+    n_points: Mapped[int] = mapped_column(Integer)
+    codec: Mapped[str] = mapped_column(String(32))
+    loop_data: Mapped[bytes] = mapped_column(LargeBinary)  # displacement_m and force_n arrays
+
+    test: Mapped[TestRecord] = relationship(back_populates="cycles")
+
+
+class EventRecord(Base):
+    __tablename__ = "events"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    test_id: Mapped[int | None] = mapped_column(Integer, index=True)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow, index=True)
+    time_s: Mapped[float | None] = mapped_column(Float)  # test time, when it concerns a running test
+    kind: Mapped[str] = mapped_column(String(32))  # limit_trip | operator | status
+    actor: Mapped[str] = mapped_column(String(64), default="system")
+    message: Mapped[str] = mapped_column(Text)
+    values: Mapped[dict] = mapped_column(JSON, default=dict)
+
+
+class UserIsolator(Base):
+    __tablename__ = "user_isolators"
+
+    name: Mapped[str] = mapped_column(String(64), primary_key=True)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+    definition: Mapped[dict] = mapped_column(JSON)

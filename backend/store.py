@@ -1,0 +1,252 @@
+"""All database access in one place: test records, sample chunks, cycles, events, user isolators.
+
+``load_test_bundle(session, test_id)`` is the contract with reports (docs/architecture.md): the record as
+``GET /api/tests/{id}`` returns it, the samples in the engine's COLUMNS layout, the cycles with their loop
+arrays and the events.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+
+import numpy as np
+from sqlalchemy import delete, func, select
+from sqlalchemy.orm import Session
+
+from .codec import ARRAYS_CODEC, SAMPLES_CODEC, decode_arrays, decode_samples, encode_arrays, encode_samples
+from .models import CycleRecord, EventRecord, SampleChunk, TestRecord, UserIsolator, utcnow
+
+
+@dataclass
+class TestBundle:
+    """Everything stored about one test (see docs/architecture.md, "Store bundle")."""
+
+    __test__ = False
+
+    record: dict
+    samples: np.ndarray
+    cycles: list[dict] = field(default_factory=list)
+    events: list[dict] = field(default_factory=list)
+
+
+def _iso(value: datetime | None) -> str | None:
+    """ISO 8601 in UTC (SQLite hands back naive datetimes; they were stored as UTC)."""
+    if value is None:
+        return None
+    if value.tzinfo is None:
+        value = value.replace(tzinfo=UTC)
+    return value.isoformat()
+
+
+def clean_json(value):
+    """Replace NaN and infinities by None, recursively (JSON has no NaN)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: clean_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [clean_json(v) for v in value]
+    if isinstance(value, np.generic):
+        return clean_json(value.item())
+    return value
+
+
+# --- tests -----------------------------------------------------------------------------------------------
+
+def create_test(session: Session, **fields) -> TestRecord:
+    test = TestRecord(status="ready", samples_stored=0, time_s=0.0, **fields)
+    session.add(test)
+    session.flush()
+    return test
+
+
+def get_test(session: Session, test_id: int) -> TestRecord | None:
+    return session.get(TestRecord, test_id)
+
+
+def cycles_done(session: Session, test_id: int) -> int:
+    return session.scalar(select(func.count()).select_from(CycleRecord).where(CycleRecord.test_id == test_id)) or 0
+
+
+def test_record(session: Session, test: TestRecord, with_events: bool = True) -> dict:
+    """The JSON record of a test (``GET /api/tests/{id}``)."""
+    progress = min(1.0, test.time_s / test.duration_s) if test.duration_s > 0 else 0.0
+    record = {
+        "id": test.id,
+        "status": test.status,
+        "reason": test.reason,
+        "label": test.label,
+        "created_at": _iso(test.created_at),
+        "started_at": _iso(test.started_at),
+        "ended_at": _iso(test.ended_at),
+        "isolator": test.isolator,
+        "supply_bar": test.supply_bar,
+        "controller": test.controller,
+        "speed": test.speed,
+        "driver": test.driver,
+        "profile": test.request.get("profile"),
+        "limits": test.limits,
+        "duration_s": test.duration_s,
+        "cycles_total": test.cycles_total,
+        "cycles_done": cycles_done(session, test.id),
+        "time_s": test.time_s,
+        "progress": progress,
+        "samples_stored": test.samples_stored,
+        "scenario": test.scenario,
+        "summary": test.summary,
+    }
+    if with_events:
+        record["events"] = load_events(session, test.id)
+    return clean_json(record)
+
+
+def list_tests(session: Session, status: str | None = None, isolator: str | None = None,
+               since: datetime | None = None, until: datetime | None = None,
+               limit: int = 100, offset: int = 0) -> list[TestRecord]:
+    query = select(TestRecord)
+    if status:
+        query = query.where(TestRecord.status == status)
+    if isolator:
+        query = query.where(TestRecord.isolator == isolator)
+    if since:
+        query = query.where(TestRecord.created_at >= since)
+    if until:
+        query = query.where(TestRecord.created_at <= until)
+    query = query.order_by(TestRecord.id.desc()).limit(limit).offset(offset)
+    return list(session.scalars(query))
+
+
+def set_status(session: Session, test: TestRecord, status: str, reason: str | None = None) -> None:
+    test.status = status
+    if reason is not None:
+        test.reason = reason
+    if status == "running" and test.started_at is None:
+        test.started_at = utcnow()
+    if status not in ("ready", "running"):
+        test.ended_at = utcnow()
+
+
+def delete_test(session: Session, test: TestRecord) -> None:
+    session.execute(delete(SampleChunk).where(SampleChunk.test_id == test.id))
+    session.execute(delete(CycleRecord).where(CycleRecord.test_id == test.id))
+    session.delete(test)
+
+
+def mark_running_interrupted(session: Session) -> list[int]:
+    """On start-up: a test left ``running`` (the service died) becomes ``interrupted``; its data stay."""
+    ids = []
+    for test in session.scalars(select(TestRecord).where(TestRecord.status == "running")):
+        set_status(session, test, "interrupted", "the service stopped while the test was running; "
+                                                 f"data kept up to t = {test.time_s:.3f} s")
+        add_event(session, test.id, "status", f"test {test.id} marked interrupted at service start-up",
+                  {"status": "interrupted", "time_s": test.time_s}, time_s=test.time_s)
+        ids.append(test.id)
+    return ids
+
+
+# --- samples ---------------------------------------------------------------------------------------------
+
+def append_samples(session: Session, test: TestRecord, rows: np.ndarray) -> None:
+    """Store a block of sample rows (engine COLUMNS layout) as one compressed chunk."""
+    if rows.shape[0] == 0:
+        return
+    seq = session.scalar(select(func.count()).select_from(SampleChunk).where(SampleChunk.test_id == test.id)) or 0
+    session.add(SampleChunk(test_id=test.id, seq=seq, t0_s=float(rows[0, 0]), n_rows=rows.shape[0],
+                            n_columns=rows.shape[1], codec=SAMPLES_CODEC, data=encode_samples(rows)))
+    test.samples_stored += rows.shape[0]
+    test.time_s = float(rows[-1, 0])
+
+
+def load_samples(session: Session, test_id: int) -> np.ndarray:
+    chunks = session.scalars(select(SampleChunk).where(SampleChunk.test_id == test_id).order_by(SampleChunk.seq))
+    blocks = [decode_samples(c.data, c.n_rows, c.n_columns) for c in chunks]
+    if not blocks:
+        from sim.engine import COLUMNS
+
+        return np.empty((0, len(COLUMNS)))
+    return np.concatenate(blocks)
+
+
+def iter_sample_blocks(session: Session, test_id: int):
+    """Sample blocks one chunk at a time (for streaming a CSV without holding a long test in memory)."""
+    ids = session.scalars(select(SampleChunk.id).where(SampleChunk.test_id == test_id)
+                          .order_by(SampleChunk.seq)).all()
+    for chunk_id in ids:
+        c = session.get(SampleChunk, chunk_id)
+        yield decode_samples(c.data, c.n_rows, c.n_columns)
+        session.expunge(c)
+
+
+def storage_bytes(session: Session, test_id: int) -> int:
+    return session.scalar(select(func.coalesce(func.sum(func.length(SampleChunk.data)), 0))
+                          .where(SampleChunk.test_id == test_id)) or 0
+
+
+# --- cycles ----------------------------------------------------------------------------------------------
+
+def add_cycle(session: Session, test_id: int, cycle: int, block: int, t_start_s: float, t_end_s: float,
+              metrics: dict, displacement_m: np.ndarray, force_n: np.ndarray) -> None:
+    session.add(CycleRecord(test_id=test_id, cycle=cycle, block=block, t_start_s=t_start_s, t_end_s=t_end_s,
+                            metrics=clean_json(metrics), n_points=len(displacement_m), codec=ARRAYS_CODEC,
+                            loop_data=encode_arrays(displacement_m, force_n)))
+
+
+def load_cycles(session: Session, test_id: int, arrays: bool = True) -> list[dict]:
+    out = []
+    for c in session.scalars(select(CycleRecord).where(CycleRecord.test_id == test_id).order_by(CycleRecord.cycle)):
+        item = {"cycle": c.cycle, "block": c.block, "t_start_s": c.t_start_s, "t_end_s": c.t_end_s, **c.metrics}
+        if arrays:
+            d, f = decode_arrays(c.loop_data, c.n_points, 2)
+            item["displacement_m"] = d
+            item["force_n"] = f
+        out.append(item)
+    return out
+
+
+# --- events ----------------------------------------------------------------------------------------------
+
+def add_event(session: Session, test_id: int | None, kind: str, message: str, values: dict | None = None,
+              actor: str = "system", time_s: float | None = None) -> EventRecord:
+    ev = EventRecord(test_id=test_id, kind=kind, message=message, values=clean_json(values or {}), actor=actor,
+                     time_s=time_s, created_at=utcnow())
+    session.add(ev)
+    return ev
+
+
+def event_dict(ev: EventRecord) -> dict:
+    return {"id": ev.id, "test_id": ev.test_id, "created_at": _iso(ev.created_at), "time_s": ev.time_s,
+            "kind": ev.kind, "actor": ev.actor, "message": ev.message, "values": ev.values}
+
+
+def load_events(session: Session, test_id: int | None) -> list[dict]:
+    query = select(EventRecord).order_by(EventRecord.id)
+    query = query.where(EventRecord.test_id == test_id) if test_id is not None else query
+    return [event_dict(ev) for ev in session.scalars(query)]
+
+
+# --- user isolators --------------------------------------------------------------------------------------
+
+def list_user_isolators(session: Session) -> list[dict]:
+    return [u.definition for u in session.scalars(select(UserIsolator).order_by(UserIsolator.name))]
+
+
+def get_user_isolator(session: Session, name: str) -> dict | None:
+    row = session.get(UserIsolator, name)
+    return row.definition if row is not None else None
+
+
+def add_user_isolator(session: Session, definition: dict) -> None:
+    session.add(UserIsolator(name=definition["name"], definition=definition))
+
+
+# --- bundle ----------------------------------------------------------------------------------------------
+
+def load_test_bundle(session: Session, test_id: int) -> TestBundle:
+    """Record, samples (engine COLUMNS layout), cycles (metrics + loop arrays) and events of one test."""
+    test = get_test(session, test_id)
+    if test is None:
+        raise KeyError(f"test {test_id} does not exist")
+    return TestBundle(record=test_record(session, test), samples=load_samples(session, test_id),
+                      cycles=load_cycles(session, test_id), events=load_events(session, test_id))
