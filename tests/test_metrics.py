@@ -1,0 +1,179 @@
+"""Per-cycle loop metrics on loops with closed-form answers, noisy, partial and tapered records."""
+
+import math
+
+import numpy as np
+import pytest
+
+from sim.isolator import PRESETS, simulate_loop
+from sim.metrics import (
+    CYCLE_KEYS,
+    cycle_metrics,
+    loop_area_j,
+    loop_metrics,
+    profile_cycle_starts_s,
+    split_cycles,
+)
+from sim.profiles import SineProfile, pack_profile, target_series
+
+DT = 1e-3
+
+
+def bilinear_force(d, ku, kd, qd):
+    """Ideal bilinear hysteresis: post-yield spring kd in parallel with an elastic-perfectly-plastic
+    element of stiffness ku - kd and strength qd (yield displacement qd / (ku - kd))."""
+    out = np.empty_like(d)
+    fp, prev = 0.0, d[0]
+    for i, x in enumerate(d):
+        fp = min(max(fp + (ku - kd) * (x - prev), -qd), qd)
+        prev = x
+        out[i] = kd * x + fp
+    return out
+
+
+def sine(amplitude, frequency, cycles, phase=0.0):
+    t = np.arange(0.0, cycles / frequency, DT)
+    return t, amplitude * np.sin(2 * np.pi * frequency * t + phase)
+
+
+def rel(a, b):
+    return abs(a / b - 1.0)
+
+
+@pytest.mark.parametrize("amplitude", [0.01, 0.02, 0.05])
+def test_bilinear_loop_matches_closed_form(amplitude):
+    ku, kd, qd = 2.0e7, 1.0e6, 2.0e4
+    t, d = sine(amplitude, 0.5, 4)
+    f = bilinear_force(d, ku, kd, qd)
+    dy = qd / (ku - kd)
+    keff = (qd + kd * amplitude) / amplitude
+    edc = 4 * qd * (amplitude - dy)
+    xi = edc / (2 * math.pi * keff * amplitude ** 2)
+    cycles = cycle_metrics(t, d, f)
+    assert len(cycles) >= 3
+    for c in cycles[1:]:  # the first cycle starts from the virgin state
+        assert set(CYCLE_KEYS) <= set(c)
+        assert rel(c["k_eff_n_per_m"], keff) < 0.01
+        assert rel(c["edc_j"], edc) < 0.01
+        assert rel(c["xi_eff"], xi) < 0.01
+        assert rel(c["qd_n"], qd) < 0.01
+        assert rel(c["kd_n_per_m"], kd) < 0.03
+        assert c["d_max_m"] == pytest.approx(amplitude, rel=1e-6)
+        assert c["d_min_m"] == pytest.approx(-amplitude, rel=1e-6)
+
+
+def test_spring_plus_viscous_damper():
+    """F = k d + c d': EDC = pi c omega D^2, K_eff = k (forces at peak displacement), xi = c omega / (2 k)."""
+    k, c, amplitude, frequency = 1.0e6, 3.0e5, 0.02, 0.5
+    omega = 2 * math.pi * frequency
+    t, d = sine(amplitude, frequency, 4)
+    f = k * d + c * amplitude * omega * np.cos(omega * t)
+    starts = np.arange(4) / frequency
+    cycles = cycle_metrics(t, d, f, cycle_starts_s=starts, end_s=4 / frequency)
+    assert [x["cycle"] for x in cycles] == [1, 2, 3, 4]
+    for x in cycles:
+        assert rel(x["edc_j"], math.pi * c * omega * amplitude ** 2) < 1e-3
+        assert rel(x["k_eff_n_per_m"], k) < 1e-3
+        assert rel(x["xi_eff"], c * omega / (2 * k)) < 1e-3
+        # the peak force is larger than the force at peak displacement for a rate-dependent loop
+        assert x["f_peak_max_n"] > 1.2 * x["f_max_n"]
+        # Q_d of this ellipse is c omega D (the force at d = 0)
+        assert rel(x["qd_n"], c * omega * amplitude) < 1e-2
+
+
+def test_bouc_wen_edc_against_high_resolution_integral():
+    iso = PRESETS["IUT_a"]
+    amplitude, frequency, n = 0.02, 1.0, 4
+    t, d = sine(amplitude, frequency, n)
+    f = simulate_loop(iso, d, DT)
+    cycles = cycle_metrics(t, d, f, cycle_starts_s=np.arange(n) / frequency, end_s=n / frequency)
+    # reference: the last cycle at 100x the time resolution, trapezoidal work integral
+    h = 1e-5
+    th = np.arange(0.0, n / frequency + h / 2, h)
+    dh = amplitude * np.sin(2 * np.pi * frequency * th)
+    fh = simulate_loop(iso, dh, h, substeps=1)
+    last = th >= (n - 1) / frequency - h / 2
+    reference = float(np.sum(0.5 * (fh[last][1:] + fh[last][:-1]) * np.diff(dh[last])))
+    assert reference > 0
+    assert rel(cycles[-1]["edc_j"], reference) < 0.01
+    # hardening loading branch: peak force is at peak displacement, K_d close to the model's k_d
+    assert cycles[-1]["f_peak_max_n"] == pytest.approx(cycles[-1]["f_max_n"], rel=1e-3)
+    assert rel(cycles[-1]["kd_n_per_m"], iso.kd_n_per_m) < 0.1
+
+
+def test_noisy_loop_gives_no_spurious_cycles_and_stable_metrics():
+    ku, kd, qd, amplitude = 2.0e7, 1.0e6, 2.0e4, 0.02
+    t, d = sine(amplitude, 1.0, 6)
+    f = bilinear_force(d, ku, kd, qd)
+    clean = cycle_metrics(t, d, f)
+    rng = np.random.default_rng(7)
+    dn = d + rng.normal(0.0, 50e-6, d.size)  # 0.25 % of the amplitude, around every zero crossing
+    fn = f + rng.normal(0.0, 0.01 * np.max(f), d.size)  # 1 % of the peak force
+    noisy = cycle_metrics(t, dn, fn)
+    assert abs(len(noisy) - len(clean)) <= 1  # only the record's ends may differ
+    assert len(noisy) >= 5
+    reference = clean[2]
+    for c in noisy[1:5]:
+        for key, tol in (("k_eff_n_per_m", 0.03), ("edc_j", 0.02), ("qd_n", 0.03), ("kd_n_per_m", 0.05)):
+            assert rel(c[key], reference[key]) < tol, key
+
+
+def test_partial_cycles_are_dropped():
+    t, d = sine(0.02, 1.0, 8)
+    part = slice(1250, 6700)  # starts a quarter into cycle 2, stops 70 % into cycle 7
+    by_crossing = split_cycles(t[part], d[part])
+    assert len(by_crossing) == 4  # cycles 3..6 are complete
+    for i0, i1 in by_crossing:
+        assert abs((i1 - i0) - 1000) <= 2
+        assert abs(d[part][i0]) < 0.05 * 0.02 and d[part][i0 + 5] > d[part][i0]  # upward, near the centre
+    by_phase = split_cycles(t[part], d[part], cycle_starts_s=np.arange(8.0), end_s=8.0)
+    assert [t[part][i0] for i0, _ in by_phase] == pytest.approx([2.0, 3.0, 4.0, 5.0])
+
+
+def test_tapered_cycles_are_split_and_full_cycles_exact():
+    iso = PRESETS["IUT_a"]
+    blocks = [SineProfile(0.02, 1.0, 8, 2)]
+    t = np.arange(0.0, 8.0, DT)
+    d = target_series(pack_profile(blocks), t)
+    f = simulate_loop(iso, d, DT)
+    starts, end = profile_cycle_starts_s(blocks)
+    by_phase = cycle_metrics(t, d, f, starts, end)
+    assert len(by_phase) == 8
+    amplitudes = [c["d_max_m"] for c in by_phase]
+    assert amplitudes[0] < 0.1 * 0.02 and amplitudes[-1] < 0.5 * 0.02  # taper-in / taper-out
+    assert amplitudes[0] < amplitudes[1] < amplitudes[2] and amplitudes[-1] < amplitudes[-2] < amplitudes[-3]
+    full = by_phase[3:6]
+    for c in full:
+        assert rel(c["d_max_m"], 0.02) < 1e-6 and c["closure"] < 1e-3
+    assert max(c["edc_j"] for c in full) == pytest.approx(min(c["edc_j"] for c in full), rel=1e-3)
+    assert by_phase[0]["closure"] > 0.05  # an open taper loop is flagged by its closure
+    by_crossing = cycle_metrics(t, d, f)
+    assert len(by_crossing) in (7, 8)  # the last cycle ends a hair before the centre line
+    for c in by_crossing[3:6]:
+        assert rel(c["edc_j"], full[0]["edc_j"]) < 1e-3
+
+
+def test_offset_loop_uses_its_centre():
+    ku, kd, qd = 2.0e7, 1.0e6, 2.0e4
+    t, d = sine(0.02, 1.0, 4)
+    f = bilinear_force(d, ku, kd, qd)
+    shifted = cycle_metrics(t, d + 0.005, f)
+    centred = cycle_metrics(t, d, f)
+    for a, b in zip(shifted[1:], centred[1:], strict=False):
+        for key in ("k_eff_n_per_m", "edc_j", "xi_eff", "qd_n", "kd_n_per_m"):
+            assert rel(a[key], b[key]) < 1e-3, key
+
+
+def test_loop_area_sign_and_degenerate_input():
+    # a counter-clockwise loop in the d-F plane returns energy: negative area
+    theta = np.linspace(0, 2 * np.pi, 400, endpoint=False)
+    assert loop_area_j(np.cos(theta), np.sin(theta)) == pytest.approx(-np.pi, rel=1e-3)
+    assert loop_area_j(np.cos(theta), -np.sin(theta)) == pytest.approx(np.pi, rel=1e-3)
+    flat = loop_metrics(np.zeros(10), np.ones(10))
+    assert flat["k_eff_n_per_m"] is None and flat["xi_eff"] is None
+    with pytest.raises(ValueError, match="force_n"):
+        loop_metrics([0, 1, 2], [0, 1])
+    with pytest.raises(ValueError, match="non-finite"):
+        loop_metrics([0, np.nan, 2], [0, 1, 2])
+    with pytest.raises(ValueError, match="increase"):
+        split_cycles([0, 1, 1, 2, 3, 4, 5, 6, 7], np.zeros(9))
