@@ -82,8 +82,7 @@ def _intercept(d: np.ndarray, f: np.ndarray, centre: float, band: float) -> floa
     """Force at d = centre on one leg: straight-line fit over |d - centre| <= band, else interpolation."""
     sel = np.abs(d - centre) <= band
     if np.count_nonzero(sel) >= 3 and np.ptp(d[sel]) > 0:
-        slope, offset = np.polyfit(d[sel] - centre, f[sel], 1)
-        return float(offset)
+        return _line(d[sel] - centre, f[sel])[1]
     # too few samples in the band (coarse sampling): interpolate at the first crossing of the centre
     s = np.sign(d - centre)
     cross = np.nonzero(s[:-1] * s[1:] <= 0)[0]
@@ -94,10 +93,18 @@ def _intercept(d: np.ndarray, f: np.ndarray, centre: float, band: float) -> floa
     return None
 
 
+def _line(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """Least-squares slope and intercept of y = a x + b."""
+    xm, ym = x.mean(), y.mean()
+    dx = x - xm
+    a = float(np.dot(dx, y - ym) / np.dot(dx, dx))
+    return a, float(ym - a * xm)
+
+
 def _slope(d: np.ndarray, f: np.ndarray) -> float | None:
     if d.size < 3 or np.ptp(d) <= 0:
         return None
-    return float(np.polyfit(d, f, 1)[0])
+    return _line(d, f)[0]
 
 
 def loop_metrics(displacement_m, force_n) -> dict:
@@ -168,8 +175,9 @@ def split_cycles(time_s, displacement_m, cycle_starts_s: Sequence[float] | None 
     With ``cycle_starts_s`` (the command's phase: start time of every target cycle), cycle k runs from
     start k to start k+1; the last one ends at ``end_s`` if given, else one previous period later. Without
     them, cycles run between upward crossings of the record's centre line (median displacement) with a
-    hysteresis band of max(2 % of the robust half-amplitude, 6 sigma of the noise). Cycles the record does
-    not cover completely (partial cycles) are dropped.
+    hysteresis band of max(2 % of the robust half-amplitude, 6 sigma of the noise); a record that begins or
+    ends inside the band (on its way up) counts as beginning or ending on the centre line. Cycles the record
+    does not cover completely (partial cycles) are dropped.
     """
     t = _as_array("time_s", time_s)
     d = _as_array("displacement_m", displacement_m)
@@ -210,8 +218,9 @@ def split_cycles(time_s, displacement_m, cycle_starts_s: Sequence[float] | None 
     if exits.size and exits[0] > 0 and state[exits[0]] == 1 and (not starts or exits[0] < starts[0]):
         # the record begins inside the band and first leaves it upwards: a complete cycle from the start
         starts.insert(0, 0 if x[0] > 0 else int(last_nonpos[exits[0] - 1]) + 1)
-    if starts and held[-1] == -1 and x[-1] >= 0:
-        starts.append(min(int(last_nonpos[-1]) + 1, n))  # the record ends back on the centre line
+    if starts and held[-1] == -1 and state[-1] == 0:
+        # the record ends inside the band on the way up from below: the last cycle is complete to within the band
+        starts.append(n if x[-1] <= 0 else min(int(last_nonpos[-1]) + 1, n))
     return [(a, b) for a, b in zip(starts[:-1], starts[1:], strict=False) if b - a >= MIN_CYCLE_SAMPLES]
 
 
@@ -251,3 +260,99 @@ def scenario_cycle_metrics(samples: np.ndarray, scenario) -> list[dict]:
 
     starts, end = profile_cycle_starts_s(scenario.profile)
     return cycle_metrics(samples[:, C_TIME], samples[:, C_Y], samples[:, C_FORCE], starts, end)
+
+
+# --- reading a force-displacement record from CSV (any machine's data; other columns ignored) ---
+
+LOOP_COLUMNS = ("time_s", "displacement_m", "force_n")
+MIN_RECORD_ROWS = 10
+
+
+class RecordError(ValueError):
+    """A CSV record is unreadable or malformed; the message names the file, row and column."""
+
+
+def _empty_cell_converter(text):
+    text = text.strip()
+    return float(text) if text else math.nan
+
+
+def _first_bad_cell(path, names: list[str], wanted: dict[str, int], allow_empty: set[str]) -> str:
+    """Describe the first cell that is not a number (slow path, only when the fast parser failed)."""
+    with open(path, newline="") as fh:
+        fh.readline()
+        for row, line in enumerate(fh, start=2):
+            if not line.strip():
+                continue
+            cells = line.rstrip("\r\n").split(",")
+            for name, j in wanted.items():
+                if j >= len(cells):
+                    return f"{path}: line {row} has {len(cells)} cells but column {name} is number {j + 1}"
+                cell = cells[j].strip()
+                if not cell and name in allow_empty:
+                    continue
+                try:
+                    value = float(cell)
+                except ValueError:
+                    return f"{path}: line {row}, column {name}: {cell!r} is not a number"
+                if not math.isfinite(value) and name not in allow_empty:
+                    return f"{path}: line {row}, column {name}: {cell!r} is not a finite number"
+    return f"{path}: could not parse the numbers"
+
+
+def read_csv_columns(path, required: Sequence[str] = LOOP_COLUMNS, optional: Sequence[str] = (),
+                     min_rows: int = MIN_RECORD_ROWS) -> dict[str, np.ndarray]:
+    """Columns of a CSV file with a header row, by name; other columns are ignored.
+
+    Required columns must be numbers in every row; optional columns may be absent (not returned) or have
+    empty cells (NaN). ``time_s``, if required, must increase strictly. Raises RecordError with one line.
+    """
+    try:
+        with open(path, newline="") as fh:
+            header = fh.readline()
+    except OSError as exc:
+        raise RecordError(f"cannot read {path}: {exc.strerror}") from None
+    except UnicodeDecodeError:
+        raise RecordError(f"{path} is not a text CSV file") from None
+    names = [h.strip().strip('"').lstrip("\ufeff") for h in header.rstrip("\r\n").split(",")]
+    missing = [c for c in required if c not in names]
+    if missing:
+        found = ", ".join(n for n in names if n) or "no header"
+        raise RecordError(f"{path}: missing column(s) {', '.join(missing)}; required: {', '.join(required)} "
+                          f"(found: {found[:200]})")
+    wanted = {c: names.index(c) for c in required}
+    wanted.update({c: names.index(c) for c in optional if c in names and c not in wanted})
+    may_be_empty = {c for c in wanted if c not in required}
+    # Fast path: optional columns empty in the first data row are taken as empty throughout (e.g. the
+    # adaptive estimates of a PID run) and skipped; a cell that is still empty sends us to the slow path.
+    with open(path, newline="") as fh:
+        fh.readline()
+        first = fh.readline().rstrip("\r\n").split(",")
+    skipped = {c for c in may_be_empty if wanted[c] < len(first) and not first[wanted[c]].strip()}
+    order = [c for c in wanted if c not in skipped]
+    data = None
+    for converters in (None, {k: _empty_cell_converter for k, c in enumerate(order) if c in may_be_empty}):
+        try:
+            data = np.loadtxt(path, delimiter=",", skiprows=1, usecols=[wanted[c] for c in order], ndmin=2,
+                              dtype=float, converters=converters, encoding="utf-8")
+            break
+        except (ValueError, IndexError):
+            continue
+    if data is None:
+        raise RecordError(_first_bad_cell(path, names, wanted, may_be_empty)) from None
+    if data.shape[0] < min_rows:
+        raise RecordError(f"{path}: has {data.shape[0]} data rows; at least {min_rows} are needed")
+    columns = {c: np.ascontiguousarray(data[:, k]) for k, c in enumerate(order)}
+    columns.update({c: np.full(data.shape[0], np.nan) for c in skipped})
+    for c in required:
+        bad = ~np.isfinite(columns[c])
+        if bad.any():
+            row = int(np.argmax(bad)) + 2
+            raise RecordError(f"{path}: line {row}, column {c}: not a finite number")
+    if "time_s" in required:
+        steps = np.diff(columns["time_s"])
+        if not np.all(steps > 0):
+            row = int(np.argmin(steps > 0)) + 3
+            raise RecordError(f"{path}: time_s must increase strictly, but it does not at line {row} "
+                              f"({columns['time_s'][row - 3]:g} s then {columns['time_s'][row - 2]:g} s)")
+    return columns

@@ -177,3 +177,73 @@ def test_loop_area_sign_and_degenerate_input():
         loop_metrics([0, np.nan, 2], [0, 1, 2])
     with pytest.raises(ValueError, match="increase"):
         split_cycles([0, 1, 1, 2, 3, 4, 5, 6, 7], np.zeros(9))
+
+
+# --- `isorig analyze` ---
+
+def _write(path, header, rows):
+    path.write_text(header + "\n" + "\n".join(",".join(str(v) for v in r) for r in rows) + "\n")
+    return str(path)
+
+
+def test_analyze_json_on_a_record_with_extra_columns(tmp_path, capsys):
+    import json
+
+    from isorig.cli import main
+
+    ku, kd, qd, amplitude = 2.0e7, 1.0e6, 2.0e4, 0.02
+    t, d = sine(amplitude, 1.0, 4)
+    f = bilinear_force(d, ku, kd, qd)
+    rows = [(f"{a:.6f}", "x", f"{b:.9g}", f"{c:.9g}") for a, b, c in zip(t, d, f, strict=True)]
+    path = _write(tmp_path / "rec.csv", "time_s,comment,displacement_m,force_n", rows)
+    assert main(["analyze", path, "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert len(out["cycles"]) == 4
+    assert set(out["cycles"][0]) == {"cycle", "d_max_m", "d_min_m", "f_max_n", "f_min_n", "k_eff_n_per_m",
+                                     "edc_j", "xi_eff", "qd_n", "kd_n_per_m"}
+    assert rel(out["cycles"][2]["edc_j"], 4 * qd * (amplitude - qd / (ku - kd))) < 0.01
+    assert main(["analyze", path]) == 0
+    table = capsys.readouterr().out
+    assert "K_eff kN/mm" in table and len(table.strip().splitlines()) == 2 + 4
+
+
+def test_analyze_works_on_simulate_output(tmp_path, capsys):
+    import json
+
+    from isorig.cli import main
+    from sim.engine import Scenario, Simulation
+    from sim.records import write_csv
+
+    scenario = Scenario.sine("IUT_a", 100.0, 0.02, 1.0, 4, taper_cycles=1)
+    write_csv(tmp_path / "timeseries.csv", Simulation(scenario).run().samples)
+    assert main(["analyze", str(tmp_path / "timeseries.csv"), "--json", "--frequency-hz", "1"]) == 0
+    cycles = json.loads(capsys.readouterr().out)["cycles"]
+    assert [c["cycle"] for c in cycles] == [1, 2, 3, 4]
+    assert 0.015 < cycles[2]["d_max_m"] < 0.025 and cycles[2]["edc_j"] > 100
+
+
+@pytest.mark.parametrize("header, rows, message", [
+    ("time_s,displacement_m", [(i, 0.0) for i in range(20)], "missing column(s) force_n"),
+    ("time_s,displacement_m,force_n", [(i, 0.0, "abc" if i == 5 else 1.0) for i in range(20)],
+     "line 7, column force_n: 'abc' is not a number"),
+    ("time_s,displacement_m,force_n", [(i, 0.0, 1.0) for i in range(3)], "at least 10"),
+    ("time_s,displacement_m,force_n", [(i if i != 8 else 2, 0.0, 1.0) for i in range(20)],
+     "time_s must increase strictly"),
+    ("time_s,displacement_m,force_n", [(i, "" if i == 4 else 0.0, 1.0) for i in range(20)],
+     "column displacement_m"),
+])
+def test_analyze_rejects_malformed_csv(tmp_path, capsys, header, rows, message):
+    from isorig.cli import main
+
+    path = _write(tmp_path / "bad.csv", header, rows)
+    assert main(["analyze", path]) == 2
+    err = capsys.readouterr().err
+    assert message in err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+def test_analyze_missing_file(tmp_path, capsys):
+    from isorig.cli import main
+
+    assert main(["analyze", str(tmp_path / "nope.csv")]) == 2
+    assert "cannot read" in capsys.readouterr().err
