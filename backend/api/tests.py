@@ -1,0 +1,233 @@
+"""Tests: create, list, read, start/stop/abort (operator token), cycles, samples as CSV, reports, delete."""
+
+from __future__ import annotations
+
+import io
+from datetime import datetime
+from typing import Annotated, Literal
+
+import numpy as np
+from fastapi import APIRouter, Query, Request
+from fastapi.responses import Response, StreamingResponse
+
+from sim.controllers import CONTROLLER_NAMES
+from sim.engine import CSV_COLUMNS, Scenario
+from sim.profiles import SineProfile
+from sim.rig import BAR_PA, DEFAULT_RIG
+from sim.tracking import cycle_windows
+
+from .. import store
+from ..errors import ApiError
+from ..safety import make_limits
+from ..schemas import ERROR_RESPONSES, ProtocolProfileIn, SineProfileIn, TestCreate, TestOut
+from ..store import clean_json
+from .deps import OperatorDep, SessionDep, TestId, not_found
+from .isolators import resolve_isolator
+
+router = APIRouter(tags=["tests"])
+
+Status = Literal["ready", "running", "completed", "stopped", "aborted", "interrupted", "failed"]
+
+
+def profile_blocks(profile: SineProfileIn | ProtocolProfileIn) -> list[SineProfile]:
+    if isinstance(profile, SineProfileIn):
+        return [SineProfile(profile.amplitude_m, profile.frequency_hz, profile.cycles, profile.taper_cycles,
+                            profile.offset_m)]
+    try:
+        from sim.protocols import load_protocol, protocol_from_dict
+    except ImportError:
+        raise ApiError(422, "profile kind 'protocol' is not available in this version (sim.protocols missing)",
+                       "profile.kind", "protocol", "sine") from None
+    if (profile.name is None) == (profile.protocol is None):
+        raise ApiError(422, "a protocol profile needs exactly one of 'name' (a shipped protocol) or 'protocol' "
+                            "(an inline definition)", "profile", None, "exactly one of name, protocol")
+    protocol = load_protocol(profile.name) if profile.name is not None else protocol_from_dict(profile.protocol)
+    return list(protocol.blocks)
+
+
+def build_test(session, body: TestCreate, request: Request) -> dict:
+    """Everything a test record needs, validated against the rig envelope (errors name field and limit)."""
+    settings = request.app.state.settings
+    service = request.app.state.service
+    isolator = resolve_isolator(session, body.isolator)
+    if body.controller not in CONTROLLER_NAMES:
+        raise ApiError(422, f"controller {body.controller!r} is unknown; allowed: {', '.join(CONTROLLER_NAMES)}",
+                       "controller", body.controller, ", ".join(CONTROLLER_NAMES))
+    if not (0 < body.speed <= settings.max_speed):
+        raise ApiError(422, f"speed = {body.speed:g} is outside (0, {settings.max_speed:g}]", "speed", body.speed,
+                       f"(0, {settings.max_speed:g}]")
+    from ..drivers import DRIVERS
+
+    if body.speed != 1.0 and not DRIVERS[service.driver].can_accelerate:
+        raise ApiError(422, f"the {service.driver} rig runs in real time: speed must be 1", "speed", body.speed, "1")
+    blocks = profile_blocks(body.profile)
+    scenario = Scenario(isolator, body.supply_bar * BAR_PA, blocks, body.controller, rig=DEFAULT_RIG)
+    scenario.validate()  # ProfileError -> 422 with field, value, limit
+    if scenario.duration_s > settings.max_test_duration_s:
+        raise ApiError(422, f"the profile lasts {scenario.duration_s:g} s, longer than the allowed "
+                            f"{settings.max_test_duration_s:g} s", "profile", scenario.duration_s,
+                       f"<= {settings.max_test_duration_s:g} s")
+    limits = make_limits(DEFAULT_RIG, body.limits.model_dump() if body.limits else None)
+    job_scenario = {"isolator": isolator.to_dict(), "supply_pa": scenario.supply_pa,
+                    "profile": [b.to_dict() for b in blocks], "controller": body.controller,
+                    "controller_options": {}}
+    return {
+        "label": body.label, "isolator": isolator.name, "supply_bar": body.supply_bar,
+        "controller": body.controller, "speed": body.speed, "driver": service.driver,
+        "request": {**body.model_dump(mode="json"), "job_scenario": job_scenario},
+        "scenario": clean_json(scenario.describe()), "limits": limits.to_dict(),
+        "duration_s": scenario.duration_s, "cycles_total": len(cycle_windows(scenario)),
+    }
+
+
+@router.post("/api/tests", status_code=201, summary="Create a test (operator token); status 'ready'",
+             responses=ERROR_RESPONSES)
+def create_test(body: TestCreate, request: Request, session: SessionDep, actor: OperatorDep) -> TestOut:
+    fields = build_test(session, body, request)
+    test = store.create_test(session, **fields)
+    store.add_event(session, test.id, "operator", f"test {test.id} created by {actor}", {"action": "create"},
+                    actor=actor)
+    session.commit()
+    return store.test_record(session, test)
+
+
+@router.get("/api/tests", summary="Tests, newest first; filter by status, isolator, creation date",
+            responses=ERROR_RESPONSES)
+def list_tests(session: SessionDep,
+               status: Annotated[Status | None, Query(description="only tests with this status")] = None,
+               isolator: Annotated[str | None, Query(max_length=64)] = None,
+               since: Annotated[datetime | None, Query(description="created at or after (ISO 8601)")] = None,
+               until: Annotated[datetime | None, Query(description="created at or before (ISO 8601)")] = None,
+               limit: Annotated[int, Query(ge=1, le=1000)] = 100,
+               offset: Annotated[int, Query(ge=0, le=10**9)] = 0) -> list[TestOut]:
+    tests = store.list_tests(session, status, isolator, since, until, limit, offset)
+    return [store.test_record(session, t, with_events=False) for t in tests]
+
+
+CSV_FORMATS = ["%.9g"] + ["%.7g"] * (len(CSV_COLUMNS) - 1)  # stored samples keep 7 significant digits
+
+
+def samples_csv(block, header: bool) -> str:
+    """CSV text of the ten CSV columns (as ``isorig simulate`` writes them; NaN -> empty cell)."""
+    buf = io.StringIO()
+    if header:
+        buf.write(",".join(CSV_COLUMNS) + "\n")
+    if block.size:
+        np.savetxt(buf, block[:, : len(CSV_COLUMNS)], fmt=CSV_FORMATS, delimiter=",")
+    return buf.getvalue().replace("nan", "")
+
+
+def _test_or_404(session, test_id: int):
+    test = store.get_test(session, test_id)
+    if test is None:
+        raise not_found(f"test {test_id}")
+    return test
+
+
+@router.get("/api/tests/{test_id}", summary="One test: status, scenario, summary metrics, events",
+            responses=ERROR_RESPONSES)
+def get_test(test_id: TestId, session: SessionDep) -> TestOut:
+    return store.test_record(session, _test_or_404(session, test_id))
+
+
+@router.post("/api/tests/{test_id}/start", summary="Start a ready test (operator token)", responses=ERROR_RESPONSES)
+def start_test(test_id: TestId, request: Request, session: SessionDep, actor: OperatorDep) -> TestOut:
+    _test_or_404(session, test_id)
+    request.app.state.service.start(test_id, actor)
+    session.expire_all()
+    return store.test_record(session, _test_or_404(session, test_id))
+
+
+@router.post("/api/tests/{test_id}/stop", summary="Stop the running test with a ramp-out (operator token)",
+             responses=ERROR_RESPONSES)
+def stop_test(test_id: TestId, request: Request, session: SessionDep, actor: OperatorDep) -> TestOut:
+    _test_or_404(session, test_id)
+    request.app.state.service.command(test_id, "stop", actor)
+    session.expire_all()
+    return store.test_record(session, _test_or_404(session, test_id))
+
+
+@router.post("/api/tests/{test_id}/abort", summary="Abort the running test at once (operator token)",
+             responses=ERROR_RESPONSES)
+def abort_test(test_id: TestId, request: Request, session: SessionDep, actor: OperatorDep) -> TestOut:
+    _test_or_404(session, test_id)
+    request.app.state.service.command(test_id, "abort", actor)
+    session.expire_all()
+    return store.test_record(session, _test_or_404(session, test_id))
+
+
+@router.delete("/api/tests/{test_id}", status_code=204, summary="Delete a test that is not running (operator token)",
+               responses=ERROR_RESPONSES)
+def delete_test(test_id: TestId, request: Request, session: SessionDep, actor: OperatorDep) -> Response:
+    test = _test_or_404(session, test_id)
+    if test.status == "running" or request.app.state.service.running_test_id() == test_id:
+        raise ApiError(409, f"test {test_id} is running; stop or abort it before deleting it")
+    store.delete_test(session, test)
+    store.add_event(session, test_id, "operator", f"test {test_id} deleted by {actor}", {"action": "delete"},
+                    actor=actor)
+    session.commit()
+    request.app.state.hub.forget(test_id)
+    return Response(status_code=204)
+
+
+@router.get("/api/tests/{test_id}/cycles", summary="Per-cycle loop metrics (arrays=true adds the loops)",
+            responses=ERROR_RESPONSES)
+def get_cycles(test_id: TestId, session: SessionDep, arrays: bool = False) -> list[dict]:
+    _test_or_404(session, test_id)
+    cycles = store.load_cycles(session, test_id, arrays=arrays)
+    for c in cycles:
+        for key in ("displacement_m", "force_n"):
+            if key in c:
+                c[key] = c[key].tolist()
+    return clean_json(cycles)
+
+
+@router.get("/api/tests/{test_id}/data.csv", summary="All samples as CSV (the columns of isorig simulate)",
+            response_class=StreamingResponse, responses=ERROR_RESPONSES)
+def get_csv(test_id: TestId, request: Request, session: SessionDep) -> StreamingResponse:
+    _test_or_404(session, test_id)
+    sessions = request.app.state.sessions
+
+    def generate():
+        with sessions() as s:
+            yield samples_csv(np.empty((0, len(CSV_COLUMNS))), header=True)
+            for block in store.iter_sample_blocks(s, test_id):
+                yield samples_csv(block, header=False)
+
+    return StreamingResponse(generate(), media_type="text/csv",
+                             headers={"Content-Disposition": f'attachment; filename="test-{test_id}.csv"'})
+
+
+def _reports():
+    try:
+        from .. import reports
+    except ImportError:
+        raise ApiError(503, "reports are not available in this installation (backend.reports is missing)") from None
+    return reports
+
+
+@router.get("/api/tests/{test_id}/report.pdf", summary="The test report as PDF", response_class=Response,
+            responses={**ERROR_RESPONSES, 503: {"description": "reports not available"}})
+def report_pdf(test_id: TestId, session: SessionDep) -> Response:
+    _test_or_404(session, test_id)
+    reports = _reports()
+    buf = io.BytesIO()
+    reports.render_report_pdf(store.load_test_bundle(session, test_id), buf)
+    return Response(buf.getvalue(), media_type="application/pdf",
+                    headers={"Content-Disposition": f'inline; filename="test-{test_id}-report.pdf"'})
+
+
+@router.get("/api/tests/{test_id}/report.json", summary="The test report as JSON",
+            responses={**ERROR_RESPONSES, 503: {"description": "reports not available"}})
+def report_json(test_id: TestId, session: SessionDep) -> dict:
+    _test_or_404(session, test_id)
+    reports = _reports()
+    return clean_json(reports.report_json(store.load_test_bundle(session, test_id)))
+
+
+@router.get("/api/events", summary="The audit log: operator actions, limit trips, status changes",
+            tags=["events"])
+def list_events(session: SessionDep,
+                test_id: Annotated[int | None, Query(ge=1, le=2**53)] = None,
+                limit: Annotated[int, Query(ge=1, le=10000)] = 1000) -> list[dict]:
+    return store.load_events(session, test_id)[-limit:]

@@ -1,0 +1,76 @@
+"""``create_app(settings)``: the FastAPI application with its store, rig service, stream hub and routes.
+
+At creation the database is migrated (Alembic) and any test left ``running`` by a dead service is marked
+``interrupted``. The operator token is loaded or generated. Routes: ``/api/...`` (REST, OpenAPI at
+``/docs``), ``/ws/...`` (websocket schema v1), the 3D viewer if ``backend.viewer`` is installed, and the
+dashboard's static files at ``/``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import sys
+from contextlib import asynccontextmanager
+
+from fastapi import FastAPI
+from fastapi.staticfiles import StaticFiles
+
+from . import db, errors, store
+from .api import isolators, meta, tests, ws
+from .auth import load_or_create_token
+from .service import RigService
+from .settings import Settings
+from .stream import Hub
+
+log = logging.getLogger("isorig")
+
+
+def create_app(settings: Settings | None = None, driver: str = "simulated") -> FastAPI:
+    settings = settings or Settings()
+    engine = db.make_engine(settings.resolved_database_url)
+    db.upgrade(engine)
+    sessions = db.session_factory(engine)
+    with sessions() as session:
+        interrupted = store.mark_running_interrupted(session)
+        session.commit()
+    if interrupted:
+        log.warning("tests %s were running when the service stopped: marked interrupted", interrupted)
+    token, token_source = load_or_create_token(settings)
+    hub = Hub(settings.stream_history_s)
+    service = RigService(settings, sessions, hub, driver)
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI):
+        hub.bind(asyncio.get_running_loop())
+        print(f"isorig: operator token in {token_source}", file=sys.stderr, flush=True)
+        try:
+            yield
+        finally:
+            await asyncio.get_running_loop().run_in_executor(None, service.shutdown)
+            engine.dispose()
+
+    app = FastAPI(title="isorig", version="0.1.0", lifespan=lifespan,
+                  description="Control and test service for a hydraulic seismic-isolator test rig. Actions that "
+                              "move the rig or change records need the operator token (Authorization: Bearer).")
+    app.state.settings = settings
+    app.state.engine = engine
+    app.state.sessions = sessions
+    app.state.token = token
+    app.state.token_source = token_source
+    app.state.hub = hub
+    app.state.service = service
+    errors.install(app)
+    app.include_router(meta.router)
+    app.include_router(isolators.router)
+    app.include_router(tests.router)
+    app.include_router(ws.router)
+    try:
+        from . import viewer
+    except ImportError:
+        viewer = None
+    if viewer is not None and hasattr(viewer, "attach"):
+        viewer.attach(app, hub, settings)
+    if settings.static_dir.is_dir():
+        app.mount("/", StaticFiles(directory=settings.static_dir, html=True), name="frontend")
+    return app

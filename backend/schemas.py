@@ -1,0 +1,136 @@
+"""Pydantic models at the API's edge (requests and responses). SI units, the unit in every name."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from sim.controllers import DEFAULT_CONTROLLER
+
+
+class StrictModel(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+class SineProfileIn(StrictModel):
+    """A tapered sine (sim.profiles.SineProfile)."""
+
+    kind: Literal["sine"]
+    amplitude_m: float = Field(description="sine amplitude in m")
+    frequency_hz: float = Field(description="frequency in Hz")
+    cycles: int = Field(description="number of cycles, taper included")
+    taper_cycles: int = Field(1, description="cycles of ramp-in and of ramp-out")
+    offset_m: float = Field(0.0, description="mean displacement in m")
+
+
+class ProtocolProfileIn(StrictModel):
+    """A test protocol (sim.protocols): a shipped one by ``name`` or an inline ``protocol`` object."""
+
+    kind: Literal["protocol"]
+    name: str | None = Field(None, max_length=200, description="a shipped protocol's name")
+    protocol: dict[str, Any] | None = Field(None, description="an inline protocol definition")
+
+
+ProfileIn = Annotated[SineProfileIn | ProtocolProfileIn, Field(discriminator="kind")]
+
+
+class LimitsIn(StrictModel):
+    """Safety limits of one test (absolute values); each defaults to the rig's, none may exceed the rig's."""
+
+    displacement_m: float | None = Field(None, description="stroke limit on |y| in m")
+    force_n: float | None = Field(None, description="limit on |force| in N")
+    load_pressure_pa: float | None = Field(None, description="limit on |P_L| in Pa")
+    tracking_error_m: float | None = Field(None, description="limit on |y - r| in m (error detector)")
+
+
+class TestCreate(StrictModel):
+    """``POST /api/tests``: what to run."""
+
+    __test__ = False
+
+    isolator: str = Field(min_length=1, max_length=64, description="a preset or a user isolator's name")
+    supply_bar: float = Field(description="supply pressure in bar")
+    controller: str = Field(DEFAULT_CONTROLLER, max_length=32, description="controller name")
+    speed: float = Field(1.0, description="time scale of a simulated test: 1 = real time, 20 = 20x faster")
+    profile: ProfileIn
+    limits: LimitsIn | None = None
+    label: str = Field("", max_length=200, description="free text")
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, json_schema_extra={"examples": [{
+        "isolator": "IUT_b", "supply_bar": 70, "controller": "mrac", "speed": 1.0,
+        "profile": {"kind": "sine", "amplitude_m": 0.03, "frequency_hz": 1.0, "cycles": 10, "taper_cycles": 1}}]})
+
+
+class IsolatorIn(StrictModel):
+    """A user isolator: Bouc-Wen parameters of eq. (4), SI units."""
+
+    name: str = Field(min_length=1, max_length=64)
+    rho_bw_per_m: float
+    sigma_bw: float
+    n: float
+    kd_n_per_m: float
+    kw_n: float
+    description: str = Field("", max_length=200)
+
+
+class ErrorOut(BaseModel):
+    """Every error: ``detail`` says what is wrong; ``field``, ``value`` and ``limit`` when one input is."""
+
+    detail: str
+    field: str | None = None
+    value: Any = None
+    limit: str | None = None
+    errors: list[dict] | None = None
+
+
+class TestOut(BaseModel):
+    """A test record (``GET /api/tests/{id}``)."""
+
+    __test__ = False
+    model_config = ConfigDict(extra="allow")
+
+    id: int
+    status: Literal["ready", "running", "completed", "stopped", "aborted", "interrupted", "failed"]
+    reason: str | None
+    label: str
+    created_at: str | None
+    started_at: str | None
+    ended_at: str | None
+    isolator: str
+    supply_bar: float
+    controller: str
+    speed: float
+    driver: str
+    profile: dict | None
+    limits: dict
+    duration_s: float
+    cycles_total: int
+    cycles_done: int
+    time_s: float
+    progress: float
+    samples_stored: int
+    scenario: dict
+    summary: dict | None
+    events: list[dict] | None = None
+
+
+class IsolatorOut(BaseModel):
+    model_config = ConfigDict(extra="allow")
+
+    name: str
+    source: Literal["preset", "user"]
+    rho_bw_per_m: float
+    sigma_bw: float
+    n: float
+    kd_n_per_m: float
+    kw_n: float
+    description: str = ""
+
+
+ERROR_RESPONSES = {
+    401: {"model": ErrorOut, "description": "missing or wrong operator token"},
+    404: {"model": ErrorOut, "description": "no such record"},
+    409: {"model": ErrorOut, "description": "not allowed in the current state"},
+    422: {"model": ErrorOut, "description": "invalid input: names the field, the value and the limit"},
+}

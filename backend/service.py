@@ -1,0 +1,344 @@
+"""The rig service in the server process: starts the worker process, records and streams what it sends.
+
+One test at a time per rig. ``start`` spawns the worker (forkserver or spawn context) and a recorder
+thread that reads the worker's pipe: samples are streamed to the hub at once and committed to the store
+in chunks at least every ``commit_interval_s`` (so a killed server loses at most about a second); cycles,
+events and the final status are committed as they come. If the worker dies without a final message the
+test ends ``aborted`` with the exit code as its reason and every sample received so far kept.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing as mp
+import threading
+import time
+from datetime import UTC, datetime
+
+import numpy as np
+from sqlalchemy.orm import Session, sessionmaker
+
+from sim.engine import CSV_COLUMNS, Scenario
+from sim.tracking import tracking_summary
+
+from . import store
+from .settings import Settings
+from .stream import Hub
+from .worker import scenario_from_job
+
+log = logging.getLogger("isorig.service")
+
+STATUS_INTERVAL_S = 0.25  # wall time between status messages while a test runs
+MAX_CHUNK_ROWS = 1000  # one stored chunk holds at most ~1 s of samples
+
+
+class Conflict(Exception):
+    """The request is valid but the rig or the test is not in a state that allows it (HTTP 409)."""
+
+
+class ActiveRun:
+    """The bookkeeping of the test the worker is running now."""
+
+    def __init__(self, test_id: int, process, out, commands, job: dict):
+        self.test_id = test_id
+        self.process = process
+        self.out = out
+        self.commands = commands
+        self.job = job
+        self.thread: threading.Thread | None = None
+        self.wall_t0: float | None = None
+        self.time_s = 0.0
+        self.finished = threading.Event()
+        self.stop_requested = False
+        self.shutdown = False
+
+
+class RigService:
+    """Runs tests on one rig through a worker process; records them in the store and streams them."""
+
+    def __init__(self, settings: Settings, sessions: sessionmaker[Session], hub: Hub, driver: str = "simulated"):
+        self.settings = settings
+        self.sessions = sessions
+        self.hub = hub
+        self.driver = driver
+        self.active: ActiveRun | None = None
+        self._lock = threading.Lock()
+        self._context = None
+        self._seq: dict[int, int] = {}
+
+    # --- state ---------------------------------------------------------------------------------------
+    def context(self):
+        if self._context is None:
+            method = self.settings.worker_start_method
+            if method not in mp.get_all_start_methods() or method == "fork":
+                method = "spawn"
+            ctx = mp.get_context(method)
+            if method == "forkserver":
+                ctx.set_forkserver_preload(["backend.worker"])
+            self._context = ctx
+        return self._context
+
+    def running_test_id(self) -> int | None:
+        run = self.active
+        return run.test_id if run is not None and not run.finished.is_set() else None
+
+    def state(self) -> dict:
+        run = self.active
+        if run is None or run.finished.is_set():
+            return {"status": "idle", "test_id": None, "driver": self.driver}
+        return {"status": "running", "test_id": run.test_id, "driver": self.driver, "time_s": run.time_s,
+                "worker_pid": run.process.pid}
+
+    # --- operator actions ----------------------------------------------------------------------------
+    def start(self, test_id: int, actor: str = "operator") -> None:
+        with self._lock:
+            running = self.running_test_id()
+            if running is not None:
+                raise Conflict(f"test {running} is running; the rig runs one test at a time")
+            with self.sessions() as session:
+                test = store.get_test(session, test_id)
+                if test is None:
+                    raise KeyError(test_id)
+                if test.status != "ready":
+                    raise Conflict(f"test {test_id} is {test.status}; only a test with status 'ready' can start "
+                                   "(create a new test to run it again)")
+                job = {"test_id": test_id, "driver": test.driver, "speed": test.speed,
+                       "scenario": test.request["job_scenario"], "limits": test.limits}
+                ctx = self.context()
+                out_r, out_w = ctx.Pipe(duplex=False)
+                cmd_r, cmd_w = ctx.Pipe(duplex=False)
+                from .worker import main as worker_main
+
+                process = ctx.Process(target=worker_main, args=(job, out_w, cmd_r), daemon=True,
+                                      name=f"isorig-worker-test-{test_id}")
+                process.start()
+                out_w.close()
+                cmd_r.close()
+                store.set_status(session, test, "running")
+                store.add_event(session, test_id, "operator", f"test {test_id} started by {actor}",
+                                {"action": "start", "worker_pid": process.pid}, actor=actor, time_s=0.0)
+                session.commit()
+                record = store.test_record(session, test, with_events=False)
+            run = ActiveRun(test_id, process, out_r, cmd_w, job)
+            self.active = run
+            run.thread = threading.Thread(target=self._record, args=(run, record), daemon=True,
+                                          name=f"isorig-recorder-{test_id}")
+            run.thread.start()
+        self._publish_event(test_id, 0.0, "operator", f"test {test_id} started by {actor}", {"action": "start"})
+
+    def command(self, test_id: int, action: str, actor: str = "operator") -> None:
+        """``stop`` (ramp-out) or ``abort`` (at once) the running test."""
+        run = self.active
+        if run is None or run.finished.is_set() or run.test_id != test_id:
+            with self.sessions() as session:
+                test = store.get_test(session, test_id)
+                if test is None:
+                    raise KeyError(test_id)
+                raise Conflict(f"test {test_id} is {test.status}, not running; nothing to {action}")
+        with self.sessions() as session:
+            store.add_event(session, test_id, "operator", f"{action} requested by {actor}", {"action": action},
+                            actor=actor, time_s=run.time_s)
+            session.commit()
+        try:
+            run.commands.send(action)
+        except (BrokenPipeError, OSError):
+            pass
+        if action == "abort":
+            run.stop_requested = True
+            # the worker stops at its next chunk (<= 20 ms); if it does not answer, end it
+            threading.Thread(target=self._ensure_ended, args=(run, 2.0), daemon=True).start()
+
+    def _ensure_ended(self, run: ActiveRun, timeout_s: float) -> None:
+        if not run.finished.wait(timeout_s) and run.process.is_alive():
+            log.warning("worker of test %s did not answer an abort; terminating it", run.test_id)
+            run.process.terminate()
+
+    def shutdown(self, timeout_s: float = 5.0) -> None:
+        """Service shutdown: abort a running test (it ends ``interrupted``) and wait for its records."""
+        run = self.active
+        if run is None or run.finished.is_set():
+            return
+        run.stop_requested = True
+        run.shutdown = True
+        try:
+            run.commands.send("abort")
+        except (BrokenPipeError, OSError):
+            pass
+        if not run.finished.wait(timeout_s) and run.process.is_alive():
+            run.process.terminate()
+            run.finished.wait(timeout_s)
+
+    # --- recorder thread -----------------------------------------------------------------------------
+    def _record(self, run: ActiveRun, record: dict) -> None:
+        test_id = run.test_id
+        pending: list[np.ndarray] = []
+        pending_rows = 0
+        last_commit = time.monotonic()
+        last_status = 0.0
+        final = None
+        cycles_done = 0
+        cycles_total = record["cycles_total"]
+        duration_s = record["duration_s"]
+        speed = record["speed"]
+        session = self.sessions()
+
+        def status_message(status: str, reason: str | None = None) -> dict:
+            cycle = cycles_done if status != "running" else min(cycles_done + 1, cycles_total)
+            msg = {"type": "status", "test_id": test_id, "status": status, "time_s": run.time_s,
+                   "progress": min(1.0, run.time_s / duration_s) if duration_s else 0.0, "cycle": cycle,
+                   "cycles_total": cycles_total,
+                   "time_left_s": max(0.0, duration_s - run.time_s) / speed if status == "running" else 0.0}
+            if reason:
+                msg["reason"] = reason
+            return msg
+
+        def flush() -> None:
+            nonlocal pending, pending_rows, last_commit
+            if pending:
+                rows = np.concatenate(pending)
+                test = store.get_test(session, test_id)
+                for i in range(0, rows.shape[0], MAX_CHUNK_ROWS):
+                    store.append_samples(session, test, rows[i: i + MAX_CHUNK_ROWS])
+                pending, pending_rows = [], 0
+            session.commit()
+            last_commit = time.monotonic()
+
+        self.hub.publish_threadsafe(status_message("running"))
+        try:
+            while True:
+                try:
+                    has = run.out.poll(0.1)
+                except (EOFError, OSError):
+                    break
+                if not has:
+                    if pending and time.monotonic() - last_commit >= self.settings.commit_interval_s:
+                        flush()
+                    if not run.process.is_alive() and not run.out.poll(0):
+                        break
+                    continue
+                try:
+                    kind, payload = run.out.recv()
+                except (EOFError, OSError):
+                    break
+                if kind == "samples":
+                    rows = payload
+                    pending.append(rows)
+                    pending_rows += rows.shape[0]
+                    run.time_s = float(rows[-1, 0])
+                    self.hub.publish_threadsafe({"type": "samples", "test_id": test_id,
+                                                 "seq": self.hub_seq(test_id), "columns": list(CSV_COLUMNS),
+                                                 "rows": rows[:, : len(CSV_COLUMNS)].tolist()})
+                    if (pending_rows >= MAX_CHUNK_ROWS
+                            or time.monotonic() - last_commit >= self.settings.commit_interval_s):
+                        flush()
+                    now = time.monotonic()
+                    if now - last_status >= STATUS_INTERVAL_S:
+                        last_status = now
+                        self.hub.publish_threadsafe(status_message("running"))
+                elif kind == "started":
+                    run.wall_t0 = payload["wall_t0"]
+                    test = store.get_test(session, test_id)
+                    test.started_at = datetime.fromtimestamp(run.wall_t0, UTC)
+                    session.commit()
+                elif kind == "cycle":
+                    flush()
+                    store.add_cycle(session, test_id, payload["cycle"], payload["block"], payload["t_start_s"],
+                                    payload["t_end_s"], payload["metrics"], payload["displacement_m"],
+                                    payload["force_n"])
+                    session.commit()
+                    cycles_done = payload["cycle"]
+                    self.hub.publish_threadsafe({
+                        "type": "cycle", "test_id": test_id, "cycle": payload["cycle"],
+                        "metrics": store.clean_json(payload["metrics"]),
+                        "loop": {"displacement_m": payload["displacement_m"].tolist(),
+                                 "force_n": payload["force_n"].tolist()}})
+                elif kind == "event":
+                    flush()
+                    store.add_event(session, test_id, payload["kind"], payload["message"], payload["values"],
+                                    time_s=payload["time_s"])
+                    session.commit()
+                    self._publish_event(test_id, payload["time_s"], payload["kind"], payload["message"],
+                                        payload["values"])
+                elif kind == "finished":
+                    final = payload
+                    break
+        except Exception as exc:  # the recorder must never die silently: end the test as failed
+            log.exception("recorder of test %s failed", test_id)
+            session.rollback()
+            final = {"status": "failed", "reason": f"recorder error: {type(exc).__name__}: {exc}", "pacing": {}}
+            try:
+                run.commands.send("abort")
+            except OSError:
+                pass
+        try:
+            flush()
+            run.process.join(timeout=5.0)
+            if final is None:
+                code = run.process.exitcode
+                if run.shutdown:
+                    status, reason = "interrupted", "the service shut down while the test was running"
+                else:
+                    status, reason = "aborted", (f"the worker process ended unexpectedly (exit code {code}) at "
+                                                 f"t = {run.time_s:.3f} s; samples up to then are kept")
+                pacing = {}
+            else:
+                status, reason, pacing = final["status"], final["reason"], final.get("pacing", {})
+                if run.shutdown and status == "aborted":
+                    status, reason = "interrupted", "the service shut down while the test was running"
+            test = store.get_test(session, test_id)
+            summary = self._summary(session, test, run.job, pacing)
+            test.summary = summary
+            store.set_status(session, test, status, reason)
+            message = f"test {test_id} {status}" + (f": {reason}" if reason else "")
+            store.add_event(session, test_id, "status", message, {"status": status, "time_s": run.time_s},
+                            time_s=run.time_s)
+            session.commit()
+            self._publish_event(test_id, run.time_s, "status", message, {"status": status})
+            self.hub.publish_threadsafe(status_message(status, reason))
+        except Exception:
+            log.exception("could not record the end of test %s", test_id)
+        finally:
+            session.close()
+            for conn in (run.out, run.commands):
+                try:
+                    conn.close()
+                except OSError:
+                    pass
+            run.finished.set()
+
+    def hub_seq(self, test_id: int) -> int:
+        self._seq[test_id] = self._seq.get(test_id, 0) + 1
+        return self._seq[test_id]
+
+    def _publish_event(self, test_id: int, time_s: float | None, kind: str, message: str, values: dict) -> None:
+        self.hub.publish_threadsafe({"type": "event", "test_id": test_id, "time_s": time_s, "kind": kind,
+                                     "message": message, "values": store.clean_json(values)})
+
+    def _summary(self, session: Session, test, job: dict, pacing: dict) -> dict:
+        """Tracking figures (sim.tracking), loop-metric means over the full-amplitude cycles, pacing."""
+        samples = store.load_samples(session, test.id)
+        scenario: Scenario = scenario_from_job(job)
+        closed = samples[np.isfinite(samples[:, 1])] if samples.size else samples
+        summary: dict = {"samples": int(samples.shape[0]), "pacing": pacing,
+                         "storage_bytes": store.storage_bytes(session, test.id)}
+        if closed.shape[0]:
+            tracking = tracking_summary(closed, scenario)
+            tracking.pop("samples", None)
+            summary["tracking"] = tracking
+        cycles = store.load_cycles(session, test.id, arrays=False)
+        taper = {b: scenario.profile[b].taper_cycles for b in range(len(scenario.profile))}
+        counts = {b: scenario.profile[b].cycles for b in range(len(scenario.profile))}
+        first = {}
+        for c in cycles:
+            first.setdefault(c["block"], c["cycle"])
+        full = [c for c in cycles
+                if taper[c["block"]] <= c["cycle"] - first[c["block"]] < counts[c["block"]] - taper[c["block"]]]
+        means = {}
+        for key in ("k_eff_n_per_m", "edc_j", "xi_eff", "qd_n", "kd_n_per_m"):
+            values = [c[key] for c in full if isinstance(c.get(key), (int, float))]
+            if values:
+                means[key] = float(np.mean(values))
+        summary["cycles_done"] = len(cycles)
+        summary["full_amplitude_cycles"] = len(full)
+        summary["loop_metrics_mean"] = means
+        return store.clean_json(summary)
