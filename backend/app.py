@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import sys
+import threading
 from contextlib import asynccontextmanager
 
 from fastapi import FastAPI
@@ -43,6 +44,7 @@ def create_app(settings: Settings | None = None, driver: str = "simulated") -> F
     @asynccontextmanager
     async def lifespan(app: FastAPI):
         hub.bind(asyncio.get_running_loop())
+        threading.Thread(target=service.prepare, daemon=True, name="isorig-forkserver-start").start()
         print(f"isorig: operator token in {token_source}", file=sys.stderr, flush=True)
         try:
             yield

@@ -74,9 +74,17 @@ class RigService:
                 method = "spawn"
             ctx = mp.get_context(method)
             if method == "forkserver":
-                ctx.set_forkserver_preload(["backend.worker"])
+                ctx.set_forkserver_preload(["backend.preload"])
             self._context = ctx
         return self._context
+
+    def prepare(self) -> None:
+        """Start the worker forkserver now (it imports and loads the engine once), not at the first test."""
+        ctx = self.context()
+        if ctx.get_start_method() == "forkserver":
+            from multiprocessing import forkserver
+
+            forkserver.ensure_running()
 
     def running_test_id(self) -> int | None:
         run = self.active

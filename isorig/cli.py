@@ -10,7 +10,7 @@ import importlib
 import sys
 import time
 
-COMMAND_MODULES = ("simulate", "bench", "analyze")
+COMMAND_MODULES = ("simulate", "bench", "analyze", "serve")
 
 
 class UsageError(Exception):

@@ -1,0 +1,40 @@
+"""`isorig serve`: the backend service (REST, websockets, dashboard) with uvicorn on the embedded defaults."""
+
+from __future__ import annotations
+
+import sys
+
+
+def register(sub) -> None:
+    p = sub.add_parser("serve", help="run the service: REST API, websockets, dashboard (simulated rig)")
+    p.add_argument("--host", default=None, help="interface to listen on (default 127.0.0.1; ISORIG_HOST)")
+    p.add_argument("--port", type=int, default=None, help="TCP port (default 8000; ISORIG_PORT)")
+    p.add_argument("--database-url", default=None,
+                   help="SQLAlchemy URL (default: SQLite in the user data directory; ISORIG_DATABASE_URL)")
+    p.add_argument("--data-dir", default=None, help="data directory for the SQLite file and the token file")
+    p.add_argument("--log-level", default="info", choices=("critical", "error", "warning", "info", "debug"))
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    import uvicorn
+
+    from backend.app import create_app
+    from backend.settings import Settings
+    from isorig.cli import UsageError
+
+    overrides = {k: v for k, v in (("host", args.host), ("port", args.port), ("database_url", args.database_url),
+                                   ("data_dir", args.data_dir)) if v is not None}
+    settings = Settings(**overrides)
+    if not (0 < settings.port < 65536):
+        raise UsageError(f"isorig serve: --port {settings.port} is outside 1-65535")
+    try:
+        app = create_app(settings)
+    except Exception as exc:  # bad URL, unreachable database: one clear line
+        print(f"isorig serve: cannot open the database {settings.resolved_database_url!r}: "
+              f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}", file=sys.stderr)
+        return 2
+    print(f"isorig: serving on http://{settings.host}:{settings.port}/ (API docs at /docs), "
+          f"database {app.state.engine.url.render_as_string(hide_password=True)}", file=sys.stderr, flush=True)
+    uvicorn.run(app, host=settings.host, port=settings.port, log_level=args.log_level)
+    return 0

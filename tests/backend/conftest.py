@@ -1,0 +1,64 @@
+"""Fixtures for the backend tests: a service on a temporary database, the operator token, test helpers."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+
+from backend.app import create_app
+from backend.settings import Settings
+
+TOKEN = "test-operator-token"
+AUTH = {"Authorization": f"Bearer {TOKEN}"}
+
+
+def sine_test(**overrides) -> dict:
+    """A short, accelerated IUT_a test body (3 cycles at 2 Hz = 1.5 s of test time)."""
+    body = {"isolator": "IUT_a", "supply_bar": 100, "controller": "pid", "speed": 20.0,
+            "profile": {"kind": "sine", "amplitude_m": 0.01, "frequency_hz": 2.0, "cycles": 3, "taper_cycles": 1}}
+    for key, value in overrides.items():
+        if key == "profile":
+            body["profile"] = {**body["profile"], **value}
+        else:
+            body[key] = value
+    return body
+
+
+def make_settings(tmp: Path, **overrides) -> Settings:
+    values = {"data_dir": tmp, "operator_token": TOKEN, "viewer": False, "commit_interval_s": 0.2}
+    values.update(overrides)
+    return Settings(**values)
+
+
+@pytest.fixture
+def settings(tmp_path) -> Settings:
+    return make_settings(tmp_path)
+
+
+@pytest.fixture
+def client(settings):
+    with TestClient(create_app(settings)) as c:
+        yield c
+
+
+def wait_for(client, test_id: int, statuses=("completed", "stopped", "aborted", "interrupted", "failed"),
+             timeout_s: float = 30.0) -> dict:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        record = client.get(f"/api/tests/{test_id}").json()
+        if record["status"] in statuses:
+            return record
+        time.sleep(0.05)
+    raise AssertionError(f"test {test_id} did not reach {statuses} within {timeout_s} s (last: {record['status']})")
+
+
+def create_and_start(client, **overrides) -> int:
+    r = client.post("/api/tests", json=sine_test(**overrides), headers=AUTH)
+    assert r.status_code == 201, r.text
+    test_id = r.json()["id"]
+    r = client.post(f"/api/tests/{test_id}/start", headers=AUTH)
+    assert r.status_code == 200, r.text
+    return test_id

@@ -1,0 +1,123 @@
+"""REST API: records, validation errors that name field, value and limit, state conflicts."""
+
+from __future__ import annotations
+
+from .conftest import AUTH, sine_test
+
+USER_ISOLATOR = {"name": "my_lrb", "rho_bw_per_m": 200.0, "sigma_bw": 0.5, "n": 1.0, "kd_n_per_m": 9e5,
+                 "kw_n": 2e4, "description": "test"}
+
+
+def test_health_and_rig(client):
+    assert client.get("/api/health").json()["status"] == "ok"
+    rig = client.get("/api/rig").json()
+    assert rig["driver"] == "simulated"
+    assert rig["envelope"]["stroke_m"] > 0
+    assert rig["state"]["status"] == "idle"
+    names = {p["name"] for p in rig["parameters"]}
+    assert {"piston_area_m2", "stroke_m"} <= names
+    assert rig["limits_default"]["displacement_m"] <= rig["limits_max"]["displacement_m"]
+
+
+def test_isolators_presets_and_user(client):
+    names = {i["name"]: i["source"] for i in client.get("/api/isolators").json()}
+    assert names["IUT_a"] == "preset" and names["IUT_b"] == "preset"
+    r = client.post("/api/isolators", json=USER_ISOLATOR, headers=AUTH)
+    assert r.status_code == 201, r.text
+    assert client.get("/api/isolators/my_lrb").json()["kd_n_per_m"] == 9e5
+    assert client.get("/api/isolators/my_lrb").json()["source"] == "user"
+    assert client.post("/api/isolators", json=USER_ISOLATOR, headers=AUTH).status_code == 409
+    assert client.post("/api/isolators", json={**USER_ISOLATOR, "name": "IUT_a"}, headers=AUTH).status_code == 409
+    assert client.get("/api/isolators/nope").status_code == 404
+    # a user isolator can be tested
+    r = client.post("/api/tests", json=sine_test(isolator="my_lrb"), headers=AUTH)
+    assert r.status_code == 201, r.text
+
+
+def test_isolator_out_of_range_names_field(client):
+    r = client.post("/api/isolators", json={**USER_ISOLATOR, "name": "bad", "kd_n_per_m": 5e9}, headers=AUTH)
+    assert r.status_code == 422
+    assert "kd_n_per_m" in r.json()["detail"] and "1e+09" in r.json()["detail"]
+
+
+def test_create_test_record(client):
+    r = client.post("/api/tests", json=sine_test(label="first"), headers=AUTH)
+    assert r.status_code == 201
+    rec = r.json()
+    assert rec["status"] == "ready" and rec["id"] >= 1
+    assert rec["cycles_total"] == 3 and abs(rec["duration_s"] - 1.5) < 1e-9
+    assert rec["profile"]["amplitude_m"] == 0.01
+    assert rec["scenario"]["isolator"]["name"] == "IUT_a"
+    assert [e["kind"] for e in rec["events"]] == ["operator"]
+    assert client.get(f"/api/tests/{rec['id']}").json()["label"] == "first"
+
+
+def test_outside_envelope_names_field_value_limit(client):
+    r = client.post("/api/tests", json=sine_test(profile={"amplitude_m": 0.2}), headers=AUTH)
+    assert r.status_code == 422
+    body = r.json()
+    assert body["field"] == "profile.amplitude_m" and body["value"] == 0.2 and "0.15" in body["limit"]
+    # force envelope: IUT_a at 10 bar cannot be pushed 0.1 m
+    r = client.post("/api/tests", json=sine_test(supply_bar=10, profile={"amplitude_m": 0.1, "frequency_hz": 0.2}),
+                    headers=AUTH)
+    assert r.status_code == 422 and "A_p P_s" in r.json()["limit"]
+    r = client.post("/api/tests", json=sine_test(supply_bar=500), headers=AUTH)
+    assert r.status_code == 422 and r.json()["field"] == "supply_bar" and r.json()["value"] == 500
+
+
+def test_other_validation_errors(client):
+    cases = [
+        (sine_test(isolator="unknown_iso"), "isolator"),
+        (sine_test(controller="lqr"), "controller"),
+        (sine_test(speed=0), "speed"),
+        (sine_test(speed=1000), "speed"),
+        (sine_test(profile={"taper_cycles": 5}), "profile.taper_cycles"),
+        (sine_test(profile={"kind": "square"}), "profile"),
+        (sine_test(limits={"displacement_m": 1.0}), "limits.displacement_m"),
+        (sine_test(limits={"force_n": -1}), "limits.force_n"),
+        ({**sine_test(), "extra": 1}, "extra"),
+        ({k: v for k, v in sine_test().items() if k != "supply_bar"}, "supply_bar"),
+    ]
+    for body, field in cases:
+        r = client.post("/api/tests", json=body, headers=AUTH)
+        assert r.status_code == 422, (body, r.text)
+        out = r.json()
+        assert isinstance(out["detail"], str) and out["detail"]
+        assert out["field"].startswith(field), (field, out)
+    r = client.post("/api/tests", content=b'{"supply_bar": NaN}', headers={**AUTH, "content-type": "application/json"})
+    assert r.status_code == 422
+
+
+def test_list_filters_and_404(client):
+    ids = [client.post("/api/tests", json=sine_test(isolator=iso), headers=AUTH).json()["id"]
+           for iso in ("IUT_a", "IUT_b", "IUT_a")]
+    assert [t["id"] for t in client.get("/api/tests").json()] == ids[::-1]
+    assert {t["id"] for t in client.get("/api/tests", params={"isolator": "IUT_b"}).json()} == {ids[1]}
+    assert len(client.get("/api/tests", params={"status": "ready"}).json()) == 3
+    assert client.get("/api/tests", params={"status": "completed"}).json() == []
+    assert client.get("/api/tests", params={"status": "bogus"}).status_code == 422
+    assert len(client.get("/api/tests", params={"since": "2000-01-01T00:00:00Z"}).json()) == 3
+    assert client.get("/api/tests", params={"until": "2000-01-01T00:00:00Z"}).json() == []
+    assert client.get("/api/tests/999").status_code == 404
+    assert client.get("/api/tests/999/cycles").status_code == 404
+    assert client.get("/api/tests/999/data.csv").status_code == 404
+    assert client.get("/api/tests/0").status_code == 422
+
+
+def test_state_conflicts_and_delete(client):
+    test_id = client.post("/api/tests", json=sine_test(), headers=AUTH).json()["id"]
+    assert client.post(f"/api/tests/{test_id}/stop", headers=AUTH).status_code == 409
+    assert client.post(f"/api/tests/{test_id}/abort", headers=AUTH).status_code == 409
+    r = client.delete(f"/api/tests/{test_id}", headers=AUTH)
+    assert r.status_code == 204
+    assert client.get(f"/api/tests/{test_id}").status_code == 404
+    # the audit log keeps the deletion
+    events = client.get("/api/events", params={"test_id": test_id}).json()
+    assert any("deleted" in e["message"] for e in events)
+
+
+def test_reports_route_answers(client):
+    test_id = client.post("/api/tests", json=sine_test(), headers=AUTH).json()["id"]
+    r = client.get(f"/api/tests/{test_id}/report.json")
+    assert r.status_code in (200, 503)  # 503 (with a message) only when backend.reports is not installed
+    assert r.headers["content-type"].startswith("application/json")

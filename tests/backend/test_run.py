@@ -1,0 +1,140 @@
+"""Running tests end to end: worker process, stored samples and cycles, websocket frames, stop and abort."""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+
+import numpy as np
+
+from sim.engine import CSV_COLUMNS
+
+from .conftest import AUTH, create_and_start, sine_test, wait_for
+
+
+def test_completed_test_stores_every_sample_and_cycle(client):
+    test_id = create_and_start(client)
+    rec = wait_for(client, test_id)
+    assert rec["status"] == "completed", rec["reason"]
+    assert rec["samples_stored"] == 1500  # 1.5 s at 1 kHz
+    assert rec["cycles_done"] == 3
+    assert rec["summary"]["tracking"]["all_finite"] is True
+    assert rec["summary"]["pacing"]["chunks"] > 0
+    assert rec["started_at"] and rec["ended_at"]
+    kinds = [e["kind"] for e in rec["events"]]
+    assert kinds.count("operator") >= 2 and kinds[-1] == "status"
+    text = client.get(f"/api/tests/{test_id}/data.csv").text
+    rows = list(csv.reader(io.StringIO(text)))
+    assert tuple(rows[0]) == CSV_COLUMNS
+    assert len(rows) == 1 + 1500
+    t = np.array([float(r[0]) for r in rows[1:]])
+    assert np.allclose(np.diff(t), 1e-3)
+    y = np.array([float(r[3]) for r in rows[1:]])
+    assert 0.007 < y.max() < 0.013  # a 10 mm sine was tracked
+    cycles = client.get(f"/api/tests/{test_id}/cycles", params={"arrays": True}).json()
+    assert [c["cycle"] for c in cycles] == [1, 2, 3]
+    full = cycles[1]
+    assert full["k_eff_n_per_m"] > 1e6 and full["edc_j"] > 0
+    assert len(full["displacement_m"]) == len(full["force_n"]) == 500
+    assert client.post(f"/api/tests/{test_id}/start", headers=AUTH).status_code == 409  # not ready any more
+
+
+def test_websocket_receives_live_frames(client):
+    test_id = create_and_start(client, speed=5.0)
+    with client.websocket_connect(f"/ws/tests/{test_id}") as ws:
+        hello = ws.receive_json()
+        assert hello["v"] == 1 and hello["type"] == "hello" and hello["test_id"] == test_id
+        assert hello["test"]["id"] == test_id
+        seen = {"samples": [], "status": [], "cycle": [], "event": []}
+        while True:
+            m = ws.receive_json()
+            assert m["v"] == 1 and m["test_id"] == test_id
+            seen[m["type"]].append(m)
+            if m["type"] == "status" and m["status"] != "running":
+                break
+    batches = seen["samples"]
+    assert batches and all(b["columns"] == list(CSV_COLUMNS) for b in batches)
+    seqs = [b["seq"] for b in batches]
+    assert seqs == sorted(seqs)
+    rows = [r for b in batches for r in b["rows"]]
+    assert all(len(r) == 10 for r in rows)
+    times = [r[0] for r in rows]
+    assert len(set(times)) == len(times) and len(rows) >= 1000  # joined within the first half second
+    assert seen["status"][-1]["status"] == "completed" and seen["status"][-1]["cycles_total"] == 3
+    running = [s for s in seen["status"] if s["status"] == "running"]
+    assert running and all(0 <= s["progress"] <= 1 for s in running)
+    assert [c["cycle"] for c in seen["cycle"]] == [1, 2, 3]
+    assert set(seen["cycle"][1]["metrics"]) >= {"k_eff_n_per_m", "edc_j", "xi_eff", "qd_n", "kd_n_per_m"}
+    assert len(seen["cycle"][1]["loop"]["displacement_m"]) == 500
+
+
+def test_live_socket_and_late_join_history(client):
+    with client.websocket_connect("/ws/live") as ws:
+        hello = ws.receive_json()
+        assert hello["type"] == "hello" and hello["test_id"] is None
+        test_id = create_and_start(client, speed=10.0)
+        while True:
+            m = ws.receive_json()
+            if m["type"] == "samples":
+                assert m["test_id"] == test_id
+                break
+    wait_for(client, test_id)
+    # a client joining after the end gets hello, the recent history and the final status
+    with client.websocket_connect(f"/ws/tests/{test_id}") as ws:
+        assert ws.receive_json()["type"] == "hello"
+        first = ws.receive_json()
+        assert first["type"] == "samples" and first["rows"][0][0] >= 0
+        while first["type"] != "status":
+            first = ws.receive_json()
+        assert first["status"] == "completed"
+
+
+def test_websocket_unknown_test(client):
+    with client.websocket_connect("/ws/tests/4242") as ws:
+        m = ws.receive_json()
+        assert m["type"] == "error" and "4242" in m["message"]
+
+
+def test_stop_ramps_out_and_abort_is_immediate(client):
+    body = {"speed": 4.0, "profile": {"frequency_hz": 2.0, "cycles": 20, "taper_cycles": 1}}  # 10 s test time
+    test_id = create_and_start(client, **body)
+    with client.websocket_connect(f"/ws/tests/{test_id}") as ws:
+        t_now = 0.0
+        while t_now < 1.0:  # wait until the test is past 1 s of test time
+            m = ws.receive_json()
+            if m["type"] == "samples":
+                t_now = m["rows"][-1][0]
+    r = client.post(f"/api/tests/{test_id}/stop", headers=AUTH)
+    assert r.status_code == 200
+    rec = wait_for(client, test_id)
+    assert rec["status"] == "stopped", rec["reason"]
+    stop_event = next(e for e in rec["events"] if e["values"].get("action") == "stop" and "ends_at_s" in e["values"])
+    ends = stop_event["values"]["ends_at_s"]
+    assert stop_event["time_s"] < ends <= stop_event["time_s"] + 1.0 + 1e-9  # <= one taper cycle + rounding
+    assert abs(rec["time_s"] - (ends - 1e-3)) < 2e-3 and rec["time_s"] < 9.0
+    csv_rows = client.get(f"/api/tests/{test_id}/data.csv").text.splitlines()[1:]
+    target = np.array([float(r.split(",")[1]) for r in csv_rows])
+    assert abs(target[-1]) < 1e-4  # the target tapered to zero
+    assert np.max(np.abs(np.diff(target))) < 2 * math.pi * 2.0 * 0.01 * 1e-3 * 1.5  # and never jumped
+
+    test_id = create_and_start(client, **body)
+    wait_for(client, test_id, statuses=("running",))
+    with client.websocket_connect(f"/ws/tests/{test_id}") as ws:
+        while ws.receive_json()["type"] != "samples":
+            pass
+    assert client.post(f"/api/tests/{test_id}/abort", headers=AUTH).status_code == 200
+    rec = wait_for(client, test_id)
+    assert rec["status"] == "aborted" and "operator abort" in rec["reason"]
+    assert rec["time_s"] < 9.0
+    assert client.get("/api/rig").json()["state"]["status"] == "idle"
+
+
+def test_one_test_at_a_time(client):
+    first = create_and_start(client, speed=2.0)
+    second = client.post("/api/tests", json=sine_test(), headers=AUTH).json()["id"]
+    r = client.post(f"/api/tests/{second}/start", headers=AUTH)
+    assert r.status_code == 409 and str(first) in r.json()["detail"]
+    assert client.delete(f"/api/tests/{first}", headers=AUTH).status_code == 409
+    assert client.post(f"/api/tests/{first}/abort", headers=AUTH).status_code == 200
+    wait_for(client, first)

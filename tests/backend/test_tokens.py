@@ -1,0 +1,64 @@
+"""The operator token: generated owner-only at first start, kept across restarts, required to act."""
+
+from __future__ import annotations
+
+import stat
+
+import pytest
+from fastapi.testclient import TestClient
+
+from backend.app import create_app
+
+from .conftest import AUTH, make_settings, sine_test
+
+MUTATING = [
+    ("post", "/api/tests", sine_test()),
+    ("post", "/api/isolators", {"name": "x", "rho_bw_per_m": 100, "sigma_bw": 0.5, "n": 1, "kd_n_per_m": 1e6,
+                                "kw_n": 1e4}),
+    ("post", "/api/tests/1/start", None),
+    ("post", "/api/tests/1/stop", None),
+    ("post", "/api/tests/1/abort", None),
+    ("delete", "/api/tests/1", None),
+]
+
+
+def test_generated_token_file_is_owner_only_and_reused(tmp_path):
+    settings = make_settings(tmp_path, operator_token=None)
+    with TestClient(create_app(settings)) as c:
+        path = tmp_path / "operator-token"
+        assert path.exists()
+        assert stat.S_IMODE(path.stat().st_mode) == 0o600
+        token = path.read_text().strip()
+        assert len(token) >= 32
+        r = c.post("/api/tests", json=sine_test(), headers={"Authorization": f"Bearer {token}"})
+        assert r.status_code == 201
+        assert c.post("/api/tests", json=sine_test(), headers=AUTH).status_code == 401
+    with TestClient(create_app(make_settings(tmp_path, operator_token=None))) as c:
+        assert (tmp_path / "operator-token").read_text().strip() == token
+        assert c.post("/api/tests", json=sine_test(), headers={"Authorization": f"Bearer {token}"}).status_code == 201
+
+
+@pytest.mark.parametrize(("method", "path", "body"), MUTATING)
+def test_mutating_endpoints_need_the_token(client, method, path, body):
+    client.post("/api/tests", json=sine_test(), headers=AUTH)  # test 1 exists
+    kwargs = {"json": body} if body is not None else {}
+    for headers in ({}, {"Authorization": "Bearer wrong"}, {"Authorization": "Basic dXNlcjpwdw=="}):
+        r = getattr(client, method)(path, headers=headers, **kwargs)
+        assert r.status_code == 401, (path, headers, r.text)
+        assert "operator token" in r.json()["detail"]
+        assert r.headers.get("www-authenticate") == "Bearer"
+    assert client.get("/api/tests/1").json()["status"] == "ready"  # nothing moved
+
+
+def test_read_only_endpoints_need_no_token(client):
+    client.post("/api/tests", json=sine_test(), headers=AUTH)
+    for path in ("/api/health", "/api/rig", "/api/isolators", "/api/isolators/IUT_a", "/api/tests", "/api/tests/1",
+                 "/api/tests/1/cycles", "/api/tests/1/data.csv", "/api/events", "/openapi.json"):
+        assert client.get(path).status_code == 200, path
+
+
+def test_no_cors_by_default(client):
+    r = client.options("/api/tests", headers={"Origin": "http://evil.example", "Access-Control-Request-Method": "POST"})
+    assert "access-control-allow-origin" not in r.headers
+    r = client.get("/api/health", headers={"Origin": "http://evil.example"})
+    assert "access-control-allow-origin" not in r.headers
