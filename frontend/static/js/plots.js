@@ -1,0 +1,302 @@
+// Plots: time plots on uPlot (vendored) and a true x-y force-displacement loop on a plain canvas.
+
+import uPlot from "../vendor/uplot/uPlot.esm.js";
+
+const AXIS = "#8d99a6";
+const GRID = "#2a323b";
+
+/** "Nice" tick values covering [lo, hi] (about n ticks). */
+export function niceTicks(lo, hi, n = 6) {
+  if (!(hi > lo)) return [lo];
+  const raw = (hi - lo) / n;
+  const mag = Math.pow(10, Math.floor(Math.log10(raw)));
+  const norm = raw / mag;
+  const step = (norm < 1.5 ? 1 : norm < 3 ? 2 : norm < 7 ? 5 : 10) * mag;
+  const out = [];
+  for (let v = Math.ceil(lo / step) * step; v <= hi + step * 1e-9; v += step) out.push(Math.abs(v) < step * 1e-9 ? 0 : v);
+  return out;
+}
+
+/** min and max of arr[i0:i1] ignoring NaN; null when every value is NaN. */
+function finiteRange(arr, i0, i1) {
+  let lo = Infinity;
+  let hi = -Infinity;
+  for (let i = i0; i < i1; i++) {
+    const v = arr[i];
+    if (v < lo) lo = v;
+    if (v > hi) hi = v;
+  }
+  return lo <= hi ? [lo, hi] : null;
+}
+
+function padRange(r, minSpan) {
+  let [lo, hi] = r;
+  const span = Math.max(hi - lo, minSpan);
+  const mid = 0.5 * (lo + hi);
+  lo = mid - 0.55 * span;
+  hi = mid + 0.55 * span;
+  return [lo, hi];
+}
+
+/**
+ * A scrolling time plot. series: [{label, stroke, scale ("y" or "y2"), scaleBy}], the data are typed
+ * arrays (NaN = no value) shared with the live buffer; scaleBy converts SI to the displayed unit.
+ */
+export class TimePlot {
+  constructor(el, { series, minSpan = { y: 1e-3, y2: 1e-3 }, y2 = false, y2Label = "" }) {
+    this.el = el;
+    this.series = series;
+    this.minSpan = minSpan;
+    this.hasY2 = y2;
+    const axes = [
+      { stroke: AXIS, grid: { stroke: GRID, width: 1 }, ticks: { stroke: GRID }, size: 36 },
+      { scale: "y", stroke: AXIS, grid: { stroke: GRID, width: 1 }, ticks: { stroke: GRID }, size: 56 },
+    ];
+    if (y2) {
+      axes.push({ scale: "y2", side: 1, stroke: AXIS, grid: { show: false }, ticks: { stroke: GRID }, size: 60,
+        label: y2Label, labelSize: 14 });
+    }
+    const scales = { x: { time: false, auto: false }, y: { auto: false } };
+    if (y2) scales.y2 = { auto: false };
+    const rect = el.getBoundingClientRect();
+    this.u = new uPlot({
+      width: Math.max(200, rect.width),
+      height: Math.max(120, rect.height - 30),
+      pxAlign: 0,
+      scales,
+      axes,
+      legend: { show: true, live: false },
+      cursor: { show: false },
+      series: [{ label: "t (s)" }, ...series.map((s) => ({
+        label: s.label, stroke: s.stroke, width: s.width || 1.5, scale: s.scale || "y", points: { show: false },
+      }))],
+    }, [new Float64Array(0), ...series.map(() => new Float64Array(0))], el);
+    this.ro = new ResizeObserver(() => {
+      const r = el.getBoundingClientRect();
+      if (r.width > 0) this.u.setSize({ width: r.width, height: Math.max(120, r.height - 30) });
+    });
+    this.ro.observe(el);
+  }
+
+  /** Show columns xs/ys in [i0, i1) between xMin and xMax (seconds). */
+  update(xs, ys, i0, i1, xMin, xMax) {
+    const data = [xs.subarray(i0, i1)];
+    const ranges = {};
+    ys.forEach((y, k) => {
+      data.push(y.subarray(i0, i1));
+      const scale = this.series[k].scale || "y";
+      const r = finiteRange(y, i0, i1);
+      if (r) {
+        const cur = ranges[scale];
+        ranges[scale] = cur ? [Math.min(cur[0], r[0]), Math.max(cur[1], r[1])] : r;
+      }
+    });
+    const u = this.u;
+    u.batch(() => {
+      u.setData(data, false);
+      u.setScale("x", { min: xMin, max: xMax });
+      for (const scale of this.hasY2 ? ["y", "y2"] : ["y"]) {
+        const r = padRange(ranges[scale] || [-1, 1], this.minSpan[scale] || 1e-3);
+        u.setScale(scale, { min: r[0], max: r[1] });
+      }
+    });
+  }
+}
+
+/**
+ * True x-y loop plot: earlier cycles grey (cached on an offscreen canvas), the current cycle bold on top.
+ * Coordinates in display units (mm, kN). The axes only grow during a test (reset() starts over).
+ */
+export class LoopPlot {
+  constructor(el, { xLabel = "displacement (mm)", yLabel = "force (kN)" } = {}) {
+    this.el = el;
+    this.xLabel = xLabel;
+    this.yLabel = yLabel;
+    this.canvas = document.createElement("canvas");
+    this.canvas.className = "loop";
+    el.appendChild(this.canvas);
+    this.cache = document.createElement("canvas");
+    this.past = []; // [{x: Float64Array, y: Float64Array}]
+    this.maxPast = 40;
+    this.reset();
+    this.ro = new ResizeObserver(() => this.resize());
+    this.ro.observe(el);
+    this.resize();
+  }
+
+  reset() {
+    this.past = [];
+    this.range = [-1, 1, -1, 1];
+    this.cur = null;
+    this.cacheDirty = true;
+  }
+
+  resize() {
+    const r = this.el.getBoundingClientRect();
+    const dpr = window.devicePixelRatio || 1;
+    this.w = Math.max(100, r.width);
+    this.h = Math.max(100, r.height);
+    for (const c of [this.canvas, this.cache]) {
+      c.width = Math.round(this.w * dpr);
+      c.height = Math.round(this.h * dpr);
+    }
+    this.dpr = dpr;
+    this.cacheDirty = true;
+    this.draw();
+  }
+
+  /** Grow the axes to include [x0,x1] x [y0,y1] (with margin and nice rounding). */
+  include(x0, x1, y0, y1) {
+    const [a, b, c, d] = this.range;
+    if (x0 >= a && x1 <= b && y0 >= c && y1 <= d) return;
+    const grow = (lo, hi, curLo, curHi) => {
+      const m = Math.max(Math.abs(lo), Math.abs(hi), Math.abs(curLo), Math.abs(curHi)) * 1.15;
+      const t = niceTicks(0, m, 4);
+      const step = t.length > 1 ? t[1] - t[0] : m;
+      const top = Math.ceil(m / step) * step;
+      return [-top, top];
+    };
+    const xr = grow(x0, x1, a, b);
+    const yr = grow(y0, y1, c, d);
+    this.range = [xr[0], xr[1], yr[0], yr[1]];
+    this.cacheDirty = true;
+  }
+
+  _frame() {
+    return { l: 62, r: 12, t: 10, b: 40 };
+  }
+
+  _mapper() {
+    const f = this._frame();
+    const [x0, x1, y0, y1] = this.range;
+    const pw = this.w - f.l - f.r;
+    const ph = this.h - f.t - f.b;
+    return {
+      f, pw, ph,
+      X: (x) => f.l + ((x - x0) / (x1 - x0)) * pw,
+      Y: (y) => f.t + (1 - (y - y0) / (y1 - y0)) * ph,
+    };
+  }
+
+  _stroke(ctx, m, xs, ys, i0, i1) {
+    ctx.beginPath();
+    let pen = false;
+    for (let i = i0; i < i1; i++) {
+      const x = xs[i];
+      const y = ys[i];
+      if (!(x === x && y === y)) { pen = false; continue; } // NaN gap
+      if (pen) ctx.lineTo(m.X(x), m.Y(y));
+      else { ctx.moveTo(m.X(x), m.Y(y)); pen = true; }
+    }
+    ctx.stroke();
+  }
+
+  addPast(xs, ys) {
+    let lo = Infinity, hi = -Infinity, flo = Infinity, fhi = -Infinity;
+    for (let i = 0; i < xs.length; i++) {
+      if (xs[i] < lo) lo = xs[i];
+      if (xs[i] > hi) hi = xs[i];
+      if (ys[i] < flo) flo = ys[i];
+      if (ys[i] > fhi) fhi = ys[i];
+    }
+    if (lo <= hi && flo <= fhi) this.include(lo, hi, flo, fhi);
+    this.past.push({ x: xs, y: ys });
+    if (this.past.length > this.maxPast) {
+      this.past.shift();
+      this.cacheDirty = true;
+    }
+    if (!this.cacheDirty) this._paintPast(this.past.length - 1);
+  }
+
+  /** The current cycle: xs/ys (display units) in [i0, i1). */
+  setCurrent(xs, ys, i0, i1) {
+    this.cur = { xs, ys, i0, i1 };
+    const rx = finiteRange(xs, i0, i1);
+    const ry = finiteRange(ys, i0, i1);
+    if (rx && ry) this.include(rx[0], rx[1], ry[0], ry[1]);
+  }
+
+  _paintAxes(ctx, m) {
+    const [x0, x1, y0, y1] = this.range;
+    ctx.fillStyle = "#1b2128";
+    ctx.fillRect(0, 0, this.w, this.h);
+    ctx.strokeStyle = GRID;
+    ctx.lineWidth = 1;
+    ctx.fillStyle = AXIS;
+    ctx.font = "12px system-ui, sans-serif";
+    ctx.textAlign = "center";
+    ctx.textBaseline = "top";
+    for (const t of niceTicks(x0, x1, 6)) {
+      const px = Math.round(m.X(t)) + 0.5;
+      ctx.beginPath(); ctx.moveTo(px, m.f.t); ctx.lineTo(px, m.f.t + m.ph); ctx.stroke();
+      ctx.fillText(String(+t.toPrecision(6)), px, m.f.t + m.ph + 4);
+    }
+    ctx.textAlign = "right";
+    ctx.textBaseline = "middle";
+    for (const t of niceTicks(y0, y1, 6)) {
+      const py = Math.round(m.Y(t)) + 0.5;
+      ctx.beginPath(); ctx.moveTo(m.f.l, py); ctx.lineTo(m.f.l + m.pw, py); ctx.stroke();
+      ctx.fillText(String(+t.toPrecision(6)), m.f.l - 6, py);
+    }
+    ctx.strokeStyle = "#4a5663";
+    ctx.beginPath(); ctx.moveTo(m.X(0), m.f.t); ctx.lineTo(m.X(0), m.f.t + m.ph); ctx.stroke();
+    ctx.beginPath(); ctx.moveTo(m.f.l, m.Y(0)); ctx.lineTo(m.f.l + m.pw, m.Y(0)); ctx.stroke();
+    ctx.textAlign = "center";
+    ctx.textBaseline = "bottom";
+    ctx.fillText(this.xLabel, m.f.l + m.pw / 2, this.h - 2);
+    ctx.save();
+    ctx.translate(12, m.f.t + m.ph / 2);
+    ctx.rotate(-Math.PI / 2);
+    ctx.textBaseline = "middle";
+    ctx.fillText(this.yLabel, 0, 0);
+    ctx.restore();
+  }
+
+  _paintPast(k) {
+    const ctx = this.cache.getContext("2d");
+    ctx.setTransform(this.dpr, 0, 0, this.dpr, 0, 0);
+    const m = this._mapper();
+    ctx.save();
+    ctx.beginPath();
+    ctx.rect(m.f.l, m.f.t, m.pw, m.ph);
+    ctx.clip();
+    ctx.strokeStyle = "rgba(170, 184, 198, 0.45)";
+    ctx.lineWidth = 1;
+    const p = this.past[k];
+    this._stroke(ctx, m, p.x, p.y, 0, p.x.length);
+    ctx.restore();
+  }
+
+  _repaintCache() {
+    const ctx = this.cache.getContext("2d");
+    ctx.setTransform(this.dpr, 0, 0, this.dpr, 0, 0);
+    this._paintAxes(ctx, this._mapper());
+    for (let k = 0; k < this.past.length; k++) this._paintPast(k);
+    this.cacheDirty = false;
+  }
+
+  draw() {
+    if (this.cacheDirty) this._repaintCache();
+    const ctx = this.canvas.getContext("2d");
+    ctx.setTransform(1, 0, 0, 1, 0, 0);
+    ctx.drawImage(this.cache, 0, 0);
+    if (!this.cur) return;
+    ctx.setTransform(this.dpr, 0, 0, this.dpr, 0, 0);
+    const m = this._mapper();
+    ctx.save();
+    ctx.beginPath();
+    ctx.rect(m.f.l, m.f.t, m.pw, m.ph);
+    ctx.clip();
+    ctx.strokeStyle = "#4aa3ff";
+    ctx.lineWidth = 2.5;
+    const { xs, ys, i0, i1 } = this.cur;
+    this._stroke(ctx, m, xs, ys, i0, i1);
+    if (i1 > i0) {
+      ctx.fillStyle = "#ffd24a";
+      ctx.beginPath();
+      ctx.arc(m.X(xs[i1 - 1]), m.Y(ys[i1 - 1]), 4.5, 0, 2 * Math.PI);
+      ctx.fill();
+    }
+    ctx.restore();
+  }
+}

@@ -1,0 +1,65 @@
+"""Fixtures of the browser tests: one `isorig serve` per session (3D view off), chromium, watched pages.
+
+Every page records its request URLs, console errors and page errors; a test fails if any request leaves the
+machine or the console shows an error. Screenshots go to artifacts/e2e/ (git-ignored).
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from .harness import ARTIFACTS, PageWatch, Server, chromium_available, launch
+
+playwright_api = pytest.importorskip("playwright.sync_api", reason="the Python package playwright is not installed "
+                                     "(pip install -e '.[test]')")
+
+if not chromium_available():  # pragma: no cover - CI installs it in scripts/setup.sh
+    pytest.skip("Debian's chromium is missing: apt-get install -y chromium", allow_module_level=True)
+
+
+@pytest.fixture(scope="session")
+def server(tmp_path_factory):
+    srv = Server(tmp_path_factory.mktemp("serve"), viewer=False).start()
+    yield srv
+    srv.stop()
+
+
+@pytest.fixture(scope="session")
+def browser():
+    with playwright_api.sync_playwright() as p:
+        b = launch(p)
+        yield b
+        b.close()
+
+
+@pytest.fixture(scope="session")
+def artifacts():
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    return ARTIFACTS
+
+
+@pytest.fixture
+def open_page(browser):
+    """open_page(url) -> (page, watch); the page's console and requests are checked when the test ends."""
+    opened = []
+
+    def _open(url: str, width: int = 1500, height: int = 1000, token: str | None = None):
+        context = browser.new_context(viewport={"width": width, "height": height}, accept_downloads=True)
+        page = context.new_page()
+        watch = PageWatch(page)
+        if token is not None:
+            context.add_init_script(f"localStorage.setItem('isorig.operator_token', {token!r});")
+        page.goto(url)
+        page.wait_for_selector("body[data-ready='1']", timeout=15000)
+        opened.append((context, page, watch))
+        return page, watch
+
+    yield _open
+    problems = []
+    for context, _page, watch in opened:
+        if watch.foreign():
+            problems.append(f"requests to another host: {watch.foreign()}")
+        if watch.unexpected_errors():
+            problems.append(f"console errors: {watch.unexpected_errors()}")
+        context.close()
+    assert not problems, "; ".join(problems)

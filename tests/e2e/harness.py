@@ -1,0 +1,189 @@
+"""Shared helpers of the browser tests and the dashboard benchmark: run `isorig serve`, drive Debian's chromium.
+
+The service runs on a free loopback port with a temporary SQLite database and a known operator token.
+Chromium is Debian's (/usr/bin/chromium, `apt-get install -y chromium`); Playwright's own browser download is
+not used.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from pathlib import Path
+from urllib.parse import urlparse
+
+REPO = Path(__file__).resolve().parents[2]
+ARTIFACTS = REPO / "artifacts" / "e2e"
+CHROMIUM = os.environ.get("ISORIG_CHROMIUM", "/usr/bin/chromium")
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                 "--disable-component-update", "--disable-sync", "--no-first-run"]
+TOKEN = "e2e-operator-token"
+LOCAL_HOSTS = {"127.0.0.1", "localhost", "[::1]", "::1"}
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Server:
+    """`isorig serve` in a subprocess on 127.0.0.1 with its own database; restartable on the same port."""
+
+    def __init__(self, workdir: Path, viewer: bool = False, port: int | None = None):
+        self.workdir = Path(workdir)
+        self.workdir.mkdir(parents=True, exist_ok=True)
+        self.port = port or free_port()
+        self.viewer = viewer
+        self.proc: subprocess.Popen | None = None
+        self.log_path = self.workdir / "serve.log"
+
+    @property
+    def url(self) -> str:
+        return f"http://127.0.0.1:{self.port}"
+
+    def env(self) -> dict:
+        env = dict(os.environ)
+        env.update({
+            "ISORIG_DATABASE_URL": f"sqlite:///{self.workdir / 'isorig.db'}",
+            "ISORIG_DATA_DIR": str(self.workdir),
+            "ISORIG_OPERATOR_TOKEN": TOKEN,
+            "ISORIG_VIEWER": "1" if self.viewer else "0",
+            "PYTHONUNBUFFERED": "1",
+        })
+        return env
+
+    def start(self, timeout_s: float = 60.0) -> Server:
+        log = open(self.log_path, "ab")
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "isorig", "serve", "--host", "127.0.0.1", "--port", str(self.port)],
+            cwd=REPO, env=self.env(), stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"isorig serve exited with {self.proc.returncode}:\n{self.log_tail()}")
+            try:
+                with urllib.request.urlopen(f"{self.url}/api/health", timeout=2) as r:
+                    if r.status == 200:
+                        return self
+            except (urllib.error.URLError, ConnectionError, TimeoutError, OSError):
+                pass
+            time.sleep(0.2)
+        self.stop()
+        raise RuntimeError(f"isorig serve did not answer /api/health within {timeout_s} s:\n{self.log_tail()}")
+
+    def stop(self, timeout_s: float = 15.0) -> None:
+        if self.proc is None or self.proc.poll() is not None:
+            return
+        self.proc.send_signal(signal.SIGINT)
+        try:
+            self.proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+            self.proc.wait(5)
+
+    def log_tail(self, n: int = 40) -> str:
+        try:
+            return "\n".join(self.log_path.read_text(errors="replace").splitlines()[-n:])
+        except OSError:
+            return ""
+
+    # --- REST helpers (stdlib only) ----------------------------------------------------------------------
+    def call(self, method: str, path: str, body: dict | None = None, token: bool = False):
+        data = json.dumps(body).encode() if body is not None else None
+        req = urllib.request.Request(f"{self.url}{path}", data=data, method=method)
+        if data is not None:
+            req.add_header("Content-Type", "application/json")
+        if token:
+            req.add_header("Authorization", f"Bearer {TOKEN}")
+        try:
+            with urllib.request.urlopen(req, timeout=30) as r:
+                raw = r.read()
+                return r.status, (json.loads(raw) if raw else None)
+        except urllib.error.HTTPError as e:
+            raw = e.read()
+            try:
+                return e.code, json.loads(raw)
+            except ValueError:
+                return e.code, raw.decode(errors="replace")
+
+    def start_test(self, body: dict) -> int:
+        status, rec = self.call("POST", "/api/tests", body, token=True)
+        assert status == 201, (status, rec)
+        status, started = self.call("POST", f"/api/tests/{rec['id']}/start", token=True)
+        assert status == 200, (status, started)
+        return rec["id"]
+
+    def wait_status(self, test_id: int, statuses: set[str], timeout_s: float = 60.0) -> dict:
+        deadline = time.monotonic() + timeout_s
+        rec = None
+        while time.monotonic() < deadline:
+            _, rec = self.call("GET", f"/api/tests/{test_id}")
+            if rec and rec.get("status") in statuses:
+                return rec
+            time.sleep(0.2)
+        raise AssertionError(f"test {test_id} not in {statuses} after {timeout_s} s: {rec}")
+
+
+def sine_test(amplitude_m=0.03, frequency_hz=0.5, cycles=4, speed=2.0, isolator="IUT_b", supply_bar=70.0,
+              controller="mrac", taper_cycles=1) -> dict:
+    return {"isolator": isolator, "supply_bar": supply_bar, "controller": controller, "speed": speed,
+            "profile": {"kind": "sine", "amplitude_m": amplitude_m, "frequency_hz": frequency_hz,
+                        "cycles": cycles, "taper_cycles": taper_cycles}}
+
+
+def chromium_available() -> bool:
+    return Path(CHROMIUM).exists() or shutil.which(CHROMIUM) is not None
+
+
+def launch(playwright):
+    return playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+
+
+class PageWatch:
+    """Records every request URL, console error and page error of a page (and its frames)."""
+
+    RESOURCE_STATUS = re.compile(r"^Failed to load resource: the server responded with a status of (\d+)")
+
+    def __init__(self, page):
+        self.allowed_status: set[int] = set()  # HTTP errors a test provokes on purpose (e.g. 422 refusals)
+        self.allowed_patterns: list[str] = []  # console errors a test expects (e.g. while the server is down)
+        self.requests: list[str] = []
+        self.console_errors: list[str] = []
+        self.page_errors: list[str] = []
+        page.on("request", lambda r: self.requests.append(r.url))
+        page.on("websocket", lambda ws: self.requests.append(ws.url))
+        page.on("console", lambda m: self.console_errors.append(m.text) if m.type == "error" else None)
+        page.on("pageerror", lambda e: self.page_errors.append(str(e)))
+
+    def unexpected_errors(self) -> list[str]:
+        out = list(self.page_errors)
+        for text in self.console_errors:
+            m = self.RESOURCE_STATUS.match(text)
+            if m and int(m.group(1)) in self.allowed_status:
+                continue
+            if any(re.search(p, text) for p in self.allowed_patterns):
+                continue
+            out.append(text)
+        return out
+
+    def foreign(self) -> list[str]:
+        """Request URLs that leave the machine (anything but loopback, data: and blob: of the page)."""
+        out = []
+        for url in self.requests:
+            p = urlparse(url)
+            if p.scheme in ("data", "blob", "about"):
+                continue
+            host = p.hostname or ""
+            if host not in LOCAL_HOSTS:
+                out.append(url)
+        return out

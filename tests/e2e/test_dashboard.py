@@ -1,0 +1,152 @@
+"""The operator's dashboard in Debian's chromium against the real `isorig serve` (simulated rig, accelerated).
+
+The `open_page` fixture fails a test on any console error or any request to another host.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import time
+
+from .harness import TOKEN, sine_test
+
+
+def _metrics(page) -> dict:
+    return page.evaluate("() => ({...window.__isorig})")
+
+
+def _wait(predicate, timeout_s: float, what: str, interval_s: float = 0.1):
+    deadline = time.monotonic() + timeout_s
+    last = None
+    while time.monotonic() < deadline:
+        last = predicate()
+        if last:
+            return last
+        time.sleep(interval_s)
+    raise AssertionError(f"timed out after {timeout_s} s waiting for {what} (last: {last!r})")
+
+
+def test_operator_flow(server, open_page, artifacts):
+    """Choose IUT_b, 30 mm at 0.5 Hz, start with the token, see the loop grow, finish, find it in history, CSV."""
+    page, _ = open_page(server.url + "/")
+    page.select_option("#f-isolator", "IUT_b")
+    assert "680000" in page.inner_text("#isolator-params")  # k_d of IUT_b (paper Table II), shown
+    page.fill("#f-supply_bar", "70")
+    page.fill("#f-amplitude_mm", "30")
+    page.fill("#f-frequency_hz", "0.5")
+    page.fill("#f-cycles", "4")
+    page.fill("#f-taper_cycles", "1")
+    page.fill("#f-speed", "2")
+    page.wait_for_function("document.getElementById('envelope').dataset.state !== undefined")
+    assert page.get_attribute("#envelope", "data-state") != "refused", page.inner_text("#envelope")
+
+    page.click("#start")  # no token in this browser yet: the dialog asks once
+    page.wait_for_selector("#token-dialog[open]", timeout=5000)
+    page.fill("#token-input", TOKEN)
+    page.click("#token-ok")
+    assert page.evaluate("localStorage.getItem('isorig.operator_token')") == TOKEN
+
+    _wait(lambda: _metrics(page).get("testId"), 15, "the live view to pick up the new test")
+    test_id = _metrics(page)["testId"]
+    page.wait_for_selector("#rig-status[data-status='running']", timeout=15000)
+    points = []
+    for _ in range(6):  # the loop grows: more points in the current cycle or more finished cycles
+        m = _metrics(page)
+        points.append((m.get("loopCycles", 0), m.get("loopPoints", 0)))
+        time.sleep(0.25)
+    assert len(set(points)) > 1 and points[-1] > points[0], points
+    page.screenshot(path=str(artifacts / "dashboard_running.png"))
+
+    page.wait_for_selector("#rig-status[data-status='completed']", timeout=60000)
+    time.sleep(0.3)
+    m = _metrics(page)
+    assert m["loopCycles"] >= 3, m  # 4 target cycles: at least 3 closed loops drawn in grey
+    assert m["samples"] >= 7000, m  # 8 s of test at 1 kHz, every sample
+    assert page.inner_text("#l-keff") != "-"  # latest cycle's metrics shown
+    page.screenshot(path=str(artifacts / "dashboard_completed.png"))
+
+    page.click("nav a[data-view='history']")
+    row = page.wait_for_selector(f"#history-table tr[data-id='{test_id}']", timeout=10000)
+    assert "completed" in row.inner_text()
+    assert "IUT_b" in row.inner_text()
+    row.click()
+    page.wait_for_selector("#t-cycles tbody tr", timeout=10000)
+    assert page.locator("#t-cycles tbody tr").count() >= 3
+    assert "completed" in page.inner_text("#t-summary")
+    page.screenshot(path=str(artifacts / "dashboard_test_page.png"), full_page=True)
+
+    with page.expect_download(timeout=30000) as info:
+        page.click("#t-csv")
+    data = open(info.value.path(), encoding="utf-8").read()
+    rows = list(csv.reader(io.StringIO(data)))
+    assert rows[0][:4] == ["time_s", "target_m", "model_m", "displacement_m"], rows[0]
+    assert len(rows) - 1 >= 7900, len(rows)  # every 1 kHz sample of the 8 s test
+
+
+def test_refused_profile_shows_reason(server, open_page, artifacts):
+    """A profile outside the envelope is explained before Start and refused with field, value and limit."""
+    page, watch = open_page(server.url + "/", token=TOKEN)
+    watch.allowed_status.add(422)  # the refusal this test provokes
+    _, before = server.call("GET", "/api/tests")
+    page.select_option("#f-isolator", "IUT_b")
+    page.fill("#f-amplitude_mm", "200")  # beyond the +-150 mm stroke
+    page.wait_for_selector("#envelope[data-state='refused']", timeout=5000)
+    text = page.inner_text("#envelope")
+    assert "stroke" in text and "150" in text, text
+    assert "invalid" in (page.get_attribute("#f-amplitude_mm", "class") or "")
+
+    # inside the stroke but more flow than the pump gives: the service refuses it at Start with the limit
+    page.fill("#f-amplitude_mm", "100")
+    page.fill("#f-frequency_hz", "2")
+    page.click("#start")
+    page.wait_for_function("document.getElementById('setup-message').textContent.startsWith('Refused')",
+                           timeout=10000)
+    message = page.inner_text("#setup-message")
+    assert "frequency_hz" in message and "l/min" in message, message
+    assert "invalid" in (page.get_attribute("#f-frequency_hz", "class") or "")
+    page.screenshot(path=str(artifacts / "dashboard_refused.png"))
+    _, after = server.call("GET", "/api/tests")
+    assert len(after) == len(before)  # nothing was created
+
+
+def test_live_view_follows_test_started_through_api(server, open_page, artifacts):
+    """A test started by a script (REST) shows up in an open dashboard, with its status changes."""
+    page, _ = open_page(server.url + "/")
+    page.wait_for_selector("#conn.conn-up", timeout=10000)
+    test_id = server.start_test(sine_test(amplitude_m=0.02, frequency_hz=1.0, cycles=6, speed=2.0,
+                                          isolator="IUT_a", supply_bar=100))
+    page.wait_for_function(f"window.__isorig.testId === {test_id} && window.__isorig.samples > 500",
+                           timeout=15000)
+    assert page.inner_text("#l-test") == f"#{test_id}"
+    _wait(lambda: page.inner_text("#l-isolator") == "IUT_a", 5, "the isolator in the header")
+    page.wait_for_selector("#rig-status[data-status='running']", timeout=10000)
+    server.wait_status(test_id, {"completed"}, timeout_s=60)
+    page.wait_for_selector("#rig-status[data-status='completed']", timeout=10000)
+    assert f"Test {test_id} completed" in page.inner_text("#alert-text")
+
+    # a page opened while a test runs: time from navigation to the first live frame (recorded, not asserted)
+    test_id = server.start_test(sine_test(amplitude_m=0.02, frequency_hz=1.0, cycles=6, speed=1.0,
+                                          isolator="IUT_a", supply_bar=100))
+    server.wait_status(test_id, {"running"}, timeout_s=15)
+    time.sleep(1.0)
+    late, _ = open_page(server.url + "/")
+    late.wait_for_function("window.__isorig.firstLiveFrameMs !== null", timeout=10000)
+    first = _metrics(late)["firstLiveFrameMs"]
+    (artifacts / "first_live_frame_ms.txt").write_text(f"{first:.0f}\n")
+    status, _ = server.call("POST", f"/api/tests/{test_id}/abort", token=True)
+    assert status == 200
+    late.wait_for_selector("#rig-status[data-status='aborted']", timeout=10000)
+    late.screenshot(path=str(artifacts / "dashboard_aborted.png"))
+
+
+def test_abort_button_stops_the_rig(server, open_page):
+    """The always-visible Abort ends a running test at once."""
+    page, _ = open_page(server.url + "/", token=TOKEN)
+    test_id = server.start_test(sine_test(cycles=20, speed=1.0))
+    page.wait_for_selector("#rig-status[data-status='running']", timeout=15000)
+    page.click("#abort")
+    rec = server.wait_status(test_id, {"aborted"}, timeout_s=15)
+    assert rec["status"] == "aborted"
+    page.wait_for_selector("#rig-status[data-status='aborted']", timeout=10000)
+    assert "ABORTED" in page.inner_text("#alert-text")
