@@ -3,7 +3,8 @@
 The server starts ``main(job, out, commands)`` in a separate process (forkserver or spawn, never fork from
 the threaded server). The worker arms the rig driver, closes the controller around it in chunks of
 ``CHUNK_S`` of wall time (20 ms: 20 control periods at speed 1, ``speed`` times more when a simulated test
-runs accelerated), checks every ``CHECK_PERIODS`` periods against the safety limits, sleeps until each
+runs accelerated), checks every ``CHECK_PERIODS`` periods against the safety limits and for an operator
+command, sleeps until each
 chunk's wall-clock deadline and then sends the chunk's samples. It never touches the database: the server
 stores and streams what it sends, so a crash here loses nothing that was sent.
 
@@ -53,9 +54,9 @@ def scenario_from_job(job: dict) -> Scenario:
 def ramp_out_profile(blocks: np.ndarray, t_now_s: float, dt_s: float = CONTROL_PERIOD_S):
     """The packed profile with the running sine block ending smoothly from now, and the new end period.
 
-    The block's cycle count is cut to the first whole cycle at least one taper (>= 1 cycle) after now, and
-    later blocks are dropped; the raised-cosine taper-out of sim.profiles does the rest, so the target and
-    its rate stay continuous. Returns ``(blocks, total_periods)``.
+    The block's cycle count is cut to the first whole cycle at least one taper (>= 1 cycle) after now (or
+    kept, if the block is already tapering out), and later blocks are dropped; the raised-cosine taper-out
+    of sim.profiles does the rest, so the target and its rate stay continuous. Returns ``(blocks, total_periods)``.
     """
     for i in range(blocks.shape[0]):
         f = blocks[i, B_FREQUENCY]
@@ -66,8 +67,8 @@ def ramp_out_profile(blocks: np.ndarray, t_now_s: float, dt_s: float = CONTROL_P
             if taper < 1.0 and tau >= 1.0:
                 taper = 1.0  # an untapered block still ramps out over one cycle
             cycles = math.ceil(tau + max(taper, 1.0) - 1e-9)
-            if cycles >= blocks[i, B_CYCLES]:
-                break  # already inside the block's own taper-out
+            if cycles >= blocks[i, B_CYCLES]:  # already inside this block's own taper-out: finish it
+                cycles, taper = blocks[i, B_CYCLES], blocks[i, B_TAPER]
             new = blocks[: i + 1].copy()
             new[i, B_CYCLES] = cycles
             new[i, B_TAPER] = taper
@@ -178,8 +179,8 @@ class Run:
         self.send("started", {"wall_t0": self.pacer.wall_t0, "chunk_periods": chunk,
                               "total_periods": driver.total_periods})
         try:
+            command = None
             while not driver.done:
-                command = self.poll_command()
                 if command == "abort":
                     driver.write_valve_command(0.0)
                     self.event("operator", f"abort at t = {driver.time_s:.3f} s: valve command set to zero at once",
@@ -193,7 +194,7 @@ class Run:
                     self.event("operator", f"stop at t = {driver.time_s:.3f} s: ramping out, ends at "
                                f"t = {driver.total_periods * CONTROL_PERIOD_S:.3f} s",
                                {"action": "stop", "ends_at_s": driver.total_periods * CONTROL_PERIOD_S})
-                rows, trip = self.closed_loop_chunk(chunk)
+                rows, trip, command = self.closed_loop_chunk(chunk)
                 self.release(rows)
                 if trip is not None:
                     return self.controlled_stop(trip)
@@ -203,10 +204,11 @@ class Run:
         finally:
             driver.disarm()
 
-    def closed_loop_chunk(self, n: int) -> tuple[np.ndarray, Trip | None]:
+    def closed_loop_chunk(self, n: int) -> tuple[np.ndarray, Trip | None, str | None]:
+        """Up to n periods in blocks of CHECK_PERIODS; stops early at a trip or an operator command."""
         driver = self.driver
         parts = []
-        trip = None
+        trip = command = None
         done = 0
         while done < n and not driver.done:
             m = min(CHECK_PERIODS, n - done)
@@ -220,8 +222,11 @@ class Run:
                             {"time_s": driver.time_s})
             if trip is not None or block.shape[0] < m:
                 break
+            command = self.poll_command()
+            if command is not None:
+                break
         rows = np.concatenate(parts) if parts else np.empty((0, 0))
-        return rows, trip
+        return rows, trip, command
 
     def release(self, rows: np.ndarray) -> None:
         if rows.size == 0:
