@@ -4,12 +4,13 @@ from __future__ import annotations
 
 from numba import njit
 
-from . import mrac, pid
+from . import mrac, pid, servo
 from .base import Controller
 from .mrac import make_mrac, mrac_step
 from .pid import make_pid, pid_step
+from .servo import make_servo, servo_step
 
-FACTORIES = {"mrac": make_mrac, "pid": make_pid}
+FACTORIES = {"mrac": make_mrac, "pid": make_pid, "servo": make_servo}
 CONTROLLER_NAMES = tuple(FACTORIES)
 DEFAULT_CONTROLLER = "mrac"  # what `isorig simulate` and the dashboard use when none is chosen
 
@@ -28,4 +29,6 @@ def controller_step(kind, params, state, meas, dt, report):
         return mrac_step(params, state, meas, dt, report)
     if kind == pid.KIND:
         return pid_step(params, state, meas, dt, report)
+    if kind == servo.KIND:
+        return servo_step(params, state, meas, dt, report)
     return 0.0
