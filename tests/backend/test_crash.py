@@ -1,0 +1,109 @@
+"""Crashes: the worker process killed mid-test, and the whole server killed and restarted on its database."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import httpx
+from fastapi.testclient import TestClient
+
+from backend.app import create_app
+
+from .conftest import AUTH, TOKEN, create_and_start, make_settings, sine_test, wait_for
+
+LONG = {"speed": 1.0, "profile": {"frequency_hz": 2.0, "cycles": 40, "taper_cycles": 1}}  # 20 s
+
+
+def alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return False
+    return "\nState:\tZ" not in state
+
+
+def wait_samples(client_get, test_id: int, min_time_s: float, timeout_s: float = 20.0) -> dict:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        rec = client_get(f"/api/tests/{test_id}").json()
+        if rec["samples_stored"] > 0 and rec["time_s"] >= min_time_s:
+            return rec
+        time.sleep(0.05)
+    raise AssertionError("no samples stored in time")
+
+
+def test_killing_the_worker_aborts_the_test_and_keeps_its_data(client):
+    test_id = create_and_start(client, **LONG)
+    wait_samples(client.get, test_id, 0.8)
+    pid = client.get("/api/rig").json()["state"]["worker_pid"]
+    assert pid != os.getpid() and alive(pid)
+    os.kill(pid, signal.SIGKILL)
+    rec = wait_for(client, test_id, timeout_s=10)
+    assert rec["status"] == "aborted"
+    assert "exit code -9" in rec["reason"]
+    assert 800 <= rec["samples_stored"] < 20000
+    lines = client.get(f"/api/tests/{test_id}/data.csv").text.splitlines()
+    assert len(lines) == 1 + rec["samples_stored"]
+    # the rig is free again
+    assert client.get("/api/rig").json()["state"]["status"] == "idle"
+    next_id = create_and_start(client)
+    assert wait_for(client, next_id)["status"] == "completed"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_server_killed_mid_test_restarts_with_the_test_interrupted(tmp_path):
+    port = free_port()
+    env = {**os.environ, "ISORIG_OPERATOR_TOKEN": TOKEN, "ISORIG_VIEWER": "0"}
+    cmd = [sys.executable, "-m", "isorig", "serve", "--port", str(port), "--data-dir", str(tmp_path),
+           "--log-level", "warning"]
+    server = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    base = f"http://127.0.0.1:{port}"
+    try:
+        with httpx.Client(base_url=base, timeout=10) as http:
+            deadline = time.monotonic() + 30
+            while True:
+                try:
+                    if http.get("/api/health").status_code == 200:
+                        break
+                except httpx.TransportError:
+                    pass
+                assert time.monotonic() < deadline, "server did not come up"
+                time.sleep(0.1)
+            test_id = http.post("/api/tests", json=sine_test(**LONG), headers=AUTH).json()["id"]
+            assert http.post(f"/api/tests/{test_id}/start", headers=AUTH).status_code == 200
+            before = wait_samples(http.get, test_id, 1.5)
+            worker_pid = http.get("/api/rig").json()["state"]["worker_pid"]
+            t_seen = http.get(f"/api/tests/{test_id}").json()["time_s"]
+        server.send_signal(signal.SIGKILL)
+        server.wait(10)
+    finally:
+        if server.poll() is None:
+            server.kill()
+    # the orphaned worker notices the broken pipe and ends
+    deadline = time.monotonic() + 10
+    while alive(worker_pid) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not alive(worker_pid)
+    # restart on the same database
+    with TestClient(create_app(make_settings(tmp_path))) as client:
+        rec = client.get(f"/api/tests/{test_id}").json()
+        assert rec["status"] == "interrupted"
+        assert "running" in rec["reason"]
+        assert rec["samples_stored"] >= before["samples_stored"]
+        assert rec["time_s"] >= t_seen - 1.0  # at most about a second lost
+        assert rec["events"][-1]["kind"] == "status"
+        lines = client.get(f"/api/tests/{test_id}/data.csv").text.splitlines()
+        assert len(lines) == 1 + rec["samples_stored"]
+        # and the restarted service runs tests
+        assert wait_for(client, create_and_start(client))["status"] == "completed"
