@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
-# Set up and run the main job on the embedded defaults (simulated rig): a demo simulation of the
-# paper's IUT_a scenario with the paper's MRAC, written to out/demo/.
+# Set up and run the main job on the embedded defaults: the isorig service (REST API, websockets, operator
+# dashboard) with the simulated rig and a SQLite database in the user data directory.
+# Open http://127.0.0.1:8000/ ; the operator token's file is printed at start. Extra arguments go to
+# `isorig serve` (e.g. --host 0.0.0.0 --port 8080 or --database-url postgresql+psycopg://...).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
-.venv/bin/isorig simulate --isolator IUT_a --supply-bar 100 --amplitude-m 0.02 --frequency-hz 1 --cycles 30 \
-  --controller mrac --out out/demo "$@"
+exec .venv/bin/isorig serve "$@"
