@@ -79,6 +79,17 @@ def robust_corners() -> list[dict]:
     return out
 
 
+ABLATIONS = (
+    ("full design", {}),
+    ("no harmonic learning", {"learning_gain": 0.0}),
+    ("no flow-gain estimate", {"gain_min": 1.0, "gain_max": 1.0}),
+    ("no velocity lead", {"velocity_lead_s": 0.0}),
+    ("no dead-zone inverse", {"dead_zone_share": 0.0}),
+    ("no load-pressure linearisation", {"load_pressure_share": 0.0}),
+    ("fixed-gain loop: flow linearisation + P only", {"learning_gain": 0.0, "gain_min": 1.0, "gain_max": 1.0}),
+)
+
+
 @dataclass
 class GridPoint:
     controller: str
@@ -117,6 +128,41 @@ def grid_points(controllers=CONTROLLERS, robust: bool = False, isolators=ISOLATO
                 for corner in corners:
                     points.append(GridPoint(name, iso, bar, f, amp, rig, corner["label"], corner["options"]))
     return points
+
+
+ABLATION_CORNERS = ("exact", "A_p+30% K_q-30% DZ-30%", "A_p-30% K_q+30% DZ+30%")
+
+
+def ablation_points() -> list[GridPoint]:
+    """The learning controller on the whole grid with one piece switched off at a time, with exact nominal values
+    and at the two extreme corners (loop gain x 1.86 with the dead zone under-compensated; x 0.54 with it
+    over-compensated). The label goes in ``corner``: "<ablation> | <corner>"."""
+    corners = {"exact": {}, **{c["label"]: c["options"] for c in robust_corners()}}
+    points = []
+    for label, options in ABLATIONS:
+        for corner in ABLATION_CORNERS:
+            for p in grid_points(controllers=("servo",)):
+                p.corner = f"{label} | {corner}"
+                p.options = {**corners[corner], **options}
+                points.append(p)
+    return points
+
+
+def grid_description(cycles: int = CYCLES, robust: bool = False, ablation: bool = False) -> dict:
+    return {
+        "isolators": list(ISOLATORS), "supply_bar": list(SUPPLIES_BAR), "frequency_hz": list(FREQUENCIES_HZ),
+        "rig_variants": list(RIG_VARIANTS), "cycles": cycles, "taper_cycles": TAPER_CYCLES,
+        "amplitude": f"min({AMPLITUDE_SHARE:g} x sim.profiles.max_amplitude_m, {AMPLITUDE_CAP_M:g} m) on the "
+                     "nominal rig",
+        "robust_corners": [c["label"] for c in robust_corners()] if robust else [],
+        "ablations": [a[0] for a in ABLATIONS] if ablation else [],
+        "targets": TARGETS, "limit_cycle": {"band_hz": LIMIT_CYCLE_BAND_HZ, "share": LIMIT_CYCLE_SHARE},
+    }
+
+
+def jsonable(rows: list[dict]) -> list[dict]:
+    """Rows with NaN and infinities as None (JSON has no NaN)."""
+    return [{k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in r.items()} for r in rows]
 
 
 def limit_cycle_rms_m(samples: np.ndarray, scenario: Scenario) -> float:

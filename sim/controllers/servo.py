@@ -51,8 +51,9 @@ MAX_HARMONICS = 24
 
 # Parameter indices.
 (P_AREA, P_KQ, P_DZ, P_ULIM, P_KP, P_TAU_V, P_TAU_L, P_GAMMA, P_NH, P_FMAX, P_DZ_RAMP, P_DP_MIN,
- P_TW, P_AFLOOR, P_C1MAX, P_CKMAX, P_C0MAX, P_DZ_FRAC, P_GW, P_GMIN, P_GMAX, P_GVMIN, P_STEADY) = range(23)
-N_PARAMS = 23
+ P_TW, P_AFLOOR, P_C1MAX, P_CKMAX, P_C0MAX, P_DZ_FRAC, P_GW, P_GMIN, P_GMAX, P_GVMIN, P_STEADY,
+ P_PL_SHARE) = range(24)
+N_PARAMS = 24
 DELAY_LINE = 32  # samples of the nominal-velocity history kept for the flow-gain estimate
 
 # State indices; the delay line and the harmonic coefficients (real, imaginary) follow.
@@ -100,6 +101,7 @@ DEFAULTS = {
     "gain_max": 4.0,
     "gain_min_velocity_m_per_s": 0.005,  # the gain estimate moves only with this much RMS nominal velocity
     "steady_envelope_rate": 0.02,  # learning runs while |d V_env/dt| / (w V_env) stays below this
+    "load_pressure_share": 1.0,  # 1: the valve inverse uses the measured load pressure; 0: only P_s (ablation)
 }
 
 
@@ -147,6 +149,7 @@ def make_servo(**options) -> Controller:
     params[P_GMAX] = o["gain_max"]
     params[P_GVMIN] = o["gain_min_velocity_m_per_s"]
     params[P_STEADY] = o["steady_envelope_rate"]
+    params[P_PL_SHARE] = o["load_pressure_share"]
     state = np.zeros(N_STATE)
     state[S_GAIN] = 1.0
     return Controller("servo", KIND, params, state, o)
@@ -257,7 +260,7 @@ def servo_step(p, s, meas, dt, report):
             acc += a * ck - b * sk
             ck, sk = ck * c1 - sk * s1, sk * c1 + ck * s1
         v += v_env * acc
-    u = valve_inverse(v / gain, meas[M_LOAD_PRESSURE], meas[M_SUPPLY_PRESSURE], p[P_AREA], p[P_KQ],
+    u = valve_inverse(v / gain, p[P_PL_SHARE] * meas[M_LOAD_PRESSURE], meas[M_SUPPLY_PRESSURE], p[P_AREA], p[P_KQ],
                       p[P_DZ_FRAC] * p[P_DZ], p[P_DZ_RAMP], p[P_DP_MIN])
     ulim = p[P_ULIM]
     saturated = abs(u) >= ulim

@@ -1,0 +1,77 @@
+"""The comparison grid: its points, its limit-cycle detector, a tiny run and the command line."""
+
+import math
+
+import numpy as np
+import pytest
+
+from isorig.cli import main
+from sim import compare
+from sim.engine import C_TARGET, C_TIME, C_Y, COLUMNS, CONTROL_PERIOD_S, Scenario
+from sim.rig import DEFAULT_RIG
+
+
+def test_grid_points_cover_the_issue_grid_within_the_envelope():
+    points = compare.grid_points()
+    assert len(points) == 4 * 3 * 4 * 2 * 3
+    assert {p.isolator for p in points} == {"IUT_a", "IUT_b", "LRB_example", "HDRB_soft"}
+    assert {p.rig for p in points} == {"nominal", "2x_flow_gain"}
+    for p in points:
+        assert 0.0 < p.amplitude_m <= compare.AMPLITUDE_CAP_M
+        p.scenario(4).validate()  # raises ProfileError if outside the envelope
+    variant = compare.rig_variant("2x_flow_gain")
+    assert variant.flow_gain_m3_per_s_v_sqrt_pa == 2 * DEFAULT_RIG.flow_gain_m3_per_s_v_sqrt_pa
+
+
+def test_robust_corners_perturb_only_the_nominal_values_by_30_percent():
+    corners = compare.robust_corners()
+    assert len(corners) == 8
+    areas = sorted({round(c["options"]["piston_area_m2"] / DEFAULT_RIG.piston_area_m2, 9) for c in corners})
+    assert areas == pytest.approx([0.7, 1.3])
+    points = compare.grid_points(robust=True)
+    assert len(points) == 96 * 8 and {p.controller for p in points} == {"servo"}
+    assert all(p.scenario(4).rig in (DEFAULT_RIG, compare.rig_variant("2x_flow_gain")) for p in points[:16])
+
+
+def synthetic_samples(scenario, error):
+    n = scenario.n_periods
+    s = np.zeros((n, len(COLUMNS)))
+    t = np.arange(n) * CONTROL_PERIOD_S
+    s[:, C_TIME] = t
+    s[:, C_TARGET] = 0.02 * np.sin(2 * np.pi * t)
+    s[:, C_Y] = s[:, C_TARGET] + error(t)
+    return s
+
+
+def test_limit_cycle_detector_ignores_periodic_error_and_finds_a_free_oscillation():
+    s = Scenario.sine("IUT_a", 100.0, 0.02, 1.0, 6)
+    periodic = synthetic_samples(s, lambda t: 2e-4 * np.sin(2 * np.pi * 15 * t) + 1e-4 * np.sin(2 * np.pi * t))
+    assert compare.limit_cycle_rms_m(periodic, s) < 1e-9
+    free = synthetic_samples(s, lambda t: 5e-5 * np.sin(2 * np.pi * 37.3 * t))  # not locked to the 1 Hz test
+    rms = compare.limit_cycle_rms_m(free, s)
+    assert rms == pytest.approx(5e-5 / math.sqrt(2), rel=0.3)
+    row = {"limit_cycle_rms_m": rms, "amplitude_m": 0.02}
+    assert compare.limit_cycle(row)
+
+
+def test_a_small_grid_runs_and_tabulates():
+    points = compare.grid_points(controllers=("servo", "pid"), isolators=("IUT_a",), supplies_bar=(100.0,),
+                                 frequencies_hz=(1.5,), rigs=("nominal",))
+    rows, wall = compare.run_grid(points, cycles=4, processes=1)
+    assert wall > 0 and len(rows) == 2
+    servo, pid = rows
+    for key in ("rms_last2", "rms_from_cycle3", "first_cycle_peak_m", "amplitude_error", "phase_error_deg",
+                "saturated_share", "peak_flow_l_per_min", "limit_cycle_rms_m"):
+        assert math.isfinite(servo[key])
+    assert servo["rms_last2"] < pid["rms_last2"]
+    table = compare.markdown_table(rows)
+    assert table.count("\n") == 3 and "RMS last2 %" in table
+    worst = compare.worst_case(rows)
+    assert worst["runs"] == 2 and worst["rms_last2"] == max(servo["rms_last2"], pid["rms_last2"])
+
+
+def test_cli_rejects_bad_arguments(capsys):
+    assert main(["compare", "--controllers", "foo"]) == 2
+    assert "allowed" in capsys.readouterr().err
+    assert main(["compare", "--cycles", "2"]) == 2
+    assert main(["compare", "--robust", "--ablation"]) == 2
