@@ -1,0 +1,127 @@
+"""Store: migrations match the models, sample codec precision and size, bundle contract; PostgreSQL if present."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+from alembic.autogenerate import compare_metadata
+from alembic.migration import MigrationContext
+from sqlalchemy import text
+
+from backend import store
+from backend.codec import decode_samples, encode_samples
+from backend.db import make_engine, session_factory, upgrade
+from backend.models import Base
+from sim.engine import COLUMNS, Scenario, Simulation
+
+
+def test_migrations_match_the_models(tmp_path):
+    engine = make_engine(f"sqlite:///{tmp_path / 'm.db'}")
+    upgrade(engine)
+    upgrade(engine)  # idempotent
+    with engine.connect() as conn:
+        diff = compare_metadata(MigrationContext.configure(conn), Base.metadata)
+        assert diff == []
+        assert conn.execute(text("PRAGMA journal_mode")).scalar() == "wal"
+
+
+def test_sample_codec_keeps_7_digits_and_compresses():
+    rows = Simulation(Scenario.sine("IUT_b", 70, 0.03, 1.0, 3, controller="pid")).run().samples[:1000]
+    data = encode_samples(rows)
+    back = decode_samples(data, *rows.shape)
+    assert np.array_equal(back[:, 0], rows[:, 0])  # time exact
+    finite = np.isfinite(rows)
+    assert np.array_equal(np.isfinite(back), finite)
+    scale = np.nanmax(np.abs(rows), axis=0) + 1e-30
+    assert np.nanmax(np.abs(back - rows) / scale) < 1e-6
+    assert len(data) < 0.5 * rows.size * 4  # well under raw float32
+
+
+def make_bundle(url: str) -> store.TestBundle:
+    engine = make_engine(url)
+    upgrade(engine)
+    sessions = session_factory(engine)
+    rows = np.random.default_rng(1).normal(size=(2500, len(COLUMNS)))
+    rows[:, 0] = np.arange(2500) * 1e-3
+    with sessions() as s:
+        t = store.create_test(s, isolator="IUT_a", supply_bar=100.0, controller="pid", speed=1.0,
+                              driver="simulated", request={"profile": {"kind": "sine"}}, scenario={}, limits={},
+                              duration_s=2.5, cycles_total=2, label="")
+        for i in range(0, 2500, 1000):
+            store.append_samples(s, t, rows[i:i + 1000])
+        store.add_cycle(s, t.id, 1, 0, 0.0, 1.0, {"k_eff_n_per_m": 1.5e6, "xi_eff": float("nan")},
+                        rows[:1000, 3], rows[:1000, 5])
+        store.add_event(s, t.id, "limit_trip", "x", {"force_n": 1.0})
+        s.commit()
+        bundle = store.load_test_bundle(s, t.id)
+        with pytest.raises(KeyError):
+            store.load_test_bundle(s, t.id + 1)
+    engine.dispose()
+    assert bundle.samples.shape == rows.shape
+    assert np.allclose(bundle.samples, rows, rtol=1e-6, atol=1e-6)
+    return bundle
+
+
+def test_bundle_contract_sqlite(tmp_path):
+    bundle = make_bundle(f"sqlite:///{tmp_path / 'b.db'}")
+    assert bundle.record["samples_stored"] == 2500 and bundle.record["cycles_done"] == 1
+    c = bundle.cycles[0]
+    assert c["cycle"] == 1 and c["k_eff_n_per_m"] == 1.5e6 and c["xi_eff"] is None
+    assert len(c["displacement_m"]) == len(c["force_n"]) == 1000
+    assert bundle.events[0]["kind"] == "limit_trip" and bundle.events[0]["values"] == {"force_n": 1.0}
+
+
+def _postgres_url() -> str | None:
+    url = os.environ.get("ISORIG_TEST_POSTGRES_URL")
+    if not url:
+        return None
+    try:
+        import psycopg  # noqa: F401
+    except ImportError:
+        return None
+    engine = make_engine(url)
+    try:
+        with engine.connect():
+            return url
+    except Exception:
+        return None
+    finally:
+        engine.dispose()
+
+
+def test_bundle_contract_postgresql():
+    """Runs when ISORIG_TEST_POSTGRES_URL points at a reachable server (README: Running against PostgreSQL)."""
+    url = _postgres_url()
+    if url is None:
+        pytest.skip("no PostgreSQL: set ISORIG_TEST_POSTGRES_URL=postgresql+psycopg://user:pw@127.0.0.1/db")
+    engine = make_engine(url)
+    with engine.begin() as conn:  # a clean schema for the test
+        conn.execute(text("DROP TABLE IF EXISTS alembic_version, sample_chunks, cycles, events, user_isolators, "
+                          "tests CASCADE"))
+    engine.dispose()
+    bundle = make_bundle(url)
+    assert bundle.record["samples_stored"] == 2500 and bundle.cycles[0]["xi_eff"] is None
+
+
+def test_service_runs_a_test_on_postgresql(tmp_path):
+    url = _postgres_url()
+    if url is None:
+        pytest.skip("no PostgreSQL: set ISORIG_TEST_POSTGRES_URL")
+    from fastapi.testclient import TestClient
+
+    from backend.app import create_app
+
+    from .conftest import create_and_start, make_settings, wait_for
+
+    engine = make_engine(url)
+    with engine.begin() as conn:
+        conn.execute(text("DROP TABLE IF EXISTS alembic_version, sample_chunks, cycles, events, user_isolators, "
+                          "tests CASCADE"))
+    engine.dispose()
+    with TestClient(create_app(make_settings(tmp_path, database_url=url))) as client:
+        assert client.get("/api/health").json()["database"] == "postgresql"
+        rec = wait_for(client, create_and_start(client))
+        assert rec["status"] == "completed" and rec["samples_stored"] == 1500 and rec["cycles_done"] == 3
+        assert len(client.get(f"/api/tests/{rec['id']}/data.csv").text.splitlines()) == 1501
