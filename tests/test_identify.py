@@ -1,0 +1,252 @@
+"""Identification: eq. (7) from step records, eq. (4) from force-displacement records, malformed CSV."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from isorig.cli import main
+from sim.identify import IdentificationError, read_record_csv
+from sim.identify_bouc_wen import fit_bouc_wen
+from sim.identify_steps import (
+    PAPER_TABLES,
+    compare_with_paper,
+    fit_first_order,
+    simulate_step,
+    targets_check,
+)
+from sim.isolator import PRESETS, Isolator, load_isolator, simulate_loop
+from sim.models import first_order_response
+from sim.rig import BAR_PA, DEFAULT_RIG
+
+
+def step_record(a_p, a_s, u, duration_s=10.0, hz=500.0):
+    t = np.arange(int(duration_s * hz) + 1) / hz
+    uu = np.full(t.size, u)
+    return t, uu, first_order_response(t, uu, a_p, a_s)
+
+
+# ------------------------------------------------------------------ eq. (7) from steps
+
+@pytest.mark.parametrize("a_p, a_s, u", [(0.55, 0.022, 4.0), (0.49, 0.010, 2.0), (0.70, 0.042, 6.0)])
+def test_first_order_fit_recovers_known_parameters(a_p, a_s, u):
+    t, uu, y = step_record(a_p, a_s, u)
+    fit = fit_first_order(t, uu, y)
+    assert fit.a_p_per_s == pytest.approx(a_p, rel=1e-4)
+    assert fit.a_s_m == pytest.approx(a_s, rel=1e-4)
+    assert fit.residual_m < 1e-7
+
+
+def test_first_order_fit_with_noise_and_a_delayed_step():
+    t, uu, y = step_record(0.6, 0.028, 2.0)
+    # the step starts at 1 s: the first second is at rest
+    t_full = np.concatenate([np.arange(500) / 500.0, 1.0 + t])
+    u_full = np.concatenate([np.zeros(500), uu])
+    y_full = np.concatenate([np.zeros(500), y])
+    noisy = y_full + 0.01 * 0.028 * np.random.default_rng(3).standard_normal(y_full.size)
+    fit = fit_first_order(t_full, u_full, noisy)
+    assert fit.a_p_per_s == pytest.approx(0.6, rel=0.03)
+    assert fit.a_s_m == pytest.approx(0.028, rel=0.01)
+    assert fit.residual_m == pytest.approx(0.01 * 0.028, rel=0.1)  # the residual is the noise
+
+
+@pytest.mark.parametrize("start", [(50.0, 1.0), (0.001, 0.0005)])
+def test_first_order_fit_from_a_bad_start(start):
+    t, uu, y = step_record(0.55, 0.022, 4.0)
+    fit = fit_first_order(t, uu, y, starts=[start], refined_starts=1)
+    assert fit.a_p_per_s == pytest.approx(0.55, rel=1e-3)
+    assert fit.a_s_m == pytest.approx(0.022, rel=1e-3)
+
+
+def test_first_order_fit_refuses_a_flat_record():
+    t = np.arange(100) / 500.0
+    with pytest.raises(IdentificationError, match="no step"):
+        fit_first_order(t, np.full(t.size, 2.0), np.zeros(t.size))
+
+
+def test_simulated_step_settles_at_the_static_force_balance():
+    """At rest the cylinder force A_p P_s balances F_BW(y) + friction (eq. 3, first line, y' = 0)."""
+    iso = PRESETS["IUT_b"]
+    rec = simulate_step(DEFAULT_RIG, iso, 30.0, 4.0)
+    y = rec.displacement_m[-1]
+    assert abs(rec.displacement_m[-1] - rec.displacement_m[-500]) < 1e-5  # settled over the last second
+    w = 1.0 - np.exp(-iso.rho_bw_per_m * y)  # eq. (4) on a monotonic loading branch, sigma = 0.5, n = 1
+    f_bw = iso.kd_n_per_m * y + iso.kw_n * w
+    push = DEFAULT_RIG.piston_area_m2 * 30.0 * BAR_PA
+    assert abs(push - f_bw) <= DEFAULT_RIG.friction_force_n * 1.01
+    assert push - f_bw == pytest.approx(DEFAULT_RIG.friction_force_n, rel=0.05)  # stopped coming from below
+
+
+def test_step_displacement_rises_with_supply_pressure():
+    iso = PRESETS["IUT_a"]
+    finals = [simulate_step(DEFAULT_RIG, iso, bar, 4.0, duration_s=6.0).displacement_m[-1] for bar in (20, 30, 40)]
+    assert finals[0] < finals[1] < finals[2]
+
+
+def test_compare_with_paper_and_targets():
+    rows = [{"supply_bar": 20.0, "step_v": 2.0, "a_p_per_s": 0.98, "a_s_m": 0.012},
+            {"supply_bar": 30.0, "step_v": 2.0, "a_p_per_s": 0.49, "a_s_m": 0.021},
+            {"supply_bar": 99.0, "step_v": 2.0, "a_p_per_s": 1.0, "a_s_m": 0.5}]
+    out = compare_with_paper(rows, "IUT_a")
+    assert out[0]["a_p_ratio"] == pytest.approx(2.0)
+    assert out[0]["a_s_rel_error"] == pytest.approx(0.2)
+    assert "paper_a_s_m" not in out[2]
+    check = targets_check({"IUT_a": out[:2]})
+    assert check["passes"] and check["a_s_rises_with_supply"]
+    out[1]["a_s_m"] = 0.011
+    out[1]["a_s_rel_error"] = 0.011 / 0.021 - 1
+    check = targets_check({"IUT_a": out[:2]})
+    assert not check["a_s_rises_with_supply"] and not check["passes"]
+    assert len(PAPER_TABLES["IUT_a"]) == len(PAPER_TABLES["IUT_b"]) == 9
+
+
+# ------------------------------------------------------------------ eq. (4) from loops
+
+def loop(iso, amplitude_m=0.02, frequency_hz=0.5, cycles=3, dt=1e-3):
+    t = np.arange(0.0, cycles / frequency_hz + 0.5 * dt, dt)
+    d = amplitude_m * np.sin(2 * np.pi * frequency_hz * t)
+    return t, d, simulate_loop(iso, d, dt)
+
+
+@pytest.mark.parametrize("name, amplitude", [("IUT_a", 0.02), ("IUT_b", 0.03)])
+def test_bouc_wen_recovers_the_paper_isolators(name, amplitude):
+    iso = PRESETS[name]
+    t, d, f = loop(iso, amplitude)
+    fit = fit_bouc_wen(t, d, f)
+    got = fit.isolator
+    assert got.kd_n_per_m == pytest.approx(iso.kd_n_per_m, rel=0.01)
+    assert got.kw_n == pytest.approx(iso.kw_n, rel=0.01)
+    assert got.rho_bw_per_m == pytest.approx(iso.rho_bw_per_m, rel=0.02)
+    assert fit.nrms_error < 1e-3
+    assert not fit.is_flat
+    assert len(fit.measured_metrics) == 3
+    assert fit.fitted_metrics[-1]["edc_j"] == pytest.approx(fit.measured_metrics[-1]["edc_j"], rel=0.01)
+
+
+def test_bouc_wen_with_force_noise_and_a_smooth_isolator():
+    iso = Isolator("smooth", 60.0, 0.7, 2.0, 3.0e5, 8.0e3)
+    t, d, f = loop(iso, 0.04, 1.0, 3)
+    noisy = f + 0.01 * np.sqrt(np.mean(f ** 2)) * np.random.default_rng(7).standard_normal(f.size)
+    fit = fit_bouc_wen(t, d, noisy)
+    assert fit.nrms_error < 0.03
+    assert fit.nrms_error == pytest.approx(0.01, rel=0.1)  # what is left is the noise
+    assert fit.isolator.kd_n_per_m == pytest.approx(iso.kd_n_per_m, rel=0.05)
+    assert fit.isolator.kw_n == pytest.approx(iso.kw_n, rel=0.05)
+
+
+def test_bouc_wen_bad_start_still_converges():
+    iso = PRESETS["IUT_b"]
+    t, d, f = loop(iso, 0.03)
+    fit = fit_bouc_wen(t, d, f, start={"rho_bw_per_m": 2000.0, "sigma_bw": 5.0, "n": 3.0})
+    assert fit.nrms_error < 0.01
+    assert fit.isolator.kd_n_per_m == pytest.approx(iso.kd_n_per_m, rel=0.05)
+
+
+def test_bouc_wen_flags_a_flat_fit():
+    """A loop far below yield (rho D << 1) cannot separate k_d from k_w rho: the fit must say so."""
+    iso = PRESETS["IUT_a"]
+    t, d, f = loop(iso, 0.0002)
+    fit = fit_bouc_wen(t, d, f)
+    assert fit.nrms_error < 0.01
+    assert fit.is_flat
+
+
+# ------------------------------------------------------------------ records and the command line
+
+def write(path, text):
+    path.write_text(text)
+    return str(path)
+
+
+def good_step_csv(tmp_path):
+    t, u, y = step_record(0.55, 0.022, 4.0, duration_s=6.0)
+    rows = [f"{a:.6f},{b:g},{c:.9g},x" for a, b, c in zip(t, u, y, strict=True)]
+    lines = ["time_s,voltage_v,displacement_m,extra"] + rows
+    return write(tmp_path / "step.csv", "\n".join(lines) + "\n")
+
+
+def test_read_record_csv_ignores_extra_columns(tmp_path):
+    cols = read_record_csv(good_step_csv(tmp_path), ("time_s", "displacement_m"), 10)
+    assert set(cols) == {"time_s", "displacement_m"} and cols["time_s"].size == 3001
+
+
+def test_identify_steps_csv(tmp_path, capsys):
+    assert main(["identify", "steps", "--csv", good_step_csv(tmp_path), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["a_p_per_s"] == pytest.approx(0.55, rel=1e-3) and out["a_s_m"] == pytest.approx(0.022, rel=1e-3)
+
+
+def test_identify_steps_grid_json(capsys):
+    assert main(["identify", "steps", "--isolator", "IUT_b", "--supply-bar", "40", "--step-v", "4", "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert len(rows) == 1
+    assert set(rows[0]) == {"supply_bar", "step_v", "a_p_per_s", "a_s_m", "residual_m"}
+    assert rows[0]["supply_bar"] == 40 and rows[0]["a_s_m"] > 0.005
+
+
+def test_identify_bouc_wen_on_a_simulate_timeseries(tmp_path, capsys):
+    assert main(["simulate", "--isolator", "IUT_b", "--supply-bar", "70", "--amplitude-m", "0.03",
+                 "--frequency-hz", "0.5", "--cycles", "3", "--controller", "pid", "--out", str(tmp_path)]) == 0
+    capsys.readouterr()
+    out_iso = tmp_path / "fitted.json"
+    assert main(["identify", "bouc-wen", str(tmp_path / "timeseries.csv"), "--json",
+                 "--save-isolator", str(out_iso), "--name", "IUT_b_fit"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["parameters"]["kd_n_per_m"] == pytest.approx(6.8e5, rel=0.05)
+    assert res["parameters"]["kw_n"] == pytest.approx(6.2e3, rel=0.05)
+    assert res["nrms_error"] < 0.01
+    iso = load_isolator(str(out_iso))
+    assert iso.name == "IUT_b_fit" and iso.rho_bw_per_m == pytest.approx(90.0, rel=0.1)
+
+
+BAD_LOOPS = {
+    "missing column": ("time_s,displacement_m\n" + "".join(f"{i},0\n" for i in range(60)), "lacks column(s) force_n"),
+    "non-numeric": ("time_s,displacement_m,force_n\n" + "".join(f"{i},0,1\n" for i in range(60))
+                    + "60,abc,1\n", "'abc' is not a number"),
+    "too short": ("time_s,displacement_m,force_n\n0,0,0\n1,1,1\n", "at least 50"),
+    "time goes back": ("time_s,displacement_m,force_n\n" + "".join(f"{i},{i},1\n" for i in range(30))
+                       + "".join(f"{i},{i},1\n" for i in range(10, 40)), "strictly increase"),
+    "empty cell": ("time_s,displacement_m,force_n\n" + "".join(f"{i},0,\n" for i in range(60)), "not a number"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_LOOPS))
+def test_malformed_loop_csv_exit_2_with_one_line(case, tmp_path, capsys):
+    text, words = BAD_LOOPS[case]
+    path = write(tmp_path / "bad.csv", text)
+    assert main(["identify", "bouc-wen", path]) == 2
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1, captured.err
+    assert words in lines[0] and captured.out == ""
+
+
+def test_malformed_csv_from_the_shell_exit_2_without_traceback(tmp_path):
+    text, words = BAD_LOOPS["non-numeric"]
+    path = write(tmp_path / "bad.csv", text)
+    proc = subprocess.run([sys.executable, "-m", "isorig", "identify", "bouc-wen", path],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and words in lines[0] and "Traceback" not in proc.stderr
+
+
+@pytest.mark.parametrize("args, words", [
+    (["identify", "steps", "--csv", "nope.csv"], "cannot read"),
+    (["identify", "steps", "--supply-bar", "500"], "--supply-bar 500"),
+    (["identify", "steps", "--step-v", "0"], "--step-v 0"),
+    (["identify", "steps", "--isolator", "nope"], "unknown isolator"),
+    (["identify", "bouc-wen"], "file"),
+])
+def test_identify_bad_arguments(args, words, capsys):
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and words in err[0]
+
+
+def test_malformed_step_csv(tmp_path, capsys):
+    path = write(tmp_path / "s.csv", "time_s,voltage_v\n" + "".join(f"{i},2\n" for i in range(40)))
+    assert main(["identify", "steps", "--csv", path]) == 2
+    assert "lacks column(s) displacement_m" in capsys.readouterr().err
