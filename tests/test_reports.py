@@ -1,0 +1,190 @@
+"""Test reports: PDF pages rendered to PNG and checked, report.json, stored tests, CSV records, the CLI."""
+
+import json
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from backend.reports import ReportBundle, bundle_from_csv, render_report_pdf, report_json
+from sim.engine import C_FORCE, C_Y, Scenario, Simulation
+from sim.isolator import PRESETS
+from sim.metrics import scenario_cycle_metrics
+from sim.protocols import load_protocol
+from sim.records import write_csv
+
+PDFTOPPM = shutil.which("pdftoppm") or ("/usr/bin/pdftoppm" if shutil.os.path.exists("/usr/bin/pdftoppm") else None)
+
+
+def protocol_run(name="quick_check", controller="pid", degrade_cycle=None):
+    """An engine run of a protocol as a store-like bundle (cycles with loop arrays, events)."""
+    protocol = load_protocol(name)
+    scenario = Scenario(PRESETS["IUT_a"], 100e5, protocol.blocks, controller=controller)
+    samples = Simulation(scenario).run().samples
+    if degrade_cycle is not None:  # a softening isolator in one cycle
+        p = protocol.cycle_plan()[degrade_cycle - 1]
+        sel = (samples[:, 0] >= p["t_start_s"] - 5e-4) & (samples[:, 0] < p["t_end_s"] + 5e-4)
+        samples[sel, C_FORCE] *= 0.7
+    cycles = scenario_cycle_metrics(samples, scenario)
+    for c in cycles:
+        j = min(c["i_end"] + 1, len(samples))
+        c["displacement_m"] = samples[c["i_start"]:j, C_Y]
+        c["force_n"] = samples[c["i_start"]:j, C_FORCE]
+    record = {"id": 7, "label": "report test", "status": "completed", "created_at": "2026-01-02T03:04:05+00:00",
+              "isolator": "IUT_a", "supply_bar": 100.0, "controller": controller, "driver": "simulated",
+              "profile": {"kind": "protocol", "name": name}, "duration_s": scenario.duration_s,
+              "scenario": scenario.describe()}
+    events = [{"kind": "operator", "actor": "alice", "time_s": 0.0, "message": "test 7 started by alice",
+               "values": {"action": "start"}},
+              {"kind": "limit_trip", "time_s": 3.2, "message": "force above the limit",
+               "values": {"detector": "force", "value_n": 5.1e4, "limit_n": 5.0e4}}]
+    return ReportBundle(record, samples, cycles, events)
+
+
+def png_pages(pdf, tmp_path, dpi=40):
+    """Render every page with pdftoppm; return the pages as arrays (height, width, 3)."""
+    from PIL import Image
+
+    subprocess.run([PDFTOPPM, "-r", str(dpi), "-png", str(pdf), str(tmp_path / "page")], check=True,
+                   capture_output=True, timeout=60)
+    files = sorted(tmp_path.glob("page-*.png"))
+    return [np.asarray(Image.open(f).convert("RGB")) for f in files]
+
+
+def ink(page) -> float:
+    """Share of pixels that are not (near) white."""
+    return float(np.mean(page.min(axis=2) < 200))
+
+
+def colour(page) -> float:
+    """Share of clearly coloured pixels (plots), as opposed to black or grey text."""
+    p = page.astype(int)
+    return float(np.mean(p.max(axis=2) - p.min(axis=2) > 60))
+
+
+@pytest.mark.skipif(PDFTOPPM is None, reason="pdftoppm (poppler-utils) is not installed")
+def test_pdf_pages_render_and_are_not_blank(tmp_path):
+    bundle = protocol_run()
+    out = tmp_path / "report.pdf"
+    render_report_pdf(bundle, out, meta={"lab": "Lab A", "operator": "alice"}, identify=False)
+    assert out.read_bytes()[:5] == b"%PDF-"
+    pages = png_pages(out, tmp_path)
+    # header, loops, time histories, per-cycle table, verdicts and events (10 s: no detail page)
+    assert len(pages) == 5
+    for i, page in enumerate(pages, start=1):
+        assert page.shape[0] > page.shape[1]  # A4 portrait
+        assert ink(page) > 0.003, f"page {i} looks blank"
+    assert colour(pages[1]) > 0.01  # coloured loops
+    assert colour(pages[2]) > 0.01  # time histories
+    assert colour(pages[1]) > 5 * colour(pages[3])  # the table page is text, the loop page is plots
+
+
+def test_report_json_names_the_failing_rule():
+    good = report_json(protocol_run(), identify=False)
+    assert good["acceptance"]["summary"]["passed"] is True
+    assert len(good["cycles"]) == 10 and "displacement_m" not in good["cycles"][0]
+    assert good["controller"]["name"] == "pid"
+    assert good["limit_trips"][0]["message"] == "force above the limit"
+    json.dumps(good, allow_nan=False)  # strict JSON: no NaN anywhere
+    # soften the isolator in level 2, test cycle 2 (planned cycle 8): both 3rd-cycle rules fail there
+    bad = report_json(protocol_run(degrade_cycle=8), identify=False)
+    summary = bad["acceptance"]["summary"]
+    assert summary["passed"] is False
+    assert {r["rule"] for r in summary["failed_rules"]} == {"keff_vs_3rd_cycle", "edc_vs_3rd_cycle"}
+    assert all(r["cycles"] == [8] for r in summary["failed_rules"])
+
+
+def test_identified_parameters_beside_nominal():
+    pytest.importorskip("sim.identify_bouc_wen")
+    rep = report_json(protocol_run())
+    ident = rep["identification"]
+    assert ident["available"], ident.get("note")
+    assert ident["nominal"]["kw_n"] == PRESETS["IUT_a"].kw_n
+    # the simulated isolator is IUT_a itself: the fit must find its parameters
+    for key in ("kd_n_per_m", "kw_n"):
+        assert ident["identified"][key] == pytest.approx(ident["nominal"][key], rel=0.02)
+
+
+def test_report_from_simulate_csv_uses_its_summary(tmp_path, capsys):
+    from isorig.cli import main
+
+    scenario = Scenario.sine("IUT_a", 100.0, 0.02, 1.0, 5, controller="pid", taper_cycles=1)
+    result = Simulation(scenario).run()
+    write_csv(tmp_path / "timeseries.csv", result.samples)
+    (tmp_path / "summary.json").write_text(json.dumps(result.summary()))
+    bundle = bundle_from_csv(tmp_path / "timeseries.csv")
+    assert [c["cycle"] for c in bundle.cycles] == [1, 2, 3, 4, 5]  # split by the command's phase
+    assert bundle.record["isolator"] == "IUT_a" and bundle.record["supply_bar"] == 100.0
+    assert np.isnan(bundle.samples[:, 2]).all()  # model_m is empty for PID: NaN, not an error
+    out = tmp_path / "r.pdf"
+    code = main(["report", "--csv", str(tmp_path / "timeseries.csv"), "--out", str(out), "--json",
+                 str(tmp_path / "r.json"), "--no-identify", "--protocol", "quick_check"])
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "wrote" in printed and "time" in printed
+    assert out.stat().st_size > 10_000
+    rep = json.loads((tmp_path / "r.json").read_text())
+    assert rep["acceptance"]["protocol"] == "quick_check"  # judged, though this record is no protocol run
+    assert rep["acceptance"]["summary"]["passed"] is False
+
+
+def _store_test(url: str) -> int:
+    from backend import store
+    from backend.db import make_engine, session_factory, upgrade
+
+    bundle = protocol_run()
+    engine = make_engine(url)
+    upgrade(engine)
+    with session_factory(engine)() as session:
+        test = store.create_test(session, label="stored", isolator="IUT_a", supply_bar=100.0, controller="pid",
+                                 speed=1.0, driver="simulated",
+                                 request={"profile": {"kind": "protocol", "name": "quick_check"}},
+                                 scenario=bundle.record["scenario"], limits={}, duration_s=10.0, cycles_total=10)
+        for i in range(0, len(bundle.samples), 1000):
+            store.append_samples(session, test, bundle.samples[i:i + 1000])
+        for c in bundle.cycles:
+            metrics = {k: v for k, v in c.items() if k not in ("displacement_m", "force_n", "cycle")}
+            store.add_cycle(session, test.id, c["cycle"], 0, c["t_start_s"], c["t_end_s"], metrics,
+                            c["displacement_m"], c["force_n"])
+        store.add_event(session, test.id, "limit_trip", "displacement beyond the limit", {"detector": "stroke"},
+                        time_s=4.0)
+        store.set_status(session, test, "completed")
+        session.commit()
+        test_id = test.id
+    engine.dispose()
+    return test_id
+
+
+def test_report_of_a_stored_test_via_the_cli(tmp_path, capsys):
+    pytest.importorskip("backend.store")
+    from isorig.cli import main
+
+    url = f"sqlite:///{tmp_path / 'store.db'}"
+    test_id = _store_test(url)
+    out = tmp_path / "stored.pdf"
+    assert main(["report", str(test_id), "--out", str(out), "--database-url", url, "--json",
+                 str(tmp_path / "stored.json"), "--no-identify", "--lab", "Lab B"]) == 0
+    rep = json.loads((tmp_path / "stored.json").read_text())
+    assert rep["test"]["lab"] == "Lab B" and rep["test"]["status"] == "completed"
+    assert len(rep["cycles"]) == 10 and rep["acceptance"]["summary"]["passed"] is True
+    assert rep["limit_trips"][0]["message"] == "displacement beyond the limit"
+    assert out.read_bytes()[:5] == b"%PDF-"
+    capsys.readouterr()
+    assert main(["report", "999", "--out", str(out), "--database-url", url]) == 2
+    assert "test 999 does not exist" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["report", "--out", "x.pdf"], "exactly one of TEST_ID"),
+    (["report", "3", "--csv", "a.csv", "--out", "x.pdf"], "exactly one of TEST_ID"),
+    (["report", "3", "--protocol", "quick_check", "--out", "x.pdf"], "go with --csv only"),
+    (["report", "--csv", "missing.csv", "--out", "x.pdf"], "cannot read"),
+    (["report", "--csv", "a.csv", "--out", "/no/such/dir/x.pdf"], "does not exist"),
+])
+def test_report_cli_errors_are_one_line(argv, message, capsys):
+    from isorig.cli import main
+
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1
