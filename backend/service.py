@@ -111,7 +111,8 @@ class RigService:
                     raise Conflict(f"test {test_id} is {test.status}; only a test with status 'ready' can start "
                                    "(create a new test to run it again)")
                 job = {"test_id": test_id, "driver": test.driver, "speed": test.speed,
-                       "scenario": test.request["job_scenario"], "limits": test.limits}
+                       "scenario": test.request["job_scenario"], "limits": test.limits,
+                       "realtime": self.settings.worker_realtime}
                 ctx = self.context()
                 out_r, out_w = ctx.Pipe(duplex=False)
                 cmd_r, cmd_w = ctx.Pipe(duplex=False)

@@ -29,6 +29,8 @@ class Settings(BaseSettings):
     stream_history_s: float = Field(default=10.0, description="simulated seconds of samples a late client gets")
     worker_start_method: str = Field(default="forkserver", description="multiprocessing start method: forkserver "
                                      "or spawn (never fork from the threaded server)")
+    worker_realtime: bool = Field(default=True, description="ask for real-time scheduling of the rig worker "
+                                  "(SCHED_RR if permitted, else nice -10, else normal)")
     viewer: bool = Field(default=True, description="serve the 3D view under /viewer/ (backend.viewer)")
     commit_interval_s: float = Field(default=0.5, description="samples are committed at least this often (wall)")
 

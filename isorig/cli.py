@@ -10,7 +10,7 @@ import importlib
 import sys
 import time
 
-COMMAND_MODULES = ("simulate", "bench", "analyze", "report", "serve", "identify", "compare")
+COMMAND_MODULES = ("simulate", "bench", "analyze", "report", "serve", "bench_stream", "identify", "compare")
 
 
 class UsageError(Exception):
