@@ -115,8 +115,8 @@ class RigScene:
         self.mag = self.server.gui.add_slider("displacement x", min=1.0, max=10.0, step=1.0,
                                               initial_value=self.magnification)
         self.server.scene.set_up_direction("+z")
-        self.server.initial_camera.position = (2.6, -3.4, 2.0)
-        self.server.initial_camera.look_at = (0.4, 0.0, 0.6)
+        self.server.initial_camera.position = (2.2, -4.6, 2.4)
+        self.server.initial_camera.look_at = (0.0, 0.0, 0.6)
 
     def show(self, displacement_m: float, force_n: float, text: str | None = None) -> None:
         """Move the table, shear the isolator (bottom moves, top fixed) and set the force bar."""
@@ -184,17 +184,15 @@ class ViewerRelay:
                     if self.watchers <= 0:
                         break
                     kind = msg.get("type")
-                    if kind == "hello":
-                        test = msg.get("test") or {}
-                        title = f"test #{msg.get('test_id')}" if msg.get("test_id") is not None else "no test"
-                        iso = test.get("isolator")
-                        if isinstance(iso, dict):
-                            iso = iso.get("name")
-                        if iso:
-                            title += f" - {iso}"
-                        await asyncio.to_thread(scene.set_text, f"**{title}** {test.get('status', '')}")
-                    elif kind == "status":
-                        await asyncio.to_thread(scene.set_text, f"**{title}** {msg.get('status', '')}")
+                    if kind == "status":
+                        cycle = msg.get("cycle")
+                        total = msg.get("cycles_total")
+                        text = f"**test #{msg.get('test_id')}**: {msg.get('status', '')}"
+                        if cycle is not None and total:
+                            text += f", cycle {cycle} / {total}"
+                        if text != title:
+                            title = text
+                            await asyncio.to_thread(scene.set_text, text)
                     elif kind == "samples" and msg.get("rows"):
                         now = time.monotonic()
                         if now - last < UPDATE_PERIOD_S:

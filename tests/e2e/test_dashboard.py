@@ -126,7 +126,7 @@ def test_live_view_follows_test_started_through_api(server, open_page, artifacts
     assert f"Test {test_id} completed" in page.inner_text("#alert-text")
 
     # a page opened while a test runs: time from navigation to the first live frame (recorded, not asserted)
-    test_id = server.start_test(sine_test(amplitude_m=0.02, frequency_hz=1.0, cycles=6, speed=1.0,
+    test_id = server.start_test(sine_test(amplitude_m=0.02, frequency_hz=1.0, cycles=60, speed=1.0,
                                           isolator="IUT_a", supply_bar=100))
     server.wait_status(test_id, {"running"}, timeout_s=15)
     time.sleep(1.0)
@@ -134,8 +134,8 @@ def test_live_view_follows_test_started_through_api(server, open_page, artifacts
     late.wait_for_function("window.__isorig.firstLiveFrameMs !== null", timeout=10000)
     first = _metrics(late)["firstLiveFrameMs"]
     (artifacts / "first_live_frame_ms.txt").write_text(f"{first:.0f}\n")
-    status, _ = server.call("POST", f"/api/tests/{test_id}/abort", token=True)
-    assert status == 200
+    status, body = server.call("POST", f"/api/tests/{test_id}/abort", token=True)
+    assert status == 200, body
     late.wait_for_selector("#rig-status[data-status='aborted']", timeout=10000)
     late.screenshot(path=str(artifacts / "dashboard_aborted.png"))
 

@@ -7,6 +7,9 @@ import { runningTestId, SetupPanel } from "./setup.js";
 import { hideAlert, showAlert } from "./ui.js";
 
 const $ = (id) => document.getElementById(id);
+// The embedded 3D view shares the page's main thread (same origin); capping its frame rate keeps the plots
+// fluid when WebGL is slow (software rendering). /viewer/ opened on its own runs at full rate.
+const VIEWER_MAX_FPS = 15;
 
 const live = new LiveView({
   onTest: (id, status) => {
@@ -51,8 +54,12 @@ async function abort() {
   }
 }
 
+const VIEWER_KEY = "isorig.viewer"; // "off" hides the 3D view in this browser
+
+/** The 3D view is shown unless the service has it off, this browser hid it, or the URL says ?viewer=off. */
 async function setupViewer() {
   const box = $("viewer-box");
+  const toggle = $("viewer-toggle");
   let info = null;
   try {
     info = await api.get("/viewer/status");
@@ -60,15 +67,49 @@ async function setupViewer() {
     info = null;
   }
   if (!info || !info.enabled) {
-    box.innerHTML = "<p class=\"muted\">3D view is switched off on this service.</p>";
+    box.classList.add("off");
+    box.innerHTML = "<p class=\"muted\">The 3D view is switched off on this service (ISORIG_VIEWER=0).</p>";
+    toggle.classList.add("hidden");
     return;
   }
-  const frame = document.createElement("iframe");
-  frame.src = "/viewer/";
-  frame.title = "3D rig view";
-  frame.loading = "lazy";
-  box.innerHTML = "";
-  box.append(frame);
+  const urlOff = new URLSearchParams(location.search).get("viewer") === "off";
+  const show = (on) => {
+    box.innerHTML = "";
+    box.classList.toggle("off", !on);
+    toggle.textContent = on ? "hide 3D view" : "show 3D view";
+    if (!on) {
+      box.innerHTML = "<p class=\"muted\">3D view hidden in this browser.</p>";
+      return;
+    }
+    const frame = document.createElement("iframe");
+    frame.src = "/viewer/";
+    frame.title = "3D rig view";
+    frame.loading = "lazy";
+    frame.addEventListener("load", () => capFrameRate(frame.contentWindow, VIEWER_MAX_FPS));
+    box.append(frame);
+  };
+  let on = !urlOff && localStorage.getItem(VIEWER_KEY) !== "off";
+  toggle.addEventListener("click", () => {
+    on = !on;
+    localStorage.setItem(VIEWER_KEY, on ? "on" : "off");
+    show(on);
+  });
+  show(on);
+}
+
+/** Make requestAnimationFrame in window w fire at most maxFps times per second. */
+function capFrameRate(w, maxFps) {
+  if (!w || w.__isorigCapped) return;
+  const raf = w.requestAnimationFrame.bind(w);
+  const period = 1000 / maxFps;
+  let next = 0;
+  w.requestAnimationFrame = (cb) => raf(function tick(t) {
+    if (t < next) return raf(tick);
+    next = Math.max(next + period, t);
+    cb(t);
+    return 0;
+  });
+  w.__isorigCapped = true;
 }
 
 function updateTokenButton() {
