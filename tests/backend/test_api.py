@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from .conftest import AUTH, sine_test
 
 USER_ISOLATOR = {"name": "my_lrb", "rho_bw_per_m": 200.0, "sigma_bw": 0.5, "n": 1.0, "kd_n_per_m": 9e5,
@@ -121,3 +123,20 @@ def test_reports_route_answers(client):
     r = client.get(f"/api/tests/{test_id}/report.json")
     assert r.status_code in (200, 503)  # 503 (with a message) only when backend.reports is not installed
     assert r.headers["content-type"].startswith("application/json")
+
+
+def test_protocol_profiles(client):
+    pytest.importorskip("sim.protocols")
+    body = {**sine_test(), "profile": {"kind": "protocol", "name": "quick_check"}}
+    r = client.post("/api/tests", json=body, headers=AUTH)
+    assert r.status_code == 201, r.text
+    rec = r.json()
+    assert len(rec["scenario"]["profile"]) >= 1 and rec["profile"] == {"kind": "protocol", "name": "quick_check",
+                                                                        "protocol": None}
+    assert rec["cycles_total"] == sum(b["cycles"] for b in rec["scenario"]["profile"])
+    for profile, field in (({"kind": "protocol", "name": "/etc/passwd"}, "profile.name"),
+                           ({"kind": "protocol"}, "profile"),
+                           ({"kind": "protocol", "protocol": {"name": "x"}}, "profile")):
+        r = client.post("/api/tests", json={**sine_test(), "profile": profile}, headers=AUTH)
+        assert r.status_code == 422, r.text
+        assert r.json()["field"].startswith(field)

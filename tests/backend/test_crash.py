@@ -107,3 +107,15 @@ def test_server_killed_mid_test_restarts_with_the_test_interrupted(tmp_path):
         assert len(lines) == 1 + rec["samples_stored"]
         # and the restarted service runs tests
         assert wait_for(client, create_and_start(client))["status"] == "completed"
+
+
+def test_service_shutdown_marks_the_running_test_interrupted(tmp_path):
+    settings = make_settings(tmp_path)
+    with TestClient(create_app(settings)) as client:
+        test_id = create_and_start(client, **LONG)
+        wait_samples(client.get, test_id, 0.3)
+    # leaving the block runs the lifespan shutdown: the worker is stopped and the test recorded as interrupted
+    with TestClient(create_app(settings)) as client:
+        rec = client.get(f"/api/tests/{test_id}").json()
+        assert rec["status"] == "interrupted" and "shut down" in rec["reason"]
+        assert rec["samples_stored"] >= 300
