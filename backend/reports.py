@@ -30,8 +30,8 @@ TABLE_ROWS = 61  # per-cycle table rows per page
 METRIC_COLUMNS = ("d_max_m", "d_min_m", "f_max_n", "f_min_n", "k_eff_n_per_m", "edc_j", "xi_eff", "qd_n",
                   "kd_n_per_m")
 BOUC_WEN_FIELDS = ("rho_bw_per_m", "sigma_bw", "n", "kd_n_per_m", "kw_n")
-IDENTIFY_MAX_SAMPLES = 20_000  # the Bouc-Wen fit uses the first 20 000 samples (20 s at 1 kHz) ...
-IDENTIFY_FIT_POINTS = 8_000  # ... taken at most 8 000 of them (400 Hz from 1 kHz), to keep the report fast
+IDENTIFY_MAX_SAMPLES = 60_000  # the Bouc-Wen fit uses the first 60 000 samples (60 s at 1 kHz) ...
+IDENTIFY_FIT_POINTS = 6_000  # ... thinned to at most 6 000 points (>= 100 Hz), to keep the report fast
 
 
 @dataclass
@@ -184,8 +184,18 @@ def controller_state(bundle) -> dict:
             value = _last_finite(s[:, COLUMNS.index(name)])
             if value is not None:
                 adapted[name] = value
-    return {"name": record.get("controller") or scenario.get("controller"),
-            "options": scenario.get("controller_options") or {}, "final_adapted": adapted}
+    name = record.get("controller") or scenario.get("controller")
+    options = scenario.get("controller_options") or {}
+    parameters = {}
+    if name:
+        try:  # the controller's effective parameters: its defaults overridden by the test's options
+            from sim.controllers import make_controller
+
+            parameters = {k: v for k, v in make_controller(name, **options).options.items()
+                          if isinstance(v, (int, float, str, bool))}
+        except (ImportError, ValueError, TypeError):
+            parameters = {}
+    return {"name": name, "options": options, "parameters": parameters, "final_adapted": adapted}
 
 
 def identified_bouc_wen(bundle, max_samples: int = IDENTIFY_MAX_SAMPLES) -> dict:
@@ -456,6 +466,15 @@ def _header_lines(bundle, ctrl: dict, iso, protocol) -> list[tuple[str, str]]:
         lines.append(("Profile" if k == 0 else "", text))
     lines.append(("Controller", str(ctrl.get("name") or "not recorded")
                   + (f", options {json.dumps(ctrl['options'])}" if ctrl.get("options") else "")))
+    if ctrl.get("parameters"):
+        text = ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}"
+                         for k, v in ctrl["parameters"].items())
+        chunks = _wrap(text, 95)
+        if len(chunks) > 3:
+            chunks = chunks[:3]
+            chunks[-1] += " ..."
+        for k, chunk in enumerate(chunks):
+            lines.append(("  parameters" if k == 0 else "", chunk))
     if ctrl.get("final_adapted"):
         a = ctrl["final_adapted"]
         lines.append(("  final adapted", ", ".join(f"{k} = {v:.5g}" for k, v in a.items())))

@@ -343,6 +343,7 @@ def profile_from_spec(spec: dict) -> tuple[list[SineProfile], Protocol | None]:
     add "design_displacement_m" to rescale the levels."""
     if not isinstance(spec, dict):
         raise ProtocolError("profile", "profile must be an object with kind 'sine' or 'protocol'")
+    spec = {k: v for k, v in spec.items() if v is not None}  # null = absent (as a JSON API sends it)
     kind = spec.get("kind", "sine")
     if kind == "sine":
         return [sine_from_dict(spec)], None
