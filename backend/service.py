@@ -18,7 +18,7 @@ from datetime import UTC, datetime
 import numpy as np
 from sqlalchemy.orm import Session, sessionmaker
 
-from sim.engine import CSV_COLUMNS, Scenario
+from sim.engine import CONTROL_PERIOD_S, CSV_COLUMNS, Scenario
 from sim.tracking import tracking_summary
 
 from . import store
@@ -148,10 +148,11 @@ class RigService:
             store.add_event(session, test_id, "operator", f"{action} requested by {actor}", {"action": action},
                             actor=actor, time_s=run.time_s)
             session.commit()
-        try:
-            run.commands.send(action)
-        except (BrokenPipeError, OSError):
-            pass
+        with self._lock:  # one writer at a time on the command pipe
+            try:
+                run.commands.send(action)
+            except (BrokenPipeError, OSError):
+                pass
         if action == "abort":
             run.stop_requested = True
             # the worker stops at its next chunk (<= 20 ms); if it does not answer, end it
@@ -186,6 +187,7 @@ class RigService:
         last_status = 0.0
         final = None
         cycles_done = 0
+        arrival_ms: list[float] = []
         cycles_total = record["cycles_total"]
         duration_s = record["duration_s"]
         speed = record["speed"]
@@ -231,6 +233,9 @@ class RigService:
                     break
                 if kind == "samples":
                     rows = payload
+                    if run.wall_t0 is not None:  # how late the newest sample reaches the server (diagnostics)
+                        due = run.wall_t0 + (float(rows[-1, 0]) + CONTROL_PERIOD_S) / speed
+                        arrival_ms.append((time.time() - due) * 1e3)
                     pending.append(rows)
                     pending_rows += rows.shape[0]
                     run.time_s = float(rows[-1, 0])
@@ -295,6 +300,10 @@ class RigService:
                 if run.shutdown and status == "aborted":
                     status, reason = "interrupted", "the service shut down while the test was running"
             test = store.get_test(session, test_id)
+            if arrival_ms:
+                pacing = {**pacing, "server_arrival_p50_ms": float(np.percentile(arrival_ms, 50)),
+                          "server_arrival_p95_ms": float(np.percentile(arrival_ms, 95)),
+                          "server_arrival_max_ms": float(np.max(arrival_ms))}
             summary = self._summary(session, test, run.job, pacing)
             test.summary = summary
             store.set_status(session, test, status, reason)

@@ -206,6 +206,9 @@ def run(args) -> int:
         print(f"  pacing lateness per 20 ms chunk: p50 {p.get('lateness_p50_ms', nan):.3f} ms, "
               f"p99 {p.get('lateness_p99_ms', nan):.3f} ms, max {p.get('lateness_max_ms', nan):.3f} ms "
               f"({p.get('late_over_2ms', 0)} of {p.get('chunks', 0)} chunks later than 2 ms)  [target p99 < 2 ms]")
+        if "server_arrival_p95_ms" in p:
+            print(f"  chunk arrival at the server (newest sample): p50 {p['server_arrival_p50_ms']:.1f} ms, "
+                  f"p95 {p['server_arrival_p95_ms']:.1f} ms, max {p['server_arrival_max_ms']:.1f} ms")
         lat = r["latency"]
         if lat.get("n"):
             print(f"  sample-to-client latency over {lat['n']} samples: p50 {lat['p50_ms']:.1f} ms, "

@@ -16,6 +16,16 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+def _masked(url: str) -> str:
+    """The URL without its password."""
+    from sqlalchemy.engine import make_url
+
+    try:
+        return make_url(url).render_as_string(hide_password=True)
+    except Exception:
+        return "<unparsable URL>"
+
+
 def run(args) -> int:
     import uvicorn
 
@@ -31,7 +41,7 @@ def run(args) -> int:
     try:
         app = create_app(settings)
     except Exception as exc:  # bad URL, unreachable database: one clear line
-        print(f"isorig serve: cannot open the database {settings.resolved_database_url!r}: "
+        print(f"isorig serve: cannot open the database {_masked(settings.resolved_database_url)!r}: "
               f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}", file=sys.stderr)
         return 2
     print(f"isorig: serving on http://{settings.host}:{settings.port}/ (API docs at /docs), "
