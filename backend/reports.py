@@ -252,7 +252,7 @@ def identified_bouc_wen(bundle, max_samples: int = IDENTIFY_MAX_SAMPLES) -> dict
                if hasattr(result, k)}
     out.update({"available": True, "identified": params, "fit": _clean(quality), "samples_used": int(t.size),
                 "record_span_s": float(t[-1] - t[0]), "time_s": time.perf_counter() - t0,
-                "source": "fit_bouc_wen on the first " + f"{t[-1] - t[0]:.4g} s of the record"})
+                "source": "fit_bouc_wen on the first " + f"{t[-1] - t[0]:.3g} s of the record"})
     return out
 
 
@@ -469,7 +469,7 @@ def _header_lines(bundle, ctrl: dict, iso, protocol) -> list[tuple[str, str]]:
     if ctrl.get("parameters"):
         text = ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}"
                          for k, v in ctrl["parameters"].items())
-        chunks = _wrap(text, 95)
+        chunks = _wrap(text, 85)
         if len(chunks) > 3:
             chunks = chunks[:3]
             chunks[-1] += " ..."

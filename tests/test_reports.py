@@ -188,3 +188,19 @@ def test_report_cli_errors_are_one_line(argv, message, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert message in err and len(err.strip().splitlines()) == 1
+
+
+def test_report_of_a_test_that_never_ran():
+    from sim.engine import COLUMNS
+
+    bundle = ReportBundle({"id": 3, "status": "ready", "isolator": "IUT_b",
+                           "profile": {"kind": "protocol", "name": "quick_check", "protocol": None}},
+                          np.empty((0, len(COLUMNS))), [], [])
+    rep = report_json(bundle)
+    assert rep["cycles"] == [] and rep["identification"]["available"] is False
+    # nothing measured: every judged cycle is "missing", so the protocol fails, it never passes by absence
+    assert rep["acceptance"]["summary"]["passed"] is False
+    assert {v["status"] for v in rep["acceptance"]["verdicts"]} == {"missing"}
+    buf = __import__("io").BytesIO()
+    render_report_pdf(bundle, buf, report=rep)
+    assert buf.getvalue()[:5] == b"%PDF-"
