@@ -164,10 +164,16 @@ def test_report_of_a_stored_test_via_the_cli(tmp_path, capsys):
     test_id = _store_test(url)
     out = tmp_path / "stored.pdf"
     assert main(["report", str(test_id), "--out", str(out), "--database-url", url, "--json",
-                 str(tmp_path / "stored.json"), "--no-identify", "--lab", "Lab B"]) == 0
+                 str(tmp_path / "stored.json"), "--no-identify", "--lab", "Lab B",
+                 "--csv-out", str(tmp_path / "stored.csv")]) == 0
+    capsys.readouterr()
+    assert main(["analyze", str(tmp_path / "stored.csv"), "--json", "--frequency-hz", "1"]) == 0
+    analysed = json.loads(capsys.readouterr().out)["cycles"]
     rep = json.loads((tmp_path / "stored.json").read_text())
     assert rep["test"]["lab"] == "Lab B" and rep["test"]["status"] == "completed"
     assert len(rep["cycles"]) == 10 and rep["acceptance"]["summary"]["passed"] is True
+    # the exported CSV gives the same metrics as the store's (split by the same phase)
+    assert [c["edc_j"] for c in analysed] == pytest.approx([c["edc_j"] for c in rep["cycles"]], rel=1e-6)
     assert rep["limit_trips"][0]["message"] == "displacement beyond the limit"
     assert out.read_bytes()[:5] == b"%PDF-"
     capsys.readouterr()

@@ -18,6 +18,7 @@ def register(sub) -> None:
     p.add_argument("test_id", nargs="?", type=int, help="id of a stored test (see GET /api/tests)")
     p.add_argument("--out", required=True, help="output PDF file")
     p.add_argument("--json", dest="json_out", help="also write report.json (all metrics) to this file")
+    p.add_argument("--csv-out", help="also write the samples as CSV (the columns of isorig simulate) to this file")
     p.add_argument("--database-url", help="SQLAlchemy URL of the store (default: the service's, ISORIG_DATABASE_URL)")
     p.add_argument("--csv", help="report on a CSV record (columns time_s, displacement_m, force_n; target_m, "
                                  "voltage_v, ... when present) instead of a stored test")
@@ -100,9 +101,16 @@ def run(args) -> int:
             Path(args.json_out).write_text(json.dumps(report, indent=1))
         except OSError as exc:
             raise UsageError(f"{PROG}: cannot write {args.json_out}: {exc.strerror}") from None
+    if args.csv_out:
+        from sim.records import write_csv
+
+        try:
+            write_csv(args.csv_out, bundle.samples)
+        except OSError as exc:
+            raise UsageError(f"{PROG}: cannot write {args.csv_out}: {exc.strerror}") from None
     ident = report["identification"]
     verdict = report["acceptance"]["summary"]["passed"]
-    print(f"wrote {out}" + (f" and {args.json_out}" if args.json_out else "")
+    print(f"wrote {out}" + "".join(f", {f}" for f in (args.json_out, args.csv_out) if f)
           + f": {source}, {bundle.samples.shape[0]} samples, {len(bundle.cycles)} cycles, acceptance "
           + {None: "none (no protocol)", True: "PASSED", False: "FAILED"}[verdict])
     t_ident = ident.get("time_s") or 0.0
