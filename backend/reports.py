@@ -22,13 +22,10 @@ import numpy as np
 from sim.engine import C_FORCE, C_TARGET, C_TIME, C_U, C_Y, COLUMNS, CSV_COLUMNS
 
 A4_PORTRAIT_IN = (8.27, 11.69)
-A4_LANDSCAPE_IN = (11.69, 8.27)
 PLOT_POINTS = 2500  # min/max buckets per time history (5000 points: peaks kept, file small)
 MAX_LOOPS = 40  # loops drawn in the overview (evenly chosen; all of them if fewer)
 LOOP_POINTS = 400  # points per drawn loop
 TABLE_ROWS = 61  # per-cycle table rows per page
-METRIC_COLUMNS = ("d_max_m", "d_min_m", "f_max_n", "f_min_n", "k_eff_n_per_m", "edc_j", "xi_eff", "qd_n",
-                  "kd_n_per_m")
 BOUC_WEN_FIELDS = ("rho_bw_per_m", "sigma_bw", "n", "kd_n_per_m", "kw_n")
 IDENTIFY_MAX_SAMPLES = 60_000  # the Bouc-Wen fit uses the first 60 000 samples (60 s at 1 kHz) ...
 IDENTIFY_FIT_POINTS = 6_000  # ... thinned to at most 6 000 points (>= 100 Hz), to keep the report fast
@@ -86,7 +83,7 @@ def bundle_from_csv(path, summary_path=None, isolator=None, supply_bar: float | 
     elif isolator:
         iso = load_isolator(isolator)
     elif isinstance(scenario.get("isolator"), dict):
-        iso = isolator_from_dict({k: v for k, v in scenario["isolator"].items()})
+        iso = isolator_from_dict(scenario["isolator"])
     proto = protocol if isinstance(protocol, Protocol) or protocol is None else load_protocol(protocol)
 
     blocks = None
@@ -850,6 +847,7 @@ def render_report_pdf(bundle, out, meta: dict | None = None, report: dict | None
 
 
 def report_pdf_bytes(bundle, meta: dict | None = None, identify: bool = True) -> bytes:
+    """The PDF as bytes (for an HTTP response)."""
     buf = io.BytesIO()
     render_report_pdf(bundle, buf, meta, identify=identify)
     return buf.getvalue()
