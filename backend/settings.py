@@ -31,6 +31,8 @@ class Settings(BaseSettings):
                                      "or spawn (never fork from the threaded server)")
     worker_realtime: bool = Field(default=True, description="ask for real-time scheduling of the rig worker "
                                   "(SCHED_RR if permitted, else nice -10, else normal)")
+    ws_per_message_deflate: bool = Field(default=False, description="compress websocket messages (saves "
+                                         "bandwidth on slow links, costs server CPU per client)")
     viewer: bool = Field(default=True, description="serve the 3D view under /viewer/ (backend.viewer)")
     commit_interval_s: float = Field(default=0.5, description="samples are committed at least this often (wall)")
 

@@ -36,6 +36,7 @@ def register(sub) -> None:
     p.add_argument("--nice", type=int, default=0,
                    help="run the service and the clients at this nice value (e.g. -10: as on a dedicated machine; "
                         "needs root or CAP_SYS_NICE)")
+    p.add_argument("--ws-deflate", action="store_true", help="serve with websocket per-message compression")
     p.add_argument("--json", action="store_true", help="print the figures as JSON")
     p.set_defaults(func=run)
 
@@ -57,11 +58,12 @@ def _percentiles(values) -> dict:
 
 
 class Service:
-    def __init__(self, data_dir: str, database_url: str | None, nice: int = 0):
+    def __init__(self, data_dir: str, database_url: str | None, nice: int = 0, deflate: bool = False):
         self.port = _free_port()
         self.token = secrets.token_urlsafe(16)
         self.base = f"http://127.0.0.1:{self.port}"
-        env = {**os.environ, "ISORIG_OPERATOR_TOKEN": self.token, "ISORIG_VIEWER": "0"}
+        env = {**os.environ, "ISORIG_OPERATOR_TOKEN": self.token, "ISORIG_VIEWER": "0",
+               "ISORIG_WS_PER_MESSAGE_DEFLATE": "1" if deflate else "0"}
         cmd = [sys.executable, "-m", "isorig", "serve", "--port", str(self.port), "--data-dir", data_dir,
                "--log-level", "warning"]
         if database_url:
@@ -84,6 +86,14 @@ class Service:
             time.sleep(0.1)
         raise RuntimeError("isorig serve did not come up within 60 s")
 
+    def cpu_s(self) -> float:
+        """CPU time (user + system) the service process has used so far (Linux /proc)."""
+        try:
+            fields = open(f"/proc/{self.process.pid}/stat").read().rsplit(")", 1)[1].split()
+            return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        except (OSError, ValueError, IndexError):
+            return float("nan")
+
     def stop(self) -> None:
         if self.process.poll() is None:
             self.process.send_signal(signal.SIGINT)
@@ -103,9 +113,11 @@ def _create(http, svc: Service, cycles: int, speed: float) -> int:
 
 
 async def _paced_run(svc: Service, http, duration_s: float, clients: int) -> dict:
+    import httpx
     import websockets
 
     test_id = _create(http, svc, max(2, int(round(duration_s))), 1.0)
+    cpu0, wall0 = svc.cpu_s(), time.monotonic()
     received: list[list[tuple[float, list[float]]]] = [[] for _ in range(clients)]
     sockets = [await websockets.connect(f"ws://127.0.0.1:{svc.port}/ws/tests/{test_id}", max_size=None)
                for _ in range(clients)]
@@ -125,13 +137,22 @@ async def _paced_run(svc: Service, http, duration_s: float, clients: int) -> dic
     r = await asyncio.to_thread(http.post, f"{svc.base}/api/tests/{test_id}/start",
                                 headers={"Authorization": f"Bearer {svc.token}"})
     r.raise_for_status()
+    api_ms, api_failures = [], 0
     while True:
-        record = (await asyncio.to_thread(http.get, f"{svc.base}/api/tests/{test_id}")).json()
+        t_req = time.monotonic()
+        try:
+            record = (await asyncio.to_thread(http.get, f"{svc.base}/api/tests/{test_id}")).json()
+        except httpx.TransportError:
+            api_failures += 1
+            continue
+        api_ms.append((time.monotonic() - t_req) * 1e3)
         if record["status"] not in ("ready", "running"):
             break
         await asyncio.sleep(0.5)
     if tasks:
         await asyncio.wait(tasks, timeout=10)
+    server_cpu = {"cpu_s": svc.cpu_s() - cpu0, "wall_s": time.monotonic() - wall0}
+    server_cpu["share_of_one_cpu"] = server_cpu["cpu_s"] / server_cpu["wall_s"]
     for ws in sockets:
         await ws.close()
     wall_t0 = datetime.fromisoformat(record["started_at"]).timestamp()
@@ -147,7 +168,8 @@ async def _paced_run(svc: Service, http, duration_s: float, clients: int) -> dic
     return {"test_id": test_id, "status": record["status"], "test_time_s": record["time_s"],
             "samples_stored": record["samples_stored"], "clients": clients,
             "samples_per_client": per_client_samples, "pacing": record["summary"].get("pacing", {}),
-            "latency": _percentiles(latencies)}
+            "latency": _percentiles(latencies), "server_cpu": server_cpu,
+            "api_get_during_run": {**_percentiles(api_ms), "failures": api_failures}}
 
 
 def _storage_run(svc: Service, http, minutes: float, speed: float) -> dict:
@@ -172,14 +194,15 @@ def run(args) -> int:
 
     if args.duration_s < 2 or args.clients < 0 or args.storage_minutes <= 0:
         raise UsageError("isorig bench-stream: --duration-s >= 2, --clients >= 0, --storage-minutes > 0")
-    results: dict = {"load_average_start": os.getloadavg(), "cpus": os.cpu_count(), "nice": args.nice}
+    results: dict = {"load_average_start": os.getloadavg(), "cpus": os.cpu_count(), "nice": args.nice,
+                     "ws_deflate": args.ws_deflate}
     if args.nice:
         try:
             os.nice(args.nice)
         except OSError as exc:
             raise UsageError(f"isorig bench-stream: --nice {args.nice} not permitted: {exc.strerror}") from None
     with tempfile.TemporaryDirectory(prefix="isorig-bench-") as data_dir:
-        svc = Service(data_dir, args.database_url, args.nice)
+        svc = Service(data_dir, args.database_url, args.nice, args.ws_deflate)
         try:
             with httpx.Client(timeout=30) as http:
                 svc.wait_up(http)
@@ -209,6 +232,12 @@ def run(args) -> int:
         if "server_arrival_p95_ms" in p:
             print(f"  chunk arrival at the server (newest sample): p50 {p['server_arrival_p50_ms']:.1f} ms, "
                   f"p95 {p['server_arrival_p95_ms']:.1f} ms, max {p['server_arrival_max_ms']:.1f} ms")
+        c = r["server_cpu"]
+        print(f"  service process CPU: {c['cpu_s']:.1f} s over {c['wall_s']:.1f} s "
+              f"({100 * c['share_of_one_cpu']:.0f} % of one CPU; the worker is a separate process)")
+        a = r["api_get_during_run"]
+        print(f"  GET /api/tests/{{id}} while streaming: p50 {a.get('p50_ms', nan):.1f} ms, "
+              f"max {a.get('max_ms', nan):.1f} ms over {a['n']} requests, {a['failures']} timed out (30 s)")
         lat = r["latency"]
         if lat.get("n"):
             print(f"  sample-to-client latency over {lat['n']} samples: p50 {lat['p50_ms']:.1f} ms, "
@@ -216,7 +245,8 @@ def run(args) -> int:
                   f"[target p95 < 50 ms]; samples per client {min(r['samples_per_client'])}-"
                   f"{max(r['samples_per_client'])} of {r['samples_stored']}")
     print(f"machine: {results['cpus']} CPUs, load average {results['load_average_start'][0]:.1f} at start, "
-          f"{results['load_average_end'][0]:.1f} at end; service and clients at nice {args.nice}")
+          f"{results['load_average_end'][0]:.1f} at end; service and clients at nice {args.nice}; "
+          f"websocket compression {'on' if args.ws_deflate else 'off'}")
     s = results["storage"]
     print(f"[storage] {s['minutes']:.1f} min at 1 kHz ({s['samples']} samples x {s['columns']} columns): "
           f"{s['storage_mb']:.1f} MB stored (raw float64 {s['raw_float64_mb']:.1f} MB)  [target < 30 MB]")

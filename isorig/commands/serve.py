@@ -46,5 +46,6 @@ def run(args) -> int:
         return 2
     print(f"isorig: serving on http://{settings.host}:{settings.port}/ (API docs at /docs), "
           f"database {app.state.engine.url.render_as_string(hide_password=True)}", file=sys.stderr, flush=True)
-    uvicorn.run(app, host=settings.host, port=settings.port, log_level=args.log_level)
+    uvicorn.run(app, host=settings.host, port=settings.port, log_level=args.log_level,
+                ws_per_message_deflate=settings.ws_per_message_deflate)
     return 0
