@@ -1,4 +1,7 @@
-"""Fixtures of the browser tests: one `isorig serve` per session (3D view off), chromium, watched pages.
+"""Fixtures of the browser tests: one `isorig serve` per session, chromium, watched pages.
+
+The service has the 3D view on (viser starts only when a page asks for /viewer/); pages open with
+``?viewer=off`` unless a test wants the 3D view, so software WebGL does not slow the other tests.
 
 Every page records its request URLs, console errors and page errors; a test fails if any request leaves the
 machine or the console shows an error. Screenshots go to artifacts/e2e/ (git-ignored).
@@ -19,7 +22,7 @@ if not chromium_available():  # pragma: no cover - CI installs it in scripts/set
 
 @pytest.fixture(scope="session")
 def server(tmp_path_factory):
-    srv = Server(tmp_path_factory.mktemp("serve"), viewer=False).start()
+    srv = Server(tmp_path_factory.mktemp("serve"), viewer=True).start()
     yield srv
     srv.stop()
 
@@ -43,7 +46,9 @@ def open_page(browser):
     """open_page(url) -> (page, watch); the page's console and requests are checked when the test ends."""
     opened = []
 
-    def _open(url: str, width: int = 1500, height: int = 1000, token: str | None = None):
+    def _open(url: str, width: int = 1500, height: int = 1000, token: str | None = None, viewer: bool = False):
+        if not viewer:
+            url += ("&" if "?" in url else "?") + "viewer=off"
         context = browser.new_context(viewport={"width": width, "height": height}, accept_downloads=True)
         page = context.new_page()
         watch = PageWatch(page)

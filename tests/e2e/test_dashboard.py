@@ -102,8 +102,9 @@ def test_refused_profile_shows_reason(server, open_page, artifacts):
     page.click("#start")
     page.wait_for_function("document.getElementById('setup-message').textContent.startsWith('Refused')",
                            timeout=10000)
-    message = page.inner_text("#setup-message")
+    message = page.inner_text("#envelope")
     assert "frequency_hz" in message and "l/min" in message, message
+    assert page.get_attribute("#envelope", "data-state") == "refused"
     assert "invalid" in (page.get_attribute("#f-frequency_hz", "class") or "")
     page.screenshot(path=str(artifacts / "dashboard_refused.png"))
     _, after = server.call("GET", "/api/tests")
@@ -150,3 +151,37 @@ def test_abort_button_stops_the_rig(server, open_page):
     assert rec["status"] == "aborted"
     page.wait_for_selector("#rig-status[data-status='aborted']", timeout=10000)
     assert "ABORTED" in page.inner_text("#alert-text")
+
+
+def test_stop_button_ramps_out(server, open_page):
+    """Stop finishes the running test with a ramp-out: status 'stopped'."""
+    page, _ = open_page(server.url + "/", token=TOKEN)
+    test_id = server.start_test(sine_test(cycles=30, speed=1.0))
+    page.wait_for_function(f"window.__isorig.testId === {test_id}", timeout=15000)
+    page.wait_for_selector("#rig-status[data-status='running']", timeout=15000)
+    page.click("#stop")
+    rec = server.wait_status(test_id, {"stopped"}, timeout_s=20)
+    assert rec["status"] == "stopped"
+    page.wait_for_selector("#rig-status[data-status='stopped']", timeout=10000)
+
+
+def test_add_isolator_validated_by_the_api(server, open_page):
+    """The add-isolator form shows the API's refusal (field and range), then saves a valid isolator."""
+    page, watch = open_page(server.url + "/", token=TOKEN)
+    watch.allowed_status.add(422)
+    page.click("#add-isolator summary")
+    values = {"name": "e2e_LRB", "rho_bw_per_m": "200", "sigma_bw": "0.5", "n": "1", "kd_n_per_m": "5e5",
+              "kw_n": "5e8"}  # k_w far beyond the allowed range (a unit mistake)
+    for key, value in values.items():
+        page.fill(f"#iso-{key}", value)
+    page.click("#iso-save")
+    page.wait_for_function("document.getElementById('iso-error').textContent.length > 0", timeout=5000)
+    error = page.inner_text("#iso-error")
+    assert "kw_n" in error, error
+    page.fill("#iso-kw_n", "2e4")
+    page.click("#iso-save")
+    page.wait_for_function("document.getElementById('f-isolator').value === 'e2e_LRB'", timeout=5000)
+    assert page.inner_text("#iso-error") == ""
+    params = page.inner_text("#isolator-params")
+    assert "200" in params and "20000" in params, params
+    assert page.locator("#f-isolator optgroup[label='user-defined'] option[value='e2e_LRB']").count() == 1

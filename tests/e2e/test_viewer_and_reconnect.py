@@ -1,7 +1,6 @@
 """The 3D rig view through the service's relay, and reconnection after a service restart.
 
-Both use one `isorig serve` of their own (3D view on), which the second test restarts; the session server of
-the other tests stays untouched.
+Both use the session's `isorig serve` (3D view on); the restart test runs last and leaves it running.
 """
 
 from __future__ import annotations
@@ -10,42 +9,33 @@ import json
 import time
 import urllib.request
 
-import pytest
-
-from .harness import PageWatch, Server, sine_test
+from .harness import PageWatch, sine_test
 
 
-@pytest.fixture(scope="module")
-def viewer_server(tmp_path_factory):
-    srv = Server(tmp_path_factory.mktemp("viewer"), viewer=True).start()
-    yield srv
-    srv.stop()
-
-
-def test_3d_view_is_relayed_and_follows_the_rig(viewer_server, open_page, artifacts):
-    with urllib.request.urlopen(f"{viewer_server.url}/viewer/status", timeout=5) as r:
+def test_3d_view_is_relayed_and_follows_the_rig(server, open_page, artifacts):
+    with urllib.request.urlopen(f"{server.url}/viewer/status", timeout=5) as r:
         assert json.load(r)["enabled"] is True
-    page, watch = open_page(viewer_server.url + "/", height=1700)  # tall enough to show the 3D panel
+    page, watch = open_page(server.url + "/", height=1700, viewer=True)  # tall enough to show the 3D panel
     assert page.get_attribute("#viewer-box iframe", "src") == "/viewer/"
     frame = page.frame_locator("#viewer-box iframe")
     frame.locator("canvas").first.wait_for(timeout=30000)  # viser's client runs, served by the relay
-    test_id = viewer_server.start_test(sine_test(cycles=4, speed=1.0))
+    test_id = server.start_test(sine_test(cycles=10, speed=1.0))
     # the scene's GUI text follows the live stream (hub -> viser -> relay -> iframe)
     frame.get_by_text(f"test #{test_id}", exact=False).first.wait_for(timeout=20000)
-    time.sleep(2.0)
+    time.sleep(1.0)
     assert frame.locator("[aria-label*='share' i], [title*='share' i]").count() == 0  # share button hidden
     page.screenshot(path=str(artifacts / "dashboard_3d.png"), clip=page.locator("#viewer-box").bounding_box())
     page.screenshot(path=str(artifacts / "dashboard_with_3d.png"))
     page.click("#viewer-toggle")  # the operator can hide it (kept per browser)
     assert page.locator("#viewer-box iframe").count() == 0
     assert page.evaluate("localStorage.getItem('isorig.viewer')") == "off"
-    viewer_server.call("POST", f"/api/tests/{test_id}/abort", token=True)
+    server.call("POST", f"/api/tests/{test_id}/abort", token=True)
     assert not watch.foreign(), watch.foreign()
 
 
-def test_reconnects_after_service_restart(viewer_server, browser, artifacts):
+def test_reconnects_after_service_restart(server, browser, artifacts):
     """Stop the service under an open dashboard, start it again: the page reconnects and follows a new test."""
-    srv = viewer_server
+    srv = server
     context = browser.new_context(viewport={"width": 1400, "height": 900})
     try:
         page = context.new_page()

@@ -36,8 +36,20 @@ function controllerName(t) {
   return typeof c === "string" ? c : c && (c.name || c.kind) ? c.name || c.kind : "-";
 }
 
+/** Flat summary figures of a test record: loop-metric means over the full-amplitude cycles, tracking. */
 function summaryOf(t) {
-  return t.summary || t.metrics || {};
+  const s = t.summary || {};
+  const tr = s.tracking || {};
+  const last = tr.last_two_cycles || {};
+  return {
+    ...(s.loop_metrics_mean || {}),
+    rms_y_minus_r_m: tr.rms_y_minus_r_m,
+    last_rms_y_minus_r_m: last.rms_y_minus_r_m,
+    amplitude_error: last.amplitude_error,
+    phase_error_deg: last.phase_error_deg,
+    saturated_share: tr.saturated_share,
+    peak_flow_l_per_min: tr.peak_flow_l_per_min,
+  };
 }
 
 function statusPill(status) {
@@ -105,10 +117,15 @@ export class History {
       kv("profile", profileText(t)),
       kv("controller", controllerName(t)),
       kv("created", String(t.created_at || "").replace("T", " ").slice(0, 19)),
+      kv("supply", typeof t.supply_bar === "number" ? `${t.supply_bar} bar` : "-"),
+      kv("speed", typeof t.speed === "number" ? `${t.speed}x` : "-"),
     );
     for (const [key, label, scale, unit] of [
-      ["rms_y_minus_ym_m", "RMS y-y_m", 1000, "mm"], ["rms_y_minus_r_m", "RMS y-r", 1000, "mm"],
-      ["k_eff_n_per_m", "K_eff", 1e-3, "kN/m"], ["edc_j", "EDC", 1, "J"], ["xi_eff", "xi_eff", 100, "%"],
+      ["k_eff_n_per_m", "mean K_eff", 1e-3, "kN/m"], ["edc_j", "mean EDC", 1, "J"],
+      ["xi_eff", "mean xi_eff", 100, "%"], ["qd_n", "mean Q_d", 1e-3, "kN"],
+      ["rms_y_minus_r_m", "RMS y-r (test)", 1000, "mm"], ["last_rms_y_minus_r_m", "RMS y-r (last 2 cycles)", 1000, "mm"],
+      ["amplitude_error", "amplitude error", 100, "%"], ["phase_error_deg", "phase error", 1, "deg"],
+      ["saturated_share", "command saturated", 100, "%"], ["peak_flow_l_per_min", "peak flow", 1, "l/min"],
     ]) {
       if (typeof s[key] === "number") summary.append(kv(label, fmtMetric(s[key], scale, unit, 4)));
     }

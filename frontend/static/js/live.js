@@ -316,9 +316,19 @@ export class LiveView {
     this.renderHead();
     if (test && test.status) this.onStatus({ ...(test.progress || {}), status: test.status, test_id: id });
     if (id === null) setStatusBadge("idle");
+    else this.loadLastCycle(id);
     for (const e of (test && test.events) || []) {
       if (id !== null && document.getElementById("live-events").children.length < 50) this.onEvent(e);
     }
+  }
+
+  /** The latest finished cycle's metrics of a test we join late (the stream only sends new ones). */
+  loadLastCycle(testId) {
+    fetch(`/api/tests/${testId}/cycles`).then((r) => (r.ok ? r.json() : [])).then((cycles) => {
+      if (this.testId !== testId || !Array.isArray(cycles) || !cycles.length) return;
+      if (document.getElementById("l-keff").textContent !== "-") return; // a live cycle came first
+      this.onCycle({ metrics: cycles[cycles.length - 1] });
+    }).catch(() => {});
   }
 
   renderHead() {

@@ -97,17 +97,20 @@ async function setupViewer() {
   show(on);
 }
 
-/** Make requestAnimationFrame in window w fire at most maxFps times per second. */
+/** Let animation frames of window w through at most maxFps times per second (all callbacks of a frame together). */
 function capFrameRate(w, maxFps) {
   if (!w || w.__isorigCapped) return;
   const raf = w.requestAnimationFrame.bind(w);
   const period = 1000 / maxFps;
   let next = 0;
+  let openFrame = -1; // timestamp of the frame let through
   w.requestAnimationFrame = (cb) => raf(function tick(t) {
-    if (t < next) return raf(tick);
-    next = Math.max(next + period, t);
-    cb(t);
-    return 0;
+    if (t !== openFrame) {
+      if (t < next) return raf(tick);
+      openFrame = t;
+      next = Math.max(next + period, t);
+    }
+    return cb(t);
   });
   w.__isorigCapped = true;
 }

@@ -253,15 +253,37 @@ export class SetupPanel {
     m.className = `message ${kind}`;
   }
 
+  /** Show a refusal of the service (422 at Start) where the envelope is explained. */
+  showRefusal(e) {
+    this.checkSeq++; // a pending check must not overwrite it
+    clearTimeout(this.checkTimer);
+    const box = $("envelope");
+    box.innerHTML = "";
+    box.className = "envelope refused";
+    box.dataset.state = "refused";
+    box.append(el("div", { text: `Refused by the service: ${e.message}` }));
+    this.markField(errorField(e.detail));
+  }
+
   async start() {
     const body = this.body();
+    const pre = this.staticCheck(body);
+    if (pre.ok === false) {
+      this.scheduleCheck(0);
+      this.message(`Refused: ${pre.message}`, "error");
+      return;
+    }
     this.message("creating the test...");
     let record;
     try {
       record = await operatorPost("/api/tests", body);
     } catch (e) {
-      this.message(`Refused: ${e.message}`, "error");
-      if (e instanceof ApiError) this.markField(errorField(e.detail));
+      if (e instanceof ApiError && e.status === 422) {
+        this.showRefusal(e);
+        this.message("Refused by the service: the reason is above.", "error");
+      } else {
+        this.message(`Refused: ${e.message}`, "error");
+      }
       return;
     }
     try {
