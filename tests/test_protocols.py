@@ -172,3 +172,18 @@ def test_protocol_runs_in_the_engine_and_is_judged():
     verdicts = evaluate_acceptance(p, cycles)
     assert len(verdicts) == 2 * 2 * 2
     assert all(v["status"] == "pass" for v in verdicts), [v["message"] for v in verdicts if not v["passed"]]
+
+
+def test_shipped_protocols_are_package_data():
+    """A wheel only carries the JSON files that pyproject's package-data names."""
+    import fnmatch
+    import tomllib
+    from pathlib import Path
+
+    import sim.protocols as protocols
+
+    root = Path(__file__).resolve().parent.parent
+    patterns = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]["sim"]
+    for name in SHIPPED_PROTOCOLS:
+        rel = (protocols.DATA_DIR / f"{name}.json").relative_to(root / "sim").as_posix()
+        assert any(fnmatch.fnmatch(rel, p) for p in patterns), rel
