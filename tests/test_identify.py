@@ -186,6 +186,15 @@ def test_identify_steps_grid_json(capsys):
     assert rows[0]["supply_bar"] == 40 and rows[0]["a_s_m"] > 0.005
 
 
+def test_identify_steps_rig_set_changes_the_rig(capsys):
+    base = ["identify", "steps", "--isolator", "IUT_a", "--supply-bar", "40", "--step-v", "4", "--json"]
+    assert main(base) == 0
+    default = json.loads(capsys.readouterr().out)[0]
+    assert main(base + ["--rig-set", "piston_area_m2=0.016"]) == 0
+    bigger = json.loads(capsys.readouterr().out)[0]
+    assert bigger["a_s_m"] > default["a_s_m"] * 1.1  # more push at the same pressure: farther travel
+
+
 def test_identify_bouc_wen_on_a_simulate_timeseries(tmp_path, capsys):
     assert main(["simulate", "--isolator", "IUT_b", "--supply-bar", "70", "--amplitude-m", "0.03",
                  "--frequency-hz", "0.5", "--cycles", "3", "--controller", "pid", "--out", str(tmp_path)]) == 0
@@ -239,6 +248,8 @@ def test_malformed_csv_from_the_shell_exit_2_without_traceback(tmp_path):
     (["identify", "steps", "--step-v", "0"], "--step-v 0"),
     (["identify", "steps", "--isolator", "nope"], "unknown isolator"),
     (["identify", "bouc-wen"], "file"),
+    (["identify", "steps", "--rig-set", "nope=1"], "--rig-set 'nope=1'"),
+    (["identify", "steps", "--rig-set", "piston_area_m2=abc"], "not a number"),
 ])
 def test_identify_bad_arguments(args, words, capsys):
     assert main(args) == 2

@@ -24,6 +24,9 @@ def register(sub) -> None:
     s.add_argument("--step-v", type=float, nargs="+", default=[2.0, 4.0, 6.0],
                    help="step voltages in V (default 2 4 6)")
     s.add_argument("--duration-s", type=float, default=None, help="length of each simulated step test (default 10)")
+    s.add_argument("--rig-set", nargs="+", default=[], metavar="NAME=VALUE",
+                   help="override rig parameters (SI, names as in sim/rig.py RigParameters), e.g. "
+                        "piston_area_m2=0.01246")
     s.add_argument("--csv", default=None,
                    help="fit one measured step instead (columns time_s, voltage_v, displacement_m)")
     s.add_argument("--json", action="store_true", help="print JSON instead of a table")
@@ -51,7 +54,7 @@ def run_steps(args) -> int:
     from sim.rig import BAR_PA, DEFAULT_RIG
 
     iso = load_isolator(args.isolator)
-    rig = DEFAULT_RIG
+    rig = rig_with_overrides(DEFAULT_RIG, args.rig_set)
     for bar in args.supply_bar:
         if not (rig.min_supply_pa <= bar * BAR_PA <= rig.max_supply_pa):
             raise UsageError(f"isorig identify steps: --supply-bar {bar:g} is outside the rig's range "
@@ -96,6 +99,27 @@ def run_steps(args) -> int:
     print(f"{len(rows)} identifications in {elapsed:.2f} s ({elapsed / max(len(rows), 1):.2f} s each, "
           "simulation included)")
     return 0
+
+
+def rig_with_overrides(rig, pairs: list[str]):
+    """The rig with NAME=VALUE overrides; UsageError naming the bad pair and the allowed names."""
+    from dataclasses import fields
+
+    allowed = {f.name for f in fields(rig)}
+    changes = {}
+    for pair in pairs:
+        name, sep, text = pair.partition("=")
+        if not sep or name not in allowed:
+            raise UsageError(f"isorig identify steps: --rig-set {pair!r} must be NAME=VALUE with NAME one of "
+                             f"{', '.join(sorted(allowed))}")
+        try:
+            value = float(text)
+        except ValueError:
+            raise UsageError(f"isorig identify steps: --rig-set {pair!r}: {text!r} is not a number") from None
+        if not value > 0.0 or value == float("inf"):
+            raise UsageError(f"isorig identify steps: --rig-set {pair!r}: the value must be a positive number")
+        changes[name] = value
+    return rig.with_changes(**changes) if changes else rig
 
 
 def _fit_csv(args) -> int:
