@@ -317,6 +317,9 @@ class RigService:
             log.exception("could not record the end of test %s", test_id)
         finally:
             session.close()
+            if run.process.is_alive():  # never leave a worker running once its test is closed
+                run.process.terminate()
+                run.process.join(2.0)
             for conn in (run.out, run.commands):
                 try:
                     conn.close()

@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import math
 import os
+import queue
+import threading
 import time
 
 import numpy as np
@@ -42,6 +44,43 @@ LOOP_POINTS_MAX = 2000  # points of a cycle's loop sent and stored (decimated be
 
 class ServerGone(Exception):
     """The pipe to the server broke: the server died; the worker makes the rig safe and exits."""
+
+
+class Outbox:
+    """Sends messages to the server from a thread, so a busy or stalled server never blocks the control loop.
+
+    A pipe holds only ~64 KB: if the server stops reading, a direct ``send`` would block the loop within a
+    second. Here the loop only queues (memory grows by ~0.1 MB per second of a stalled server) and the
+    thread drains the queue into the pipe.
+    """
+
+    def __init__(self, conn):
+        self.conn = conn
+        self.queue: queue.SimpleQueue = queue.SimpleQueue()
+        self.broken = False
+        self.thread = threading.Thread(target=self._drain, daemon=True, name="isorig-worker-outbox")
+        self.thread.start()
+
+    def send(self, message) -> None:
+        if self.broken:
+            raise ServerGone()
+        self.queue.put(message)
+
+    def _drain(self) -> None:
+        while True:
+            message = self.queue.get()
+            if message is None:
+                return
+            try:
+                self.conn.send(message)
+            except (BrokenPipeError, ConnectionResetError, EOFError, OSError):
+                self.broken = True
+                return
+
+    def close(self, timeout_s: float = 30.0) -> None:
+        """Send what is queued (up to ``timeout_s``), then stop the thread."""
+        self.queue.put(None)
+        self.thread.join(timeout_s)
 
 
 def scenario_from_job(job: dict) -> Scenario:
@@ -127,10 +166,7 @@ class Run:
 
     # --- messages ------------------------------------------------------------------------------------
     def send(self, kind: str, payload) -> None:
-        try:
-            self.out.send((kind, payload))
-        except (BrokenPipeError, ConnectionResetError, EOFError, OSError) as exc:
-            raise ServerGone() from exc
+        self.out.send((kind, payload))
 
     def event(self, kind: str, message: str, values: dict | None = None) -> None:
         self.send("event", {"kind": kind, "message": message, "values": values or {},
@@ -275,9 +311,10 @@ def raise_priority() -> str:
 def main(job: dict, out, commands) -> None:
     """Process entry point: run the job, always end with a ``finished`` message if the server is there."""
     run = None
+    outbox = Outbox(out)
     try:
         priority = raise_priority() if job.get("realtime", True) else "normal"
-        run = Run(job, out, commands)
+        run = Run(job, outbox, commands)
         run.priority = priority
         status, reason = run.execute()
         run.send("finished", {"status": status, "reason": reason,
@@ -287,11 +324,12 @@ def main(job: dict, out, commands) -> None:
     except Exception as exc:  # report any failure to the server instead of dying silently
         pacing = run.pacer.stats() if run is not None and run.pacer is not None else {}
         try:
-            out.send(("finished", {"status": "failed", "reason": f"worker error: {type(exc).__name__}: {exc}",
-                                   "pacing": pacing}))
-        except Exception:
+            outbox.send(("finished", {"status": "failed", "reason": f"worker error: {type(exc).__name__}: {exc}",
+                                      "pacing": pacing}))
+        except ServerGone:
             pass
     finally:
+        outbox.close()
         try:
             out.close()
         except OSError:
