@@ -15,7 +15,7 @@ objective is a maximum, not smooth) adjusts, in log space, the parameters that s
 Deterministic: fixed starting point, no random numbers. Runs on all cores. Prints the run time, the final
 parameters and the tables; with --write-docs it saves the step-response figures and prints a markdown table.
 
-Run: .venv/bin/python scripts/calibrate.py [--quick | --defaults] [--write-docs]
+Run: .venv/bin/python scripts/calibrate.py [--quick | --defaults | --static-scan] [--write-docs]
 """
 
 from __future__ import annotations
@@ -87,6 +87,41 @@ def objective(compared: dict[str, list[dict]]) -> tuple[float, float, float, flo
     return e_as + e_ap + penalty, e_as, e_ap, drift
 
 
+def static_scan() -> None:
+    """The bound set by the static force balance alone: the table rests where A_p P_s - friction = F_BW(y) on the
+    loading branch, so a_s = y / tanh(u/k). Minimax of |a_s / a_s_paper - 1| over (A_p, friction) for one rig,
+    and, for comparison, with a series compliance K_s (y = d + F / K_s; not in the model)."""
+    from sim.isolator import simulate_loop
+
+    ramp = np.linspace(0.0, 0.2, 20001)
+    branch = {iso: simulate_loop(PRESETS[iso], ramp, ramp[1] - ramp[0]) for iso in PAPER_TABLES}
+
+    def worst(theta, series: bool) -> float:
+        area, friction = np.exp(theta[:2])
+        k_s = np.exp(theta[2]) if series else np.inf
+        out = 0.0
+        for iso, table in PAPER_TABLES.items():
+            for (bar, volt), (_, a_s) in table.items():
+                push = area * bar * 1e5 - friction
+                if push <= 0.0 or push >= branch[iso][-1]:
+                    return 10.0
+                d = np.interp(push, branch[iso], ramp)  # the loading branch rises monotonically
+                out = max(out, abs((d + push / k_s) / np.tanh(volt) / a_s - 1.0))
+        return out
+
+    for series, x0 in ((False, [0.012, 5000.0]), (True, [0.008, 5000.0, 1.0e6])):
+        best = None
+        for shift in (0.0, 0.3, -0.3):
+            sol = minimize(worst, np.log(x0) + shift, args=(series,), method="Nelder-Mead",
+                           options={"xatol": 1e-4, "fatol": 1e-6, "maxfev": 800})
+            if best is None or sol.fun < best.fun:
+                best = sol
+        p = np.exp(best.x)
+        extra = f", K_s = {p[2]:.3g} N/m (series compliance, not in the model)" if series else ""
+        print(f"static balance{' + series compliance' if series else ''}: worst |a_s error| {100 * best.fun:.1f} % "
+              f"at A_p = {p[0]:.4g} m2, friction mu N + F_c = {p[1]:.4g} N{extra}")
+
+
 def print_tables(compared: dict[str, list[dict]]) -> None:
     for iso, rows in compared.items():
         print(f"\n{iso}: test        a_p 1/s (paper)  ratio    a_s mm (paper)   error   residual mm")
@@ -100,11 +135,17 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="evaluate CALIBRATED only (no optimisation)")
     ap.add_argument("--defaults", action="store_true", help="evaluate sim/rig.py's defaults only (no optimisation)")
+    ap.add_argument("--static-scan", action="store_true",
+                    help="only the bound of the static force balance on a_s (seconds), then exit")
     ap.add_argument("--max-evals", type=int, default=50, help="Nelder-Mead evaluation budget (default 50)")
     ap.add_argument("--write-docs", action="store_true",
                     help="write docs/figures/identification_steps_*.png and print the table as markdown")
     args = ap.parse_args()
     t0 = time.perf_counter()
+    if args.static_scan:
+        static_scan()
+        print(f"run time {time.perf_counter() - t0:.1f} s")
+        return 0
     warm_up()
     with ProcessPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
         if args.defaults:
