@@ -29,7 +29,7 @@ from .tracking import cycle_windows, tracking_summary
 ISOLATORS = ("IUT_a", "IUT_b", "LRB_example", "HDRB_soft")
 SUPPLIES_BAR = (50.0, 100.0, 150.0)
 FREQUENCIES_HZ = (0.25, 0.5, 1.0, 1.5)
-AMPLITUDE_SHARE = 0.9
+AMPLITUDE_SHARE = 0.8
 AMPLITUDE_CAP_M = 0.05
 CYCLES = 10
 TAPER_CYCLES = 1

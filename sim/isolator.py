@@ -67,10 +67,10 @@ PRESETS: dict[str, Isolator] = {
     "IUT_a": Isolator("IUT_a", 141.0, 0.5, 1.0, 1.25e6, 1.7e4, "paper Table I"),
     "IUT_b": Isolator("IUT_b", 90.0, 0.5, 1.0, 6.8e5, 6.2e3, "paper Table II"),
     # Two example isolators of clearly different character (assumed, for grids and demos).
-    # Lead-rubber: characteristic strength Q_d ~ 50 kN, post-yield stiffness 0.7 kN/mm, yield displacement
+    # Lead-rubber: characteristic strength Q_d ~ 40 kN, post-yield stiffness 0.7 kN/mm, yield displacement
     # 1/rho ~ 6.7 mm (elastic stiffness ~ 11x the post-yield stiffness, typical of lead-rubber bearings).
     "LRB_example": Isolator(
-        "LRB_example", 150.0, 0.5, 1.0, 7.0e5, 5.0e4, "lead-rubber-like: large hysteretic force"
+        "LRB_example", 150.0, 0.5, 1.0, 7.0e5, 4.0e4, "lead-rubber-like: large hysteretic force"
     ),
     "HDRB_soft": Isolator(
         "HDRB_soft", 60.0, 0.5, 2.0, 3.0e5, 8.0e3, "soft high-damping rubber, smooth (n = 2)"

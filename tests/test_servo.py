@@ -8,7 +8,7 @@ from sim.compare import limit_cycle_rms_m
 from sim.controllers import make_controller
 from sim.controllers.base import N_MEAS, R_AR, R_AS, R_MODEL
 from sim.controllers.servo import S_C, valve_inverse
-from sim.engine import CONTROL_PERIOD_S, PLANT_SUBSTEPS, Scenario, Simulation
+from sim.engine import C_AR, C_AY, CONTROL_PERIOD_S, PLANT_SUBSTEPS, Scenario, Simulation
 from sim.isolator import load_isolator
 from sim.profiles import pack_profile, target
 from sim.rig import (
@@ -98,8 +98,9 @@ def test_no_saturation_limit_cycle_at_twice_the_valve_gain_with_wrong_nominal_va
     assert summary["saturated_share"] < 0.01
     assert limit_cycle_rms_m(result.samples, s) < 0.001 * 0.03
     assert summary["last_two_cycles"]["rms_y_minus_r_over_amplitude"] < 0.01
-    # the flow-gain estimate finds the true ratio (about 2 x 1.3 / 0.7) within the orifice law's spread
-    assert 0.7 * 3.7 < result.samples[-1, 7] < 1.3 * 3.7
+    # the valve estimate finds the true flow-gain ratio (2 x 1.3 / 0.7) and the true dead zone
+    assert 0.8 * 3.71 < result.samples[-1, C_AR] < 1.2 * 3.71
+    assert abs(result.samples[-1, C_AY] - DEFAULT_RIG.dead_zone_v) < 0.15 * DEFAULT_RIG.dead_zone_v
 
 
 def run_with_noisy_measurements(noise_position_m, noise_pressure_pa, cycles=5, frequency_hz=1.0, amplitude_m=0.02):

@@ -1,29 +1,34 @@
-"""Learning servo controller: flow-linearised velocity feed-forward, position feedback and harmonic
-learning of the periodic error. Design and stability argument: docs/controller.md.
+"""Learning servo controller: flow-linearised velocity feed-forward, position feedback, an estimate of the
+valve's true flow gain and harmonic learning of the periodic error. Design and stability argument:
+docs/controller.md.
 
     v   = r' + tau_v r'' + K_p (r - y) + dv                    velocity demand, m/s
     dv  = c_0 + V_env Re sum_k c_k exp(j k theta)              learned periodic feed-forward
-    Q   = A_n v                                                flow demand, m3/s
-    u_l = Q / (K_qn sqrt(P_s - sgn(v) P_L))                    inverse of the valve flow law, eq. (3)
-    u   = u_l + DZ_n ramp(u_l / delta)                         dead-zone inverse (smoothed)
+    u_l = A_n (v / g) / (K_qn sqrt(P_s - sgn(v) P_L))          inverse of the valve flow law, eq. (3)
+    u   = u_l + DZ_n ramp(u_l / delta)                         dead-zone inverse (ramp over +-delta)
 
-theta and V_env (the phase and the velocity amplitude of the sine target) come from the target rate r'
-and its differences, so the controller needs no profile information: for r = A sin(w t),
-w^2 = -r''' r' / r'^2 exactly at every instant. The complex coefficients c_k (harmonic k = 1..H of the
-target frequency, dimensionless: relative to the target's peak velocity) learn the periodic error:
+g is the ratio of the true to the nominal flow gain (K_q A_n / (K_qn A_p)), estimated by least squares of
+the measured table velocity on the nominal velocity v / g commanded tau_l earlier (exponential forgetting,
+projection onto [g_min, g_max]); it keeps the loop gain at K_p whatever the valve and the nominal values.
+
+theta and V_env (the phase and the velocity amplitude of the sine target) come from the target rate r' and
+its differences, so the controller needs no profile information: for r = A sin(w t), w^2 = -r''' r' / r'^2
+at every instant. The complex coefficients c_k (harmonic k = 1..H of the target frequency, dimensionless:
+relative to the target's peak velocity) learn the periodic error:
 
     c_k += gamma dt / (pi A_eff) (r - y) exp(-j k theta) (K_p + j k w) exp(j k w tau_l)
 
 that is, the error's k-th Fourier coefficient divided by a nominal model of the closed loop from dv to y
-(1 / (s + K_p) with a pure delay for the valve), so each harmonic's error shrinks by about (1 - gamma)
-per cycle. The update is frozen while the command saturates (the error then says nothing about the
-feed-forward) and each |c_k| is projected onto a bound. Only the measured position, the load pressure,
-the supply pressure setting and nominal rig values (A_p, K_q, dead zone, command limit) are used.
+(1 / (s + K_p) with a pure delay tau_l for the valve), so each harmonic's error shrinks by about
+(1 - gamma) per cycle. The learning runs only on a steady sine (not in a taper, not at a block change;
+a new frequency clears it), is frozen while the command saturates (the error then says nothing about the
+feed-forward) and each |c_k| is projected onto a bound. Only the measured position, the load pressure, the
+supply pressure setting and nominal rig values (A_p, K_q, dead zone, command limit) are used; never the
+isolator's parameters.
 
-Report: model_m = r (the feed-forward removes the reference lag, so the reference model is the target
-itself); ar_hat = learned velocity gain on the first harmonic (1 + Re c_1: > 1 means the nominal flow
-gain is too high); ay_hat = learned phase lead of the first harmonic in degrees; as_hat = estimated
-target frequency in Hz.
+Report: model_m = r (the feed-forward removes the reference lag: the reference model is the target itself);
+ar_hat = g, the estimated ratio of the true to the nominal flow gain; ay_hat = learned phase lead of the
+first harmonic in degrees; as_hat = the target frequency the learning is locked to, in Hz.
 """
 
 from __future__ import annotations
@@ -52,15 +57,16 @@ MAX_HARMONICS = 24
 # Parameter indices.
 (P_AREA, P_KQ, P_DZ, P_ULIM, P_KP, P_TAU_V, P_TAU_L, P_GAMMA, P_NH, P_FMAX, P_DZ_RAMP, P_DP_MIN,
  P_TW, P_AFLOOR, P_C1MAX, P_CKMAX, P_C0MAX, P_DZ_FRAC, P_GW, P_GMIN, P_GMAX, P_GVMIN, P_STEADY,
- P_PL_SHARE) = range(24)
-N_PARAMS = 24
-DELAY_LINE = 32  # samples of the nominal-velocity history kept for the flow-gain estimate
+ P_PL_SHARE, P_DZ_ADAPT, P_DZ_LO, P_DZ_HI) = range(27)
+N_PARAMS = 27
+DELAY_LINE = 32  # samples of the regressor history kept for the valve estimate
 
 # State indices; the delay line and the harmonic coefficients (real, imaginary) follow.
 (S_STARTED, S_RD1, S_RD2, S_NUM, S_DEN, S_OMEGA_LEARNED, S_C0, S_SAT, S_VENV, S_YPREV, S_GXY, S_GXX,
- S_GAIN, S_HEAD, S_STEADY_S) = range(15)
-S_LINE = 15
-S_C = S_LINE + DELAY_LINE
+ S_GAIN, S_HEAD, S_STEADY_S, S_GXW, S_GWW, S_GWY, S_DZ_HAT) = range(19)
+S_LINE_X = 19
+S_LINE_W = S_LINE_X + DELAY_LINE
+S_C = S_LINE_W + DELAY_LINE
 N_STATE = S_C + 2 * MAX_HARMONICS
 
 
@@ -85,7 +91,7 @@ DEFAULTS = {
     "kp_per_s": 30.0,  # position loop gain: velocity demand per metre of error
     "velocity_lead_s": 0.006,  # feed-forward lead for the valve lag (r' + tau r'')
     "learning_lag_s": 0.007,  # delay in the nominal loop model the learning inverts (valve + sampling)
-    "learning_gain": 0.5,  # share of each harmonic's error removed per cycle
+    "learning_gain": 0.8,  # share of each harmonic's error removed per cycle (times min(1, K_p / (k w)))
     "harmonics": 15,  # harmonics of the target frequency learned (at most MAX_HARMONICS)
     "learning_max_hz": 12.0,  # harmonics above this frequency are not learned
     "dead_zone_ramp_v": 0.05,  # the dead-zone inverse ramps in over +-this command
@@ -98,10 +104,13 @@ DEFAULTS = {
     "c0_max_m_per_s": 0.02,  # projection bound of the learned constant velocity
     "gain_window_s": 0.3,  # forgetting time of the flow-gain estimate
     "gain_min": 0.25,  # projection of the flow-gain ratio (true / nominal)
-    "gain_max": 4.0,
+    "gain_max": 6.0,
     "gain_min_velocity_m_per_s": 0.005,  # the gain estimate moves only with this much RMS nominal velocity
     "steady_envelope_rate": 0.02,  # learning runs while |d V_env/dt| / (w V_env) stays below this
     "load_pressure_share": 1.0,  # 1: the valve inverse uses the measured load pressure; 0: only P_s (ablation)
+    "dead_zone_adaptive": 1.0,  # 1: the dead zone is estimated with the flow gain; 0: the nominal one is kept
+    "dead_zone_min_share": 0.5,  # projection of the estimated dead zone, shares of the nominal one
+    "dead_zone_max_share": 1.5,
 }
 
 
@@ -150,8 +159,12 @@ def make_servo(**options) -> Controller:
     params[P_GVMIN] = o["gain_min_velocity_m_per_s"]
     params[P_STEADY] = o["steady_envelope_rate"]
     params[P_PL_SHARE] = o["load_pressure_share"]
+    params[P_DZ_ADAPT] = o["dead_zone_adaptive"]
+    params[P_DZ_LO] = o["dead_zone_min_share"] * o["dead_zone_v"]
+    params[P_DZ_HI] = o["dead_zone_max_share"] * o["dead_zone_v"]
     state = np.zeros(N_STATE)
     state[S_GAIN] = 1.0
+    state[S_DZ_HAT] = o["dead_zone_v"]
     return Controller("servo", KIND, params, state, o)
 
 
@@ -182,8 +195,8 @@ def servo_step(p, s, meas, dt, report):
         s[S_RD1] = rd
         s[S_RD2] = rd
         s[S_YPREV] = y
-        for i in range(DELAY_LINE):
-            s[S_LINE + i] = np.nan
+        for i in range(2 * DELAY_LINE):
+            s[S_LINE_X + i] = np.nan
         s[S_STARTED] = 1.0
     rd1 = s[S_RD1]
     rd2 = s[S_RD2]
@@ -226,22 +239,45 @@ def servo_step(p, s, meas, dt, report):
         nmax = int(p[P_FMAX] * 2.0 * np.pi / omega)
         if nmax < nh:
             nh = nmax
-    # flow-gain ratio (true / nominal): least squares of the table velocity on the delayed nominal velocity
+    # valve estimate: table velocity = g (x - DZ w) with x = the velocity the nominal valve without dead zone
+    # gives at the command sent tau_l earlier and w = its velocity per volt times sgn(u); least squares of g
+    # and g DZ with forgetting (the dead zone only if dead_zone_adaptive), projected onto their bounds
     head = int(s[S_HEAD])
     lag = int(round(p[P_TAU_L] / dt))
     if lag > DELAY_LINE - 1:
         lag = DELAY_LINE - 1
     if lag < 1:
         lag = 1
-    x = s[S_LINE + (head - lag) % DELAY_LINE]
+    old = (head - lag) % DELAY_LINE
+    xd = s[S_LINE_X + old]
+    wd = s[S_LINE_W + old]
     vel = (y - s[S_YPREV]) / dt
     s[S_YPREV] = y
-    if np.isfinite(x):
-        gforget = dt / p[P_GW]
-        s[S_GXY] += gforget * (vel * x - s[S_GXY])
-        s[S_GXX] += gforget * (x * x - s[S_GXX])
+    if np.isfinite(xd):
+        gf = dt / p[P_GW]
+        s[S_GXX] += gf * (xd * xd - s[S_GXX])
+        s[S_GXY] += gf * (vel * xd - s[S_GXY])
+        s[S_GXW] += gf * (xd * wd - s[S_GXW])
+        s[S_GWW] += gf * (wd * wd - s[S_GWW])
+        s[S_GWY] += gf * (vel * wd - s[S_GWY])
         if s[S_GXX] > p[P_GVMIN] ** 2:
-            s[S_GAIN] = min(max(s[S_GXY] / s[S_GXX], p[P_GMIN]), p[P_GMAX])
+            sxx, sxw, sww, sxy, swy = s[S_GXX], s[S_GXW], s[S_GWW], s[S_GXY], s[S_GWY]
+            det = sxx * sww - sxw * sxw
+            # excitation test in the coordinates (x - DZ_n w, w): x alone is nearly collinear with w when the
+            # dead zone dominates the command (slow tests); the shear leaves det and the solution unchanged
+            dzn = p[P_DZ_LO] + 0.5 * (p[P_DZ_HI] - p[P_DZ_LO])
+            szz = sxx - 2.0 * dzn * sxw + dzn * dzn * sww
+            if p[P_DZ_ADAPT] > 0.5 and det > 0.02 * szz * sww:
+                g_new = (sxy * sww - sxw * swy) / det
+                eta = (sxy * sxw - sxx * swy) / det  # g DZ
+                if g_new > 0.0:
+                    s[S_GAIN] = min(max(g_new, p[P_GMIN]), p[P_GMAX])
+                    s[S_DZ_HAT] = min(max(eta / g_new, p[P_DZ_LO]), p[P_DZ_HI])
+            else:
+                dz = s[S_DZ_HAT]
+                szz = sxx - 2.0 * dz * sxw + dz * dz * sww
+                if szz > 0.0:
+                    s[S_GAIN] = min(max((sxy - dz * swy) / szz, p[P_GMIN]), p[P_GMAX])
     gain = s[S_GAIN]
     # velocity demand: feed-forward with lead, position feedback, learned periodic feed-forward
     e = r - y
@@ -260,8 +296,10 @@ def servo_step(p, s, meas, dt, report):
             acc += a * ck - b * sk
             ck, sk = ck * c1 - sk * s1, sk * c1 + ck * s1
         v += v_env * acc
-    u = valve_inverse(v / gain, p[P_PL_SHARE] * meas[M_LOAD_PRESSURE], meas[M_SUPPLY_PRESSURE], p[P_AREA], p[P_KQ],
-                      p[P_DZ_FRAC] * p[P_DZ], p[P_DZ_RAMP], p[P_DP_MIN])
+    p_load = p[P_PL_SHARE] * meas[M_LOAD_PRESSURE]
+    p_supply = meas[M_SUPPLY_PRESSURE]
+    u = valve_inverse(v / gain, p_load, p_supply, p[P_AREA], p[P_KQ], p[P_DZ_FRAC] * s[S_DZ_HAT], p[P_DZ_RAMP],
+                      p[P_DP_MIN])
     ulim = p[P_ULIM]
     saturated = abs(u) >= ulim
     if u > ulim:
@@ -269,9 +307,20 @@ def servo_step(p, s, meas, dt, report):
     elif u < -ulim:
         u = -ulim
     s[S_SAT] = 1.0 if saturated else 0.0
-    # the nominal velocity this command asks for (NaN: saturated, says nothing about the gain)
+    # regressors of the valve estimate for the command actually applied (NaN inside the dead zone: no flow)
     head = (head + 1) % DELAY_LINE
-    s[S_LINE + head] = np.nan if saturated else v / gain
+    xs = np.nan
+    ws = np.nan
+    if abs(u) > s[S_DZ_HAT]:
+        sgn_u = 1.0 if u > 0.0 else -1.0
+        dp = p_supply - sgn_u * p_load
+        if dp < p[P_DP_MIN] * p_supply:
+            dp = p[P_DP_MIN] * p_supply
+        per_volt = p[P_KQ] * np.sqrt(dp) / p[P_AREA]
+        xs = per_volt * u
+        ws = per_volt * sgn_u
+    s[S_LINE_X + head] = xs
+    s[S_LINE_W + head] = ws
     s[S_HEAD] = head
     # learning update (only on a steady sine and unsaturated), with projection of each coefficient
     if steady and nh >= 1 and not saturated:
@@ -297,8 +346,10 @@ def servo_step(p, s, meas, dt, report):
             # z = e exp(-j k theta) L_k
             zr = e * (ck * lr + sk * li)
             zi = e * (ck * li - sk * lr)
-            a = s[S_C + 2 * k] + g * zr
-            b = s[S_C + 2 * k + 1] + g * zi
+            # harmonics above the loop's bandwidth learn more slowly: their model is the least sure
+            gk = g * min(1.0, kp / kw)
+            a = s[S_C + 2 * k] + gk * zr
+            b = s[S_C + 2 * k + 1] + gk * zi
             bound = p[P_C1MAX] if k == 0 else p[P_CKMAX]
             mag = np.sqrt(a * a + b * b)
             if mag > bound:
@@ -310,6 +361,6 @@ def servo_step(p, s, meas, dt, report):
             cd, sd = cd * cl - sd * sl, sd * cl + cd * sl
     report[R_MODEL] = r
     report[R_AR] = gain
-    report[R_AY] = np.degrees(np.arctan2(s[S_C + 1], 1.0 + s[S_C]))
+    report[R_AY] = s[S_DZ_HAT]
     report[R_AS] = omega / (2.0 * np.pi)
     return u
