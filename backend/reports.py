@@ -26,6 +26,8 @@ PLOT_POINTS = 2500  # min/max buckets per time history (5000 points: peaks kept,
 MAX_LOOPS = 40  # loops drawn in the overview (evenly chosen; all of them if fewer)
 LOOP_POINTS = 400  # points per drawn loop
 TABLE_ROWS = 61  # per-cycle table rows per page
+MAX_HEADER_LEVELS = 6  # the header page lists at most this many protocol levels ...
+MAX_HEADER_RULES = 4  # ... and rules (all of them are on the verdicts page)
 BOUC_WEN_FIELDS = ("rho_bw_per_m", "sigma_bw", "n", "kd_n_per_m", "kw_n")
 IDENTIFY_MAX_SAMPLES = 60_000  # the Bouc-Wen fit uses the first 60 000 samples (60 s at 1 kHz) ...
 IDENTIFY_FIT_POINTS = 6_000  # ... thinned to at most 6 000 points (>= 100 Hz), to keep the report fast
@@ -425,9 +427,11 @@ def _operator(bundle) -> str | None:
 def _profile_text(record: dict, protocol) -> list[str]:
     if protocol is not None:
         lines = _wrap(f"protocol {protocol.name}: {protocol.title}", 88)
-        for i, lv in enumerate(protocol.levels, start=1):
+        for i, lv in enumerate(protocol.levels[:MAX_HEADER_LEVELS], start=1):
             lines.append(f"  level {i}: {lv.amplitude_m * 1e3:.2f} mm at {lv.frequency_hz:g} Hz, {lv.cycles} test "
                          f"cycles + {lv.taper_cycles} ramp cycles each side")
+        if len(protocol.levels) > MAX_HEADER_LEVELS:
+            lines.append(f"  ... and {len(protocol.levels) - MAX_HEADER_LEVELS} more levels")
         return lines
     prof = record.get("profile") or {}
     blocks = (record.get("scenario") or {}).get("profile") or ([prof] if prof.get("kind") == "sine" else [])
@@ -504,8 +508,11 @@ def _page_header(plt, bundle, ctrl, iso, protocol, acc, ident, trk, page):
     else:
         verdict, color = "FAILED", "#c62828"
         detail = [f"protocol {acc['protocol']}: {summary['failed']} of {summary['verdicts']} checks failed"]
-        for r in summary["failed_rules"]:
+        for r in summary["failed_rules"][:MAX_HEADER_RULES]:
             detail.append(f"rule {r['rule']}: {r['failures']} failures, e.g. {r['first']}")
+        if len(summary["failed_rules"]) > MAX_HEADER_RULES:
+            detail.append(f"... and {len(summary['failed_rules']) - MAX_HEADER_RULES} more failing rules: see the "
+                          "verdicts page")
     fig.text(0.07, y, "Acceptance", fontsize=11, weight="bold")
     fig.text(0.30, y, verdict, fontsize=13, weight="bold", color=color)
     y -= 0.024
@@ -515,7 +522,7 @@ def _page_header(plt, bundle, ctrl, iso, protocol, acc, ident, trk, page):
             y -= 0.017
     if acc.get("rules"):
         y -= 0.004
-        for n, t in zip(acc["rule_names"], acc["rules"], strict=True):
+        for n, t in list(zip(acc["rule_names"], acc["rules"], strict=True))[:MAX_HEADER_RULES]:
             fig.text(0.09, y, f"rule {n}: {t}"[:120], fontsize=8, color="0.3")
             y -= 0.016
     # tracking and limit trips
@@ -533,7 +540,15 @@ def _page_header(plt, bundle, ctrl, iso, protocol, acc, ident, trk, page):
     fig.text(0.30, y, f"{len(trips)}" + (f": {trips[0].get('message', '')}"[:100] if trips else " (none)"),
              fontsize=9, color="#c62828" if trips else "black")
     y -= 0.035
-    # identification table
+    # identification table (on a second header page when the first is full)
+    figs = [fig]
+    if y < 0.20:
+        _footer(fig, bundle.record, page)
+        fig = plt.figure(figsize=A4_PORTRAIT_IN)
+        figs.append(fig)
+        page += 1
+        fig.text(0.07, 0.955, _title(bundle.record) + " (continued)", fontsize=12, weight="bold")
+        y = 0.91
     fig.text(0.07, y, "Bouc-Wen parameters: nominal and identified from this test", fontsize=11, weight="bold")
     y -= 0.024
     nominal = ident.get("nominal") or {}
@@ -555,7 +570,7 @@ def _page_header(plt, bundle, ctrl, iso, protocol, acc, ident, trk, page):
         fig.text(0.09, y, f"{ident.get('source', '')}" + (f"; force NRMS error {100 * nrms:.2g} %" if nrms is not None
                                                             else ""), fontsize=8, color="0.4")
     _footer(fig, bundle.record, page)
-    return fig
+    return figs
 
 
 def _wrap(text: str, width: int) -> list[str]:
@@ -564,7 +579,7 @@ def _wrap(text: str, width: int) -> list[str]:
     return textwrap.wrap(text, width) or [""]
 
 
-def _page_loops(plt, bundle, iso, protocol, page):
+def _page_loops(plt, bundle, protocol, page):
     from matplotlib.collections import LineCollection
 
     fig, axes = plt.subplots(2, 1, figsize=A4_PORTRAIT_IN, gridspec_kw={"height_ratios": [3, 2]})
@@ -830,8 +845,9 @@ def render_report_pdf(bundle, out, meta: dict | None = None, report: dict | None
     target = out if hasattr(out, "write") else open(out, "wb")
     try:
         with PdfPages(target, metadata={"Title": _title(record), "Creator": "isorig"}) as pdf:
-            figs = [_page_header(plt, bundle, ctrl, iso, protocol, acc, ident, trk, 1),
-                    _page_loops(plt, bundle, iso, protocol, 2), _page_time(plt, bundle, 3)]
+            figs = _page_header(plt, bundle, ctrl, iso, protocol, acc, ident, trk, 1)
+            figs.append(_page_loops(plt, bundle, protocol, len(figs) + 1))
+            figs.append(_page_time(plt, bundle, len(figs) + 1))
             s = bundle.samples
             if s.shape[0] > 1 and s[-1, C_TIME] - s[0, C_TIME] > 6 * DETAIL_WINDOW_S:
                 figs.append(_page_time_detail(plt, bundle, len(figs) + 1))
