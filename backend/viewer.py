@@ -6,8 +6,10 @@ under its own origin. The share button is hidden and share requests are dropped 
 the server: nothing reaches an outside host.
 
 The scene (metres, z up, actuator axis x): base, reaction wall, cylinder and rod, sliding table on rails,
-a laminated isolator between the table and the fixed top beam that shears with the measured displacement,
-and a force indicator (bar length and colour follow the measured force).
+a round isolator between the table and the fixed top beam that shears with the measured displacement (its
+bottom face moves with the table, its top stays), and a force indicator (bar length and colour follow the
+measured force). Updates are throttled (UPDATE_PERIOD_S) and batched: the browser applies each as React
+state changes, which is what costs time when WebGL runs in software.
 
 Switch the view off with ``ISORIG_VIEWER=0`` (or a ``viewer`` setting set to False): then only
 ``GET /viewer/status`` answers ``{"enabled": false}`` and no viser server is started.
@@ -31,15 +33,16 @@ from fastapi.responses import JSONResponse, RedirectResponse, Response
 
 log = logging.getLogger(__name__)
 
-UPDATE_PERIOD_S = 1.0 / 30.0  # scene updates per second at most
-N_LAYERS = 8  # rubber layers of the drawn isolator
+UPDATE_PERIOD_S = 1.0 / 20.0  # scene updates per second at most (each costs the browser a React update)
+LABEL_EVERY = 4  # the text readout changes on every 4th scene update
+N_SIDES = 32  # facets of the drawn isolator
 DRAW = {  # geometry in metres
     "table_z": 0.55,  # top of the sliding table
     "isolator_h": 0.30,
     "isolator_r": 0.30,
     "rod_z": 0.45,
 }
-FORCE_FULL_SCALE_N = 2.0e5  # force bar length 1 m at this force (grows if exceeded)
+FORCE_FULL_SCALE_N = 5.0e4  # force bar length 1 m at this force (grows if exceeded)
 
 
 def viewer_enabled(settings) -> bool:
@@ -57,6 +60,25 @@ def _quat_about_y(angle_rad: float) -> tuple[float, float, float, float]:
     return (math.cos(angle_rad / 2), 0.0, math.sin(angle_rad / 2), 0.0)
 
 
+def isolator_mesh(shift_m: float, radius_m: float, height_m: float, z0_m: float, x0_m: float):
+    """Vertices and faces of a round isolator whose bottom face is shifted by ``shift_m`` along x (simple shear:
+    the bottom plate moves with the table, the top is held by the frame)."""
+    import numpy as np
+
+    angles = np.linspace(0.0, 2 * math.pi, N_SIDES, endpoint=False)
+    ring = np.stack([radius_m * np.cos(angles), radius_m * np.sin(angles)], axis=1)
+    bottom = np.column_stack([ring[:, 0] + x0_m + shift_m, ring[:, 1], np.full(N_SIDES, z0_m)])
+    top = np.column_stack([ring[:, 0] + x0_m, ring[:, 1], np.full(N_SIDES, z0_m + height_m)])
+    centres = np.array([[x0_m + shift_m, 0.0, z0_m], [x0_m, 0.0, z0_m + height_m]])
+    vertices = np.vstack([bottom, top, centres]).astype(np.float32)
+    faces = []
+    cb, ct = 2 * N_SIDES, 2 * N_SIDES + 1
+    for k in range(N_SIDES):
+        j = (k + 1) % N_SIDES
+        faces += [(k, j, N_SIDES + j), (k, N_SIDES + j, N_SIDES + k), (cb, j, k), (ct, N_SIDES + k, N_SIDES + j)]
+    return vertices, np.array(faces, dtype=np.uint32)
+
+
 class RigScene:
     """The viser server and the scene handles that move; ``show(displacement_m, force_n)`` updates them."""
 
@@ -72,20 +94,28 @@ class RigScene:
         self.magnification = magnification
         self.force_scale_n = FORCE_FULL_SCALE_N
         self._lock = threading.Lock()
+        self._updates = 0
+        self._push = True
         self._build()
 
     def _build(self) -> None:
         s = self.server.scene
         z_t = DRAW["table_z"]
         s.set_up_direction("+z")
+        # shadows re-render a shadow map on every move: too slow where WebGL runs in software
+        s.configure_default_lights(enabled=True, cast_shadow=False)
+        s.configure_environment_map(hdri=None)  # no image-based lighting: cheaper per pixel
+        s.add_light_ambient("/light/ambient", intensity=1.2)
+        s.add_light_directional("/light/key", intensity=2.5, position=(2.0, -3.0, 4.0), cast_shadow=False)
+        s.add_light_directional("/light/fill", intensity=0.8, position=(-3.0, 2.0, 2.0), cast_shadow=False)
         s.add_grid("/grid", width=8.0, height=6.0, cell_size=0.5, position=(0.0, 0.0, 0.0))
         s.add_box("/base", color=(90, 96, 104), dimensions=(4.4, 1.6, 0.2), position=(0.0, 0.0, 0.1))
         s.add_box("/wall", color=(120, 110, 100), dimensions=(0.5, 1.6, 2.2), position=(-2.0, 0.0, 1.2))
         # fixed top beam (reaction of the vertical jack) on two columns
-        s.add_box("/frame/col_a", color=(70, 110, 160), dimensions=(0.2, 0.2, 1.9), position=(0.8, -0.7, 1.15))
-        s.add_box("/frame/col_b", color=(70, 110, 160), dimensions=(0.2, 0.2, 1.9), position=(0.8, 0.7, 1.15))
+        s.add_box("/frame/col_a", color=(70, 110, 160), dimensions=(0.16, 0.16, 1.9), position=(1.35, -0.7, 1.15))
+        s.add_box("/frame/col_b", color=(70, 110, 160), dimensions=(0.16, 0.16, 1.9), position=(1.35, 0.7, 1.15))
         beam_z = z_t + DRAW["isolator_h"] + 0.1
-        s.add_box("/frame/beam", color=(70, 110, 160), dimensions=(0.9, 1.6, 0.2), position=(0.8, 0.0, beam_z))
+        s.add_box("/frame/beam", color=(70, 110, 160), dimensions=(1.0, 1.6, 0.2), position=(1.0, 0.0, beam_z))
         s.add_box("/frame/jack", color=(150, 150, 160), dimensions=(0.3, 0.3, 1.1), position=(0.8, 0.0, beam_z + 0.65))
         s.add_box("/rails/a", color=(60, 60, 60), dimensions=(2.6, 0.08, 0.1), position=(0.6, -0.45, 0.25))
         s.add_box("/rails/b", color=(60, 60, 60), dimensions=(2.6, 0.08, 0.1), position=(0.6, 0.45, 0.25))
@@ -101,42 +131,42 @@ class RigScene:
                   position=(0.8, 0.0, z_t + 0.015))
         s.add_box("/top_plate", color=(110, 110, 120), dimensions=(0.7, 0.7, 0.03),
                   position=(0.8, 0.0, z_t + DRAW["isolator_h"] - 0.015))
-        self.layers = []
-        h = (DRAW["isolator_h"] - 0.06) / N_LAYERS
-        for k in range(N_LAYERS):
-            color = (40, 40, 44) if k % 2 == 0 else (160, 160, 170)  # rubber / steel shim
-            z = z_t + 0.03 + (k + 0.5) * h
-            self.layers.append(s.add_cylinder(f"/isolator/layer{k}", radius=DRAW["isolator_r"], height=h * 0.98,
-                                              color=color, position=(0.8, 0.0, z)))
+        self.iso_geometry = dict(radius_m=DRAW["isolator_r"], height_m=DRAW["isolator_h"] - 0.06,
+                                 z0_m=z_t + 0.03, x0_m=0.8)
+        vertices, faces = isolator_mesh(0.0, **self.iso_geometry)
+        self.isolator = s.add_mesh_simple("/isolator", vertices=vertices, faces=faces, color=(45, 45, 50),
+                                          flat_shading=False, side="double")
         self.force_bar = s.add_box("/force", color=(255, 80, 80), dimensions=(1.0, 0.08, 0.08),
                                    position=(0.8, -0.9, z_t + 0.15), scale=(0.001, 1.0, 1.0))
-        self.label = s.add_label("/readout", text="no test", position=(0.8, -0.9, z_t + 0.45))
+        self.label = s.add_label("/readout", text="no test", position=(0.2, -0.9, z_t + 0.75))
         self.status = self.server.gui.add_markdown("**no test running**")
         self.mag = self.server.gui.add_slider("displacement x", min=1.0, max=10.0, step=1.0,
                                               initial_value=self.magnification)
         self.server.scene.set_up_direction("+z")
-        self.server.initial_camera.position = (2.2, -4.6, 2.4)
-        self.server.initial_camera.look_at = (0.0, 0.0, 0.6)
+        self.server.initial_camera.position = (0.0, -3.0, 1.4)
+        self.server.initial_camera.look_at = (0.6, 0.0, 0.6)
 
     def show(self, displacement_m: float, force_n: float, text: str | None = None) -> None:
         """Move the table, shear the isolator (bottom moves, top fixed) and set the force bar."""
         if not (math.isfinite(displacement_m) and math.isfinite(force_n)):
             return
         d = displacement_m * float(self.mag.value)
-        z_t = DRAW["table_z"]
-        h = (DRAW["isolator_h"] - 0.06) / N_LAYERS
         if abs(force_n) > self.force_scale_n:
             self.force_scale_n = abs(force_n) * 1.25
         length = max(1e-3, abs(force_n) / self.force_scale_n)
+        push = force_n >= 0
+        vertices, _ = isolator_mesh(d, **self.iso_geometry)
         with self._lock, self.server.atomic():
+            self._updates += 1
             self.table.position = (d, 0.0, 0.0)
-            for k, layer in enumerate(self.layers):
-                frac = 1.0 - (k + 0.5) / N_LAYERS  # bottom layer moves with the table, top one stays
-                layer.position = (0.8 + d * frac, 0.0, z_t + 0.03 + (k + 0.5) * h)
+            self.isolator.vertices = vertices
             self.force_bar.scale = (length, 1.0, 1.0)
-            self.force_bar.position = (0.8 + d + math.copysign(length / 2, force_n), -0.9, z_t + 0.15)
-            self.force_bar.color = (255, 80, 80) if force_n >= 0 else (80, 160, 255)
-            self.label.text = f"y = {displacement_m * 1000:+.1f} mm   F = {force_n / 1000:+.1f} kN"
+            self.force_bar.position = (0.8 + d + math.copysign(length / 2, force_n), -0.9, DRAW["table_z"] + 0.15)
+            if push != self._push:
+                self._push = push
+                self.force_bar.color = (255, 80, 80) if push else (80, 160, 255)
+            if self._updates % LABEL_EVERY == 0:
+                self.label.text = f"y = {displacement_m * 1000:+.1f} mm   F = {force_n / 1000:+.1f} kN"
             if text is not None:
                 self.status.content = text
 

@@ -66,7 +66,7 @@ def run(seconds: float, width: int, height: int) -> dict:
                 time.sleep(1.0)
                 page = browser.new_page(viewport={"width": width, "height": height})
                 t_nav = time.monotonic()
-                page.goto(srv.url + "/")
+                page.goto(srv.url + ("/?viewer=on" if viewer else "/"))
                 page.wait_for_function("window.__isorig && window.__isorig.firstLiveFrameMs !== null", timeout=30000)
                 wall_ms = (time.monotonic() - t_nav) * 1000
                 first = page.evaluate("window.__isorig.firstLiveFrameMs")

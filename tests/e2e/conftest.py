@@ -47,8 +47,7 @@ def open_page(browser):
     opened = []
 
     def _open(url: str, width: int = 1500, height: int = 1000, token: str | None = None, viewer: bool = False):
-        if not viewer:
-            url += ("&" if "?" in url else "?") + "viewer=off"
+        url += ("&" if "?" in url else "?") + ("viewer=on" if viewer else "viewer=off")
         context = browser.new_context(viewport={"width": width, "height": height}, accept_downloads=True)
         page = context.new_page()
         watch = PageWatch(page)

@@ -29,6 +29,12 @@ def test_3d_view_is_relayed_and_follows_the_rig(server, open_page, artifacts):
     page.click("#viewer-toggle")  # the operator can hide it (kept per browser)
     assert page.locator("#viewer-box iframe").count() == 0
     assert page.evaluate("localStorage.getItem('isorig.viewer')") == "off"
+    page.goto(server.url + "/")  # no URL override: the stored choice holds
+    page.wait_for_selector("body[data-ready='1']")
+    assert page.get_attribute("#viewer-box", "data-state") == "off"
+    page.click("#viewer-toggle")
+    page.wait_for_selector("#viewer-box iframe")
+    assert page.evaluate("localStorage.getItem('isorig.viewer')") == "on"
     server.call("POST", f"/api/tests/{test_id}/abort", token=True)
     assert not watch.foreign(), watch.foreign()
 

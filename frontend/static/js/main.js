@@ -7,9 +7,9 @@ import { runningTestId, SetupPanel } from "./setup.js";
 import { hideAlert, showAlert } from "./ui.js";
 
 const $ = (id) => document.getElementById(id);
-// The embedded 3D view shares the page's main thread (same origin); capping its frame rate keeps the plots
-// fluid when WebGL is slow (software rendering). /viewer/ opened on its own runs at full rate.
-const VIEWER_MAX_FPS = 15;
+// The embedded 3D view shares the page's renderer (same origin); its frame rate is capped so the plots stay
+// fluid: 30/s with a GPU, 10/s where WebGL runs in software. /viewer/ opened on its own runs at full rate.
+const VIEWER_MAX_FPS = { hardware: 30, software: 10 };
 
 const live = new LiveView({
   onTest: (id, status) => {
@@ -54,9 +54,27 @@ async function abort() {
   }
 }
 
-const VIEWER_KEY = "isorig.viewer"; // "off" hides the 3D view in this browser
+const VIEWER_KEY = "isorig.viewer"; // "on" / "off": the operator's choice in this browser
 
-/** The 3D view is shown unless the service has it off, this browser hid it, or the URL says ?viewer=off. */
+/** Does this browser render WebGL in software (SwiftShader, llvmpipe)? Then the 3D view is costly. */
+function softwareWebGL() {
+  try {
+    const gl = document.createElement("canvas").getContext("webgl");
+    if (!gl) return true;
+    const ext = gl.getExtension("WEBGL_debug_renderer_info");
+    const renderer = String(gl.getParameter(ext ? ext.UNMASKED_RENDERER_WEBGL : gl.RENDERER));
+    const lose = gl.getExtension("WEBGL_lose_context");
+    if (lose) lose.loseContext();
+    return /swiftshader|llvmpipe|softpipe|software/i.test(renderer);
+  } catch {
+    return true;
+  }
+}
+
+/**
+ * The 3D view: on unless the service has it off, the operator hid it in this browser, or WebGL runs in
+ * software (then it waits for a click, since it slows the plots). ?viewer=on|off in the URL overrides.
+ */
 async function setupViewer() {
   const box = $("viewer-box");
   const toggle = $("viewer-toggle");
@@ -72,23 +90,30 @@ async function setupViewer() {
     toggle.classList.add("hidden");
     return;
   }
-  const urlOff = new URLSearchParams(location.search).get("viewer") === "off";
+  const software = softwareWebGL();
+  const maxFps = software ? VIEWER_MAX_FPS.software : VIEWER_MAX_FPS.hardware;
   const show = (on) => {
     box.innerHTML = "";
     box.classList.toggle("off", !on);
     toggle.textContent = on ? "hide 3D view" : "show 3D view";
+    box.dataset.state = on ? "on" : "off";
     if (!on) {
-      box.innerHTML = "<p class=\"muted\">3D view hidden in this browser.</p>";
+      box.innerHTML = software && localStorage.getItem(VIEWER_KEY) === null
+        ? "<p class=\"muted\">3D view paused: this browser renders WebGL in software, which slows the live " +
+          "plots. Use \"show 3D view\" to see it anyway.</p>"
+        : "<p class=\"muted\">3D view hidden in this browser.</p>";
       return;
     }
     const frame = document.createElement("iframe");
     frame.src = "/viewer/";
     frame.title = "3D rig view";
     frame.loading = "lazy";
-    frame.addEventListener("load", () => capFrameRate(frame.contentWindow, VIEWER_MAX_FPS));
+    frame.addEventListener("load", () => capFrameRate(frame.contentWindow, maxFps));
     box.append(frame);
   };
-  let on = !urlOff && localStorage.getItem(VIEWER_KEY) !== "off";
+  const param = new URLSearchParams(location.search).get("viewer");
+  const stored = localStorage.getItem(VIEWER_KEY);
+  let on = param ? param === "on" : stored ? stored === "on" : !software;
   toggle.addEventListener("click", () => {
     on = !on;
     localStorage.setItem(VIEWER_KEY, on ? "on" : "off");
@@ -149,7 +174,7 @@ async function main() {
 
   route();
   await setup.init();
-  setupViewer();
+  await setupViewer();
   document.body.dataset.ready = "1";
 }
 
