@@ -210,3 +210,30 @@ def test_report_of_a_test_that_never_ran():
     buf = __import__("io").BytesIO()
     render_report_pdf(bundle, buf, report=rep)
     assert buf.getvalue()[:5] == b"%PDF-"
+
+
+def test_a_crowded_header_continues_on_a_second_page():
+    """Ten levels, six failing rules and a long controller parameter list do not run into the footer."""
+    import backend.reports as reports
+    from sim.engine import COLUMNS
+
+    proto = load_protocol("en15129_type_test").to_dict()
+    proto["levels"] = [{"fraction": 0.1 * (i + 1), "cycles": 3} for i in range(10)]
+    proto["acceptance"] += [{"name": f"r{i}", "quantity": "xi_eff", "reference": "cycle", "tolerance_fraction": 0.1}
+                            for i in range(4)]
+    crowded = {"id": 9, "status": "aborted", "isolator": "IUT_b", "controller": "servo", "supply_bar": 70,
+               "profile": {"kind": "protocol", "protocol": proto}}
+    plain = {"id": 10, "status": "aborted", "isolator": "IUT_b", "controller": "pid", "supply_bar": 70}
+    plt = reports._style()
+    counts = []
+    for record in (crowded, plain):
+        bundle = ReportBundle(record, np.zeros((0, len(COLUMNS))), [], [])
+        rep = report_json(bundle, identify=False)
+        figs = reports._page_header(plt, bundle, rep["controller"], reports._isolator_of(record),
+                                    reports._protocol_of(record)[0], rep["acceptance"], rep["identification"],
+                                    rep["tracking"], 1)
+        counts.append(len(figs))
+        for fig in figs:  # every text stays above the footer line
+            assert min(t.get_position()[1] for t in fig.texts if t.get_text()) >= 0.015
+            plt.close(fig)
+    assert counts == [2, 1]
