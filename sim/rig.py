@@ -37,19 +37,26 @@ class RigParameters:
     mass_kg: float = _p(1200.0, "kg", "assumed", "table, rod and part of the isolator (rig-notes)")
     friction_coefficient: float = _p(0.015, "-", "assumed", "mu of the linear guides, eq. (1)")
     vertical_load_n: float = _p(1.25e5, "N", "paper", "vertical load on the specimen, section V")
-    coulomb_force_n: float = _p(1500.0, "N", "assumed", "F_c, seal friction, eq. (1)")
+    coulomb_force_n: float = _p(4550.0, "N", "calibrated",
+                                "F_c, seal friction, eq. (1); with mu N the intercept of a_s over P_s "
+                                "(Tables III-IV, scripts/calibrate.py)")
     viscous_n_s_per_m: float = _p(2.0e4, "N s/m", "assumed", "sigma, viscous friction, eq. (1)")
-    piston_area_m2: float = _p(0.01435, "m2", "calibrated", "A_p, static balance of the step tests")
+    piston_area_m2: float = _p(0.01246, "m2", "calibrated",
+                               "A_p, static balance of the step tests: one-rig compromise of Tables III-IV "
+                               "(scripts/calibrate.py, docs/identification.md)")
     half_volume_m3: float = _p(2.5e-3, "m3", "assumed", "V_0, oil volume per side at mid-stroke")
     bulk_modulus_pa: float = _p(1.0e9, "Pa", "assumed", "beta, effective with hoses")
-    flow_gain_m3_per_s_v_sqrt_pa: float = _p(2.63e-7, "m3/(s V sqrt(Pa))", "calibrated", "K_q inside DZ(v_e)")
-    dead_zone_v: float = _p(0.84, "V", "calibrated", "half width of DZ(v_e), spool overlap")
+    flow_gain_m3_per_s_v_sqrt_pa: float = _p(2.054e-7, "m3/(s V sqrt(Pa))", "calibrated",
+                                             "K_q inside DZ(v_e); sets a_p of Tables III-IV (scripts/calibrate.py)")
+    dead_zone_v: float = _p(0.6065, "V", "calibrated",
+                            "half width of DZ(v_e), spool overlap; rise of a_p with the step voltage (Tables III-IV)")
     valve_natural_frequency_rad_s: float = _p(2 * np.pi * 40.0, "rad/s", "assumed", "omega_mv, eq. (3)")
     valve_damping_ratio: float = _p(0.7, "-", "assumed", "xi_v, eq. (3)")
     driver_gain_positive: float = _p(1.0, "V/V", "assumed", "k_ep, eq. (2)")
     driver_gain_negative: float = _p(1.0, "V/V", "assumed", "k_en, eq. (2)")
     driver_offset_v: float = _p(0.02, "V", "assumed", "v_e0, eq. (2), valve null offset")
-    orifice_regularisation_pa: float = _p(6.8e5, "Pa", "assumed", "sqrt(dp) linear below this drop")
+    orifice_regularisation_pa: float = _p(2.335e6, "Pa", "calibrated",
+                                          "sqrt(dp) linear below this drop; flattens a_p over P_s (Tables III-IV)")
     stick_velocity_m_per_s: float = _p(1.0e-4, "m/s", "assumed", "below this speed static friction may hold")
     stick_time_constant_s: float = _p(1.0e-3, "s", "assumed", "how fast a held table comes to rest")
     stroke_m: float = _p(0.15, "m", "assumed", "half stroke: |y| must stay below this")

@@ -66,9 +66,12 @@ def test_step_response_rests_at_static_force_balance():
     f_bw = iso.kd_n_per_m * x[X_Y] + iso.kw_n * x[5]
     # A_p P_L balances F_BW within the static friction band
     assert abs(DEFAULT_RIG.piston_area_m2 * x[X_PL] - f_bw) <= DEFAULT_RIG.friction_force_n * 1.001
-    # the table stalls where the load pressure nears the supply: y ~ (A_p P_s - F_c - kw)/kd
-    y_expected = (DEFAULT_RIG.piston_area_m2 * 40 * BAR_PA - iso.kw_n) / iso.kd_n_per_m
-    assert x[X_Y] == pytest.approx(y_expected, rel=0.1)
+    # flow stops only at P_L = P_s (no leakage in eq. 3), so the table rests where the cylinder force A_p P_s
+    # balances the isolator force within the static friction band
+    cylinder = DEFAULT_RIG.piston_area_m2 * 40 * BAR_PA
+    assert x[X_PL] == pytest.approx(40 * BAR_PA, rel=1e-3)
+    assert cylinder - DEFAULT_RIG.friction_force_n * 1.001 <= f_bw <= cylinder + DEFAULT_RIG.friction_force_n * 1.001
+    assert 0.9 < x[5] <= 1.0  # the Bouc-Wen variable is near saturation after a long monotonic push
 
 
 def test_derivatives_finite_everywhere_reasonable():

@@ -21,7 +21,7 @@ KP, KI, KD, TF, ULIM = range(5)
 S_INTEGRAL, S_DFILT, S_YPREV, S_STARTED = range(4)
 
 TUNED_DEFAULTS = {
-    "kp_v_per_m": 2000.0,
+    "kp_v_per_m": 1400.0,
     "ki_v_per_m_s": 80000.0,
     "kd_v_s_per_m": 0.0,
     "derivative_filter_s": 0.005,
