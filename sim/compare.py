@@ -280,6 +280,27 @@ def text_table(rows: list[dict]) -> str:
     return "\n".join("  ".join(c[i].rjust(widths[i]) for i in range(len(HEADER))) for c in cells)
 
 
+SUMMARY_HEADER = ("group", "runs", "meet all targets", "RMS last2 %", "max RMS c3+ %", "1st peak mm", "amp err %",
+                  "phase deg", "sat %", "peak flow l/min", "limit cycles", "diverged")
+
+
+def summary_table(groups: dict[str, list[dict]], markdown: bool = True) -> str:
+    """One line per group (controller, corner or ablation): the worst case of each column over its runs."""
+    cells = [SUMMARY_HEADER]
+    for name, rows in groups.items():
+        w = worst_case(rows)
+        cells.append((name, str(w["runs"]), str(w["meet_targets"]), f"{100 * w['rms_last2']:.2f}",
+                      f"{100 * w['rms_from_cycle3']:.2f}", f"{w['first_cycle_peak_m'] * 1e3:.2f}",
+                      f"{100 * w['amplitude_error']:.2f}", f"{w['phase_error_deg']:.2f}",
+                      f"{100 * w['saturated_share']:.2f}", f"{w['peak_flow_l_per_min']:.0f}", str(w["limit_cycles"]),
+                      str(w["diverged"])))
+    if markdown:
+        lines = ["| " + " | ".join(cells[0]) + " |", "|" + "---|" * len(cells[0])]
+        return "\n".join(lines + ["| " + " | ".join(c) + " |" for c in cells[1:]])
+    widths = [max(len(c[i]) for c in cells) for i in range(len(cells[0]))]
+    return "\n".join("  ".join(c[i].rjust(widths[i]) for i in range(len(c))) for c in cells)
+
+
 def worst_case_line(w: dict) -> str:
     return (f"worst case over {w['runs']} runs: RMS last two cycles {100 * w['rms_last2']:.2f} %, "
             f"max cycle RMS from cycle 3 {100 * w['rms_from_cycle3']:.2f} %, first-cycle peak "

@@ -66,7 +66,7 @@ def test_bench_json_short(capsys):
 
 
 def test_controller_option_reaches_the_controller(tmp_path):
-    base = ["simulate", "--cycles", "3", "--frequency-hz", "1"]
+    base = ["simulate", "--controller", "mrac", "--cycles", "3", "--frequency-hz", "1"]  # an mrac option
     assert main([*base, "--out", str(tmp_path / "lit")]) == 0
     assert main([*base, "--controller-option", "dimensionless_as=true", "--out", str(tmp_path / "dim")]) == 0
     lit = json.loads((tmp_path / "lit" / "summary.json").read_text())

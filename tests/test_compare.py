@@ -68,6 +68,8 @@ def test_a_small_grid_runs_and_tabulates():
     assert table.count("\n") == 3 and "RMS last2 %" in table
     worst = compare.worst_case(rows)
     assert worst["runs"] == 2 and worst["rms_last2"] == max(servo["rms_last2"], pid["rms_last2"])
+    summary = compare.summary_table({"servo": [servo], "pid": [pid]})
+    assert summary.count("\n") == 3 and summary.splitlines()[2].startswith("| servo | 1 |")
 
 
 def test_cli_rejects_bad_arguments(capsys):

@@ -22,6 +22,8 @@ def register(sub) -> None:
     p.add_argument("--cycles", type=whole_number, default=None, help="cycles per run (default 10, taper 1)")
     p.add_argument("--processes", type=whole_number, default=None, help="worker processes (default: all cores)")
     p.add_argument("--markdown", action="store_true", help="print the tables as Markdown")
+    p.add_argument("--summary-only", action="store_true",
+                   help="print only the worst case of each group (controller, corner or ablation)")
     p.set_defaults(func=run)
 
 
@@ -50,7 +52,7 @@ def run(args) -> int:
         group_key = "corner"
     else:
         points = cmp.grid_points(controllers=controllers, robust=args.robust)
-        group_key = "controller"
+        group_key = "corner" if args.robust else "controller"
     if not points:
         raise UsageError("isorig compare: nothing to run (--robust and --ablation apply to servo only)")
     if not args.json:
@@ -69,9 +71,12 @@ def run(args) -> int:
         }, indent=1, allow_nan=False))
         return 0
     table = cmp.markdown_table if args.markdown else cmp.text_table
-    for name, g in groups.items():
-        print(f"\n## {group_key} {name}\n")
-        print(table(g))
-        print("\n" + cmp.worst_case_line(cmp.worst_case(g)))
-    print(f"\n{len(rows)} runs in {wall:.1f} s wall time")
+    if not args.summary_only:
+        for name, g in groups.items():
+            print(f"\n### {name}\n")
+            print(table(g))
+            print("\n" + cmp.worst_case_line(cmp.worst_case(g)))
+    print(f"\n### worst case per {'ablation | corner' if args.ablation else group_key}\n")
+    print(cmp.summary_table(groups, markdown=args.markdown))
+    print(f"\n{len(rows)} runs of {cycles} cycles in {wall:.1f} s wall time")
     return 0

@@ -12,7 +12,7 @@ from .servo import make_servo, servo_step
 
 FACTORIES = {"mrac": make_mrac, "pid": make_pid, "servo": make_servo}
 CONTROLLER_NAMES = tuple(FACTORIES)
-DEFAULT_CONTROLLER = "mrac"  # what `isorig simulate` and the dashboard use when none is chosen
+DEFAULT_CONTROLLER = "servo"  # what `isorig simulate` and the dashboard use when none is chosen
 
 
 def make_controller(name: str, **options) -> Controller:
