@@ -1,16 +1,18 @@
 """The rig service in the server process: starts the worker process, records and streams what it sends.
 
-One test at a time per rig. ``start`` spawns the worker (forkserver or spawn context) and a recorder
-thread that reads the worker's pipe: samples are streamed to the hub at once and committed to the store
-in chunks at least every ``commit_interval_s`` (so a killed server loses at most about a second); cycles,
-events and the final status are committed as they come. If the worker dies without a final message the
+One test at a time per rig. ``start`` spawns the worker (forkserver or spawn context), a reader thread
+that streams what the worker sends to the hub at once, and a writer thread that stores it: samples in
+chunks committed at least every ``commit_interval_s`` (so a killed server loses at most about a second),
+cycles, events and the final status as they come. If the worker dies without a final message the
 test ends ``aborted`` with the exit code as its reason and every sample received so far kept.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import multiprocessing as mp
+import queue
 import threading
 import time
 from datetime import UTC, datetime
@@ -51,6 +53,8 @@ class ActiveRun:
         self.finished = threading.Event()
         self.stop_requested = False
         self.shutdown = False
+        self.cycles_done = 0
+        self.arrival_ms: list[float] = []
 
 
 class RigService:
@@ -178,30 +182,91 @@ class RigService:
             run.process.terminate()
             run.finished.wait(timeout_s)
 
-    # --- recorder thread -----------------------------------------------------------------------------
+    # --- reader and writer threads ------------------------------------------------------------------
+    # The reader streams what the worker sends to the hub at once and hands it to the writer, which stores
+    # it. Disk stalls (commits, WAL checkpoints, a slow PostgreSQL) therefore never delay the live stream,
+    # and a slow stream never delays the store.
+
+    def _status_message(self, run: ActiveRun, record: dict, status: str, reason: str | None = None) -> dict:
+        cycles_total, duration_s = record["cycles_total"], record["duration_s"]
+        cycle = run.cycles_done if status != "running" else min(run.cycles_done + 1, cycles_total)
+        msg = {"type": "status", "test_id": run.test_id, "status": status, "time_s": run.time_s,
+               "progress": min(1.0, run.time_s / duration_s) if duration_s else 0.0, "cycle": cycle,
+               "cycles_total": cycles_total,
+               "time_left_s": max(0.0, duration_s - run.time_s) / record["speed"] if status == "running" else 0.0}
+        if reason:
+            msg["reason"] = reason
+        return msg
+
     def _record(self, run: ActiveRun, record: dict) -> None:
+        """Reader thread: pipe -> hub (at once) and -> writer queue."""
         test_id = run.test_id
+        speed = record["speed"]
+        writes: queue.SimpleQueue = queue.SimpleQueue()
+        writer = threading.Thread(target=self._write, args=(run, record, writes), daemon=True,
+                                  name=f"isorig-writer-{test_id}")
+        writer.start()
+        last_status = 0.0
+        self.hub.publish_threadsafe(self._status_message(run, record, "running"))
+        try:
+            while True:
+                try:
+                    if not run.out.poll(0.1):
+                        if not run.process.is_alive() and not run.out.poll(0):
+                            break
+                        continue
+                    kind, payload = run.out.recv()
+                except (EOFError, OSError):
+                    break
+                if kind == "samples":
+                    rows = payload
+                    if run.wall_t0 is not None:  # how late the newest sample reaches the server (diagnostics)
+                        due = run.wall_t0 + (float(rows[-1, 0]) + CONTROL_PERIOD_S) / speed
+                        run.arrival_ms.append((time.time() - due) * 1e3)
+                    run.time_s = float(rows[-1, 0])
+                    self.hub.publish_threadsafe({"type": "samples", "test_id": test_id,
+                                                 "seq": self.hub_seq(test_id), "columns": list(CSV_COLUMNS),
+                                                 "rows": rows[:, : len(CSV_COLUMNS)].tolist()})
+                    now = time.monotonic()
+                    if now - last_status >= STATUS_INTERVAL_S:
+                        last_status = now
+                        self.hub.publish_threadsafe(self._status_message(run, record, "running"))
+                elif kind == "started":
+                    run.wall_t0 = payload["wall_t0"]
+                elif kind == "cycle":
+                    run.cycles_done = payload["cycle"]
+                    self.hub.publish_threadsafe({
+                        "type": "cycle", "test_id": test_id, "cycle": payload["cycle"],
+                        "metrics": store.clean_json(payload["metrics"]),
+                        "loop": {"displacement_m": payload["displacement_m"].tolist(),
+                                 "force_n": payload["force_n"].tolist()}})
+                elif kind == "event":
+                    self._publish_event(test_id, payload["time_s"], payload["kind"], payload["message"],
+                                        payload["values"])
+                writes.put((kind, payload))
+                if kind == "finished":
+                    return
+        except Exception as exc:  # the reader must never die silently: end the test as failed
+            log.exception("stream reader of test %s failed", test_id)
+            writes.put(("finished", {"status": "failed", "reason": f"stream error: {type(exc).__name__}: {exc}",
+                                     "pacing": {}}))
+            with contextlib.suppress(OSError):
+                run.commands.send("abort")
+            return
+        finally:
+            writes.put(("end", None))
+        return
+
+    def _write(self, run: ActiveRun, record: dict, writes: queue.SimpleQueue) -> None:
+        """Writer thread: stores samples in chunks (committed at least every ``commit_interval_s``), cycles,
+        events, and at the end the summary and the final status."""
+        test_id = run.test_id
+        interval = self.settings.commit_interval_s
+        session = self.sessions()
         pending: list[np.ndarray] = []
         pending_rows = 0
         last_commit = time.monotonic()
-        last_status = 0.0
         final = None
-        cycles_done = 0
-        arrival_ms: list[float] = []
-        cycles_total = record["cycles_total"]
-        duration_s = record["duration_s"]
-        speed = record["speed"]
-        session = self.sessions()
-
-        def status_message(status: str, reason: str | None = None) -> dict:
-            cycle = cycles_done if status != "running" else min(cycles_done + 1, cycles_total)
-            msg = {"type": "status", "test_id": test_id, "status": status, "time_s": run.time_s,
-                   "progress": min(1.0, run.time_s / duration_s) if duration_s else 0.0, "cycle": cycle,
-                   "cycles_total": cycles_total,
-                   "time_left_s": max(0.0, duration_s - run.time_s) / speed if status == "running" else 0.0}
-            if reason:
-                msg["reason"] = reason
-            return msg
 
         def flush() -> None:
             nonlocal pending, pending_rows, last_commit
@@ -214,45 +279,24 @@ class RigService:
             session.commit()
             last_commit = time.monotonic()
 
-        self.hub.publish_threadsafe(status_message("running"))
         try:
             while True:
                 try:
-                    has = run.out.poll(0.1)
-                except (EOFError, OSError):
-                    break
-                if not has:
-                    if pending and time.monotonic() - last_commit >= self.settings.commit_interval_s:
+                    kind, payload = writes.get(timeout=max(0.01, interval - (time.monotonic() - last_commit)))
+                except queue.Empty:
+                    if pending:
                         flush()
-                    if not run.process.is_alive() and not run.out.poll(0):
-                        break
+                    else:
+                        last_commit = time.monotonic()
                     continue
-                try:
-                    kind, payload = run.out.recv()
-                except (EOFError, OSError):
-                    break
                 if kind == "samples":
-                    rows = payload
-                    if run.wall_t0 is not None:  # how late the newest sample reaches the server (diagnostics)
-                        due = run.wall_t0 + (float(rows[-1, 0]) + CONTROL_PERIOD_S) / speed
-                        arrival_ms.append((time.time() - due) * 1e3)
-                    pending.append(rows)
-                    pending_rows += rows.shape[0]
-                    run.time_s = float(rows[-1, 0])
-                    self.hub.publish_threadsafe({"type": "samples", "test_id": test_id,
-                                                 "seq": self.hub_seq(test_id), "columns": list(CSV_COLUMNS),
-                                                 "rows": rows[:, : len(CSV_COLUMNS)].tolist()})
-                    if (pending_rows >= MAX_CHUNK_ROWS
-                            or time.monotonic() - last_commit >= self.settings.commit_interval_s):
+                    pending.append(payload)
+                    pending_rows += payload.shape[0]
+                    if pending_rows >= MAX_CHUNK_ROWS or time.monotonic() - last_commit >= interval:
                         flush()
-                    now = time.monotonic()
-                    if now - last_status >= STATUS_INTERVAL_S:
-                        last_status = now
-                        self.hub.publish_threadsafe(status_message("running"))
                 elif kind == "started":
-                    run.wall_t0 = payload["wall_t0"]
                     test = store.get_test(session, test_id)
-                    test.started_at = datetime.fromtimestamp(run.wall_t0, UTC)
+                    test.started_at = datetime.fromtimestamp(payload["wall_t0"], UTC)
                     session.commit()
                 elif kind == "cycle":
                     flush()
@@ -260,30 +304,21 @@ class RigService:
                                     payload["t_end_s"], payload["metrics"], payload["displacement_m"],
                                     payload["force_n"])
                     session.commit()
-                    cycles_done = payload["cycle"]
-                    self.hub.publish_threadsafe({
-                        "type": "cycle", "test_id": test_id, "cycle": payload["cycle"],
-                        "metrics": store.clean_json(payload["metrics"]),
-                        "loop": {"displacement_m": payload["displacement_m"].tolist(),
-                                 "force_n": payload["force_n"].tolist()}})
                 elif kind == "event":
                     flush()
                     store.add_event(session, test_id, payload["kind"], payload["message"], payload["values"],
                                     time_s=payload["time_s"])
                     session.commit()
-                    self._publish_event(test_id, payload["time_s"], payload["kind"], payload["message"],
-                                        payload["values"])
                 elif kind == "finished":
                     final = payload
+                elif kind == "end":
                     break
-        except Exception as exc:  # the recorder must never die silently: end the test as failed
-            log.exception("recorder of test %s failed", test_id)
+        except Exception as exc:
+            log.exception("writer of test %s failed", test_id)
             session.rollback()
-            final = {"status": "failed", "reason": f"recorder error: {type(exc).__name__}: {exc}", "pacing": {}}
-            try:
+            final = {"status": "failed", "reason": f"storage error: {type(exc).__name__}: {exc}", "pacing": {}}
+            with contextlib.suppress(OSError):
                 run.commands.send("abort")
-            except OSError:
-                pass
         try:
             flush()
             run.process.join(timeout=5.0)
@@ -300,19 +335,18 @@ class RigService:
                 if run.shutdown and status == "aborted":
                     status, reason = "interrupted", "the service shut down while the test was running"
             test = store.get_test(session, test_id)
-            if arrival_ms:
-                pacing = {**pacing, "server_arrival_p50_ms": float(np.percentile(arrival_ms, 50)),
-                          "server_arrival_p95_ms": float(np.percentile(arrival_ms, 95)),
-                          "server_arrival_max_ms": float(np.max(arrival_ms))}
-            summary = self._summary(session, test, run.job, pacing)
-            test.summary = summary
+            if run.arrival_ms:
+                pacing = {**pacing, "server_arrival_p50_ms": float(np.percentile(run.arrival_ms, 50)),
+                          "server_arrival_p95_ms": float(np.percentile(run.arrival_ms, 95)),
+                          "server_arrival_max_ms": float(np.max(run.arrival_ms))}
+            test.summary = self._summary(session, test, run.job, pacing)
             store.set_status(session, test, status, reason)
             message = f"test {test_id} {status}" + (f": {reason}" if reason else "")
             store.add_event(session, test_id, "status", message, {"status": status, "time_s": run.time_s},
                             time_s=run.time_s)
             session.commit()
             self._publish_event(test_id, run.time_s, "status", message, {"status": status})
-            self.hub.publish_threadsafe(status_message(status, reason))
+            self.hub.publish_threadsafe(self._status_message(run, record, status, reason))
         except Exception:
             log.exception("could not record the end of test %s", test_id)
         finally:
@@ -321,10 +355,8 @@ class RigService:
                 run.process.terminate()
                 run.process.join(2.0)
             for conn in (run.out, run.commands):
-                try:
+                with contextlib.suppress(OSError):
                     conn.close()
-                except OSError:
-                    pass
             run.finished.set()
 
     def hub_seq(self, test_id: int) -> int:
