@@ -165,6 +165,16 @@ def make_servo(**options) -> Controller:
     state = np.zeros(N_STATE)
     state[S_GAIN] = 1.0
     state[S_DZ_HAT] = o["dead_zone_v"]
+    # prior of the valve estimate: two pseudo-samples consistent with the nominal valve (g = 1, DZ = DZ_n),
+    # a moving one (x = a, w = 0, velocity a) and one at the dead-zone edge (x = a, w = a / DZ_n, velocity 0);
+    # it fades with the forgetting time, so the first samples cannot throw the estimate to its bounds
+    a = o["gain_min_velocity_m_per_s"]
+    b = a / max(o["dead_zone_v"], 1e-3)
+    state[S_GXX] = a * a + (o["dead_zone_v"] * b) ** 2
+    state[S_GXW] = o["dead_zone_v"] * b * b
+    state[S_GWW] = b * b
+    state[S_GXY] = a * a
+    state[S_GWY] = 0.0
     return Controller("servo", KIND, params, state, o)
 
 
