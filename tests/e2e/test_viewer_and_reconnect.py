@@ -29,9 +29,6 @@ def test_3d_view_is_relayed_and_follows_the_rig(server, open_page, artifacts):
     page.click("#viewer-toggle")  # the operator can hide it (kept per browser)
     assert page.locator("#viewer-box iframe").count() == 0
     assert page.evaluate("localStorage.getItem('isorig.viewer')") == "off"
-    page.goto(server.url + "/")  # no URL override: the stored choice holds
-    page.wait_for_selector("body[data-ready='1']")
-    assert page.get_attribute("#viewer-box", "data-state") == "off"
     page.click("#viewer-toggle")
     page.wait_for_selector("#viewer-box iframe")
     assert page.evaluate("localStorage.getItem('isorig.viewer')") == "on"
@@ -53,11 +50,11 @@ def test_reconnects_after_service_restart(server, browser, artifacts):
         page.wait_for_selector("#conn.conn-up", timeout=10000)
         srv.stop()
         page.wait_for_selector("#conn.conn-down", timeout=10000)
-        time.sleep(1.5)  # a few failed attempts
+        time.sleep(0.5)  # at least one failed attempt
         srv.start()
         page.wait_for_selector("#conn.conn-up", timeout=15000)
         assert page.evaluate("window.__isorig.connects") >= 2
-        status, rec = srv.call("POST", "/api/tests", sine_test(cycles=2, speed=2.0), token=True)
+        status, rec = srv.call("POST", "/api/tests", sine_test(cycles=2, speed=4.0), token=True)
         assert status == 201, rec
         srv.call("POST", f"/api/tests/{rec['id']}/start", token=True)
         page.wait_for_function(f"window.__isorig.testId === {rec['id']} && window.__isorig.samples > 200",

@@ -84,6 +84,7 @@ export class LiveView {
     this.retryAt = 0;
     this.backoffMs = 250;
     this.plots = null;
+    this.asScale = 1000;
   }
 
   // ---------------------------------------------------------------- plots
@@ -105,7 +106,7 @@ export class LiveView {
         series: [{ label: "voltage u (V)", stroke: "#c084fc", width: 1.5 }],
       }),
       adapt: new TimePlot(document.getElementById("plot-adapt"), {
-        y2: true, y2Label: "a_s_hat (mm)", minSpan: { y: 0.1, y2: 0.1 },
+        y2: true, y2Label: "", minSpan: { y: 0.1, y2: 0.1 },
         series: [
           { label: "a_r_hat", stroke: "#2fbf71" },
           { label: "a_y_hat", stroke: "#ff7a45" },
@@ -206,6 +207,7 @@ export class LiveView {
     let profile = test && (test.profile || (test.scenario && test.scenario.profile));
     if (Array.isArray(profile)) profile = profile[0];
     this.offsetMm = profile && profile.offset_m ? profile.offset_m * 1000 : 0;
+    this.setController(test && test.controller);
     if (this.plots) this.plots.loop.reset();
     document.getElementById("live-events").innerHTML = "";
     ["l-keff", "l-edc", "l-xi", "l-cycle", "l-progress", "l-left"].forEach((id) => {
@@ -243,7 +245,7 @@ export class LiveView {
       a.f[k] = num(row[iF]) / 1000;
       a.ar[k] = num(row[iar]);
       a.ay[k] = num(row[iay]);
-      a.as[k] = num(row[ias]) * 1000;
+      a.as[k] = num(row[ias]) * this.asScale;
       a.e_ym[k] = y - ym;
       a.e_r[k] = y - r;
       const rr = r - this.offsetMm;
@@ -339,6 +341,26 @@ export class LiveView {
       typeof iso === "string" ? iso : iso && iso.name ? iso.name : "-";
   }
 
+  /**
+   * The report columns ar_hat, ay_hat, as_hat are the MRAC's adapted parameters (eqs. 18-20); other controllers
+   * put their own quantities there (docs/controller.md), shown raw under the column names.
+   */
+  setController(name) {
+    const mrac = !name || name === "mrac";
+    const scale = mrac ? 1000 : 1;
+    if (scale !== this.asScale) { // samples that came before the record: rescale them
+      const as = this.buf.a.as;
+      for (let i = 0; i < this.buf.len; i++) as[i] *= scale / this.asScale;
+      this.asScale = scale;
+    }
+    const note = document.getElementById("adapt-note");
+    if (note) note.textContent = mrac ? "MRAC, eqs. 18-20" : `${name}: its own quantities in these columns (docs/controller.md)`;
+    if (this.plots) {
+      this.plots.adapt.setLabels(mrac ? ["a_r_hat", "a_y_hat", "a_s_hat (mm, right)"]
+        : ["ar_hat column", "ay_hat column", "as_hat column (right)"]);
+    }
+  }
+
   /** A message of a test we have no record of (started after hello): fetch its record for the header. */
   followNew(testId) {
     this.resetTest(testId, null);
@@ -350,6 +372,7 @@ export class LiveView {
       let profile = rec.profile;
       if (Array.isArray(profile)) profile = profile[0];
       this.offsetMm = profile && profile.offset_m ? profile.offset_m * 1000 : 0;
+      this.setController(rec.controller);
       this.renderHead();
     }).catch(() => {});
   }

@@ -78,6 +78,15 @@ export class TimePlot {
     this.ro.observe(el);
   }
 
+  /** Rename the series in the legend (index 0 = first y series). */
+  setLabels(labels) {
+    const nodes = this.u.root.querySelectorAll(".u-legend .u-series .u-label");
+    const skip = nodes.length > labels.length ? 1 : 0; // the x series when the legend lists it
+    labels.forEach((text, k) => {
+      if (nodes[k + skip]) nodes[k + skip].textContent = text;
+    });
+  }
+
   /** Show columns xs/ys in [i0, i1) between xMin and xMax (seconds). */
   update(xs, ys, i0, i1, xMin, xMax) {
     const data = [xs.subarray(i0, i1)];
