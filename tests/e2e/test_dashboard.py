@@ -185,3 +185,21 @@ def test_add_isolator_validated_by_the_api(server, open_page):
     params = page.inner_text("#isolator-params")
     assert "200" in params and "20000" in params, params
     assert page.locator("#f-isolator optgroup[label='user-defined'] option[value='e2e_LRB']").count() == 1
+
+
+def test_limit_trip_is_shown_prominently(server, open_page, artifacts):
+    """A tracking-error trip (bound set low through the API) raises the red banner with the limit's values."""
+    page, _ = open_page(server.url + "/")
+    page.wait_for_selector("#conn.conn-up", timeout=10000)
+    body = sine_test(cycles=10, speed=1.0)
+    body["limits"] = {"tracking_error_m": 0.0005}  # 0.5 mm: the start-up transient exceeds it
+    test_id = server.start_test(body)
+    rec = server.wait_status(test_id, {"aborted"}, timeout_s=30)
+    assert rec["reason"], rec
+    page.wait_for_selector("#rig-status[data-status='aborted']", timeout=10000)
+    page.wait_for_function("document.getElementById('alert-text').textContent.includes('LIMIT TRIP')",
+                           timeout=10000)
+    assert page.get_attribute("#alert", "data-kind") == "bad"
+    assert page.locator("#live-events li.limit_trip").count() >= 1
+    assert "tracking_error_m" in page.inner_text("#live-events")
+    page.screenshot(path=str(artifacts / "dashboard_limit_trip.png"))

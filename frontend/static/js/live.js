@@ -197,6 +197,7 @@ export class LiveView {
     this.testId = testId;
     this.test = test;
     this.lastT = -Infinity;
+    this.tripMessage = "";
     this.cycleStart = 0;
     this.crossings = [];
     this.prevTarget = NaN;
@@ -285,7 +286,9 @@ export class LiveView {
     }
     if (changed && this.testId !== null) {
       if (BAD.has(msg.status)) {
-        showAlert(`Test ${this.testId} ${msg.status.toUpperCase()}${msg.reason ? ": " + msg.reason : ""}`, "bad");
+        const reason = msg.reason || this.tripMessage || "";
+        showAlert(`${this.tripMessage ? "LIMIT TRIP - " : ""}Test ${this.testId} ${msg.status.toUpperCase()}` +
+          `${reason ? ": " + reason : ""}`, "bad");
       } else if (FINAL.has(msg.status)) {
         showAlert(`Test ${this.testId} ${msg.status}`, "info");
       }
@@ -307,7 +310,10 @@ export class LiveView {
     const list = document.getElementById("live-events");
     list.prepend(li);
     while (list.children.length > 200) list.lastChild.remove();
-    if (msg.kind === "limit_trip") showAlert(`LIMIT TRIP (test ${msg.test_id}): ${msg.message}`, "bad");
+    if (msg.kind === "limit_trip") {
+      this.tripMessage = msg.message || "limit trip";
+      showAlert(`LIMIT TRIP (test ${msg.test_id}): ${msg.message}`, "bad");
+    }
   }
 
   onHello(msg) {
