@@ -291,6 +291,8 @@ export class LiveView {
           `${reason ? ": " + reason : ""}`, "bad");
       } else if (FINAL.has(msg.status)) {
         showAlert(`Test ${this.testId} ${msg.status}`, "info");
+      } else if (msg.status === "running") {
+        showAlert(`Test ${this.testId} running`, "info");
       }
       this.onTest(this.testId, msg.status);
     }

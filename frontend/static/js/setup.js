@@ -231,8 +231,9 @@ export class SetupPanel {
     box.innerHTML = "";
     if (result.ok === false) {
       box.className = "envelope refused";
-      const limit = d.limit ? ` (limit: ${d.limit})` : "";
-      box.append(el("div", { text: `Refused: ${result.message || "outside the rig envelope"}${limit}` }));
+      let text = result.message || "outside the rig envelope";
+      if (d.limit && !text.includes(String(d.limit))) text += ` (limit: ${d.limit})`;
+      box.append(el("div", { text: `Refused: ${text}` }));
       this.markField(result.field || d.field);
     } else if (result.ok === true) {
       box.className = "envelope ok";
