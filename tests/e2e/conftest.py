@@ -9,15 +9,33 @@ machine or the console shows an error. Screenshots go to artifacts/e2e/ (git-ign
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from .harness import ARTIFACTS, PageWatch, Server, chromium_available, launch
 
-playwright_api = pytest.importorskip("playwright.sync_api", reason="the Python package playwright is not installed "
-                                     "(pip install -e '.[test]')")
+try:
+    from playwright import sync_api as playwright_api
+except ImportError:  # pragma: no cover - the [test] extra installs it
+    playwright_api = None
 
-if not chromium_available():  # pragma: no cover - CI installs it in scripts/setup.sh
-    pytest.skip("Debian's chromium is missing: apt-get install -y chromium", allow_module_level=True)
+if playwright_api is None:
+    MISSING = "the Python package playwright is not installed (pip install -e '.[test]')"
+elif not chromium_available():  # pragma: no cover - scripts/setup.sh installs it
+    MISSING = "Debian's chromium is missing (apt-get install -y chromium; scripts/setup.sh does it)"
+else:
+    MISSING = None
+HERE = Path(__file__).resolve().parent
+
+
+def pytest_collection_modifyitems(config, items):
+    """Skip the browser tests, saying why, where the browser or Playwright is missing."""
+    if MISSING is None:
+        return
+    for item in items:
+        if HERE in Path(str(item.fspath)).resolve().parents:
+            item.add_marker(pytest.mark.skip(reason=MISSING))
 
 
 @pytest.fixture(scope="session")
