@@ -135,7 +135,7 @@ class RigService:
             run = ActiveRun(test_id, process, out_r, cmd_w, job)
             self.active = run
             run.thread = threading.Thread(target=self._record, args=(run, record), daemon=True,
-                                          name=f"isorig-recorder-{test_id}")
+                                          name=f"isorig-reader-{test_id}")
             run.thread.start()
         self._publish_event(test_id, 0.0, "operator", f"test {test_id} started by {actor}", {"action": "start"})
 

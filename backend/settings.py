@@ -31,6 +31,8 @@ class Settings(BaseSettings):
                                      "or spawn (never fork from the threaded server)")
     worker_realtime: bool = Field(default=True, description="ask for real-time scheduling of the rig worker "
                                   "(SCHED_RR if permitted, else nice -10, else normal)")
+    service_nice: int = Field(default=0, description="nice increment `isorig serve` applies to itself at start "
+                              "(e.g. -10 on a shared machine: steadier streaming; needs root or CAP_SYS_NICE)")
     ws_per_message_deflate: bool = Field(default=False, description="compress websocket messages (saves "
                                          "bandwidth on slow links, costs server CPU per client)")
     viewer: bool = Field(default=True, description="serve the 3D view under /viewer/ (backend.viewer)")

@@ -5,7 +5,7 @@ Messages are dicts of websocket schema v1 (docs/architecture.md). ``hub.subscrib
 first gets the recent history (``samples`` of the last ``history_s`` seconds of test time and the latest
 ``status``). Publishing never waits for a client: each subscriber has a bounded queue, and a client that
 falls behind is skipped ahead (its queued ``samples`` are dropped, other messages kept, ``skipped`` counts
-the dropped ones). The hub lives on the server's event loop; the recorder thread publishes through
+the dropped ones). The hub lives on the server's event loop; the service's reader thread publishes through
 ``publish_threadsafe``.
 """
 

@@ -38,6 +38,14 @@ def run(args) -> int:
     settings = Settings(**overrides)
     if not (0 < settings.port < 65536):
         raise UsageError(f"isorig serve: --port {settings.port} is outside 1-65535")
+    if settings.service_nice:
+        import os
+
+        try:
+            os.nice(settings.service_nice)  # before any thread or worker exists: they all inherit it
+        except OSError as exc:
+            print(f"isorig serve: ISORIG_SERVICE_NICE={settings.service_nice} not applied ({exc.strerror})",
+                  file=sys.stderr)
     try:
         app = create_app(settings)
     except Exception as exc:  # bad URL, unreachable database: one clear line
