@@ -126,17 +126,26 @@ def test_live_view_follows_test_started_through_api(server, open_page, artifacts
     page.wait_for_selector("#rig-status[data-status='completed']", timeout=10000)
     assert f"Test {test_id} completed" in page.inner_text("#alert-text")
 
-    # a page opened while a test runs: time from navigation to the first live frame (recorded, not asserted)
-    test_id = server.start_test(sine_test(amplitude_m=0.02, frequency_hz=1.0, cycles=60, speed=1.0,
+    # a page opened while a test runs: time from navigation to the first live frame (recorded, not asserted);
+    # it draws the loops stored before it joined, each once
+    test_id = server.start_test(sine_test(amplitude_m=0.02, frequency_hz=1.0, cycles=60, speed=2.0,
                                           isolator="IUT_a", supply_bar=100))
     server.wait_status(test_id, {"running"}, timeout_s=15)
-    time.sleep(1.0)
+    time.sleep(7.0)  # 14 s of test: more than the 10 s of samples a late client gets
     late, _ = open_page(server.url + "/")
     late.wait_for_function("window.__isorig.firstLiveFrameMs !== null", timeout=10000)
     first = _metrics(late)["firstLiveFrameMs"]
     (artifacts / "first_live_frame_ms.txt").write_text(f"{first:.0f}\n")
+    _, rec = server.call("GET", f"/api/tests/{test_id}")
+    stored = rec["cycles_done"]
+    assert stored >= 12, rec
+    # the history alone would give at most 10 loops; the page drew the stored ones too
+    late.wait_for_function(f"window.__isorig.loopCycles >= {stored - 1}", timeout=10000)
     status, body = server.call("POST", f"/api/tests/{test_id}/abort", token=True)
     assert status == 200, body
+    _, rec = server.call("GET", f"/api/tests/{test_id}")
+    time.sleep(0.5)
+    assert _metrics(late)["loopCycles"] <= rec["cycles_done"] + 1, (_metrics(late), rec["cycles_done"])
     late.wait_for_selector("#rig-status[data-status='aborted']", timeout=10000)
     late.screenshot(path=str(artifacts / "dashboard_aborted.png"))
 

@@ -7,6 +7,7 @@ import { fmtDuration, fmtMetric, setStatusBadge, showAlert, eventLine } from "./
 const CAP = 131072; // samples kept before the buffer is compacted
 const KEEP = 65536; // samples kept on compaction
 const WINDOW_S = 10; // time plots show the last 10 s of test time
+const PREFILL_MAX_CYCLES = 60; // a late page fetches the stored loops of tests up to this many cycles
 const FINAL = new Set(["completed", "stopped", "aborted", "interrupted", "failed"]);
 const BAD = new Set(["aborted", "interrupted", "failed"]);
 
@@ -85,6 +86,8 @@ export class LiveView {
     this.backoffMs = 250;
     this.plots = null;
     this.asScale = 1000;
+    this.storedUntil = -Infinity;
+    this.localLoops = [];
   }
 
   // ---------------------------------------------------------------- plots
@@ -177,7 +180,8 @@ export class LiveView {
 
   closeCycle(j) {
     const a = this.buf.a;
-    if (j - this.cycleStart > 10) {
+    const tEnd = a.t[j];
+    if (j - this.cycleStart > 10 && !(tEnd <= this.storedUntil + 0.05)) {
       let x = a.y.slice(this.cycleStart, j + 1);
       let y = a.f.slice(this.cycleStart, j + 1);
       const stride = Math.ceil(x.length / 4000);
@@ -186,8 +190,34 @@ export class LiveView {
         y = y.filter((_, i) => i % stride === 0);
       }
       this.plots.loop.addPast(x, y);
+      this.localLoops.push({ tEnd, x, y });
+      if (this.localLoops.length > this.plots.loop.maxPast) this.localLoops.shift();
     }
     this.cycleStart = j;
+  }
+
+  /**
+   * A page that joins a running test late (or reconnects) gets only the last seconds of samples: draw the
+   * test's earlier loops from storage (GET /api/tests/{id}/cycles?arrays=true), then the ones closed here.
+   */
+  loadStoredLoops(testId, cyclesDone) {
+    if (!(cyclesDone > 0) || cyclesDone > PREFILL_MAX_CYCLES) return;
+    fetch(`/api/tests/${testId}/cycles?arrays=true`).then((r) => (r.ok ? r.json() : [])).then((cycles) => {
+      if (this.testId !== testId || !Array.isArray(cycles) || !cycles.length || !this.plots) return;
+      const loop = this.plots.loop;
+      loop.past = [];
+      loop.cacheDirty = true;
+      let until = -Infinity;
+      for (const c of cycles.slice(-loop.maxPast)) {
+        if (!Array.isArray(c.displacement_m) || !Array.isArray(c.force_n)) continue;
+        loop.addPast(Float64Array.from(c.displacement_m, (v) => (v === null ? NaN : v * 1000)),
+          Float64Array.from(c.force_n, (v) => (v === null ? NaN : v / 1000)));
+        if (typeof c.t_end_s === "number") until = Math.max(until, c.t_end_s);
+      }
+      this.storedUntil = until;
+      for (const l of this.localLoops) if (!(l.tEnd <= until + 0.05)) loop.addPast(l.x, l.y);
+      this.dirty = true;
+    }).catch(() => {});
   }
 
   // ---------------------------------------------------------------- data
@@ -198,6 +228,8 @@ export class LiveView {
     this.test = test;
     this.lastT = -Infinity;
     this.tripMessage = "";
+    this.storedUntil = -Infinity;
+    this.localLoops = [];
     this.cycleStart = 0;
     this.crossings = [];
     this.prevTarget = NaN;
@@ -326,7 +358,10 @@ export class LiveView {
     this.renderHead();
     if (test && test.status) this.onStatus({ ...(test.progress || {}), status: test.status, test_id: id });
     if (id === null) setStatusBadge("idle");
-    else this.loadLastCycle(id);
+    else {
+      this.loadLastCycle(id);
+      if (test) this.loadStoredLoops(id, test.cycles_done);
+    }
     for (const e of (test && test.events) || []) {
       if (id !== null && document.getElementById("live-events").children.length < 50) this.onEvent(e);
     }
@@ -381,6 +416,7 @@ export class LiveView {
       if (Array.isArray(profile)) profile = profile[0];
       this.offsetMm = profile && profile.offset_m ? profile.offset_m * 1000 : 0;
       this.setController(rec.controller);
+      this.loadStoredLoops(testId, rec.cycles_done);
       this.renderHead();
     }).catch(() => {});
   }
