@@ -136,13 +136,13 @@ ABLATION_CORNERS = ("exact", "A_p+30% K_q-30% DZ-30%", "A_p-30% K_q+30% DZ+30%")
 def ablation_points() -> list[GridPoint]:
     """The learning controller on the whole grid with one piece switched off at a time, with exact nominal values
     and at the two extreme corners (loop gain x 1.86 with the dead zone under-compensated; x 0.54 with it
-    over-compensated). The label goes in ``corner``: "<ablation> | <corner>"."""
+    over-compensated). The label goes in ``corner``: "<ablation> / <corner>"."""
     corners = {"exact": {}, **{c["label"]: c["options"] for c in robust_corners()}}
     points = []
     for label, options in ABLATIONS:
         for corner in ABLATION_CORNERS:
             for p in grid_points(controllers=("servo",)):
-                p.corner = f"{label} | {corner}"
+                p.corner = f"{label} / {corner}"
                 p.options = {**corners[corner], **options}
                 points.append(p)
     return points

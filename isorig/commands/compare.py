@@ -76,7 +76,7 @@ def run(args) -> int:
             print(f"\n### {name}\n")
             print(table(g))
             print("\n" + cmp.worst_case_line(cmp.worst_case(g)))
-    print(f"\n### worst case per {'ablation | corner' if args.ablation else group_key}\n")
+    print(f"\n### worst case per {'ablation / corner' if args.ablation else group_key}\n")
     print(cmp.summary_table(groups, markdown=args.markdown))
     print(f"\n{len(rows)} runs of {cycles} cycles in {wall:.1f} s wall time")
     return 0

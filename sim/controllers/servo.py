@@ -5,30 +5,33 @@ docs/controller.md.
     v   = r' + tau_v r'' + K_p (r - y) + dv                    velocity demand, m/s
     dv  = c_0 + V_env Re sum_k c_k exp(j k theta)              learned periodic feed-forward
     u_l = A_n (v / g) / (K_qn sqrt(P_s - sgn(v) P_L))          inverse of the valve flow law, eq. (3)
-    u   = u_l + DZ_n ramp(u_l / delta)                         dead-zone inverse (ramp over +-delta)
+    u   = u_l + DZ ramp(u_l / delta)                           dead-zone inverse (ramp over +-delta)
 
-g is the ratio of the true to the nominal flow gain (K_q A_n / (K_qn A_p)), estimated by least squares of
-the measured table velocity on the nominal velocity v / g commanded tau_l earlier (exponential forgetting,
-projection onto [g_min, g_max]); it keeps the loop gain at K_p whatever the valve and the nominal values.
+g is the ratio of the true to the nominal flow gain (K_q A_n / (K_qn A_p)) and DZ the valve's dead zone, both
+estimated by least squares of the measured table velocity on what the nominal valve gives for the command
+sent tau_l earlier: y' = g (x - DZ w), x = u K_qn sqrt(dp) / A_n, w = sgn(u) K_qn sqrt(dp) / A_n (exponential
+forgetting, a prior at the nominal values, projection); it keeps the loop gain at K_p whatever the valve and
+the nominal values.
 
 theta and V_env (the phase and the velocity amplitude of the sine target) come from the target rate r' and
 its differences, so the controller needs no profile information: for r = A sin(w t), w^2 = -r''' r' / r'^2
 at every instant. The complex coefficients c_k (harmonic k = 1..H of the target frequency, dimensionless:
 relative to the target's peak velocity) learn the periodic error:
 
-    c_k += gamma dt / (pi A_eff) (r - y) exp(-j k theta) (K_p + j k w) exp(j k w tau_l)
+    c_k += gamma_k dt / (pi A_eff) (r - y) exp(-j k theta) (K_p + j k w) exp(j k w tau_l)
+    gamma_k = gamma min(1, K_p / (k w))
 
 that is, the error's k-th Fourier coefficient divided by a nominal model of the closed loop from dv to y
 (1 / (s + K_p) with a pure delay tau_l for the valve), so each harmonic's error shrinks by about
-(1 - gamma) per cycle. The learning runs only on a steady sine (not in a taper, not at a block change;
+(1 - gamma_k) per cycle. The learning runs only on a steady sine (not in a taper, not at a block change;
 a new frequency clears it), is frozen while the command saturates (the error then says nothing about the
 feed-forward) and each |c_k| is projected onto a bound. Only the measured position, the load pressure, the
 supply pressure setting and nominal rig values (A_p, K_q, dead zone, command limit) are used; never the
 isolator's parameters.
 
 Report: model_m = r (the feed-forward removes the reference lag: the reference model is the target itself);
-ar_hat = g, the estimated ratio of the true to the nominal flow gain; ay_hat = learned phase lead of the
-first harmonic in degrees; as_hat = the target frequency the learning is locked to, in Hz.
+ar_hat = g, the estimated ratio of the true to the nominal flow gain; ay_hat = the estimated dead zone in V;
+as_hat = the target frequency the learning is locked to, in Hz (0 before the first steady cycle).
 """
 
 from __future__ import annotations
