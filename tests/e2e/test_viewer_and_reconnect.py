@@ -48,12 +48,21 @@ def test_reconnects_after_service_restart(server, browser, artifacts):
         page.goto(srv.url + "/?viewer=off")
         page.wait_for_selector("body[data-ready='1']", timeout=15000)
         page.wait_for_selector("#conn.conn-up", timeout=10000)
-        srv.stop()
+        running = srv.start_test(sine_test(cycles=30, speed=1.0))
+        page.wait_for_function(f"window.__isorig.testId === {running} && window.__isorig.samples > 200",
+                               timeout=15000)
+        srv.stop()  # the service goes away in the middle of a test
         page.wait_for_selector("#conn.conn-down", timeout=10000)
         time.sleep(0.5)  # at least one failed attempt
         srv.start()
         page.wait_for_selector("#conn.conn-up", timeout=15000)
         assert page.evaluate("window.__isorig.connects") >= 2
+        _, rec = srv.call("GET", f"/api/tests/{running}")
+        assert rec["status"] in ("interrupted", "aborted"), rec
+        # the page keeps that test on screen and says how it ended
+        page.wait_for_selector(f"#rig-status[data-status='{rec['status']}']", timeout=10000)
+        assert rec["status"].upper() in page.inner_text("#alert-text")
+        page.screenshot(path=str(artifacts / "dashboard_interrupted.png"))
         status, rec = srv.call("POST", "/api/tests", sine_test(cycles=2, speed=4.0), token=True)
         assert status == 201, rec
         srv.call("POST", f"/api/tests/{rec['id']}/start", token=True)

@@ -315,6 +315,8 @@ export class LiveView {
     }
     if (typeof msg.time_left_s === "number") {
       document.getElementById("l-left").textContent = fmtDuration(msg.time_left_s);
+    } else if (FINAL.has(msg.status)) {
+      document.getElementById("l-left").textContent = "-";
     }
     if (changed && this.testId !== null) {
       if (BAD.has(msg.status)) {
@@ -337,7 +339,7 @@ export class LiveView {
     document.getElementById("l-xi").textContent = fmtMetric(m.xi_eff, 100, "%", 3);
   }
 
-  onEvent(msg) {
+  onEvent(msg, alert = true) {
     const li = document.createElement("li");
     li.className = msg.kind || "";
     li.textContent = eventLine(msg);
@@ -346,25 +348,37 @@ export class LiveView {
     while (list.children.length > 200) list.lastChild.remove();
     if (msg.kind === "limit_trip") {
       this.tripMessage = msg.message || "limit trip";
-      showAlert(`LIMIT TRIP (test ${msg.test_id}): ${msg.message}`, "bad");
+      if (alert) showAlert(`LIMIT TRIP (test ${msg.test_id}): ${msg.message}`, "bad");
     }
   }
 
   onHello(msg) {
     const test = msg.test || null;
     const id = msg.test_id === undefined ? (test ? test.id : null) : msg.test_id;
-    if (id !== this.testId) this.resetTest(id, test);
+    if (id === null) {
+      // nothing runs (e.g. after a service restart): keep the last test on screen and show how it ended
+      if (this.testId !== null) this.refreshEnded(this.testId);
+      else setStatusBadge("idle");
+      return;
+    }
+    const fresh = id !== this.testId;
+    if (fresh) this.resetTest(id, test);
     else this.test = test || this.test;
     this.renderHead();
-    if (test && test.status) this.onStatus({ ...(test.progress || {}), status: test.status, test_id: id });
-    if (id === null) setStatusBadge("idle");
-    else {
-      this.loadLastCycle(id);
-      if (test) this.loadStoredLoops(id, test.cycles_done);
+    if (test && test.status) this.onStatus({ status: test.status, test_id: id, reason: test.reason });
+    this.loadLastCycle(id);
+    if (test) this.loadStoredLoops(id, test.cycles_done);
+    if (fresh) {
+      for (const e of ((test && test.events) || []).slice(-50)) this.onEvent(e, false);
     }
-    for (const e of (test && test.events) || []) {
-      if (id !== null && document.getElementById("live-events").children.length < 50) this.onEvent(e);
-    }
+  }
+
+  /** The stream has no test any more: ask for the last one's record (it may have ended interrupted). */
+  refreshEnded(testId) {
+    fetch(`/api/tests/${testId}`).then((r) => (r.ok ? r.json() : null)).then((rec) => {
+      if (!rec || this.testId !== testId) return;
+      this.onStatus({ status: rec.status, test_id: testId, reason: rec.reason, progress: rec.progress });
+    }).catch(() => {});
   }
 
   /** The latest finished cycle's metrics of a test we join late (the stream only sends new ones). */
@@ -492,5 +506,9 @@ export class LiveView {
 function setConn(up) {
   const el = document.getElementById("conn");
   el.className = `conn ${up ? "conn-up" : "conn-down"}`;
-  el.textContent = up ? "live" : "reconnecting...";
+  el.textContent = up ? "live" : "CONNECTION LOST - reconnecting";
+  // the rig status shown is the last one known: mark it as such while the stream is down
+  const badge = document.getElementById("rig-status");
+  badge.classList.toggle("stale", !up);
+  badge.title = up ? "what the rig does now" : "last known status: no connection to the service";
 }

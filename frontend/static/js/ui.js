@@ -19,7 +19,8 @@ export function fmtMetric(value, scale, unit, digits = 4) {
 export function setStatusBadge(status) {
   const el = document.getElementById("rig-status");
   const s = (status || "idle").toLowerCase();
-  el.className = `status-badge status-${s}`;
+  const stale = el.classList.contains("stale");
+  el.className = `status-badge status-${s}${stale ? " stale" : ""}`;
   el.textContent = s.toUpperCase();
   el.dataset.status = s;
 }
