@@ -33,6 +33,8 @@ def test_3d_view_is_relayed_and_follows_the_rig(server, open_page, artifacts):
     page.wait_for_selector("#viewer-box iframe")
     assert page.evaluate("localStorage.getItem('isorig.viewer')") == "on"
     server.call("POST", f"/api/tests/{test_id}/abort", token=True)
+    sockets = [u for u in watch.requests if u.startswith("ws")]
+    assert any(u.endswith("/viewer") for u in sockets), sockets  # viser's socket goes through the relay
     assert not watch.foreign(), watch.foreign()
 
 
