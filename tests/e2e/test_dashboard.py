@@ -70,6 +70,18 @@ def test_operator_flow(server, open_page, artifacts):
     row = page.wait_for_selector(f"#history-table tr[data-id='{test_id}']", timeout=10000)
     assert "completed" in row.inner_text()
     assert "IUT_b" in row.inner_text()
+    # filters: status, isolator and today's date keep it; another status hides it
+    page.select_option("#h-status", "aborted")
+    page.click("#history-filter button[type='submit']")
+    page.wait_for_selector(f"#history-table tr[data-id='{test_id}']", state="detached", timeout=5000)
+    today = page.evaluate("(() => { const d = new Date(); const p = (x) => String(x).padStart(2, '0');"
+                          " return `${d.getFullYear()}-${p(d.getMonth() + 1)}-${p(d.getDate())}`; })()")
+    page.select_option("#h-status", "completed")
+    page.select_option("#h-isolator", "IUT_b")
+    page.fill("#h-since", today)
+    page.fill("#h-until", today)
+    page.click("#history-filter button[type='submit']")
+    row = page.wait_for_selector(f"#history-table tr[data-id='{test_id}']", timeout=5000)
     row.click()
     page.wait_for_selector("#t-cycles tbody tr", timeout=10000)
     assert page.locator("#t-cycles tbody tr").count() >= 3

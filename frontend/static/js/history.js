@@ -3,7 +3,7 @@
 
 import { api } from "./api.js";
 import { LoopPlot } from "./plots.js";
-import { el, eventLine, fmtMetric } from "./ui.js";
+import { el, eventLine, fmtMetric, fmtTime } from "./ui.js";
 
 const $ = (id) => document.getElementById(id);
 
@@ -69,8 +69,9 @@ export class History {
     const q = new URLSearchParams();
     if ($("h-isolator").value) q.set("isolator", $("h-isolator").value);
     if ($("h-status").value) q.set("status", $("h-status").value);
-    if ($("h-since").value) q.set("since", `${$("h-since").value}T00:00:00`);
-    if ($("h-until").value) q.set("until", `${$("h-until").value}T23:59:59`);
+    // the dates are the operator's local days; the service keeps UTC
+    if ($("h-since").value) q.set("since", new Date(`${$("h-since").value}T00:00:00`).toISOString());
+    if ($("h-until").value) q.set("until", new Date(`${$("h-until").value}T23:59:59.999`).toISOString());
     const tbody = $("history-table").querySelector("tbody");
     let tests = [];
     try {
@@ -85,7 +86,7 @@ export class History {
       const s = summaryOf(t);
       const tr = el("tr", { class: "link", "data-id": String(t.id) },
         el("td", { text: `#${t.id}` }),
-        el("td", { text: String(t.created_at || t.started_at || "").replace("T", " ").slice(0, 19) }),
+        el("td", { text: fmtTime(t.created_at || t.started_at) }),
         el("td", { text: isolatorName(t) }),
         el("td", { text: profileText(t) }),
         el("td", { text: controllerName(t) }),
@@ -116,7 +117,7 @@ export class History {
       kv("isolator", isolatorName(t)),
       kv("profile", profileText(t)),
       kv("controller", controllerName(t)),
-      kv("created", String(t.created_at || "").replace("T", " ").slice(0, 19)),
+      kv("created", fmtTime(t.created_at)),
       kv("supply", typeof t.supply_bar === "number" ? `${t.supply_bar} bar` : "-"),
       kv("speed", typeof t.speed === "number" ? `${t.speed}x` : "-"),
     );

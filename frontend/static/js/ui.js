@@ -41,9 +41,19 @@ export function hideAlert() {
   document.getElementById("alert").classList.add("hidden");
 }
 
+/** An ISO 8601 time of the service (UTC) as local "YYYY-MM-DD HH:MM:SS", or "" when missing. */
+export function fmtTime(iso) {
+  if (!iso) return "";
+  const d = new Date(iso);
+  if (isNaN(d.getTime())) return String(iso);
+  const two = (x) => String(x).padStart(2, "0");
+  return `${d.getFullYear()}-${two(d.getMonth() + 1)}-${two(d.getDate())} ` +
+    `${two(d.getHours())}:${two(d.getMinutes())}:${two(d.getSeconds())}`;
+}
+
 export function eventLine(e) {
   const t = typeof e.time_s === "number" ? `t=${e.time_s.toFixed(2)} s ` : "";
-  const when = e.created_at ? `${String(e.created_at).replace("T", " ").slice(0, 19)} ` : "";
+  const when = e.created_at ? `${fmtTime(e.created_at)} ` : "";
   let vals = "";
   if (e.values && typeof e.values === "object" && Object.keys(e.values).length) {
     vals = " (" + Object.entries(e.values).map(([k, v]) => `${k}=${typeof v === "number" ? +v.toPrecision(4) : v}`)
