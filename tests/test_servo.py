@@ -8,7 +8,7 @@ from sim.compare import limit_cycle_rms_m
 from sim.controllers import make_controller
 from sim.controllers.base import N_MEAS, R_AR, R_AS, R_MODEL
 from sim.controllers.servo import S_C, valve_inverse
-from sim.engine import C_AR, C_AY, CONTROL_PERIOD_S, PLANT_SUBSTEPS, Scenario, Simulation
+from sim.engine import C_AR, C_AS, C_AY, CONTROL_PERIOD_S, PLANT_SUBSTEPS, Scenario, Simulation
 from sim.isolator import load_isolator
 from sim.profiles import pack_profile, target
 from sim.rig import (
@@ -183,3 +183,16 @@ def test_gain_estimate_reported_in_ar_hat():
     m[:] = (0.0, 0.0, 0.0, 0.0, 0.0, 1e7)
     _, report = c.step(state, m, CONTROL_PERIOD_S)
     assert report[R_AR] == 1.0  # no data yet: the nominal values are believed
+
+
+def test_a_new_block_at_another_frequency_is_learned_again():
+    from sim.profiles import SineProfile
+
+    blocks = [SineProfile(0.02, 0.5, 4, 0), SineProfile(0.01, 1.0, 6, 0)]
+    s = Scenario(load_isolator("IUT_b"), 100 * BAR_PA, blocks, "servo")
+    result = Simulation(s).run()
+    assert result.samples[-1, C_AS] == pytest.approx(1.0, rel=1e-3)  # locked to the new frequency
+    summary = tracking_summary(result.samples, s)
+    rms = [c["rms_y_minus_r_m"] for c in summary["cycles"]]
+    assert rms[-1] < 0.5 * rms[4]  # the second block's error falls as it is learned
+    assert rms[-1] < 0.002 * 0.01

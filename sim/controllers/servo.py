@@ -109,7 +109,7 @@ DEFAULTS = {
     "gain_min": 0.25,  # projection of the flow-gain ratio (true / nominal)
     "gain_max": 6.0,
     "gain_min_velocity_m_per_s": 0.005,  # the gain estimate moves only with this much RMS nominal velocity
-    "steady_envelope_rate": 0.02,  # learning runs while |d V_env/dt| / (w V_env) stays below this
+    "steady_envelope_rate": 0.05,  # learning runs while |d V_env/dt| / (w V_env) stays below this
     "load_pressure_share": 1.0,  # 1: the valve inverse uses the measured load pressure; 0: only P_s (ablation)
     "dead_zone_adaptive": 1.0,  # 1: the dead zone is estimated with the flow gain; 0: the nominal one is kept
     "dead_zone_min_share": 0.5,  # projection of the estimated dead zone, shares of the nominal one
@@ -227,18 +227,18 @@ def servo_step(p, s, meas, dt, report):
         omega_est = np.sqrt(s[S_NUM] / s[S_DEN])
     # steady envelope (not in a taper, not at a block change): the learning runs only then
     rd_mid = 0.5 * (rd + rd1)
-    w_phase = s[S_OMEGA_LEARNED] if s[S_OMEGA_LEARNED] > 0.0 else omega_est
-    v_env = 0.0
-    if w_phase > 0.0:
-        v_env = np.sqrt(rd_mid * rd_mid + (rdd / w_phase) ** 2)
-    # steady for at least a quarter of a period
-    if omega_est > 2.0 * np.pi * 1e-3 and v_env > 0.0 and (
-            abs(v_env - s[S_VENV]) < p[P_STEADY] * omega_est * v_env * dt):
+    # the velocity amplitude seen with the current frequency estimate (constant on a steady sine; with the
+    # frequency learned before, a new block's sine would never look steady), steady for a quarter of a period
+    v_est = 0.0
+    if omega_est > 0.0:
+        v_est = np.sqrt(rd_mid * rd_mid + (rdd / omega_est) ** 2)
+    if omega_est > 2.0 * np.pi * 1e-3 and v_est > 0.0 and (
+            abs(v_est - s[S_VENV]) < p[P_STEADY] * omega_est * v_est * dt):
         s[S_STEADY_S] += dt
     else:
         s[S_STEADY_S] = 0.0
     steady = omega_est > 0.0 and s[S_STEADY_S] > 0.5 * np.pi / omega_est
-    s[S_VENV] = v_env
+    s[S_VENV] = v_est
     nh = int(p[P_NH])
     if steady:
         w_l = s[S_OMEGA_LEARNED]
@@ -248,7 +248,9 @@ def servo_step(p, s, meas, dt, report):
                 s[S_C + i] = 0.0
         s[S_OMEGA_LEARNED] = omega_est
     omega = s[S_OMEGA_LEARNED]
+    v_env = 0.0
     if omega > 0.0:
+        v_env = np.sqrt(rd_mid * rd_mid + (rdd / omega) ** 2)
         nmax = int(p[P_FMAX] * 2.0 * np.pi / omega)
         if nmax < nh:
             nh = nmax
