@@ -163,15 +163,22 @@ def test_live_view_follows_test_started_through_api(server, open_page, artifacts
 
 
 def test_abort_button_stops_the_rig(server, open_page):
-    """The always-visible Abort ends a running test at once."""
-    page, _ = open_page(server.url + "/", token=TOKEN)
+    """Abort ends a running test at once; a wrong stored token is refused and the operator is asked again."""
+    page, watch = open_page(server.url + "/", token="not-the-token")
+    watch.allowed_status.add(401)  # the wrong token's refusal
     test_id = server.start_test(sine_test(cycles=20, speed=1.0))
     page.wait_for_selector("#rig-status[data-status='running']", timeout=15000)
     page.click("#abort")
+    page.wait_for_selector("#token-dialog[open]", timeout=5000)
+    assert "refused" in page.inner_text("#token-reason")
+    assert server.call("GET", f"/api/tests/{test_id}")[1]["status"] == "running"  # nothing moved yet
+    page.fill("#token-input", TOKEN)
+    page.click("#token-ok")
     rec = server.wait_status(test_id, {"aborted"}, timeout_s=15)
     assert rec["status"] == "aborted"
     page.wait_for_selector("#rig-status[data-status='aborted']", timeout=10000)
     assert "ABORTED" in page.inner_text("#alert-text")
+    assert page.evaluate("localStorage.getItem('isorig.operator_token')") == TOKEN
 
 
 def test_stop_button_ramps_out(server, open_page):

@@ -25,8 +25,7 @@ export function askToken(reason) {
   const input = document.getElementById("token-input");
   const cancel = document.getElementById("token-cancel");
   const form = document.getElementById("token-form");
-  const p = dialog.querySelector("p");
-  if (reason) p.dataset.reason = reason;
+  document.getElementById("token-reason").textContent = reason || "";
   input.value = "";
   return new Promise((resolve) => {
     const done = (value) => {
