@@ -11,11 +11,10 @@ import time
 from pathlib import Path
 
 import httpx
+from conftest import AUTH, TOKEN, create_and_start, make_settings, sine_test, wait_for
 from fastapi.testclient import TestClient
 
 from backend.app import create_app
-
-from .conftest import AUTH, TOKEN, create_and_start, make_settings, sine_test, wait_for
 
 LONG = {"speed": 1.0, "profile": {"frequency_hz": 2.0, "cycles": 40, "taper_cycles": 1}}  # 20 s
 

@@ -10,12 +10,11 @@ from pathlib import Path
 import pytest
 
 schemathesis = pytest.importorskip("schemathesis")
+from conftest import AUTH, make_settings  # noqa: E402
 from hypothesis import HealthCheck, settings  # noqa: E402
 from schemathesis.checks import not_a_server_error  # noqa: E402
 
 from backend.app import create_app  # noqa: E402
-
-from .conftest import AUTH, make_settings  # noqa: E402
 
 _DATA = Path(tempfile.mkdtemp(prefix="isorig-fuzz-"))
 atexit.register(shutil.rmtree, _DATA, ignore_errors=True)

@@ -7,10 +7,9 @@ import io
 import math
 
 import numpy as np
+from conftest import AUTH, create_and_start, sine_test, wait_for
 
 from sim.engine import CSV_COLUMNS
-
-from .conftest import AUTH, create_and_start, sine_test, wait_for
 
 
 def test_completed_test_stores_every_sample_and_cycle(client):
@@ -38,6 +37,10 @@ def test_completed_test_stores_every_sample_and_cycle(client):
     assert full["k_eff_n_per_m"] > 1e6 and full["edc_j"] > 0
     assert len(full["displacement_m"]) == len(full["force_n"]) == 500
     assert client.post(f"/api/tests/{test_id}/start", headers=AUTH).status_code == 409  # not ready any more
+    r = client.get(f"/api/tests/{test_id}/report.pdf")
+    if r.status_code != 503:  # 503 only where backend.reports is not installed
+        assert r.status_code == 200 and r.headers["content-type"] == "application/pdf"
+        assert r.content.startswith(b"%PDF")
 
 
 def test_websocket_receives_live_frames(client):

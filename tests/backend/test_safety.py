@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import create_and_start, wait_for
 
 from backend.safety import LimitError, SafetyLimits, check_block, command_ramp, make_limits
 from sim.engine import C_FORCE, C_PL, C_TARGET, C_TIME, C_U, C_Y, COLUMNS
 from sim.rig import DEFAULT_RIG
-
-from .conftest import create_and_start, wait_for
 
 LIMITS = SafetyLimits(displacement_m=0.1, force_n=1e5, load_pressure_pa=2e7, tracking_error_m=0.005)
 

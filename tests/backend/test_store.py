@@ -109,11 +109,10 @@ def test_service_runs_a_test_on_postgresql(tmp_path):
     url = _postgres_url()
     if url is None:
         pytest.skip("no PostgreSQL: set ISORIG_TEST_POSTGRES_URL")
+    from conftest import create_and_start, make_settings, wait_for
     from fastapi.testclient import TestClient
 
     from backend.app import create_app
-
-    from .conftest import create_and_start, make_settings, wait_for
 
     engine = make_engine(url)
     with engine.begin() as conn:

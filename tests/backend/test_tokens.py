@@ -5,11 +5,10 @@ from __future__ import annotations
 import stat
 
 import pytest
+from conftest import AUTH, make_settings, sine_test
 from fastapi.testclient import TestClient
 
 from backend.app import create_app
-
-from .conftest import AUTH, make_settings, sine_test
 
 MUTATING = [
     ("post", "/api/tests", sine_test()),
