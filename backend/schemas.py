@@ -62,6 +62,19 @@ class TestCreate(StrictModel):
         "profile": {"kind": "sine", "amplitude_m": 0.03, "frequency_hz": 1.0, "cycles": 10, "taper_cycles": 1}}]})
 
 
+class EnvelopeCheckOut(BaseModel):
+    """``POST /api/tests/check``: would this test be accepted, and what does the envelope allow around it."""
+
+    ok: bool
+    detail: str = Field(description="why it is refused, or that it fits")
+    field: str | None = None
+    value: Any = None
+    limit: str | None = None
+    max_amplitude_m: float | None = Field(None, description="largest amplitude at this frequency (sine only)")
+    max_frequency_hz: float | None = Field(None, description="highest frequency at this amplitude (sine only)")
+    max_force_n: float | None = Field(None, description="A_p P_s at this supply pressure")
+
+
 class IsolatorIn(StrictModel):
     """A user isolator: Bouc-Wen parameters of eq. (4), SI units."""
 

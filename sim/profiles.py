@@ -201,13 +201,26 @@ def validate_profile(blocks: list[SineProfile], rig: RigParameters, isolator: Is
             raise problem
 
 
-def max_amplitude_m(frequency_hz: float, rig: RigParameters, isolator: Isolator, supply_pa: float) -> float:
-    """Largest amplitude the envelope allows at this frequency (bisection on envelope_problem)."""
-    lo, hi = 0.0, rig.stroke_m
+def _largest_allowed(fits, hi: float) -> float:
+    """Largest x in [0, hi] with fits(x) true, for fits true at 0 and monotonic (bisection)."""
+    lo = 0.0
+    if fits(hi):
+        return hi
     for _ in range(50):
         mid = 0.5 * (lo + hi)
-        if envelope_problem(SineProfile(mid, frequency_hz, 1, 0), rig, isolator, supply_pa) is None:
-            lo = mid
-        else:
-            hi = mid
+        lo, hi = (mid, hi) if fits(mid) else (lo, mid)
     return lo
+
+
+def max_amplitude_m(frequency_hz: float, rig: RigParameters, isolator: Isolator, supply_pa: float) -> float:
+    """Largest amplitude the envelope allows at this frequency."""
+    return _largest_allowed(
+        lambda a: envelope_problem(SineProfile(a, frequency_hz, 1, 0), rig, isolator, supply_pa) is None,
+        rig.stroke_m)
+
+
+def max_frequency_hz(amplitude_m: float, rig: RigParameters, isolator: Isolator, supply_pa: float) -> float:
+    """Highest frequency the envelope allows at this amplitude (0 if the amplitude itself is refused)."""
+    return _largest_allowed(
+        lambda f: envelope_problem(SineProfile(amplitude_m, max(f, 1e-9), 1, 0), rig, isolator, supply_pa) is None,
+        MAX_FREQUENCY_HZ)

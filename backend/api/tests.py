@@ -12,14 +12,15 @@ from fastapi.responses import Response, StreamingResponse
 
 from sim.controllers import CONTROLLER_NAMES
 from sim.engine import CSV_COLUMNS, Scenario
-from sim.profiles import SineProfile
+from sim.isolator import IsolatorError
+from sim.profiles import ProfileError, SineProfile, max_amplitude_m, max_frequency_hz
 from sim.rig import BAR_PA, DEFAULT_RIG
 from sim.tracking import cycle_windows
 
 from .. import store
-from ..errors import ApiError
+from ..errors import ApiError, ProtocolError, _jsonable
 from ..safety import make_limits
-from ..schemas import ERROR_RESPONSES, ProtocolProfileIn, SineProfileIn, TestCreate, TestOut
+from ..schemas import ERROR_RESPONSES, EnvelopeCheckOut, ProtocolProfileIn, SineProfileIn, TestCreate, TestOut
 from ..store import clean_json
 from .deps import OperatorDep, SessionDep, TestId, not_found
 from .isolators import resolve_isolator
@@ -82,6 +83,34 @@ def build_test(session, body: TestCreate, request: Request) -> dict:
         "scenario": clean_json(scenario.describe()), "limits": limits.to_dict(),
         "duration_s": scenario.duration_s, "cycles_total": len(cycle_windows(scenario)),
     }
+
+
+@router.post("/api/tests/check", summary="Check a test against the rig envelope without creating it (no token)",
+             responses=ERROR_RESPONSES)
+def check_test(body: TestCreate, request: Request, session: SessionDep) -> EnvelopeCheckOut:
+    """Answers 200 either way (``ok`` says which), so a form can ask at every keystroke; nothing is stored."""
+    try:
+        build_test(session, body, request)
+        refusal = None
+    except ProfileError as exc:
+        refusal = {"detail": str(exc), "field": exc.field, "value": _jsonable(exc.value), "limit": exc.limit}
+    except ApiError as exc:
+        refusal = {"detail": exc.detail, "field": exc.field, "value": _jsonable(exc.value), "limit": exc.limit}
+    except (IsolatorError, ProtocolError) as exc:
+        refusal = {"detail": str(exc), "field": "profile" if isinstance(exc, ProtocolError) else "isolator"}
+    out = {"ok": refusal is None, **(refusal or {"detail": "within the rig envelope"})}
+    supply_pa = body.supply_bar * BAR_PA
+    if DEFAULT_RIG.min_supply_pa <= supply_pa <= DEFAULT_RIG.max_supply_pa:
+        out["max_force_n"] = DEFAULT_RIG.max_force_n(supply_pa)
+        if isinstance(body.profile, SineProfileIn):
+            try:
+                isolator = resolve_isolator(session, body.isolator)
+            except (ApiError, IsolatorError):
+                isolator = None
+            if isolator is not None:
+                out["max_amplitude_m"] = max_amplitude_m(body.profile.frequency_hz, DEFAULT_RIG, isolator, supply_pa)
+                out["max_frequency_hz"] = max_frequency_hz(body.profile.amplitude_m, DEFAULT_RIG, isolator, supply_pa)
+    return EnvelopeCheckOut(**out)
 
 
 @router.post("/api/tests", status_code=201, summary="Create a test (operator token); status 'ready'",

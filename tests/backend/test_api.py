@@ -146,3 +146,28 @@ def test_protocol_profiles(client):
         r = client.post("/api/tests", json={**sine_test(), "profile": profile}, headers=AUTH)
         assert r.status_code == 422, r.text
         assert r.json()["field"].startswith(field)
+
+
+def test_envelope_check_explains_without_creating(client):
+    before = len(client.get("/api/tests").json())
+    ok = client.post("/api/tests/check", json=sine_test(isolator="IUT_b", supply_bar=70,
+                                                       profile={"amplitude_m": 0.03, "frequency_hz": 0.5}))
+    assert ok.status_code == 200
+    body = ok.json()
+    assert body["ok"] is True
+    assert 0.03 < body["max_amplitude_m"] <= 0.15
+    assert body["max_frequency_hz"] > 0.5
+    assert body["max_force_n"] > 5e4
+    # pump flow refused: 200 with the field, the limit, and the highest frequency that fits
+    refused = client.post("/api/tests/check", json=sine_test(isolator="IUT_b", supply_bar=150,
+                                                             profile={"amplitude_m": 0.1, "frequency_hz": 1.0}))
+    assert refused.status_code == 200
+    r = refused.json()
+    assert r["ok"] is False and r["field"] == "frequency_hz" and "l/min" in r["detail"] and r["limit"]
+    assert 0 < r["max_frequency_hz"] < 1.0
+    assert r["max_amplitude_m"] < 0.1
+    # an unknown isolator or a bad protocol name is a refusal too, never a 500
+    assert client.post("/api/tests/check", json=sine_test(isolator="nope")).json()["ok"] is False
+    proto = client.post("/api/tests/check", json=sine_test(profile={"kind": "protocol", "name": "/etc/passwd"}))
+    assert proto.status_code in (200, 422) and proto.json().get("ok") is not True
+    assert len(client.get("/api/tests").json()) == before  # nothing was created

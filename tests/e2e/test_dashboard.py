@@ -108,9 +108,14 @@ def test_refused_profile_shows_reason(server, open_page, artifacts):
     assert "stroke" in text and "150" in text, text
     assert "invalid" in (page.get_attribute("#f-amplitude_mm", "class") or "")
 
-    # inside the stroke but more flow than the pump gives: the service refuses it at Start with the limit
+    # inside the stroke but more flow than the pump gives: explained before Start (POST /api/tests/check) ...
     page.fill("#f-amplitude_mm", "100")
     page.fill("#f-frequency_hz", "2")
+    page.wait_for_function("document.getElementById('envelope').textContent.includes('peak flow demand')", timeout=5000)
+    early = page.inner_text("#envelope")
+    assert "frequency_hz" in early and "313" in early, early
+    assert page.get_attribute("#envelope", "data-state") == "refused"
+    # ... and refused by the service at Start with the limit
     page.click("#start")
     page.wait_for_function("document.getElementById('setup-message').textContent.startsWith('Refused')",
                            timeout=10000)
