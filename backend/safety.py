@@ -13,20 +13,15 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from sim.engine import C_FORCE, C_PL, C_TARGET, C_TIME, C_U, C_Y
+from sim.errors import FieldError
 from sim.rig import RigParameters
 
 DEFAULT_TRACKING_ERROR_M = 0.05  # the paper's MRAC reaches ~31 mm peak |y - r| on IUT_b, 30 mm at 1 Hz
 COMMAND_RAMP_S = 0.1  # controlled stop: the valve command ramps from its last value to zero in this time
 
 
-class LimitError(ValueError):
+class LimitError(FieldError):
     """A requested limit is outside what the rig allows; names field, value and limit."""
-
-    def __init__(self, field: str, value, limit: str, message: str):
-        super().__init__(message)
-        self.field = field
-        self.value = value
-        self.limit = limit
 
 
 @dataclass(frozen=True)

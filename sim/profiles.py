@@ -14,6 +14,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from numba import njit
 
+from .errors import FieldError
 from .isolator import Isolator
 from .rig import BAR_PA, LITRE_PER_MIN_M3_S, RigParameters
 
@@ -21,14 +22,8 @@ MAX_FREQUENCY_HZ = 10.0  # well below the valve's 40 Hz
 MAX_CYCLES = 100_000
 
 
-class ProfileError(ValueError):
+class ProfileError(FieldError):
     """A profile is malformed or outside the rig's envelope. ``field``, ``value`` and ``limit`` say why."""
-
-    def __init__(self, field: str, value, limit: str, message: str):
-        super().__init__(message)
-        self.field = field
-        self.value = value
-        self.limit = limit
 
 
 @dataclass(frozen=True)
