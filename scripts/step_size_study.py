@@ -16,8 +16,9 @@ REFERENCE_SUBSTEPS = 50  # 0.02 ms
 
 def main():
     warm_up()
-    cases = [("IUT_a 100 bar 20 mm 1 Hz", Scenario.sine("IUT_a", 100, 0.02, 1.0, 10, taper_cycles=0)),
-             ("IUT_b 70 bar 30 mm 1 Hz", Scenario.sine("IUT_b", 70, 0.03, 1.0, 10, taper_cycles=0)),
+    cases = [("IUT_a 100 bar 20 mm 1 Hz servo", Scenario.sine("IUT_a", 100, 0.02, 1.0, 10, controller="servo")),
+             ("IUT_b 70 bar 30 mm 1 Hz mrac", Scenario.sine("IUT_b", 70, 0.03, 1.0, 10, controller="mrac",
+                                                            taper_cycles=0)),
              ("IUT_a 100 bar 20 mm 0.5 Hz pid", Scenario.sine("IUT_a", 100, 0.02, 0.5, 5, controller="pid"))]
     print(f"{'scenario':34s} {'plant step':>10s} {'max|dy| um':>11s} {'max|dP_L| Pa':>13s} {'x real time':>12s}")
     for label, scenario in cases:
