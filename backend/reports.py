@@ -194,7 +194,14 @@ def controller_state(bundle) -> dict:
                           if isinstance(v, (int, float, str, bool))}
         except (ImportError, ValueError, TypeError):
             parameters = {}
-    return {"name": name, "options": options, "parameters": parameters, "final_adapted": adapted}
+    try:
+        from sim.controllers import ADAPTED_LABELS
+
+        labels = ADAPTED_LABELS.get(name, {})
+    except ImportError:
+        labels = {}
+    return {"name": name, "options": options, "parameters": parameters, "final_adapted": adapted,
+            "adapted_labels": {k: labels[k] for k in adapted if k in labels}}
 
 
 def identified_bouc_wen(bundle, max_samples: int = IDENTIFY_MAX_SAMPLES) -> dict:
@@ -478,7 +485,8 @@ def _header_lines(bundle, ctrl: dict, iso, protocol) -> list[tuple[str, str]]:
             lines.append(("  parameters" if k == 0 else "", chunk))
     if ctrl.get("final_adapted"):
         a = ctrl["final_adapted"]
-        lines.append(("  final adapted", ", ".join(f"{k} = {v:.5g}" for k, v in a.items())))
+        labels = ctrl.get("adapted_labels") or {}
+        lines.append(("  final adapted", ", ".join(f"{labels.get(k, k)} = {v:.5g}" for k, v in a.items())))
     dur = _num(r.get("duration_s"))
     lines.append(("Duration, samples", f"{dur:g} s, {bundle.samples.shape[0]} samples" if dur is not None
                   else f"{bundle.samples.shape[0]} samples"))

@@ -14,6 +14,14 @@ FACTORIES = {"mrac": make_mrac, "pid": make_pid, "servo": make_servo}
 CONTROLLER_NAMES = tuple(FACTORIES)
 DEFAULT_CONTROLLER = "servo"  # what `isorig simulate` and the dashboard use when none is chosen
 
+# What each controller reports in the ar_hat, ay_hat, as_hat columns (label with unit); none for pid.
+ADAPTED_LABELS = {
+    "mrac": {"ar_hat": "a_r_hat (-), eq. (20)", "ay_hat": "a_y_hat (-), eq. (19)", "as_hat": "a_s_hat (m), eq. (18)"},
+    "servo": {"ar_hat": "flow gain, true / nominal (-)", "ay_hat": "dead zone estimate (V)",
+              "as_hat": "locked target frequency (Hz)"},
+    "pid": {},
+}
+
 
 def make_controller(name: str, **options) -> Controller:
     """A controller by name with its defaults, overridden by ``options``."""
