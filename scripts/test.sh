@@ -3,5 +3,18 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
+# Debian packages the tests need: chromium for the dashboard's browser tests (tests/e2e; Playwright drives it,
+# its own browser download is not used) and poppler-utils for pdftoppm, which renders report pages to PNG.
+missing=""
+[ -x /usr/bin/chromium ] || missing="$missing chromium"
+command -v pdftoppm >/dev/null 2>&1 || missing="$missing poppler-utils"
+if [ -n "$missing" ]; then
+  SUDO=""
+  if [ "$(id -u)" -ne 0 ] && command -v sudo >/dev/null 2>&1; then SUDO="sudo"; fi
+  echo "installing Debian packages:$missing"
+  $SUDO apt-get update -q >/dev/null
+  # shellcheck disable=SC2086
+  $SUDO apt-get install -y -q $missing >/dev/null
+fi
 .venv/bin/ruff check .
 .venv/bin/python -m pytest -q "$@"

@@ -22,8 +22,8 @@ except ImportError:  # pragma: no cover - the [test] extra installs it
 
 if playwright_api is None:
     MISSING = "the Python package playwright is not installed (pip install -e '.[test]')"
-elif not chromium_available():  # pragma: no cover - scripts/setup.sh installs it
-    MISSING = "Debian's chromium is missing (apt-get install -y chromium; scripts/setup.sh does it)"
+elif not chromium_available():  # pragma: no cover - scripts/test.sh installs it
+    MISSING = "Debian's chromium is missing (apt-get install -y chromium; scripts/test.sh does it)"
 else:
     MISSING = None
 HERE = Path(__file__).resolve().parent
