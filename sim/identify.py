@@ -70,3 +70,18 @@ def check_time(time_s: np.ndarray, where: str = "record") -> None:
         raise IdentificationError(
             f"{where}: time_s must strictly increase, but row {i + 3} ({time_s[i + 1]:g} s) does not follow "
             f"row {i + 2} ({time_s[i]:g} s)")
+
+
+def as_record(where: str, min_samples: int, **columns) -> list[np.ndarray]:
+    """The columns (time_s first) as float arrays, checked: equal lengths, at least ``min_samples`` rows,
+    all finite, time strictly increasing; IdentificationError says which rule failed."""
+    arrays = [np.asarray(v, float) for v in columns.values()]
+    names = list(columns)
+    if len({a.size for a in arrays}) != 1:
+        raise IdentificationError(f"{', '.join(names[:-1])} and {names[-1]} must have the same length")
+    if arrays[0].size < min_samples:
+        raise IdentificationError(f"a {where} needs at least {min_samples} samples, got {arrays[0].size}")
+    if not all(np.all(np.isfinite(a)) for a in arrays):
+        raise IdentificationError(f"the {where} contains non-finite values")
+    check_time(arrays[0], where)
+    return arrays

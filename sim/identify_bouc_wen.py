@@ -19,7 +19,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 from scipy.optimize import least_squares, nnls
 
-from .identify import IdentificationError, check_time, read_record_csv
+from .identify import IdentificationError, as_record, read_record_csv
 from .isolator import LIMITS, Isolator, isolator_from_dict, simulate_loop
 
 LOOP_CSV_COLUMNS = ("time_s", "displacement_m", "force_n")
@@ -119,16 +119,8 @@ def fit_bouc_wen(time_s, displacement_m, force_n, name: str = "identified",
     ``start`` (a dict with some of rho_bw_per_m, sigma_bw, n) replaces the grid of starts.
     """
     t0 = time.perf_counter()
-    t = np.asarray(time_s, float)
-    d_all = np.asarray(displacement_m, float)
-    f_all = np.asarray(force_n, float)
-    if not (t.size == d_all.size == f_all.size):
-        raise IdentificationError("time_s, displacement_m and force_n must have the same length")
-    if t.size < MIN_LOOP_SAMPLES:
-        raise IdentificationError(f"a loop record needs at least {MIN_LOOP_SAMPLES} samples, got {t.size}")
-    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(d_all)) and np.all(np.isfinite(f_all))):
-        raise IdentificationError("the loop record contains non-finite values")
-    check_time(t, "loop record")
+    t, d_all, f_all = as_record("loop record", MIN_LOOP_SAMPLES, time_s=time_s, displacement_m=displacement_m,
+                                force_n=force_n)
     amplitude = 0.5 * float(np.ptp(d_all))
     if amplitude <= 0.0 or np.ptp(f_all) <= 0.0:
         raise IdentificationError("the record has no motion or no force change: nothing to identify")

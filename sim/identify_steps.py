@@ -18,7 +18,7 @@ import numpy as np
 from numba import njit
 from scipy.optimize import least_squares
 
-from .identify import IdentificationError, check_time, read_record_csv
+from .identify import IdentificationError, as_record, read_record_csv
 from .isolator import Isolator
 from .models import K_VOLT, first_order_response
 from .rig import BAR_PA, N_STATES, X_Y, RigParameters, pack_plant, rk4_step, valve_command
@@ -144,16 +144,8 @@ def fit_first_order(time_s, voltage_v, displacement_m, starts: list[tuple[float,
     between samples, y(0) is the first sample.
     """
     t0 = time.perf_counter()
-    t = np.asarray(time_s, float)
-    u = np.asarray(voltage_v, float)
-    y = np.asarray(displacement_m, float)
-    if not (t.size == u.size == y.size):
-        raise IdentificationError("time_s, voltage_v and displacement_m must have the same length")
-    if t.size < MIN_STEP_SAMPLES:
-        raise IdentificationError(f"a step record needs at least {MIN_STEP_SAMPLES} samples, got {t.size}")
-    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(u)) and np.all(np.isfinite(y))):
-        raise IdentificationError("the step record contains non-finite values")
-    check_time(t, "step record")
+    t, u, y = as_record("step record", MIN_STEP_SAMPLES, time_s=time_s, voltage_v=voltage_v,
+                        displacement_m=displacement_m)
     u_step, y_rest, auto = _starts(t, u, y)
     guesses = starts or auto
     y_init = y_rest  # the mean before the step (the first sample if the record starts with the step)
