@@ -163,30 +163,29 @@ def get_test(test_id: TestId, session: SessionDep) -> TestOut:
     return store.test_record(session, _test_or_404(session, test_id))
 
 
-@router.post("/api/tests/{test_id}/start", summary="Start a ready test (operator token)", responses=ERROR_RESPONSES)
-def start_test(test_id: TestId, request: Request, session: SessionDep, actor: OperatorDep) -> TestOut:
+def _record_after(session, test_id: int, action) -> TestOut:
+    """Run an operator action on an existing test and answer with its record as it is afterwards."""
     _test_or_404(session, test_id)
-    request.app.state.service.start(test_id, actor)
+    action()
     session.expire_all()
     return store.test_record(session, _test_or_404(session, test_id))
+
+
+@router.post("/api/tests/{test_id}/start", summary="Start a ready test (operator token)", responses=ERROR_RESPONSES)
+def start_test(test_id: TestId, request: Request, session: SessionDep, actor: OperatorDep) -> TestOut:
+    return _record_after(session, test_id, lambda: request.app.state.service.start(test_id, actor))
 
 
 @router.post("/api/tests/{test_id}/stop", summary="Stop the running test with a ramp-out (operator token)",
              responses=ERROR_RESPONSES)
 def stop_test(test_id: TestId, request: Request, session: SessionDep, actor: OperatorDep) -> TestOut:
-    _test_or_404(session, test_id)
-    request.app.state.service.command(test_id, "stop", actor)
-    session.expire_all()
-    return store.test_record(session, _test_or_404(session, test_id))
+    return _record_after(session, test_id, lambda: request.app.state.service.command(test_id, "stop", actor))
 
 
 @router.post("/api/tests/{test_id}/abort", summary="Abort the running test at once (operator token)",
              responses=ERROR_RESPONSES)
 def abort_test(test_id: TestId, request: Request, session: SessionDep, actor: OperatorDep) -> TestOut:
-    _test_or_404(session, test_id)
-    request.app.state.service.command(test_id, "abort", actor)
-    session.expire_all()
-    return store.test_record(session, _test_or_404(session, test_id))
+    return _record_after(session, test_id, lambda: request.app.state.service.command(test_id, "abort", actor))
 
 
 @router.delete("/api/tests/{test_id}", status_code=204, summary="Delete a test that is not running (operator token)",
