@@ -110,11 +110,13 @@ class Scenario:
 
 
 @njit(cache=True)
-def run_periods(x, plant, kind, cparams, cstate, blocks, k0, n, substeps, dt, out):
+def run_periods(x, plant, kind, cparams, cstate, blocks, k0, n, substeps, dt, out, u_hold=np.nan):
     """Advance the closed loop n control periods from period k0; one row of ``out`` per period.
 
     Each row holds the measurement at the start of the period and the command applied over it.
-    Returns the number of rows written (fewer than n if the state became non-finite).
+    With a finite ``u_hold`` the loop is open: the controller is not stepped, that command is held, and
+    the target, model and adapted columns are NaN. Returns the number of rows written (fewer than n if
+    the state became non-finite).
     """
     meas = np.empty(N_MEAS)
     report = np.empty(N_REPORT)
@@ -127,14 +129,19 @@ def run_periods(x, plant, kind, cparams, cstate, blocks, k0, n, substeps, dt, ou
     ulim = plant[P_ULIM]
     for i in range(n):
         t = (k0 + i) * dt
-        r, rdot = target(t, blocks)
-        meas[M_TIME] = t
-        meas[M_TARGET] = r
-        meas[M_TARGET_RATE] = rdot
-        meas[M_POSITION] = x[X_Y]
-        meas[M_LOAD_PRESSURE] = x[X_PL]
-        meas[M_SUPPLY_PRESSURE] = plant[P_SUPPLY]
-        u_raw = controller_step(kind, cparams, cstate, meas, dt, report)
+        if np.isfinite(u_hold):
+            r = np.nan
+            report[:] = np.nan
+            u_raw = u_hold
+        else:
+            r, rdot = target(t, blocks)
+            meas[M_TIME] = t
+            meas[M_TARGET] = r
+            meas[M_TARGET_RATE] = rdot
+            meas[M_POSITION] = x[X_Y]
+            meas[M_LOAD_PRESSURE] = x[X_PL]
+            meas[M_SUPPLY_PRESSURE] = plant[P_SUPPLY]
+            u_raw = controller_step(kind, cparams, cstate, meas, dt, report)
         u = min(max(u_raw, -ulim), ulim)
         if not np.isfinite(u):
             u = 0.0
@@ -197,6 +204,24 @@ class Simulation:
         written = run_periods(self.state, self.plant, self.controller.kind, self.controller.params,
                               self.controller_state, self.blocks, self.period, n, self.plant_substeps,
                               CONTROL_PERIOD_S, out)
+        self.period += written
+        if written < n:
+            self.diverged = True
+        return out[:written]
+
+    def advance_open_loop(self, n_periods: int, command_v: float) -> np.ndarray:
+        """Hold the valve command ``command_v`` (saturated at the limit) for n periods, controller idle.
+
+        Not bounded by the profile's end: a controlled stop ramps the command after the test time is over.
+        """
+        n = max(0, int(n_periods))
+        if self.diverged or n == 0:
+            return np.empty((0, len(COLUMNS)))
+        out = np.empty((n, len(COLUMNS)))
+        u = float(command_v) if np.isfinite(command_v) else 0.0
+        written = run_periods(self.state, self.plant, self.controller.kind, self.controller.params,
+                              self.controller_state, self.blocks, self.period, n, self.plant_substeps,
+                              CONTROL_PERIOD_S, out, u)
         self.period += written
         if written < n:
             self.diverged = True

@@ -77,3 +77,27 @@ def test_batch_matches_serial_runs():
     batch = run_batch(scenarios, processes=2)
     for s, b in zip(scenarios, batch, strict=False):
         np.testing.assert_array_equal(Simulation(s).run().samples, b.samples)
+
+
+def test_open_loop_holds_the_command_and_leaves_the_controller_idle():
+    from sim.engine import C_FORCE, C_URAW, PLANT_SUBSTEPS
+    from sim.rig import N_STATES, rk4_step, valve_command
+
+    sim = Simulation(Scenario.sine("IUT_a", 100.0, 0.02, 1.0, 2, controller="mrac"))
+    controller_before = sim.controller_state.copy()
+    rows = sim.advance_open_loop(300, 3.0)
+    assert rows.shape[0] == 300 and sim.period == 300
+    np.testing.assert_array_equal(sim.controller_state, controller_before)  # not stepped
+    assert np.all(rows[:, C_U] == 3.0) and np.all(rows[:, C_URAW] == 3.0)
+    assert np.all(np.isnan(rows[:, [C_TARGET, C_MODEL, C_AR]]))
+    # the same plant stepped by hand with the command held
+    x = np.zeros(N_STATES)
+    work = [np.empty(N_STATES) for _ in range(5)]
+    v_c = valve_command(3.0, sim.plant)
+    for i in range(300):
+        assert rows[i, C_Y] == x[0]
+        for _ in range(PLANT_SUBSTEPS):
+            rk4_step(x, v_c, sim.plant, 1e-3 / PLANT_SUBSTEPS, *work)
+    assert rows[-1, C_Y] > 0 and rows[-1, C_FORCE] > 0  # it pushed the table
+    # it runs beyond the profile's end, as a controlled stop's ramp must
+    assert sim.advance_open_loop(5000, 0.0).shape[0] == 5000
