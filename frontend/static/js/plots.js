@@ -261,14 +261,20 @@ export class LoopPlot {
     ctx.restore();
   }
 
-  _paintPast(k) {
-    const ctx = this.cache.getContext("2d");
+  /** Scale to CSS pixels, save the context and clip to the plot frame; returns the data-to-pixel mapper. */
+  _clipToFrame(ctx) {
     ctx.setTransform(this.dpr, 0, 0, this.dpr, 0, 0);
     const m = this._mapper();
     ctx.save();
     ctx.beginPath();
     ctx.rect(m.f.l, m.f.t, m.pw, m.ph);
     ctx.clip();
+    return m;
+  }
+
+  _paintPast(k) {
+    const ctx = this.cache.getContext("2d");
+    const m = this._clipToFrame(ctx);
     ctx.strokeStyle = "rgba(170, 184, 198, 0.45)";
     ctx.lineWidth = 1;
     const p = this.past[k];
@@ -290,12 +296,7 @@ export class LoopPlot {
     ctx.setTransform(1, 0, 0, 1, 0, 0);
     ctx.drawImage(this.cache, 0, 0);
     if (!this.cur) return;
-    ctx.setTransform(this.dpr, 0, 0, this.dpr, 0, 0);
-    const m = this._mapper();
-    ctx.save();
-    ctx.beginPath();
-    ctx.rect(m.f.l, m.f.t, m.pw, m.ph);
-    ctx.clip();
+    const m = this._clipToFrame(ctx);
     ctx.strokeStyle = "#4aa3ff";
     ctx.lineWidth = 2.5;
     const { xs, ys, i0, i1 } = this.cur;
