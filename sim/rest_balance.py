@@ -1,0 +1,73 @@
+"""Where a step test comes to rest, and the bound that sets on any one rig against Tables III and IV.
+
+In eq. (3) the valve passes no flow only at P_L = P_s, so a step test that has settled rests where the cylinder
+force, less the friction, equals the isolator force: A_p P_s - (mu N + F_c) = F_BW(y) (first line of eq. 3
+with y' = 0; the table comes from below and stops at the first such point). Eq. (7) at steady state gives
+y = a_s tanh(u / k), so the identified a_s is that rest position over tanh(u / k).
+
+Whatever the rig is - its piston area, friction, valve, leakage - the force on the isolator at rest depends
+only on the supply pressure and the command, not on the isolator. ``common_rest_force_bound`` finds, for each
+(P_s, u) cell of two tables, the smallest relative a_s error that lets ONE force put both isolators at their
+tabulated a_s: no rig under the paper's model can do better on that cell.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .isolator import Isolator, simulate_loop
+from .models import K_VOLT
+
+BRANCH_MAX_DISPLACEMENT_M = 0.2  # far beyond the tables' largest a_s (0.043 m)
+BRANCH_POINTS = 20001
+
+
+def loading_branch(isolator: Isolator, max_displacement_m: float = BRANCH_MAX_DISPLACEMENT_M,
+                   points: int = BRANCH_POINTS) -> tuple[np.ndarray, np.ndarray]:
+    """Displacement (m) and Bouc-Wen force (N, eq. 4) on the virgin loading branch: d rising from 0 with w(0) = 0.
+
+    The force rises monotonically along it, so a force can be turned back into a displacement by interpolation.
+    """
+    d = np.linspace(0.0, max_displacement_m, points)
+    return d, simulate_loop(isolator, d, d[1] - d[0])
+
+
+def rest_a_s_m(branch: tuple[np.ndarray, np.ndarray], force_n: float, step_v: float) -> float:
+    """The a_s (m) eq. (7) identifies from a step test that rests where the isolator carries ``force_n``."""
+    d, f = branch
+    if not 0.0 <= force_n <= f[-1]:
+        raise ValueError(f"force {force_n:.4g} N outside the branch's 0 .. {f[-1]:.4g} N")
+    return float(np.interp(force_n, f, d)) / np.tanh(step_v / K_VOLT)
+
+
+def common_rest_force_bound(tables: dict[str, dict[tuple[float, float], float]],
+                            isolators: dict[str, Isolator]) -> dict[tuple[float, float], float]:
+    """Per (supply_bar, step_v) cell: the smallest e such that one rest force gives every isolator an a_s within
+    a relative error e of its table (``tables[name][(bar, volt)] = a_s_m``; cells every table has).
+
+    For an isolator with tabulated a_s the forces allowed at error e form the interval
+    [F((1 - e) a_s tanh(u/k)), F((1 + e) a_s tanh(u/k))] on its loading branch; e is found by bisection as
+    the smallest value where all the intervals meet.
+    """
+    branches = {name: loading_branch(isolators[name]) for name in tables}
+    cells = set.intersection(*(set(t) for t in tables.values()))
+
+    def intervals_meet(cell, e: float) -> bool:
+        lows, highs = [], []
+        for name, table in tables.items():
+            d, f = branches[name]
+            rest_m = table[cell] * np.tanh(cell[1] / K_VOLT)
+            lows.append(np.interp(max(0.0, 1.0 - e) * rest_m, d, f))
+            highs.append(np.interp((1.0 + e) * rest_m, d, f))
+        return max(lows) <= min(highs)
+
+    bound = {}
+    for cell in sorted(cells):
+        lo, hi = 0.0, 1.0
+        while not intervals_meet(cell, hi):
+            hi *= 2.0
+        for _ in range(50):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (lo, mid) if intervals_meet(cell, mid) else (mid, hi)
+        bound[cell] = hi
+    return bound
