@@ -21,35 +21,43 @@ from .models import K_VOLT
 BRANCH_MAX_DISPLACEMENT_M = 0.2  # far beyond the tables' largest a_s (0.043 m)
 BRANCH_POINTS = 20001
 
+Branch = tuple[np.ndarray, np.ndarray]  # displacement (m), force (N)
+
 
 def loading_branch(isolator: Isolator, max_displacement_m: float = BRANCH_MAX_DISPLACEMENT_M,
-                   points: int = BRANCH_POINTS) -> tuple[np.ndarray, np.ndarray]:
-    """Displacement (m) and Bouc-Wen force (N, eq. 4) on the virgin loading branch: d rising from 0 with w(0) = 0.
+                   points: int = BRANCH_POINTS, prior_excursion_m: float = 0.0) -> Branch:
+    """Displacement (m) and Bouc-Wen force (N, eq. 4) on the loading branch: d rising from 0.
 
-    The force rises monotonically along it, so a force can be turned back into a displacement by interpolation.
+    From the virgin state (w = 0) by default; with ``prior_excursion_m`` the isolator first goes there and back
+    to 0 (a previous test's history, e.g. +0.03 m leaves w near -1). The force rises monotonically along the
+    branch, so a force can be turned back into a displacement by interpolation.
     """
     d = np.linspace(0.0, max_displacement_m, points)
-    return d, simulate_loop(isolator, d, d[1] - d[0])
+    step = d[1] - d[0]
+    n_prior = int(round(abs(prior_excursion_m) / step))
+    prior = np.linspace(0.0, prior_excursion_m, n_prior + 1)
+    path = np.concatenate([prior, prior[-2::-1], d[1:]]) if n_prior else d
+    return d, simulate_loop(isolator, path, step)[-points:]
 
 
-def rest_a_s_m(branch: tuple[np.ndarray, np.ndarray], force_n: float, step_v: float) -> float:
+def rest_a_s_m(branch: Branch, force_n: float, step_v: float) -> float:
     """The a_s (m) eq. (7) identifies from a step test that rests where the isolator carries ``force_n``."""
     d, f = branch
-    if not 0.0 <= force_n <= f[-1]:
-        raise ValueError(f"force {force_n:.4g} N outside the branch's 0 .. {f[-1]:.4g} N")
+    if not f[0] <= force_n <= f[-1]:
+        raise ValueError(f"force {force_n:.4g} N outside the branch's {f[0]:.4g} .. {f[-1]:.4g} N")
     return float(np.interp(force_n, f, d)) / np.tanh(step_v / K_VOLT)
 
 
 def common_rest_force_bound(tables: dict[str, dict[tuple[float, float], float]],
-                            isolators: dict[str, Isolator]) -> dict[tuple[float, float], float]:
+                            branches: dict[str, Branch]) -> dict[tuple[float, float], float]:
     """Per (supply_bar, step_v) cell: the smallest e such that one rest force gives every isolator an a_s within
-    a relative error e of its table (``tables[name][(bar, volt)] = a_s_m``; cells every table has).
+    a relative error e of its table (``tables[name][(bar, volt)] = a_s_m``; cells every table has), each isolator
+    on its loading branch ``branches[name]`` (``loading_branch``).
 
     For an isolator with tabulated a_s the forces allowed at error e form the interval
     [F((1 - e) a_s tanh(u/k)), F((1 + e) a_s tanh(u/k))] on its loading branch; e is found by bisection as
     the smallest value where all the intervals meet.
     """
-    branches = {name: loading_branch(isolators[name]) for name in tables}
     cells = set.intersection(*(set(t) for t in tables.values()))
 
     def intervals_meet(cell, e: float) -> bool:

@@ -86,11 +86,11 @@ def test_rest_force_bound_is_zero_when_one_force_explains_both_tables():
     forces = {(20.0, 2.0): 20e3, (30.0, 4.0): 35e3, (40.0, 6.0): 50e3}
     tables = {name: {cell: rest_a_s_m(branches[name], f, cell[1]) for cell, f in forces.items()}
               for name in isolators}
-    bound = common_rest_force_bound(tables, isolators)
+    bound = common_rest_force_bound(tables, branches)
     assert set(bound) == set(forces)
     assert max(bound.values()) < 1e-6
     tables["IUT_b"][(30.0, 4.0)] *= 1.5
-    bound = common_rest_force_bound(tables, isolators)
+    bound = common_rest_force_bound(tables, branches)
     assert bound[(30.0, 4.0)] > 0.1
     assert bound[(20.0, 2.0)] < 1e-6 and bound[(40.0, 6.0)] < 1e-6
 
@@ -102,8 +102,18 @@ def test_rest_force_bound_matches_the_closed_form_for_linear_springs():
     r = 1.5
     a_soft = 0.02
     a_stiff = r * 1.0e6 * a_soft / 2.0e6
-    bound = common_rest_force_bound({"stiff": {(20.0, 4.0): a_stiff}, "soft": {(20.0, 4.0): a_soft}}, springs)
+    branches = {name: loading_branch(spring) for name, spring in springs.items()}
+    bound = common_rest_force_bound({"stiff": {(20.0, 4.0): a_stiff}, "soft": {(20.0, 4.0): a_soft}}, branches)
     assert bound[(20.0, 4.0)] == pytest.approx((r - 1.0) / (r + 1.0), rel=1e-6)
+
+
+def test_a_prior_excursion_leaves_the_isolator_at_the_other_side():
+    """Taken to +30 mm and back, IUT_a's w ends near -1: the branch starts at about -k_w instead of 0."""
+    iso = PRESETS["IUT_a"]
+    d, f = loading_branch(iso, prior_excursion_m=0.03)
+    assert d[0] == 0.0 and f[0] == pytest.approx(-iso.kw_n, rel=0.05)
+    assert np.all(np.diff(f) > 0.0)
+    assert loading_branch(iso)[1][0] == 0.0
 
 
 def test_no_rig_under_the_papers_model_meets_tables_iii_iv_within_30_percent():
@@ -111,7 +121,7 @@ def test_no_rig_under_the_papers_model_meets_tables_iii_iv_within_30_percent():
     (test_simulated_step_settles_at_the_static_force_balance); Tables III-IV ask for forces 1.6-1.9x apart at
     the same P_s and u, so some cell stays more than 30 % off whatever the rig."""
     tables = {iso: {cell: a_s for cell, (_, a_s) in table.items()} for iso, table in PAPER_TABLES.items()}
-    bound = common_rest_force_bound(tables, {iso: PRESETS[iso] for iso in PAPER_TABLES})
+    bound = common_rest_force_bound(tables, {iso: loading_branch(PRESETS[iso]) for iso in PAPER_TABLES})
     assert len(bound) == 9
     assert max(bound.values()) > 0.30
     assert max(bound, key=bound.get) == (20.0, 4.0)
