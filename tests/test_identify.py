@@ -14,6 +14,7 @@ from sim.identify_steps import (
     PAPER_TABLES,
     compare_with_paper,
     fit_first_order,
+    paper_a_s_floor,
     simulate_step,
     targets_check,
 )
@@ -146,7 +147,8 @@ def test_compare_with_paper_and_targets():
     out[1]["a_s_m"] = 0.011
     out[1]["a_s_rel_error"] = 0.011 / 0.021 - 1
     check = targets_check({"IUT_a": out[:2]})
-    assert not check["a_s_rises_with_supply"] and not check["passes"]
+    assert check["a_s_rises_with_supply"] is False and not check["passes"]
+    assert targets_check({"IUT_a": out[:1]})["a_s_rises_with_supply"] is None  # one pressure: nothing to check
     assert len(PAPER_TABLES["IUT_a"]) == len(PAPER_TABLES["IUT_b"]) == 9
 
 
@@ -232,6 +234,16 @@ def test_identify_steps_grid_json(capsys):
     assert len(rows) == 1
     assert set(rows[0]) == {"supply_bar", "step_v", "a_p_per_s", "a_s_m", "residual_m"}
     assert rows[0]["supply_bar"] == 40 and rows[0]["a_s_m"] > 0.005
+
+
+def test_identify_steps_table_names_the_floor_no_rig_can_beat(capsys):
+    assert main(["identify", "steps", "--isolator", "IUT_a", "--supply-bar", "20", "--step-v", "4"]) == 0
+    out = capsys.readouterr().out
+    assert "Ps20u4" in out and "rises with supply pressure at every step voltage: not checked" in out
+    floor = paper_a_s_floor([(20.0, 4.0)])
+    assert f"at least {100 * floor:.1f} % off Tables III-IV" in out
+    assert floor > 0.3 and paper_a_s_floor([(40.0, 2.0)]) < floor  # Ps40u2 is the easiest cell
+    assert np.isnan(paper_a_s_floor([(99.0, 4.0)]))
 
 
 def test_identify_steps_rig_set_changes_the_rig(capsys):
