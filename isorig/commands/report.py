@@ -78,7 +78,7 @@ def _load(args):
 
     if args.csv is not None:
         return bundle_from_csv(args.csv, summary_path=args.summary, isolator=args.isolator,
-                               supply_bar=args.supply_bar, protocol=args.protocol)
+                               supply_bar=args.supply_bar, protocol=args.protocol, all_columns=bool(args.csv_out))
     return _load_stored(args.test_id, args.database_url)
 
 
