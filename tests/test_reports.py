@@ -237,3 +237,108 @@ def test_a_crowded_header_continues_on_a_second_page():
             assert min(t.get_position()[1] for t in fig.texts if t.get_text()) >= 0.015
             plt.close(fig)
     assert counts == [2, 1]
+
+
+PDFTOTEXT = shutil.which("pdftotext")
+
+
+def pdf_text(pdf, *options) -> list[str]:
+    """The text of each page (pdftotext), without the line that says when the report was generated."""
+    out = subprocess.run([PDFTOTEXT, *options, str(pdf), "-"], check=True, capture_output=True, text=True,
+                         timeout=60).stdout
+    return ["\n".join(line for line in page.splitlines() if "generated" not in line and "CreationDate" not in line)
+            for page in out.split("\f")]
+
+
+def comparable(rep: dict) -> dict:
+    """report.json without what differs between two runs: the time it was made and how long the fit took."""
+    return {**rep, "generated_at": None, "identification": {**rep["identification"], "time_s": None}}
+
+
+@pytest.mark.skipif(PDFTOTEXT is None, reason="pdftotext (poppler-utils) is not installed")
+def test_a_deferred_identification_still_heads_the_report(tmp_path):
+    """The fit may finish while the other pages are drawn: its header page is drawn last but comes first."""
+    bundle = protocol_run()
+    rep = report_json(bundle, identify=False)
+    fit = {**rep["identification"], "available": True, "source": "a fit made elsewhere",
+           "identified": {"rho_bw_per_m": 150.0, "sigma_bw": 0.5, "n": 1.0, "kd_n_per_m": 1.3e6, "kw_n": 1.7e4}}
+    render_report_pdf(bundle, tmp_path / "now.pdf", report={**rep, "identification": fit})
+    asked = []
+    render_report_pdf(bundle, tmp_path / "later.pdf", report=rep, identification=lambda: asked.append(1) or fit)
+    assert asked == [1] and rep["identification"] == fit  # asked once, and the report says what was drawn
+    later = pdf_text(tmp_path / "later.pdf")
+    assert later == pdf_text(tmp_path / "now.pdf")
+    assert "a fit made elsewhere" in later[0] and "page 1" in later[0] and "page 2" in later[1]
+
+
+@pytest.mark.skipif(PDFTOTEXT is None, reason="pdftotext (poppler-utils) is not installed")
+def test_table_lines_sit_where_text_objects_put_them(tmp_path):
+    """The table's lines go straight to the renderer; they must land exactly where one Text per line did."""
+    import backend.reports as reports
+
+    plt = reports._style()
+    lines = ["cycle  t_start", ("    1     0.00", "#c62828"), "", "    3     2.00"]
+    for name, draw in (("artist", reports._draw_lines), ("text", None)):
+        fig = plt.figure(figsize=reports.A4_PORTRAIT_IN)
+        if draw:
+            draw(fig, lines, 0.05, 0.885, 8.5, 11.0)
+        else:
+            step = 11.0 / 72.0 / fig.get_figheight()
+            for k, item in enumerate(lines, start=1):
+                text, color = item if isinstance(item, tuple) else (item, "black")
+                if text:
+                    fig.text(0.05, 0.885 - k * step, text, fontsize=8.5, family="monospace", color=color,
+                             va="baseline")
+        fig.savefig(tmp_path / f"{name}.pdf")
+        plt.close(fig)
+    boxes = pdf_text(tmp_path / "artist.pdf", "-bbox")
+    assert boxes == pdf_text(tmp_path / "text.pdf", "-bbox")
+    assert "2.00" in boxes[0]
+
+
+def test_report_columns_only_skips_what_no_report_shows(tmp_path):
+    scenario = Scenario.sine("IUT_a", 100.0, 0.02, 1.0, 3, controller="mrac", taper_cycles=1)
+    write_csv(tmp_path / "timeseries.csv", Simulation(scenario).run().samples)
+    full = bundle_from_csv(tmp_path / "timeseries.csv")
+    some = bundle_from_csv(tmp_path / "timeseries.csv", all_columns=False)
+    from sim.engine import COLUMNS
+
+    for j, name in enumerate(COLUMNS):
+        if name in ("model_m", "load_pressure_pa"):
+            assert np.isfinite(full.samples[:, j]).all() and np.isnan(some.samples[:, j]).all()
+        else:
+            np.testing.assert_array_equal(full.samples[:, j], some.samples[:, j])
+    assert comparable(report_json(full)) == comparable(report_json(some))
+
+
+@pytest.mark.skipif(PDFTOTEXT is None, reason="pdftotext (poppler-utils) is not installed")
+def test_three_processes_make_the_same_report_as_one(tmp_path, capsys):
+    """`isorig report` loads, fits and draws in separate processes (2+ cores); --serial does it all in one."""
+    from isorig.cli import main
+    from isorig.commands.report import _parallel
+
+    url = f"sqlite:///{tmp_path / 'store.db'}"
+    test_id = _store_test(url)
+    for how in ("serial", "parallel"):
+        argv = ["report", str(test_id), "--database-url", url, "--out", str(tmp_path / f"{how}.pdf"),
+                "--json", str(tmp_path / f"{how}.json"), "--csv-out", str(tmp_path / f"{how}.csv")]
+        assert main(argv + (["--serial"] if how == "serial" else [])) == 0
+        printed = capsys.readouterr().out
+        assert ("1 process" in printed) == (how == "serial" or not _parallel())
+    reps = [json.loads((tmp_path / f"{how}.json").read_text()) for how in ("serial", "parallel")]
+    assert reps[1]["identification"]["available"], reps[1]["identification"].get("note")
+    assert comparable(reps[0]) == comparable(reps[1])
+    assert pdf_text(tmp_path / "serial.pdf") == pdf_text(tmp_path / "parallel.pdf")
+    assert (tmp_path / "serial.csv").read_text() == (tmp_path / "parallel.csv").read_text()
+
+
+def test_a_bad_csv_read_in_another_process_is_still_one_line(tmp_path, capsys):
+    from isorig.cli import main
+
+    rows = "".join(f"{i * 0.001},{1e-3 * i},{'abc' if i == 5 else 10.0 * i}\n" for i in range(200))
+    (tmp_path / "bad.csv").write_text("time_s,displacement_m,force_n\n" + rows)
+    for extra in ([], ["--serial"]):
+        assert main(["report", "--csv", str(tmp_path / "bad.csv"), "--out", str(tmp_path / "r.pdf")] + extra) == 2
+        err = capsys.readouterr().err
+        assert "line 7, column force_n: 'abc' is not a number" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "r.pdf").exists()
