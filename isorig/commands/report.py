@@ -137,9 +137,9 @@ def run(args) -> int:
           + f": {source}, {bundle.samples.shape[0]} samples, {len(bundle.cycles)} cycles, acceptance "
           + {None: "none (no protocol)", True: "PASSED", False: "FAILED"}[verdict])
     t_ident = ident.get("time_s") or 0.0
-    print(f"time {wall:.2f} s (CPU {_cpu_s() - cpu0:.2f} s, {how}): load {times['load_s']:.2f} s, metrics and "
+    print(f"time {wall:.2f} s (CPU {_cpu_s() - cpu0:.2f} s in {how}): load {times['load_s']:.2f} s, metrics and "
           f"verdicts {times['metrics_s']:.2f} s, Bouc-Wen identification {t_ident:.2f} s, PDF {times['pdf_s']:.2f} s"
-          + (" (while loading and fitting)" if how != "1 process" else ""))
+          + ("; they overlap" if how != "1 process" else ""))
     return 0
 
 
