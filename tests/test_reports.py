@@ -296,19 +296,51 @@ def test_table_lines_sit_where_text_objects_put_them(tmp_path):
     assert "2.00" in boxes[0]
 
 
-def test_report_columns_only_skips_what_no_report_shows(tmp_path):
-    scenario = Scenario.sine("IUT_a", 100.0, 0.02, 1.0, 3, controller="mrac", taper_cycles=1)
+@pytest.mark.parametrize("controller, cycles", [("mrac", 3), ("servo", 2), ("pid", 2)])
+def test_report_columns_only_change_nothing_the_report_says(tmp_path, controller, cycles):
+    """all_columns=False skips model_m and load_pressure_pa and reads the adaptive estimates from the last rows
+    (PID has none: empty cells); report.json stays the same."""
+    from sim.engine import COLUMNS
+
+    scenario = Scenario.sine("IUT_a", 100.0, 0.02, 1.0, cycles, controller=controller, taper_cycles=1)
     write_csv(tmp_path / "timeseries.csv", Simulation(scenario).run().samples)
     full = bundle_from_csv(tmp_path / "timeseries.csv")
     some = bundle_from_csv(tmp_path / "timeseries.csv", all_columns=False)
-    from sim.engine import COLUMNS
-
     for j, name in enumerate(COLUMNS):
         if name in ("model_m", "load_pressure_pa"):
-            assert np.isfinite(full.samples[:, j]).all() and np.isnan(some.samples[:, j]).all()
+            assert np.isnan(some.samples[:, j]).all()
+        elif name in ("ar_hat", "ay_hat", "as_hat"):
+            read = np.isfinite(some.samples[:, j])
+            assert read.any() == np.isfinite(full.samples[:, j]).any() and read[-1] == read.any()
+            np.testing.assert_array_equal(some.samples[read, j], full.samples[read, j])
         else:
             np.testing.assert_array_equal(full.samples[:, j], some.samples[:, j])
     assert comparable(report_json(full)) == comparable(report_json(some))
+    assert (controller == "pid") == (not some_final(some))
+
+
+def some_final(bundle) -> dict:
+    from backend.reports import controller_state
+
+    return controller_state(bundle)["final_adapted"]
+
+
+@pytest.mark.parametrize("last_rows, final", [
+    ("", {"ar_hat": 3.0, "ay_hat": 0.5}),  # as_hat empty in the first row: never read, as the full reader does
+    ("9.0,0.1,5,7,,\n", {"ar_hat": 7.0, "ay_hat": 0.5}),  # an empty cell: the last finite value before it
+    ("9.0,0.1,5,abc,1,\n", "'abc'"),  # not a number: the whole-column reader names it
+    ("9.0,0.1,5,1_0,1,\n", {"ar_hat": 10.0, "ay_hat": 1.0}),  # left to the whole-column reader, which takes it
+])
+def test_final_estimates_of_a_small_csv(tmp_path, last_rows, final):
+    rows = "".join(f"{0.01 * i:.2f},{1e-3 * i:g},{10.0 * i:g},{1 + i % 3:g},0.5,{'' if i == 0 else 2}\n"
+                   for i in range(60))
+    path = tmp_path / "r.csv"
+    path.write_text("time_s,displacement_m,force_n,ar_hat,ay_hat,as_hat\n" + rows + last_rows)
+    if isinstance(final, str):
+        with pytest.raises(ValueError, match=final):
+            bundle_from_csv(path, all_columns=False)
+        return
+    assert some_final(bundle_from_csv(path, all_columns=False)) == final == some_final(bundle_from_csv(path))
 
 
 @pytest.mark.skipif(PDFTOTEXT is None, reason="pdftotext (poppler-utils) is not installed")
