@@ -413,3 +413,19 @@ def test_record_csv_fast_path_reads_what_the_careful_reader_reads(tmp_path, text
     careful = outcome(_careful_columns)
     assert outcome(read_record_csv) == careful
     assert isinstance(careful, dict) == readable, careful
+
+
+def test_without_shared_memory_one_process_does_it(tmp_path, capsys, monkeypatch):
+    import os
+
+    from isorig.cli import main
+
+    def refuse(*_args):
+        raise OSError(38, "Function not implemented")
+
+    monkeypatch.setattr(os, "memfd_create", refuse, raising=False)
+    url = f"sqlite:///{tmp_path / 'store.db'}"
+    test_id = _store_test(url)
+    assert main(["report", str(test_id), "--database-url", url, "--out", str(tmp_path / "r.pdf"), "--no-identify"]) == 0
+    assert "in 1 process" in capsys.readouterr().out
+    assert (tmp_path / "r.pdf").read_bytes()[:5] == b"%PDF-"

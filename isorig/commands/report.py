@@ -109,11 +109,12 @@ def run(args) -> int:
     collecting = gc.isenabled()
     gc.disable()
     try:
-        if args.serial or not _parallel():
+        made = None if args.serial or not _parallel() else _make_parallel(args, meta, out)
+        if made is None:  # one process asked for, or no second core, fork or shared memory here
             bundle, report, times = _make_serial(args, meta, out)
             how = "1 process"
         else:
-            bundle, report, times = _make_parallel(args, meta, out)
+            bundle, report, times = made
             how = f"{2 if args.no_identify else 3} processes"
     finally:
         if collecting:
@@ -184,18 +185,21 @@ def _render(bundle, out, meta, report, identification=None) -> None:
 # header meanwhile, then the header with the fit (docs/reports.md, Speed).
 
 def _make_parallel(args, meta, out):
+    """(bundle, report, times) made by three processes, or None when they cannot be started."""
     import multiprocessing
     import sys
     import threading
 
     from backend.reports import ReportBundle, _clean, _style
 
+    try:  # the samples and loop arrays (70 MB for 10 minutes) go through shared memory: a pipe took 0.4 s
+        shared = os.memfd_create("isorig-report")
+    except OSError:
+        return None
     ctx = multiprocessing.get_context("fork")
     data_r, data_w = ctx.Pipe(duplex=False)  # loader -> this process: the record, metrics, report, array layout
     task_r, task_w = ctx.Pipe(duplex=False)  # loader -> identifier: what to fit
     fit_r, fit_w = ctx.Pipe(duplex=False)  # identifier -> this process: the identification
-    # the samples and loop arrays (70 MB for 10 minutes) go through shared memory: a pipe took 0.4 s
-    shared = os.memfd_create("isorig-report")
     identify = not args.no_identify
     children = [ctx.Process(target=_loader, args=(args, meta, data_w, task_w if identify else None, shared,
                                                   (data_r, task_r, fit_r, fit_w) + (() if identify else (task_w,))),
@@ -205,8 +209,18 @@ def _make_parallel(args, meta, out):
                                     daemon=True, name="isorig-report-identifier"))
     sys.stdout.flush()
     sys.stderr.flush()
-    for child in children:
-        child.start()
+    try:
+        for child in children:
+            child.start()
+    except OSError:  # no fork now (out of processes or memory): one process will do
+        for child in children:
+            if child.pid is not None:
+                child.kill()
+                child.join()
+        for end in (data_r, data_w, task_r, task_w, fit_r, fit_w):
+            end.close()
+        os.close(shared)
+        return None
     for end in (data_w, task_r, task_w, fit_w):
         end.close()
     received: dict = {}
@@ -309,6 +323,16 @@ def _receive(conn, received: dict) -> None:
         received["error"] = msg
 
 
+def _child_setup(unused) -> None:
+    """In a child: close the pipe ends it does not use (so a dead writer reads as EOF), and leave Ctrl-C to the
+    parent, which ends the children (no traceback from each)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    for end in unused:
+        end.close()
+
+
 def _loader(args, meta, conn, task_conn, shared, unused) -> None:
     """Child: load the test, hand the first minute to the identifier, compute the metrics, send all here."""
     import traceback
@@ -317,8 +341,7 @@ def _loader(args, meta, conn, task_conn, shared, unused) -> None:
 
     from backend.reports import identification_task, report_json
 
-    for end in unused:
-        end.close()
+    _child_setup(unused)
     try:
         t0 = time.perf_counter()
         bundle = _load(args)
@@ -349,8 +372,7 @@ def _identifier(task_conn, conn, unused) -> None:
 
     from backend.reports import _fit_function, run_identification
 
-    for end in unused:
-        end.close()
+    _child_setup(unused)
     with contextlib.suppress(OSError):  # the loader and the drawing come first: this has time to spare
         os.nice(IDENTIFIER_NICENESS)
     received: dict = {}
