@@ -160,8 +160,9 @@ def append_samples(session: Session, test: TestRecord, rows: np.ndarray) -> None
 
 
 def load_samples(session: Session, test_id: int) -> np.ndarray:
-    chunks = session.scalars(select(SampleChunk).where(SampleChunk.test_id == test_id).order_by(SampleChunk.seq))
-    blocks = [decode_samples(c.data, c.n_rows, c.n_columns) for c in chunks]
+    chunks = session.execute(select(SampleChunk.data, SampleChunk.n_rows, SampleChunk.n_columns)
+                             .where(SampleChunk.test_id == test_id).order_by(SampleChunk.seq))
+    blocks = [decode_samples(data, n_rows, n_columns) for data, n_rows, n_columns in chunks]  # no ORM objects
     if not blocks:
         from sim.engine import COLUMNS
 

@@ -6,6 +6,7 @@ Bad arguments exit with code 2 and one clear line, never a traceback.
 from __future__ import annotations
 
 import argparse
+import gc
 import importlib
 import sys
 import time
@@ -63,7 +64,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
-        return args.func(args)
+        code = args.func(args)
+        if argv is None:  # the program itself (not a test calling main): skip the collector's pass at exit
+            gc.freeze()
+        return code
     except UsageError as exc:
         print(str(exc), file=sys.stderr)
         return 2
