@@ -558,22 +558,26 @@ def _header_lines(bundle, ctrl: dict, iso, protocol) -> list[tuple[str, str]]:
     if ctrl.get("parameters"):
         text = ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}"
                          for k, v in ctrl["parameters"].items())
-        chunks = _wrap(text, 85)
-        if len(chunks) > 3:
-            chunks = chunks[:3]
-            chunks[-1] += " ..."
-        for k, chunk in enumerate(chunks):
-            lines.append(("  parameters" if k == 0 else "", chunk))
+        lines += _wrapped_lines("  parameters", text)
     if ctrl.get("final_adapted"):
-        a = ctrl["final_adapted"]
         labels = ctrl.get("adapted_labels") or {}
-        lines.append(("  final adapted", ", ".join(f"{labels.get(k, k)} = {v:.5g}" for k, v in a.items())))
+        lines += _wrapped_lines("  final adapted", ", ".join(f"{labels.get(k, k)} = {v:.5g}"
+                                                             for k, v in ctrl["final_adapted"].items()))
     dur = _num(r.get("duration_s"))
     lines.append(("Duration, samples", f"{dur:g} s, {bundle.samples.shape[0]} samples" if dur is not None
                   else f"{bundle.samples.shape[0]} samples"))
     if r.get("source"):
         lines.append(("Source", str(r["source"])[-100:]))
     return lines
+
+
+def _wrapped_lines(key: str, text: str, width: int = 85, max_lines: int = 3) -> list[tuple[str, str]]:
+    """Header lines for a long value: wrapped to the page's width, at most ``max_lines`` (then "...")."""
+    chunks = _wrap(text, width)
+    if len(chunks) > max_lines:
+        chunks = chunks[:max_lines]
+        chunks[-1] += " ..."
+    return [(key if k == 0 else "", chunk) for k, chunk in enumerate(chunks)]
 
 
 def _page_header(plt, bundle, ctrl, iso, protocol, acc, ident, trk, page):
