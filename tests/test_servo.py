@@ -196,3 +196,14 @@ def test_a_new_block_at_another_frequency_is_learned_again():
     rms = [c["rms_y_minus_r_m"] for c in summary["cycles"]]
     assert rms[-1] < 0.5 * rms[4]  # the second block's error falls as it is learned
     assert rms[-1] < 0.002 * 0.01
+
+
+def test_a_taper_out_does_not_bend_the_learned_frequency():
+    """The start of a taper-out looks like a steady sine for a moment, with a frequency estimate bent by the
+    fading envelope; the learned frequency must stay at the profile's (it read 1.094 Hz on a 1 Hz test)."""
+    s = Scenario.sine("IUT_a", 100, 0.02, 1.0, 5, taper_cycles=1)
+    result = Simulation(s).run()
+    t = result.samples[:, 0]
+    steady_part = result.samples[(t > 3.0) & (t < 4.0), C_AS]
+    assert steady_part == pytest.approx(1.0, rel=1e-3)
+    assert result.samples[-1, C_AS] == pytest.approx(1.0, rel=0.01)

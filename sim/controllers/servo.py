@@ -66,8 +66,8 @@ DELAY_LINE = 32  # samples of the regressor history kept for the valve estimate
 
 # State indices; the delay line and the harmonic coefficients (real, imaginary) follow.
 (S_STARTED, S_RD1, S_RD2, S_NUM, S_DEN, S_OMEGA_LEARNED, S_C0, S_SAT, S_VENV, S_YPREV, S_GXY, S_GXX,
- S_GAIN, S_HEAD, S_STEADY_S, S_GXW, S_GWW, S_GWY, S_DZ_HAT) = range(19)
-S_LINE_X = 19
+ S_GAIN, S_HEAD, S_STEADY_S, S_GXW, S_GWW, S_GWY, S_DZ_HAT, S_NEW_FREQ_S) = range(20)
+S_LINE_X = 20
 S_LINE_W = S_LINE_X + DELAY_LINE
 S_C = S_LINE_W + DELAY_LINE
 N_STATE = S_C + 2 * MAX_HARMONICS
@@ -240,13 +240,23 @@ def servo_step(p, s, meas, dt, report):
     steady = omega_est > 0.0 and s[S_STEADY_S] > 0.5 * np.pi / omega_est
     s[S_VENV] = v_est
     nh = int(p[P_NH])
-    if steady:
-        w_l = s[S_OMEGA_LEARNED]
-        if w_l <= 0.0 or abs(omega_est - w_l) > 0.05 * w_l:
-            # a new frequency: what was learned at the old one does not apply
+    w_l = s[S_OMEGA_LEARNED]
+    if steady and w_l > 0.0 and abs(omega_est - w_l) > 0.05 * w_l:
+        # a new frequency only once it has been seen on a steady sine for a whole period: the start of a
+        # taper-out looks steady for a while, with a frequency estimate bent by the fading envelope
+        s[S_NEW_FREQ_S] += dt
+        steady = s[S_NEW_FREQ_S] > 2.0 * np.pi / omega_est
+        if steady:  # what was learned at the old frequency does not apply
             for i in range(2 * MAX_HARMONICS):
                 s[S_C + i] = 0.0
-        s[S_OMEGA_LEARNED] = omega_est
+            w_l = 0.0
+    else:
+        s[S_NEW_FREQ_S] = 0.0
+    if steady:
+        if w_l <= 0.0:  # lock on
+            s[S_OMEGA_LEARNED] = omega_est
+        else:  # refine, over a quarter period: a short bend of the estimate (a taper's start) barely moves it
+            s[S_OMEGA_LEARNED] = w_l + min(1.0, dt * omega_est / (0.5 * np.pi)) * (omega_est - w_l)
     omega = s[S_OMEGA_LEARNED]
     v_env = 0.0
     if omega > 0.0:
