@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
-import numpy as np
+from types import SimpleNamespace
 
+import numpy as np
+import pytest
+
+from backend import worker
 from backend.drivers import SimulatedRig
 from backend.safety import default_limits
-from backend.worker import Run, ramp_out_profile
+from backend.worker import Pacer, Run, ramp_out_profile
 from sim.engine import C_TARGET, C_U, C_Y, CSV_COLUMNS, Scenario
 from sim.isolator import PRESETS
 from sim.profiles import SineProfile, pack_profile, target_series
@@ -117,3 +121,44 @@ def test_stop_command_ends_stopped_with_target_tapered():
     assert status == "stopped"
     samples = np.concatenate([m for k, m in out.sent if k == "samples"])
     assert 1.1 < samples[-1, 0] < 2.1 + 0.02 and abs(samples[-1, C_TARGET]) < 1e-6
+
+
+class FakeClock:
+    """Stands in for the time module in backend.worker: each clock reading takes ``poll_s``, each sleep lasts
+    ``oversleep_s`` longer than asked (the OS's wake-up delay)."""
+
+    def __init__(self, oversleep_s=0.0, poll_s=1e-5):
+        self.t = 1000.0
+        self.oversleep_s, self.poll_s = oversleep_s, poll_s
+        self.slept = []
+        self.module = SimpleNamespace(perf_counter=self.perf_counter, sleep=self.sleep, time=lambda: 0.0)
+
+    def perf_counter(self):
+        self.t += self.poll_s
+        return self.t
+
+    def sleep(self, s):
+        self.slept.append(s)
+        self.t += s + self.oversleep_s
+
+
+@pytest.mark.parametrize("oversleep_s, late_s", [(0.0, 0.0), (0.0008, 0.0), (0.003, 0.002)])
+def test_pacer_sleeps_until_spin_s_before_the_deadline_then_polls(monkeypatch, oversleep_s, late_s):
+    clock = FakeClock(oversleep_s)
+    monkeypatch.setattr(worker, "time", clock.module)
+    pacer = Pacer(speed=2.0, spin_s=0.001)
+    pacer.wait_until(0.04)  # due 20 ms of wall time after the start
+    assert clock.slept == [pytest.approx(0.02 - 0.001, abs=3 * clock.poll_s)]
+    assert pacer.lateness_s == [pytest.approx(late_s, abs=clock.poll_s)]
+    assert clock.t >= pacer.t0 + 0.02  # never released early
+
+
+def test_pacer_polls_without_sleeping_inside_spin_s_and_counts_a_missed_deadline(monkeypatch):
+    clock = FakeClock()
+    monkeypatch.setattr(worker, "time", clock.module)
+    pacer = Pacer(speed=1.0, spin_s=0.001)
+    pacer.wait_until(0.0005)  # due within spin_s: poll only
+    assert clock.slept == [] and clock.t >= pacer.t0 + 0.0005 and pacer.lateness_s[-1] <= clock.poll_s
+    clock.t += 0.01  # the chunk took too long: the next deadline has passed
+    pacer.wait_until(0.005)
+    assert clock.slept == [] and pacer.lateness_s[-1] == pytest.approx(0.0055, abs=2 * clock.poll_s)
