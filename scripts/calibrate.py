@@ -43,6 +43,7 @@ from sim.identify_steps import (  # noqa: E402
     warm_up,
 )
 from sim.isolator import PRESETS  # noqa: E402
+from sim.models import K_VOLT  # noqa: E402
 from sim.rig import DEFAULT_RIG, RigParameters  # noqa: E402
 
 FREE = ("piston_area_m2", "coulomb_force_n", "flow_gain_m3_per_s_v_sqrt_pa", "dead_zone_v",
@@ -92,7 +93,7 @@ def static_scan() -> None:
     the smallest a_s error that lets one rest force serve both isolators (no rig under the paper's model does
     better). Then the best one rig, A_p P_s - friction, can do; and, for comparison, the same with a series
     compliance K_s (y = d + F / K_s; not in the model)."""
-    from sim.rest_balance import common_rest_force_bound, loading_branch
+    from sim.rest_balance import common_rest_force_bound, loading_branch, rest_a_s_m
 
     a_s_tables = {iso: {cell: a_s for cell, (_, a_s) in table.items()} for iso, table in PAPER_TABLES.items()}
     branch = {iso: loading_branch(PRESETS[iso]) for iso in PAPER_TABLES}
@@ -116,13 +117,12 @@ def static_scan() -> None:
         k_s = np.exp(theta[2]) if series else np.inf
         out = 0.0
         for iso, table in PAPER_TABLES.items():
-            ramp, force = branch[iso]
             for (bar, volt), (_, a_s) in table.items():
                 push = area * bar * 1e5 - friction
-                if push <= 0.0 or push >= force[-1]:
+                if push <= 0.0 or push >= branch[iso][1][-1]:
                     return 10.0
-                d = np.interp(push, force, ramp)  # the loading branch rises monotonically
-                out = max(out, abs((d + push / k_s) / np.tanh(volt) / a_s - 1.0))
+                identified = rest_a_s_m(branch[iso], push, volt) + push / k_s / np.tanh(volt / K_VOLT)
+                out = max(out, abs(identified / a_s - 1.0))
         return out
 
     for series, x0 in ((False, [0.012, 5000.0]), (True, [0.008, 5000.0, 1.0e6])):

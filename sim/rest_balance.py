@@ -58,6 +58,8 @@ def common_rest_force_bound(tables: dict[str, dict[tuple[float, float], float]],
     [F((1 - e) a_s tanh(u/k)), F((1 + e) a_s tanh(u/k))] on its loading branch; e is found by bisection as
     the smallest value where all the intervals meet.
     """
+    if len(tables) < 2:
+        raise ValueError("the bound compares at least two isolators' tables")
     cells = set.intersection(*(set(t) for t in tables.values()))
 
     def intervals_meet(cell, e: float) -> bool:
@@ -72,8 +74,10 @@ def common_rest_force_bound(tables: dict[str, dict[tuple[float, float], float]],
     bound = {}
     for cell in sorted(cells):
         lo, hi = 0.0, 1.0
-        while not intervals_meet(cell, hi):
+        while not intervals_meet(cell, hi):  # at e >= 1 every interval starts at its branch's first force
             hi *= 2.0
+            if hi > 1.0e6:
+                raise ValueError(f"cell {cell}: the branches' force ranges never meet (extend max_displacement_m)")
         for _ in range(50):
             mid = 0.5 * (lo + hi)
             lo, hi = (lo, mid) if intervals_meet(cell, mid) else (mid, hi)

@@ -321,3 +321,12 @@ def test_malformed_step_csv(tmp_path, capsys):
     path = write(tmp_path / "s.csv", "time_s,voltage_v\n" + "".join(f"{i},2\n" for i in range(40)))
     assert main(["identify", "steps", "--csv", path]) == 2
     assert "lacks column(s) displacement_m" in capsys.readouterr().err
+
+
+def test_rest_force_bound_refuses_what_it_cannot_bound():
+    low = (np.linspace(0.0, 0.1, 11), np.linspace(0.0, 10.0, 11))
+    high = (np.linspace(0.0, 0.1, 11), np.linspace(1.0e6, 2.0e6, 11))
+    with pytest.raises(ValueError, match="never meet"):
+        common_rest_force_bound({"a": {(20.0, 4.0): 0.01}, "b": {(20.0, 4.0): 0.01}}, {"a": low, "b": high})
+    with pytest.raises(ValueError, match="at least two"):
+        common_rest_force_bound({"a": {(20.0, 4.0): 0.01}}, {"a": low})
