@@ -58,6 +58,14 @@ def build_parser() -> Parser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    try:
+        return _run(argv)
+    except KeyboardInterrupt:  # also while the first imports run
+        print("isorig: interrupted", file=sys.stderr)
+        return 130
+
+
+def _run(argv: list[str] | None) -> int:
     from sim.isolator import IsolatorError
     from sim.profiles import ProfileError
 
@@ -74,9 +82,6 @@ def main(argv: list[str] | None = None) -> int:
     except (IsolatorError, ProfileError, ValueError) as exc:
         print(f"isorig: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("isorig: interrupted", file=sys.stderr)
-        return 130
 
 
 if __name__ == "__main__":
