@@ -429,3 +429,54 @@ def test_without_shared_memory_one_process_does_it(tmp_path, capsys, monkeypatch
     assert main(["report", str(test_id), "--database-url", url, "--out", str(tmp_path / "r.pdf"), "--no-identify"]) == 0
     assert "in 1 process" in capsys.readouterr().out
     assert (tmp_path / "r.pdf").read_bytes()[:5] == b"%PDF-"
+
+
+def _children_of(pid: int) -> list[int]:
+    """The processes whose parent is ``pid`` (from /proc)."""
+    import os
+
+    out = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as fh:
+                    stat = fh.read()
+            except OSError:
+                continue
+            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+                out.append(int(entry))
+    return out
+
+
+@pytest.mark.skipif(not shutil.os.path.isdir("/proc/self"), reason="needs /proc (Linux)")
+def test_killing_the_report_process_ends_its_children_quietly(tmp_path):
+    """SIGTERM to `isorig report` alone: its loader and identifier end with it, without a traceback each."""
+    import os
+    import signal
+    import sys
+    import time
+
+    from isorig.commands.report import _parallel
+
+    if not _parallel():
+        pytest.skip("one process only here")
+    scenario = Scenario.sine("IUT_a", 100.0, 0.02, 1.0, 20, controller="pid", taper_cycles=1)
+    write_csv(tmp_path / "timeseries.csv", Simulation(scenario).run().samples)
+    proc = subprocess.Popen([sys.executable, "-m", "isorig", "report", "--csv", str(tmp_path / "timeseries.csv"),
+                             "--out", str(tmp_path / "r.pdf")], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        deadline = time.monotonic() + 60
+        children = []
+        while len(children) < 2 and time.monotonic() < deadline and proc.poll() is None:
+            children = _children_of(proc.pid)
+            time.sleep(0.01)
+        assert len(children) == 2, "the report did not start its two children"
+        proc.send_signal(signal.SIGTERM)
+        _out, err = proc.communicate(timeout=60)  # the output ends when the children have closed it too
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert "Traceback" not in err and "Error" not in err, err
+    for pid in children:
+        assert not os.path.exists(f"/proc/{pid}") or open(f"/proc/{pid}/stat").read().split()[2] == "Z"

@@ -201,11 +201,14 @@ def _make_parallel(args, meta, out):
     task_r, task_w = ctx.Pipe(duplex=False)  # loader -> identifier: what to fit
     fit_r, fit_w = ctx.Pipe(duplex=False)  # identifier -> this process: the identification
     identify = not args.no_identify
+    parent = os.getpid()
     children = [ctx.Process(target=_loader, args=(args, meta, data_w, task_w if identify else None, shared,
-                                                  (data_r, task_r, fit_r, fit_w) + (() if identify else (task_w,))),
+                                                  (data_r, task_r, fit_r, fit_w) + (() if identify else (task_w,)),
+                                                  parent),
                             daemon=True, name="isorig-report-loader")]
     if identify:
-        children.append(ctx.Process(target=_identifier, args=(task_r, fit_w, (data_r, data_w, task_w, fit_r)),
+        children.append(ctx.Process(target=_identifier, args=(task_r, fit_w, (data_r, data_w, task_w, fit_r),
+                                                              parent),
                                     daemon=True, name="isorig-report-identifier"))
     sys.stdout.flush()
     sys.stderr.flush()
@@ -223,6 +226,7 @@ def _make_parallel(args, meta, out):
         return None
     for end in (data_w, task_r, task_w, fit_w):
         end.close()
+    on_term = _exit_on_sigterm()  # a kill of this process alone: its finally still ends the children
     received: dict = {}
     receiver = threading.Thread(target=_receive, args=(data_r, received), daemon=True)
     receiver.start()  # the loader never waits for this process to finish importing matplotlib
@@ -254,6 +258,7 @@ def _make_parallel(args, meta, out):
         failed = False
         return bundle, report, times
     finally:
+        _restore_sigterm(on_term)
         os.close(shared)
         data_r.close()
         fit_r.close()
@@ -323,25 +328,75 @@ def _receive(conn, received: dict) -> None:
         received["error"] = msg
 
 
-def _child_setup(unused) -> None:
-    """In a child: close the pipe ends it does not use (so a dead writer reads as EOF), and leave Ctrl-C to the
-    parent, which ends the children (no traceback from each)."""
+def _exit_on_sigterm():
+    """Make SIGTERM raise SystemExit(143) in this process (main thread only); the handler it replaced, or None."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return None
+
+    def stop(signum, _frame):
+        raise SystemExit(128 + signum)
+
+    return signal.signal(signal.SIGTERM, stop)
+
+
+def _restore_sigterm(previous) -> None:
+    import signal
+
+    if previous is not None:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _child_setup(unused, parent: int) -> None:
+    """In a child, first thing: leave Ctrl-C to the parent (which ends the children: no traceback from each), end
+    with the parent when it dies (Linux), and close the pipe ends it does not use (a dead writer reads as EOF)."""
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    _end_with_parent(parent)
     for end in unused:
         end.close()
 
 
-def _loader(args, meta, conn, task_conn, shared, unused) -> None:
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+def _end_with_parent(parent: int) -> None:
+    """Ask the kernel to SIGTERM this process when its parent dies; exit now if it is already dead."""
+    import signal
+    import sys
+
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
+        except (OSError, AttributeError):
+            pass  # no prctl: the sends below still end this process quietly when the parent is gone
+    if os.getppid() != parent:  # it died before prctl took effect: this process was handed to another
+        os._exit(1)
+
+
+def _send(conn, message) -> None:
+    """Send to the parent; if it is gone (a closed pipe), nobody waits for the answer: end quietly."""
+    try:
+        conn.send(message)
+    except OSError:
+        os._exit(1)
+
+
+def _loader(args, meta, conn, task_conn, shared, unused, parent) -> None:
     """Child: load the test, hand the first minute to the identifier, compute the metrics, send all here."""
+    _child_setup(unused, parent)
     import traceback
 
     import numpy as np
 
     from backend.reports import identification_task, report_json
 
-    _child_setup(unused)
     try:
         t0 = time.perf_counter()
         bundle = _load(args)
@@ -355,24 +410,24 @@ def _loader(args, meta, conn, task_conn, shared, unused) -> None:
         times = {"load_s": t1 - t0, "metrics_s": time.perf_counter() - t1}
         layout = _pack(shared, np.asarray(bundle.samples, dtype=np.float64), bundle.cycles)
         cycles = [{k: v for k, v in c.items() if k not in LOOP_KEYS} for c in bundle.cycles]
-        conn.send(("ok", (bundle.record, cycles, bundle.events, report, times, layout)))
+        _send(conn, ("ok", (bundle.record, cycles, bundle.events, report, times, layout)))
     except UsageError as exc:
-        conn.send(("usage", str(exc)))
+        _send(conn, ("usage", str(exc)))
     except ValueError as exc:
-        conn.send(("value", str(exc)))
+        _send(conn, ("value", str(exc)))
     except Exception:
-        conn.send(("crash", traceback.format_exc(limit=-3).strip()))
+        _send(conn, ("crash", traceback.format_exc(limit=-3).strip()))
     finally:
         conn.close()
 
 
-def _identifier(task_conn, conn, unused) -> None:
+def _identifier(task_conn, conn, unused, parent) -> None:
     """Child: import the fit and load (or compile) its kernels, then fit what the loader sends."""
+    _child_setup(unused, parent)
     import threading
 
     from backend.reports import _fit_function, run_identification
 
-    _child_setup(unused)
     with contextlib.suppress(OSError):  # the loader and the drawing come first: this has time to spare
         os.nice(IDENTIFIER_NICENESS)
     received: dict = {}
@@ -389,7 +444,7 @@ def _identifier(task_conn, conn, unused) -> None:
     receiver.join()
     if "task" in received:
         answer, task = received["task"]
-        conn.send(answer if task is None else run_identification(answer, task))
+        _send(conn, answer if task is None else run_identification(answer, task))
     conn.close()
 
 
