@@ -480,3 +480,28 @@ def test_killing_the_report_process_ends_its_children_quietly(tmp_path):
     assert "Traceback" not in err and "Error" not in err, err
     for pid in children:
         assert not os.path.exists(f"/proc/{pid}") or open(f"/proc/{pid}/stat").read().split()[2] == "Z"
+
+
+def test_a_report_goes_on_when_the_identifier_dies_early(tmp_path, capsys, monkeypatch):
+    """An identifier killed before it reads its task (out of memory, a failed import): the loader's hand-over
+    fails, and the report is made without the fit, saying why."""
+    import os
+
+    import isorig.commands.report as report_cmd
+    from isorig.cli import main
+
+    if not report_cmd._parallel():
+        pytest.skip("one process only here")
+
+    def dying(*_args):
+        os._exit(137)
+
+    monkeypatch.setattr(report_cmd, "_identifier", dying)
+    scenario = Scenario.sine("IUT_a", 100.0, 0.02, 1.0, 5, controller="pid", taper_cycles=1)
+    write_csv(tmp_path / "timeseries.csv", Simulation(scenario).run().samples)
+    assert main(["report", "--csv", str(tmp_path / "timeseries.csv"), "--out", str(tmp_path / "r.pdf"),
+                 "--json", str(tmp_path / "r.json")]) == 0
+    assert "Traceback" not in capsys.readouterr().err
+    ident = json.loads((tmp_path / "r.json").read_text())["identification"]
+    assert ident["available"] is False
+    assert ident["note"] == "identification failed: its process ended without an answer"

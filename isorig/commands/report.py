@@ -404,7 +404,10 @@ def _loader(args, meta, conn, task_conn, shared, unused, parent) -> None:
         answer = None
         if task_conn is not None:
             answer, task = identification_task(bundle)
-            task_conn.send((answer, task))
+            try:
+                task_conn.send((answer, task))
+            except OSError:
+                pass  # the identifier died early: the report goes on without the fit, and says so
             task_conn.close()
         report = report_json(bundle, identify=False, meta=meta, identification=answer)
         times = {"load_s": t1 - t0, "metrics_s": time.perf_counter() - t1}
