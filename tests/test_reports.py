@@ -505,3 +505,26 @@ def test_a_report_goes_on_when_the_identifier_dies_early(tmp_path, capsys, monke
     ident = json.loads((tmp_path / "r.json").read_text())["identification"]
     assert ident["available"] is False
     assert ident["note"] == "identification failed: its process ended without an answer"
+
+
+@pytest.mark.parametrize("how", ["killed", "raised"])
+def test_a_failed_loader_is_told_in_one_line(tmp_path, capsys, monkeypatch, how):
+    """A loader killed (os._exit) or failing unexpectedly: a one-line error and exit code 2, no traceback."""
+    import os
+
+    import isorig.commands.report as report_cmd
+    from isorig.cli import main
+
+    if not report_cmd._parallel():
+        pytest.skip("one process only here")
+
+    def load(_args):
+        if how == "killed":
+            os._exit(137)
+        raise KeyError("boom")
+
+    monkeypatch.setattr(report_cmd, "_load", load)
+    assert main(["report", "--csv", str(tmp_path / "any.csv"), "--out", str(tmp_path / "r.pdf")]) == 2
+    err = capsys.readouterr().err
+    assert "the loading process failed" in err and len(err.strip().splitlines()) == 1, err
+    assert ("KeyError: 'boom'" in err) == (how == "raised")

@@ -241,7 +241,8 @@ def _make_parallel(args, meta, out):
                 raise UsageError(text)
             if kind == "value":
                 raise ValueError(text)
-            raise RuntimeError(f"{PROG}: the loading process failed: {text}")
+            last = text.strip().splitlines()[-1] if text.strip() else "no reason given"  # a crash's exception line
+            raise UsageError(f"{PROG}: the loading process failed: {last}")
         record, cycles, events, report, times, layout = received["message"]
         samples = _unpack(shared, layout, cycles)
         bundle = ReportBundle(record=record, samples=samples, cycles=cycles, events=events)
