@@ -331,7 +331,8 @@ def read_csv_columns(path, required: Sequence[str] = LOOP_COLUMNS, optional: Seq
     skipped = {c for c in may_be_empty if wanted[c] < len(first) and not first[wanted[c]].strip()}
     order = [c for c in wanted if c not in skipped]
     data = None
-    for converters in (None, {k: _empty_cell_converter for k, c in enumerate(order) if c in may_be_empty}):
+    # numpy keys converters by the file's column number, not by the place in usecols
+    for converters in (None, {wanted[c]: _empty_cell_converter for c in order if c in may_be_empty}):
         try:
             data = np.loadtxt(path, delimiter=",", skiprows=1, usecols=[wanted[c] for c in order], ndmin=2,
                               dtype=float, converters=converters, encoding="utf-8")

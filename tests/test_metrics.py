@@ -247,3 +247,17 @@ def test_analyze_missing_file(tmp_path, capsys):
 
     assert main(["analyze", str(tmp_path / "nope.csv")]) == 2
     assert "cannot read" in capsys.readouterr().err
+
+
+def test_optional_columns_with_empty_cells_after_an_unused_column(tmp_path):
+    """numpy's converters are keyed by the file's column numbers: an optional column that is not where its place
+    among the read columns says still takes empty cells."""
+    from sim.metrics import read_csv_columns
+
+    path = tmp_path / "r.csv"
+    path.write_text("time_s,displacement_m,force_n,note,ar_hat\n0,0,0,a,1\n0.1,0,0,b,\n0.2,0,0,c,2\n")
+    cols = read_csv_columns(path, optional=("ar_hat",), min_rows=1)
+    np.testing.assert_array_equal(cols["ar_hat"], [1.0, np.nan, 2.0])
+    only = read_csv_columns(path, required=(), optional=("ar_hat",), min_rows=1)
+    assert list(only) == ["ar_hat"]
+    np.testing.assert_array_equal(only["ar_hat"], [1.0, np.nan, 2.0])
