@@ -75,8 +75,8 @@ def bundle_from_csv(path, summary_path=None, isolator=None, supply_bar: float | 
     n = cols["time_s"].size
     if not all_columns:
         final = _final_estimates(path, n)
-        if final is None:  # not settled by the last rows: read the whole columns (and check every cell)
-            cols = read_csv_columns(path, optional=optional + list(ESTIMATE_COLUMNS))
+        if final is None:  # not settled by the last rows: read their whole columns (and check every cell)
+            cols.update(read_csv_columns(path, required=(), optional=ESTIMATE_COLUMNS, min_rows=0))
         else:
             cols.update(final)
     # column by column into a column-major array: contiguous copies, and no NaN fill of 67 MB to overwrite
@@ -158,8 +158,8 @@ def _final_estimates(path: Path, n_rows: int, tail_bytes: int = 1 << 16) -> dict
     a number, a short or blank row, no finite value): the caller then reads the whole columns."""
     with open(path, "rb") as fh:
         header = fh.readline().decode("utf-8", "replace")
+        start = fh.tell()  # the first data row: a tail that reaches it holds every row
         first = fh.readline().decode("utf-8", "replace").rstrip("\r\n").split(",")
-        start = fh.tell()
         size = fh.seek(0, 2)
         fh.seek(max(start, size - tail_bytes))
         at_start = fh.tell() == start

@@ -325,17 +325,38 @@ def some_final(bundle) -> dict:
     return controller_state(bundle)["final_adapted"]
 
 
-@pytest.mark.parametrize("last_rows, final", [
-    ("", {"ar_hat": 3.0, "ay_hat": 0.5}),  # as_hat empty in the first row: never read, as the full reader does
-    ("9.0,0.1,5,7,,\n", {"ar_hat": 7.0, "ay_hat": 0.5}),  # an empty cell: the last finite value before it
-    ("9.0,0.1,5,abc,1,\n", "'abc'"),  # not a number: the whole-column reader names it
-    ("9.0,0.1,5,1_0,1,\n", {"ar_hat": 10.0, "ay_hat": 1.0}),  # left to the whole-column reader, which takes it
+@pytest.mark.parametrize("last_rows, final, from_tail", [
+    ("", {"ar_hat": 3.0, "ay_hat": 0.5}, True),  # as_hat empty in the first row: never read, as the full reader does
+    ("9.0,0.1,5,7,,\n", {"ar_hat": 7.0, "ay_hat": 0.5}, True),  # an empty cell: the last finite value before it
+    ("9.0,0.1,5,abc,1,\n", "'abc'", False),  # not a number: the whole-column reader names it
+    ("9.0,0.1,5,1_0,1,\n", {"ar_hat": 10.0, "ay_hat": 1.0}, False),  # left to the whole-column reader, which takes it
 ])
-def test_final_estimates_of_a_small_csv(tmp_path, last_rows, final):
+@pytest.mark.parametrize("tail_bytes", [200, 1 << 16])  # a tail that starts mid-file, one that reaches the start
+def test_final_estimates_of_a_small_csv(tmp_path, monkeypatch, last_rows, final, from_tail, tail_bytes):
+    import functools
+
+    import backend.reports as reports
+
     rows = "".join(f"{0.01 * i:.2f},{1e-3 * i:g},{10.0 * i:g},{1 + i % 3:g},0.5,{'' if i == 0 else 2}\n"
                    for i in range(60))
     path = tmp_path / "r.csv"
     path.write_text("time_s,displacement_m,force_n,ar_hat,ay_hat,as_hat\n" + rows + last_rows)
+    n_rows = 60 + bool(last_rows)
+    tail = reports._final_estimates(path, n_rows, tail_bytes=tail_bytes)
+    assert (tail is not None) == from_tail
+    if tail is not None:  # what the tail read agrees with the whole columns wherever it has a value
+        full = bundle_from_csv(path)
+        assert sorted(tail) == sorted(final)
+        for name, values in tail.items():
+            column = full.samples[:, reports.COLUMNS.index(name)]
+            if tail_bytes >= path.stat().st_size:  # the whole file: every row
+                np.testing.assert_array_equal(values, column)
+            else:
+                read = np.isfinite(values)
+                assert not read[0] and read.any()
+                np.testing.assert_array_equal(values[read], column[read])
+    monkeypatch.setattr(reports, "_final_estimates", functools.partial(reports._final_estimates,
+                                                                       tail_bytes=tail_bytes))
     if isinstance(final, str):
         with pytest.raises(ValueError, match=final):
             bundle_from_csv(path, all_columns=False)
