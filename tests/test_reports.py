@@ -549,3 +549,39 @@ def test_a_failed_loader_is_told_in_one_line(tmp_path, capsys, monkeypatch, how)
     err = capsys.readouterr().err
     assert "the loading process failed" in err and len(err.strip().splitlines()) == 1, err
     assert ("KeyError: 'boom'" in err) == (how == "raised")
+
+
+def test_no_pipes_or_no_shared_memory_room_means_one_process(tmp_path, capsys, monkeypatch):
+    """Out of file descriptors for the pipes, or no room in the shared memory file: one process makes the report
+    (and nothing is left open)."""
+    import multiprocessing
+    import os
+
+    import isorig.commands.report as report_cmd
+    from isorig.cli import main
+
+    if not report_cmd._parallel():
+        pytest.skip("one process only here")
+    scenario = Scenario.sine("IUT_a", 100.0, 0.02, 1.0, 3, controller="pid", taper_cycles=1)
+    write_csv(tmp_path / "timeseries.csv", Simulation(scenario).run().samples)
+    argv = ["report", "--csv", str(tmp_path / "timeseries.csv"), "--out", str(tmp_path / "r.pdf"), "--no-identify"]
+
+    def refuse(*_args, **_kwargs):
+        raise OSError(24, "Too many open files")
+
+    fds = len(os.listdir("/proc/self/fd"))
+    with monkeypatch.context() as patch:
+        patch.setattr(type(multiprocessing.get_context("fork")), "Pipe", refuse)
+        assert main(argv) == 0
+    assert "in 1 process" in capsys.readouterr().out
+    assert len(os.listdir("/proc/self/fd")) == fds
+
+    def no_room(*_args):
+        raise OSError(28, "No space left on device")
+
+    with monkeypatch.context() as patch:
+        patch.setattr(os, "ftruncate", no_room)  # in the loader, which fills the shared memory
+        assert main(argv) == 0
+    captured = capsys.readouterr()
+    assert "in 1 process" in captured.out and "Traceback" not in captured.err
+    assert (tmp_path / "r.pdf").read_bytes()[:5] == b"%PDF-"

@@ -197,9 +197,19 @@ def _make_parallel(args, meta, out):
     except OSError:
         return None
     ctx = multiprocessing.get_context("fork")
-    data_r, data_w = ctx.Pipe(duplex=False)  # loader -> this process: the record, metrics, report, array layout
-    task_r, task_w = ctx.Pipe(duplex=False)  # loader -> identifier: what to fit
-    fit_r, fit_w = ctx.Pipe(duplex=False)  # identifier -> this process: the identification
+    pipes = []
+    try:
+        for _ in range(3):
+            pipes.append(ctx.Pipe(duplex=False))
+    except OSError:  # out of file descriptors: one process will do
+        for ends in pipes:
+            for end in ends:
+                end.close()
+        os.close(shared)
+        return None
+    (data_r, data_w), (task_r, task_w), (fit_r, fit_w) = pipes
+    # data: loader -> this process (the record, metrics, report, array layout); task: loader -> identifier (what
+    # to fit); fit: identifier -> this process (the identification)
     identify = not args.no_identify
     parent = os.getpid()
     children = [ctx.Process(target=_loader, args=(args, meta, data_w, task_w if identify else None, shared,
@@ -237,6 +247,8 @@ def _make_parallel(args, meta, out):
         t_data = time.perf_counter()
         if "error" in received:
             kind, text = received["error"]
+            if kind == NO_SHARED_MEMORY:
+                return None  # the finally ends the children; one process will do
             if kind == "usage":
                 raise UsageError(text)
             if kind == "value":
@@ -273,6 +285,7 @@ def _make_parallel(args, meta, out):
 
 
 LOOP_KEYS = ("displacement_m", "force_n")
+NO_SHARED_MEMORY = "no shared memory"  # the loader's answer when the samples do not fit in the shared memory
 IDENTIFIER_NICENESS = 5  # CPU share against the other two: 1/4 (it waits for the loader anyway)
 
 
@@ -412,7 +425,11 @@ def _loader(args, meta, conn, task_conn, shared, unused, parent) -> None:
             task_conn.close()
         report = report_json(bundle, identify=False, meta=meta, identification=answer)
         times = {"load_s": t1 - t0, "metrics_s": time.perf_counter() - t1}
-        layout = _pack(shared, np.asarray(bundle.samples, dtype=np.float64), bundle.cycles)
+        try:
+            layout = _pack(shared, np.asarray(bundle.samples, dtype=np.float64), bundle.cycles)
+        except OSError as exc:  # no room for the shared memory file (ftruncate, mmap)
+            _send(conn, (NO_SHARED_MEMORY, str(exc)))
+            return
         cycles = [{k: v for k, v in c.items() if k not in LOOP_KEYS} for c in bundle.cycles]
         _send(conn, ("ok", (bundle.record, cycles, bundle.events, report, times, layout)))
     except UsageError as exc:
