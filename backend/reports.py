@@ -581,6 +581,7 @@ def _wrapped_lines(key: str, text: str, width: int = 85, max_lines: int = 3) -> 
 
 
 def _page_header(plt, bundle, ctrl, iso, protocol, acc, ident, trk, page):
+    """The header page(s), with the Bouc-Wen table."""
     figs, y = _header_pages(plt, bundle, ctrl, iso, protocol, acc, trk, page)
     _identification_block(figs[-1], y, ident, bundle.record, page + len(figs) - 1)
     return figs
@@ -980,14 +981,15 @@ def render_report_pdf(bundle, out, meta: dict | None = None, report: dict | None
     target = out if hasattr(out, "write") else open(out, "wb")
     try:
         with PdfPages(target, metadata={"Title": _title(record), "Creator": "isorig"}) as pdf:
-            header, y = _header_pages(plt, bundle, ctrl, iso, protocol, acc, trk, 1)
             page_list = _page_list(pdf) if identification is not None else None
             if identification is not None and page_list is None:  # cannot reorder: wait for the fit now
                 report["identification"] = identification()
                 identification = None
             if identification is None:
-                _identification_block(header[-1], y, report["identification"], record, len(header))
+                header = _page_header(plt, bundle, ctrl, iso, protocol, acc, report["identification"], trk, 1)
                 _save(plt, pdf, header)
+            else:  # all but the Bouc-Wen table now; the table when the fit is there
+                header, y = _header_pages(plt, bundle, ctrl, iso, protocol, acc, trk, 1)
             figs = [_page_loops(plt, bundle, protocol, len(header) + 1)]
             figs.append(_page_time(plt, bundle, len(header) + len(figs) + 1))
             s = bundle.samples
