@@ -10,8 +10,6 @@ Layout and choices: docs/reports.md.
 from __future__ import annotations
 
 import functools
-import importlib
-import importlib.util
 import io
 import json
 import math
@@ -33,8 +31,6 @@ MAX_HEADER_RULES = 4  # ... and rules (all of them are on the verdicts page)
 BOUC_WEN_FIELDS = ("rho_bw_per_m", "sigma_bw", "n", "kd_n_per_m", "kw_n")
 IDENTIFY_MAX_SAMPLES = 60_000  # the Bouc-Wen fit uses the first 60 000 samples (60 s at 1 kHz) ...
 IDENTIFY_FIT_POINTS = 6_000  # ... thinned to at most 6 000 points (>= 100 Hz), to keep the report fast
-FIT_MODULES = ("sim.identify_bouc_wen", "sim.identify")  # where fit_bouc_wen (or identify_bouc_wen) may live
-NO_FIT_NOTE = "no Bouc-Wen identification in this installation (sim.identify_bouc_wen)"
 UNREPORTED_COLUMNS = ("model_m", "load_pressure_pa")  # in the samples, but neither the PDF nor the JSON shows them
 ESTIMATE_COLUMNS = ("ar_hat", "ay_hat", "as_hat")  # adaptive estimates: the report shows their final values
 
@@ -262,13 +258,13 @@ def controller_state(bundle) -> dict:
 
 
 def identified_bouc_wen(bundle, max_samples: int = IDENTIFY_MAX_SAMPLES) -> dict:
-    """Bouc-Wen parameters identified from the test's record beside the nominal ones, if sim offers a fit.
+    """Bouc-Wen parameters identified from the test's record beside the nominal ones.
 
     Uses a stored result (``record["identification"]`` with ``identified``) when there is one; else calls
-    ``fit_bouc_wen`` of sim.identify_bouc_wen (the identification issue) on the first ``max_samples`` samples
+    ``fit_bouc_wen`` of sim.identify_bouc_wen on the first ``max_samples`` samples
     (the fit assumes the record starts at rest, so it must start at the beginning), thinned to at most
     IDENTIFY_FIT_POINTS points, starting from the nominal rho_BW, sigma_BW, n. Returns {"available": False,
-    "note": why} when there is no fit or it fails.
+    "note": why} when the fit fails or the record has too little motion.
     """
     answer, task = identification_task(bundle, max_samples)
     return answer if task is None else run_identification(answer, task)
@@ -285,9 +281,6 @@ def identification_task(bundle, max_samples: int = IDENTIFY_MAX_SAMPLES) -> tupl
     stored = bundle.record.get("identification")
     if isinstance(stored, dict) and stored.get("identified"):
         return {**out, **stored, "available": True, "source": "stored with the test"}, None
-    if not any(importlib.util.find_spec(m) for m in FIT_MODULES):  # the import itself waits for the fit
-        out["note"] = NO_FIT_NOTE
-        return out, None
     s = bundle.samples
     stride = max(1, math.ceil(min(max_samples, s.shape[0]) / IDENTIFY_FIT_POINTS))
     t, d, f = (np.ascontiguousarray(s[:max_samples:stride, c]) for c in (C_TIME, C_Y, C_FORCE))
@@ -306,71 +299,26 @@ def run_identification(answer: dict, task: tuple) -> dict:
     """Run the fit of identification_task and complete its answer (a failure becomes a note, never raises)."""
     import time
 
+    from sim.identify_bouc_wen import fit_bouc_wen
+
     t, d, f, start = task
     out = dict(answer)
-    fit = _fit_function()
-    if fit is None:
-        out["note"] = NO_FIT_NOTE
-        return out
     t0 = time.perf_counter()
     try:
-        result = _call_fit(fit, t, d, f, start)
+        result = fit_bouc_wen(t, d, f, name="identified", start=start)
     except Exception as exc:  # an identification failure must not cost the report
         out["note"] = f"identification failed: {type(exc).__name__}: {exc}"[:300]
         return out
-    params = _params_from(result)
+    params = {k: float(getattr(result.isolator, k)) for k in BOUC_WEN_FIELDS
+              if _num(float(getattr(result.isolator, k))) is not None}
     if not params:
         out["note"] = "the identification returned no Bouc-Wen parameters"
         return out
-    quality = {k: getattr(result, k) for k in ("nrms_error", "rms_error_n", "relative_std", "flat_directions")
-               if hasattr(result, k)}
-    out.update({"available": True, "identified": params, "fit": _clean(quality), "samples_used": int(t.size),
+    quality = {k: getattr(result, k) for k in ("nrms_error", "rms_error_n", "relative_std", "flat_directions")}
+    out.update({"available": True, "identified": params, "fit": clean_json(quality), "samples_used": int(t.size),
                 "record_span_s": float(t[-1] - t[0]), "time_s": time.perf_counter() - t0,
                 "source": "fit_bouc_wen on the first " + f"{t[-1] - t[0]:.3g} s of the record"})
     return out
-
-
-def _fit_function():
-    for module in FIT_MODULES:
-        try:
-            mod = importlib.import_module(module)
-        except ImportError:
-            continue
-        for name in ("fit_bouc_wen", "identify_bouc_wen"):
-            if callable(getattr(mod, name, None)):
-                return getattr(mod, name)
-    return None
-
-
-def _call_fit(fit, t, d, f, start):
-    import inspect
-
-    names = set(inspect.signature(fit).parameters)
-    kwargs = {}
-    if "start" in names and start is not None:
-        kwargs["start"] = start
-    if "name" in names:
-        kwargs["name"] = "identified"
-    return fit(t, d, f, **kwargs)
-
-
-def _params_from(result) -> dict:
-    if result is None:
-        return {}
-    if hasattr(result, "isolator"):
-        result = result.isolator
-    if hasattr(result, "to_dict"):
-        result = result.to_dict()
-    if hasattr(result, "__dataclass_fields__"):
-        from dataclasses import asdict
-
-        result = asdict(result)
-    if isinstance(result, dict):
-        src = result.get("parameters", result.get("isolator", result))
-        if hasattr(src, "to_dict"):
-            src = src.to_dict()
-        return {k: float(src[k]) for k in BOUC_WEN_FIELDS if isinstance(src, dict) and _num(src.get(k)) is not None}
-    return {}
 
 
 def acceptance(bundle) -> dict:
@@ -405,17 +353,18 @@ def _limit_trips(events: list[dict]) -> list[dict]:
     return [e for e in events if e.get("kind") == "limit_trip"]
 
 
-def _clean(value):
+def clean_json(value):
+    """A value ready for strict JSON: NaN and infinities become None, numpy values Python ones."""
     if isinstance(value, float):
         return value if math.isfinite(value) else None
     if isinstance(value, np.generic):
-        return _clean(value.item())
+        return clean_json(value.item())
     if isinstance(value, np.ndarray):
-        return [_clean(v) for v in value.tolist()]
+        return [clean_json(v) for v in value.tolist()]
     if isinstance(value, dict):
-        return {k: _clean(v) for k, v in value.items()}
+        return {k: clean_json(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_clean(v) for v in value]
+        return [clean_json(v) for v in value]
     return value
 
 
@@ -446,7 +395,7 @@ def report_json(bundle, identify: bool = True, meta: dict | None = None, identif
         "events": bundle.events,
         "limit_trips": _limit_trips(bundle.events),
     }
-    return _clean(out)
+    return clean_json(out)
 
 
 # --- the PDF ----------------------------------------------------------------------------------------------
@@ -476,7 +425,8 @@ def _fmt(x, fmt="{:.4g}", scale=1.0, none="-"):
     return none if v is None else fmt.format(v * scale)
 
 
-def _style():
+def plot_style():
+    """pyplot, with the report's style (core PDF fonts, sizes, grid) and the Agg backend."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -923,7 +873,7 @@ def _pages_verdicts_events(plt, bundle, acc, first_page):
         head = f"  {'t = ' + format(t, '8.3f') + ' s' if t is not None else ' ' * 14}  {e.get('kind', ''):<10} "
         msg = str(e.get("message", ""))
         if e.get("kind") == "limit_trip" and e.get("values"):
-            msg += "  " + json.dumps(_clean(e["values"]))[:150]
+            msg += "  " + json.dumps(clean_json(e["values"]))[:150]
         color = red if e.get("kind") == "limit_trip" else "black"
         wrapped = _wrap(msg, 105 - len(head))
         lines.append((head + wrapped[0], color))
@@ -967,7 +917,7 @@ def render_report_pdf(bundle, out, meta: dict | None = None, report: dict | None
         report = report_json(bundle, identify=identify)
     elif report is None:
         report = report_json(bundle, identify=False)
-    plt = _style()
+    plt = plot_style()
     from matplotlib.backends.backend_pdf import PdfPages
 
     # the core-font AFM files say "medium" where matplotlib asks for "normal": harmless, silence it

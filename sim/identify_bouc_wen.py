@@ -75,6 +75,14 @@ def read_loop_csv(path) -> LoopRecord:
     return LoopRecord(cols["time_s"], cols["displacement_m"], cols["force_n"])
 
 
+def warm_up() -> None:
+    """Load (or compile: numba caches them on disk) the fit's kernels, on a tiny record."""
+    from .isolator import PRESETS
+
+    d = np.zeros(3)
+    _linear_part(d, _w_history(d, 1e-3, 100.0, 0.5, 1.0), simulate_loop(PRESETS["IUT_a"], d, 1e-3))
+
+
 def _uniform(t: np.ndarray, d: np.ndarray, f: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
     """The record on a uniform time grid (simulate_loop needs one); resampled linearly if needed."""
     steps = np.diff(t)

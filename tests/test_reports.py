@@ -224,7 +224,7 @@ def test_a_crowded_header_continues_on_a_second_page():
     crowded = {"id": 9, "status": "aborted", "isolator": "IUT_b", "controller": "servo", "supply_bar": 70,
                "profile": {"kind": "protocol", "protocol": proto}}
     plain = {"id": 10, "status": "aborted", "isolator": "IUT_b", "controller": "pid", "supply_bar": 70}
-    plt = reports._style()
+    plt = reports.plot_style()
     counts = []
     for record in (crowded, plain):
         bundle = ReportBundle(record, np.zeros((0, len(COLUMNS))), [], [])
@@ -276,7 +276,7 @@ def test_table_lines_sit_where_text_objects_put_them(tmp_path):
     """The table's lines go straight to the renderer; they must land exactly where one Text per line did."""
     import backend.reports as reports
 
-    plt = reports._style()
+    plt = reports.plot_style()
     lines = ["cycle  t_start", ("    1     0.00", "#c62828"), "", "    3     2.00"]
     for name, draw in (("artist", reports._draw_lines), ("text", None)):
         fig = plt.figure(figsize=reports.A4_PORTRAIT_IN)

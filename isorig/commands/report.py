@@ -190,7 +190,7 @@ def _make_parallel(args, meta, out):
     import sys
     import threading
 
-    from backend.reports import ReportBundle, _clean, _style
+    from backend.reports import ReportBundle, clean_json, plot_style
 
     try:  # the samples and loop arrays (70 MB for 10 minutes) go through shared memory: a pipe took 0.4 s
         shared = os.memfd_create("isorig-report")
@@ -242,7 +242,7 @@ def _make_parallel(args, meta, out):
     receiver.start()  # the loader never waits for this process to finish importing matplotlib
     failed = True
     try:
-        _style()
+        plot_style()
         receiver.join()
         t_data = time.perf_counter()
         if "error" in received:
@@ -261,7 +261,7 @@ def _make_parallel(args, meta, out):
 
         def identification() -> dict:
             try:
-                return _clean(fit_r.recv())
+                return clean_json(fit_r.recv())
             except (EOFError, OSError):
                 return {**report["identification"], "available": False,
                         "note": "identification failed: its process ended without an answer"}
@@ -447,7 +447,7 @@ def _identifier(task_conn, conn, unused, parent) -> None:
     _child_setup(unused, parent)
     import threading
 
-    from backend.reports import _fit_function, run_identification
+    from backend.reports import run_identification
 
     with contextlib.suppress(OSError):  # the loader and the drawing come first: this has time to spare
         os.nice(IDENTIFIER_NICENESS)
@@ -461,7 +461,7 @@ def _identifier(task_conn, conn, unused, parent) -> None:
 
     receiver = threading.Thread(target=receive, daemon=True)
     receiver.start()  # the task (about 150 kB) would not fit the pipe: the loader must not wait for the warm-up
-    _warm_up_fit(_fit_function())
+    _warm_up_fit()
     receiver.join()
     if "task" in received:
         answer, task = received["task"]
@@ -469,21 +469,11 @@ def _identifier(task_conn, conn, unused, parent) -> None:
     conn.close()
 
 
-def _warm_up_fit(fit) -> None:
+def _warm_up_fit() -> None:
     """Load the fit's compiled kernels now rather than when the record arrives (a cold numba cache compiles)."""
-    if fit is None:
-        return
-    import sys
-
-    warm_up = getattr(sys.modules.get(fit.__module__), "warm_up", None)
     try:
-        if callable(warm_up):
-            warm_up()
-        else:
-            import numpy as np
+        from sim.identify_bouc_wen import warm_up
 
-            from sim.isolator import PRESETS, simulate_loop
-
-            simulate_loop(PRESETS["IUT_a"], np.zeros(3), 1e-3)
+        warm_up()
     except Exception:  # only a head start: the fit itself reports any real problem
         pass
