@@ -330,3 +330,44 @@ def test_rest_force_bound_refuses_what_it_cannot_bound():
         common_rest_force_bound({"a": {(20.0, 4.0): 0.01}, "b": {(20.0, 4.0): 0.01}}, {"a": low, "b": high})
     with pytest.raises(ValueError, match="at least two"):
         common_rest_force_bound({"a": {(20.0, 4.0): 0.01}}, {"a": low})
+
+
+GOOD_LINES = [f"{0.01 * i:.2f},{1e-3 * i:g},{10.0 * i:g},7\n" for i in range(1, 60)]
+GOOD_ROWS = "".join(GOOD_LINES)
+
+
+@pytest.mark.parametrize("text, readable, plain", [
+    ("time_s,displacement_m,force_n,other\n" + GOOD_ROWS, True, True),
+    (" time_s , displacement_m,force_n,other\r\n" + GOOD_ROWS.replace(",", " , ").replace("\n", "\r\n"), True,
+     True),
+    ("time_s,displacement_m,force_n,other\n" + "".join(GOOD_LINES[:20]) + "\n\n,,,\n" + "".join(GOOD_LINES[20:]),
+     True, False),  # blank rows
+    ("time_s,displacement_m,force_n,other\n" + '"0.001","1","2",x\n' + GOOD_ROWS, True, False),  # quoted cells
+    ("time_s,displacement_m,force_n\n0,1_000,0\n" + GOOD_ROWS, True, False),  # Python's float reads 1_000
+    ("time_s,displacement_m,force_n\n#0,0,0\n" + GOOD_ROWS, False, False),  # not a comment: a bad cell
+    ("time_s,displacement_m,force_n\n" + GOOD_ROWS + "9,nan,0\n", False, False),
+    ("time_s,displacement_m,force_n\n" + GOOD_ROWS + "9,0\n", False, False),  # a short row
+    ("time_s,displacement_m,force_n\n" + GOOD_ROWS + "0.3,0,0\n", False, False),  # time goes back
+    ("time_s,displacement_m,force_n\n" + "".join(GOOD_LINES[:10]), False, False),  # too few rows
+    ("time_s,force_n\n" + GOOD_ROWS, False, False),  # a missing column
+    ("", False, False),
+])
+def test_record_csv_fast_path_reads_what_the_careful_reader_reads(tmp_path, text, readable, plain):
+    """sim.identify.read_record_csv parses plain files with numpy and leaves anything else to the careful
+    cell-by-cell reader: same values, same error messages."""
+    from sim.identify import IdentificationError, _careful_columns, _plain_columns, read_record_csv
+
+    path = tmp_path / "record.csv"
+    path.write_text(text, newline="")
+    columns = ("time_s", "displacement_m", "force_n")
+
+    def outcome(read):
+        try:
+            return {k: v.tolist() for k, v in read(path, columns, 50).items()}
+        except IdentificationError as exc:
+            return str(exc)
+
+    careful = outcome(_careful_columns)
+    assert outcome(read_record_csv) == careful
+    assert isinstance(careful, dict) == readable, careful
+    assert (_plain_columns(path, columns, 50) is not None) == plain  # the fast path takes the plain files
