@@ -152,6 +152,8 @@ def _final_estimates(path: Path, n_rows: int, tail_bytes: int = 1 << 16) -> dict
     their last finite values. Columns absent, or empty in the first data row, are left out, as
     sim.metrics.read_csv_columns leaves them out. None when the last rows do not settle it (a cell that is not
     a number, a short or blank row, no finite value): the caller then reads the whole columns."""
+    from sim.metrics import csv_header_names
+
     with open(path, "rb") as fh:
         header = fh.readline().decode("utf-8", "replace")
         start = fh.tell()  # the first data row: a tail that reaches it holds every row
@@ -160,7 +162,7 @@ def _final_estimates(path: Path, n_rows: int, tail_bytes: int = 1 << 16) -> dict
         fh.seek(max(start, size - tail_bytes))
         at_start = fh.tell() == start
         tail = fh.read().decode("utf-8", "replace").split("\n")
-    names = [h.strip().strip('"').lstrip("\ufeff") for h in header.rstrip("\r\n").split(",")]  # as sim.metrics
+    names = csv_header_names(header)
     wanted = {c: names.index(c) for c in ESTIMATE_COLUMNS
               if c in names and names.index(c) < len(first) and first[names.index(c)].strip()}
     lines = [line.rstrip("\r") for line in (tail if at_start else tail[1:])]  # the first one may be cut

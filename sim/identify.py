@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .metrics import loadtxt_columns
+
 
 class IdentificationError(ValueError):
     """A record cannot be identified: a missing column, a non-numeric cell, too few samples, bad time."""
@@ -37,11 +39,11 @@ def _plain_columns(path: Path, columns: tuple[str, ...], min_rows: int) -> dict[
             header = [h.strip() for h in next(csv.reader([fh.readline()]), [])]
         if not all(c in header for c in columns):
             return None
-        data = np.loadtxt(path, delimiter=",", skiprows=1, usecols=[header.index(c) for c in columns],
-                          ndmin=2, dtype=float, comments=None)
-    except (OSError, UnicodeDecodeError, csv.Error, ValueError, IndexError):
+    except (OSError, UnicodeDecodeError, csv.Error):
         return None
-    if data.shape[0] < min_rows or not np.isfinite(data).all():
+    # no comment lines: the careful reader takes '#' as a bad cell
+    data = loadtxt_columns(path, [header.index(c) for c in columns], comments=None, encoding=None)
+    if data is None or data.shape[0] < min_rows or not np.isfinite(data).all():
         return None
     out = {name: np.ascontiguousarray(data[:, k]) for k, name in enumerate(columns)}
     if "time_s" in out and not np.all(np.diff(out["time_s"]) > 0.0):

@@ -300,6 +300,23 @@ def _first_bad_cell(path, names: list[str], wanted: dict[str, int], allow_empty:
     return f"{path}: could not parse the numbers"
 
 
+def csv_header_names(line: str) -> list[str]:
+    """The column names of a CSV header line (cells stripped of spaces, quotes and a byte-order mark)."""
+    return [h.strip().strip('"').lstrip("\ufeff") for h in line.rstrip("\r\n").split(",")]
+
+
+def loadtxt_columns(path, usecols: Sequence[int], converters=None, comments: str | None = "#",
+                    encoding: str | None = "utf-8") -> np.ndarray | None:
+    """numpy's fast parse of the columns ``usecols`` (file column numbers) below the header row, as a 2-D float
+    array; None when a cell does not parse (a careful reader then says which). ``converters`` are keyed by file
+    column number, as numpy keys them."""
+    try:
+        return np.loadtxt(path, delimiter=",", skiprows=1, usecols=list(usecols), ndmin=2, dtype=float,
+                          converters=converters, comments=comments, encoding=encoding)
+    except (ValueError, IndexError):
+        return None
+
+
 def read_csv_columns(path, required: Sequence[str] = LOOP_COLUMNS, optional: Sequence[str] = (),
                      min_rows: int = MIN_RECORD_ROWS) -> dict[str, np.ndarray]:
     """Columns of a CSV file with a header row, by name; other columns are ignored.
@@ -314,7 +331,7 @@ def read_csv_columns(path, required: Sequence[str] = LOOP_COLUMNS, optional: Seq
         raise RecordError(f"cannot read {path}: {exc.strerror}") from None
     except UnicodeDecodeError:
         raise RecordError(f"{path} is not a text CSV file") from None
-    names = [h.strip().strip('"').lstrip("\ufeff") for h in header.rstrip("\r\n").split(",")]
+    names = csv_header_names(header)
     missing = [c for c in required if c not in names]
     if missing:
         found = ", ".join(n for n in names if n) or "no header"
@@ -330,15 +347,10 @@ def read_csv_columns(path, required: Sequence[str] = LOOP_COLUMNS, optional: Seq
         first = fh.readline().rstrip("\r\n").split(",")
     skipped = {c for c in may_be_empty if wanted[c] < len(first) and not first[wanted[c]].strip()}
     order = [c for c in wanted if c not in skipped]
-    data = None
-    # numpy keys converters by the file's column number, not by the place in usecols
-    for converters in (None, {wanted[c]: _empty_cell_converter for c in order if c in may_be_empty}):
-        try:
-            data = np.loadtxt(path, delimiter=",", skiprows=1, usecols=[wanted[c] for c in order], ndmin=2,
-                              dtype=float, converters=converters, encoding="utf-8")
-            break
-        except (ValueError, IndexError):
-            continue
+    usecols = [wanted[c] for c in order]
+    data = loadtxt_columns(path, usecols)
+    if data is None:
+        data = loadtxt_columns(path, usecols, {wanted[c]: _empty_cell_converter for c in order if c in may_be_empty})
     if data is None:
         raise RecordError(_first_bad_cell(path, names, wanted, may_be_empty)) from None
     if data.shape[0] < min_rows:
