@@ -27,7 +27,7 @@ from .stream import Hub
 log = logging.getLogger("isorig")
 
 
-def create_app(settings: Settings | None = None, driver: str = "simulated") -> FastAPI:
+def create_app(settings: Settings | None = None, driver: str | None = None) -> FastAPI:
     settings = settings or Settings()
     engine = db.make_engine(settings.resolved_database_url)
     db.upgrade(engine)

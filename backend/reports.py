@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.engine import C_FORCE, C_TARGET, C_TIME, C_U, C_Y, COLUMNS, CSV_COLUMNS
+from sim.samples import RECORD_FIELDS, SAMPLE_FIELDS, Samples
 
 A4_PORTRAIT_IN = (8.27, 11.69)
 PLOT_POINTS = 2500  # min/max buckets per time history (5000 points: peaks kept, file small)
@@ -65,7 +65,7 @@ def bundle_from_csv(path, summary_path=None, isolator=None, supply_bar: float | 
     from sim.protocols import Protocol, load_protocol
 
     path = Path(path)
-    optional = [c for c in CSV_COLUMNS if c not in ("time_s", "displacement_m", "force_n")
+    optional = [c for c in RECORD_FIELDS if c not in ("time_s", "displacement_m", "force_n")
                 and (all_columns or c not in UNREPORTED_COLUMNS + ESTIMATE_COLUMNS)]
     cols = read_csv_columns(path, optional=optional)
     n = cols["time_s"].size
@@ -76,9 +76,10 @@ def bundle_from_csv(path, summary_path=None, isolator=None, supply_bar: float | 
         else:
             cols.update(final)
     # column by column into a column-major array: contiguous copies, and no NaN fill of 67 MB to overwrite
-    samples = np.empty((len(COLUMNS), n)).T
-    for j, name in enumerate(COLUMNS):
-        samples[:, j] = cols[name] if name in cols else np.nan
+    array = np.empty((len(SAMPLE_FIELDS), n)).T
+    for j, name in enumerate(SAMPLE_FIELDS):
+        array[:, j] = cols[name] if name in cols else np.nan
+    samples = Samples(array)
 
     summary = None
     summary_file = Path(summary_path) if summary_path else path.with_name("summary.json")
@@ -233,9 +234,9 @@ def controller_state(bundle) -> dict:
     scenario = record.get("scenario") or {}
     s = bundle.samples
     adapted = {}
-    if s.size:
+    if len(s):
         for name in ("ar_hat", "ay_hat", "as_hat"):
-            value = _last_finite(s[:, COLUMNS.index(name)])
+            value = _last_finite(s[name])
             if value is not None:
                 adapted[name] = value
     name = record.get("controller") or scenario.get("controller")
@@ -284,8 +285,8 @@ def identification_task(bundle, max_samples: int = IDENTIFY_MAX_SAMPLES) -> tupl
     if isinstance(stored, dict) and stored.get("identified"):
         return {**out, **stored, "available": True, "source": "stored with the test"}, None
     s = bundle.samples
-    stride = max(1, math.ceil(min(max_samples, s.shape[0]) / IDENTIFY_FIT_POINTS))
-    t, d, f = (np.ascontiguousarray(s[:max_samples:stride, c]) for c in (C_TIME, C_Y, C_FORCE))
+    stride = max(1, math.ceil(min(max_samples, len(s)) / IDENTIFY_FIT_POINTS))
+    t, d, f = (np.ascontiguousarray(s[c][:max_samples:stride]) for c in ("time_s", "displacement_m", "force_n"))
     bad = ~(np.isfinite(t) & np.isfinite(d) & np.isfinite(f))
     if bad.any():
         t, d, f = t[:int(np.argmax(bad))], d[:int(np.argmax(bad))], f[:int(np.argmax(bad))]
@@ -340,13 +341,13 @@ def acceptance(bundle) -> dict:
 
 def tracking(bundle) -> dict:
     s = bundle.samples
-    if not s.size:
+    if not len(s):
         return {}
-    closed = np.isfinite(s[:, C_TARGET])  # the three columns only: copying whole rows cost 0.35 s at 600 000
+    closed = np.isfinite(s["target_m"])  # the three columns only: copying whole rows cost 0.35 s at 600 000
     if not closed.any():
         return {}
-    e = s[closed, C_Y] - s[closed, C_TARGET]
-    u = s[closed, C_U]
+    e = s["displacement_m"][closed] - s["target_m"][closed]
+    u = s["voltage_v"][closed]
     return {"rms_y_minus_r_m": float(np.sqrt(np.mean(e * e))), "peak_abs_y_minus_r_m": float(np.max(np.abs(e))),
             "peak_abs_voltage_v": _num(float(np.nanmax(np.abs(u)))) if np.isfinite(u).any() else None}
 
@@ -700,9 +701,9 @@ def _page_time(plt, bundle, page):
     s = bundle.samples
     fig, axes = plt.subplots(3, 1, figsize=A4_PORTRAIT_IN, sharex=True)
     fig.subplots_adjust(left=0.12, right=0.95, top=0.94, bottom=0.07, hspace=0.18)
-    if s.shape[0]:
-        t = s[:, C_TIME]
-        y, r, u = s[:, C_Y] * 1e3, s[:, C_TARGET] * 1e3, s[:, C_U]
+    if len(s):
+        t = s["time_s"]
+        y, r, u = s["displacement_m"] * 1e3, s["target_m"] * 1e3, s["voltage_v"]
         e = y - r
         td, yd, rd, ud, ed = _minmax_decimate(t, y, r, u, e)
         axes[0].plot(td, rd, color="0.55", lw=1.4, label="target r")
@@ -733,7 +734,7 @@ DETAIL_WINDOW_S = 5.0  # long records get a page with the first and last seconds
 def _page_time_detail(plt, bundle, page):
     """First and last DETAIL_WINDOW_S seconds at full resolution (the overview page is an envelope)."""
     s = bundle.samples
-    t = s[:, C_TIME]
+    t = s["time_s"]
     fig, axes = plt.subplots(3, 2, figsize=A4_PORTRAIT_IN, sharey="row")
     fig.subplots_adjust(left=0.12, right=0.95, top=0.93, bottom=0.07, hspace=0.25, wspace=0.08)
     fig.suptitle(f"Detail: the first and the last {DETAIL_WINDOW_S:g} s", fontsize=11, weight="bold", y=0.975)
@@ -741,7 +742,7 @@ def _page_time_detail(plt, bundle, page):
     for col, (a, b) in enumerate(windows):
         sel = (t >= a) & (t <= b)
         tt = t[sel]
-        y, r, u = s[sel, C_Y] * 1e3, s[sel, C_TARGET] * 1e3, s[sel, C_U]
+        y, r, u = s["displacement_m"][sel] * 1e3, s["target_m"][sel] * 1e3, s["voltage_v"][sel]
         axes[0, col].plot(tt, r, color="0.55", lw=1.4, label="target r")
         axes[0, col].plot(tt, y, color="C0", lw=0.8, label="displacement y")
         axes[1, col].plot(tt, u, color="C2", lw=0.8)
@@ -945,7 +946,7 @@ def render_report_pdf(bundle, out, meta: dict | None = None, report: dict | None
             figs = [_page_loops(plt, bundle, protocol, len(header) + 1)]
             figs.append(_page_time(plt, bundle, len(header) + len(figs) + 1))
             s = bundle.samples
-            if s.shape[0] > 1 and s[-1, C_TIME] - s[0, C_TIME] > 6 * DETAIL_WINDOW_S:
+            if len(s) > 1 and s["time_s"][-1] - s["time_s"][0] > 6 * DETAIL_WINDOW_S:
                 figs.append(_page_time_detail(plt, bundle, len(header) + len(figs) + 1))
             figs += _pages_table(plt, bundle, acc, len(header) + len(figs) + 1, protocol)
             figs += _pages_verdicts_events(plt, bundle, acc, len(header) + len(figs) + 1)

@@ -20,7 +20,9 @@ from datetime import UTC, datetime
 import numpy as np
 from sqlalchemy.orm import Session, sessionmaker
 
-from sim.engine import CONTROL_PERIOD_S, CSV_COLUMNS, Scenario
+from sim.engine import Scenario
+from sim.loop import CONTROL_PERIOD_S
+from sim.samples import CSV_FIELDS, Samples
 from sim.tracking import tracking_summary
 
 from . import store
@@ -32,6 +34,13 @@ log = logging.getLogger("isorig.service")
 
 STATUS_INTERVAL_S = 0.25  # wall time between status messages while a test runs
 MAX_CHUNK_ROWS = 1000  # one stored chunk holds at most ~1 s of samples
+
+
+def lost_periods(samples: Samples) -> int:
+    """Periods whose measurement never arrived (flagged by the loop, sim.measurement.FLAG_LOST)."""
+    from sim.measurement import FLAG_LOST
+
+    return int(np.count_nonzero(np.nan_to_num(samples["flags"]).astype(np.int64) & FLAG_LOST))
 
 
 class Conflict(Exception):
@@ -55,16 +64,17 @@ class ActiveRun:
         self.shutdown = False
         self.cycles_done = 0
         self.arrival_ms: list[float] = []
+        self.link: dict = {}  # the latest link health a real rig's driver reported
 
 
 class RigService:
     """Runs tests on one rig through a worker process; records them in the store and streams them."""
 
-    def __init__(self, settings: Settings, sessions: sessionmaker[Session], hub: Hub, driver: str = "simulated"):
+    def __init__(self, settings: Settings, sessions: sessionmaker[Session], hub: Hub, driver: str | None = None):
         self.settings = settings
         self.sessions = sessions
         self.hub = hub
-        self.driver = driver
+        self.driver = driver or settings.rig  # "simulated" or "udp://HOST:PORT"
         self.active: ActiveRun | None = None
         self._lock = threading.Lock()
         self._context = None
@@ -99,7 +109,7 @@ class RigService:
         if run is None or run.finished.is_set():
             return {"status": "idle", "test_id": None, "driver": self.driver}
         return {"status": "running", "test_id": run.test_id, "driver": self.driver, "time_s": run.time_s,
-                "worker_pid": run.process.pid}
+                "worker_pid": run.process.pid, "link": run.link}
 
     # --- operator actions ----------------------------------------------------------------------------
     def start(self, test_id: int, actor: str = "operator") -> None:
@@ -114,8 +124,8 @@ class RigService:
                 if test.status != "ready":
                     raise Conflict(f"test {test_id} is {test.status}; only a test with status 'ready' can start "
                                    "(create a new test to run it again)")
-                job = {"test_id": test_id, "driver": test.driver, "speed": test.speed,
-                       "scenario": test.request["job_scenario"], "limits": test.limits,
+                job = {"test_id": test_id, "rig": test.driver, "link": self.settings.link_settings(),
+                       "speed": test.speed, "scenario": test.request["job_scenario"], "limits": test.limits,
                        "realtime": self.settings.worker_realtime}
                 ctx = self.context()
                 out_r, out_w = ctx.Pipe(duplex=False)
@@ -196,6 +206,8 @@ class RigService:
                "time_left_s": max(0.0, duration_s - run.time_s) / record["speed"] if status == "running" else 0.0}
         if reason:
             msg["reason"] = reason
+        if run.link:
+            msg["link"] = run.link
         return msg
 
     def _record(self, run: ActiveRun, record: dict) -> None:
@@ -225,14 +237,17 @@ class RigService:
                         run.arrival_ms.append((time.time() - due) * 1e3)
                     run.time_s = float(rows[-1, 0])
                     self.hub.publish_threadsafe({"type": "samples", "test_id": test_id,
-                                                 "seq": self.hub_seq(test_id), "columns": list(CSV_COLUMNS),
-                                                 "rows": rows[:, : len(CSV_COLUMNS)].tolist()})
+                                                 "seq": self.hub_seq(test_id), "columns": list(CSV_FIELDS),
+                                                 "rows": rows[:, : len(CSV_FIELDS)].tolist()})
                     now = time.monotonic()
                     if now - last_status >= STATUS_INTERVAL_S:
                         last_status = now
                         self.hub.publish_threadsafe(self._status_message(run, record, "running"))
                 elif kind == "started":
                     run.wall_t0 = payload["wall_t0"]
+                elif kind == "link":
+                    run.link = store.clean_json(payload)
+                    continue  # shown live, not stored (the final figures go into the summary)
                 elif kind == "cycle":
                     run.cycles_done = payload["cycle"]
                     self.hub.publish_threadsafe({
@@ -332,6 +347,8 @@ class RigService:
                 pacing = {}
             else:
                 status, reason, pacing = final["status"], final["reason"], final.get("pacing", {})
+                if final.get("link"):
+                    run.link = store.clean_json({**final["link"], "lost_periods": final.get("lost_periods", 0)})
                 if run.shutdown and status == "aborted":
                     status, reason = "interrupted", "the service shut down while the test was running"
             test = store.get_test(session, test_id)
@@ -339,7 +356,7 @@ class RigService:
                 pacing = {**pacing, "server_arrival_p50_ms": float(np.percentile(run.arrival_ms, 50)),
                           "server_arrival_p95_ms": float(np.percentile(run.arrival_ms, 95)),
                           "server_arrival_max_ms": float(np.max(run.arrival_ms))}
-            test.summary = self._summary(session, test, run.job, pacing)
+            test.summary = self._summary(session, test, run.job, pacing, run.link)
             store.set_status(session, test, status, reason)
             message = f"test {test_id} {status}" + (f": {reason}" if reason else "")
             store.add_event(session, test_id, "status", message, {"status": status, "time_s": run.time_s},
@@ -367,14 +384,18 @@ class RigService:
         self.hub.publish_threadsafe({"type": "event", "test_id": test_id, "time_s": time_s, "kind": kind,
                                      "message": message, "values": store.clean_json(values)})
 
-    def _summary(self, session: Session, test, job: dict, pacing: dict) -> dict:
-        """Tracking figures (sim.tracking), loop-metric means over the full-amplitude cycles, pacing."""
+    def _summary(self, session: Session, test, job: dict, pacing: dict, link: dict) -> dict:
+        """Tracking figures (sim.tracking), loop-metric means over the full-amplitude cycles, pacing, the
+        periods lost on the link and its health."""
         samples = store.load_samples(session, test.id)
         scenario: Scenario = scenario_from_job(job)
-        closed = samples[np.isfinite(samples[:, 1])] if samples.size else samples
-        summary: dict = {"samples": int(samples.shape[0]), "pacing": pacing,
-                         "storage_bytes": store.storage_bytes(session, test.id)}
-        if closed.shape[0]:
+        closed = samples[np.isfinite(samples["target_m"])]
+        summary: dict = {"samples": len(samples), "pacing": pacing,
+                         "storage_bytes": store.storage_bytes(session, test.id),
+                         "lost_periods": lost_periods(samples)}
+        if link:
+            summary["link"] = link
+        if len(closed):
             tracking = tracking_summary(closed, scenario)
             tracking.pop("samples", None)
             summary["tracking"] = tracking

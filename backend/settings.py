@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import platformdirs
-from pydantic import Field, SecretStr
+from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 REPO_STATIC_DIR = Path(__file__).resolve().parent.parent / "frontend" / "static"
@@ -37,6 +37,27 @@ class Settings(BaseSettings):
                                          "bandwidth on slow links, costs server CPU per client)")
     viewer: bool = Field(default=True, description="serve the 3D view under /viewer/ (backend.viewer)")
     commit_interval_s: float = Field(default=0.5, description="samples are committed at least this often (wall)")
+    rig: str = Field(default="simulated", description="the rig tests run on: 'simulated' or 'udp://HOST:PORT' (a "
+                     "real-time I/O target or `isorig rig-emulator`, docs/rig-protocol.md)")
+    rig_period_s: float = Field(default=0.001, gt=0, description="control period the UDP rig must run at")
+    rig_link_timeout_s: float = Field(default=0.05, gt=0, le=5.0, description="UDP rig: a link silent this long "
+                                      "ends the test 'failed' (the rig's watchdog closes its valve by itself)")
+    rig_arm_timeout_s: float = Field(default=2.0, gt=0, le=60.0, description="UDP rig: how long arming may take")
+    rig_watchdog_s: float = Field(default=0.01, gt=0, le=1.0, description="UDP rig: asked of the rig at arm: "
+                                  "no valid command for this long and it closes the valve by itself")
+
+    @field_validator("rig")
+    @classmethod
+    def _known_rig(cls, value: str) -> str:
+        from .drivers import rig_kind
+
+        rig_kind(value)  # ValueError with what is allowed
+        return value
+
+    def link_settings(self) -> dict:
+        """What the worker's UDP driver is built with (host and port come from ``rig``)."""
+        return {"period_s": self.rig_period_s, "timeout_s": self.rig_link_timeout_s,
+                "arm_timeout_s": self.rig_arm_timeout_s, "watchdog_s": self.rig_watchdog_s}
 
     @property
     def resolved_database_url(self) -> str:

@@ -1,7 +1,7 @@
 """All database access in one place: test records, sample chunks, cycles, events, user isolators.
 
 ``load_test_bundle(session, test_id)`` is the contract with reports (docs/architecture.md): the record as
-``GET /api/tests/{id}`` returns it, the samples in the engine's COLUMNS layout, the cycles with their loop
+``GET /api/tests/{id}`` returns it, the samples by name (``sim.samples.Samples``), the cycles with their loop
 arrays and the events.
 """
 
@@ -15,6 +15,8 @@ import numpy as np
 from sqlalchemy import delete, func, select
 from sqlalchemy.orm import Session
 
+from sim.samples import Samples
+
 from .codec import ARRAYS_CODEC, SAMPLES_CODEC, decode_arrays, decode_samples, encode_arrays, encode_samples
 from .models import CycleRecord, EventRecord, SampleChunk, TestRecord, UserIsolator, utcnow
 
@@ -26,7 +28,7 @@ class TestBundle:
     __test__ = False
 
     record: dict
-    samples: np.ndarray
+    samples: Samples
     cycles: list[dict] = field(default_factory=list)
     events: list[dict] = field(default_factory=list)
 
@@ -148,8 +150,10 @@ def mark_running_interrupted(session: Session) -> list[int]:
 
 # --- samples ---------------------------------------------------------------------------------------------
 
-def append_samples(session: Session, test: TestRecord, rows: np.ndarray) -> None:
-    """Store a block of sample rows (engine COLUMNS layout) as one compressed chunk."""
+def append_samples(session: Session, test: TestRecord, rows: np.ndarray | Samples) -> None:
+    """Store a block of sample rows (``Samples``, or an array in the ``SAMPLE_FIELDS`` layout) as one chunk."""
+    if isinstance(rows, Samples):
+        rows = rows.array
     if rows.shape[0] == 0:
         return
     seq = session.scalar(select(func.count()).select_from(SampleChunk).where(SampleChunk.test_id == test.id)) or 0
@@ -159,15 +163,13 @@ def append_samples(session: Session, test: TestRecord, rows: np.ndarray) -> None
     test.time_s = float(rows[-1, 0])
 
 
-def load_samples(session: Session, test_id: int) -> np.ndarray:
+def load_samples(session: Session, test_id: int) -> Samples:
+    """Every sample of a test by name (sim.samples); fields an older record did not store read as NaN."""
     chunks = session.execute(select(SampleChunk.data, SampleChunk.n_rows, SampleChunk.n_columns)
                              .where(SampleChunk.test_id == test_id).order_by(SampleChunk.seq))
-    blocks = [decode_samples(data, n_rows, n_columns) for data, n_rows, n_columns in chunks]  # no ORM objects
-    if not blocks:
-        from sim.engine import COLUMNS
-
-        return np.empty((0, len(COLUMNS)))
-    return np.concatenate(blocks)
+    blocks = [Samples.from_stored(decode_samples(data, n_rows, n_columns))  # no ORM objects
+              for data, n_rows, n_columns in chunks]
+    return Samples.concatenate(blocks)
 
 
 def iter_sample_blocks(session: Session, test_id: int):
@@ -176,7 +178,7 @@ def iter_sample_blocks(session: Session, test_id: int):
                           .order_by(SampleChunk.seq)).all()
     for chunk_id in ids:
         c = session.get(SampleChunk, chunk_id)
-        yield decode_samples(c.data, c.n_rows, c.n_columns)
+        yield Samples.from_stored(decode_samples(c.data, c.n_rows, c.n_columns))
         session.expunge(c)
 
 
@@ -245,7 +247,7 @@ def add_user_isolator(session: Session, definition: dict) -> None:
 # --- bundle ----------------------------------------------------------------------------------------------
 
 def load_test_bundle(session: Session, test_id: int) -> TestBundle:
-    """Record, samples (engine COLUMNS layout), cycles (metrics + loop arrays) and events of one test."""
+    """Record, samples (``sim.samples.Samples``), cycles (metrics + loop arrays) and events of one test."""
     test = get_test(session, test_id)
     if test is None:
         raise KeyError(f"test {test_id} does not exist")

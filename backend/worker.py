@@ -1,17 +1,23 @@
-"""The rig worker: runs one test in its own process, paced to the wall clock, and reports over a pipe.
+"""The rig worker: runs one test in its own process, in real time, and reports over a pipe.
 
 The server starts ``main(job, out, commands)`` in a separate process (forkserver or spawn, never fork from
-the threaded server). The worker arms the rig driver, closes the controller around it in chunks of
-``CHUNK_S`` of wall time (20 ms: 20 control periods at speed 1, ``speed`` times more when a simulated test
-runs accelerated), checks every ``CHECK_PERIODS`` periods against the safety limits and for an operator
-command, sleeps until each
-chunk's wall-clock deadline and then sends the chunk's samples. It never touches the database: the server
-stores and streams what it sends, so a crash here loses nothing that was sent.
+the threaded server). The worker builds the test's closed loop (sim.loop) and the rig driver
+(backend.drivers), arms the rig and runs the loop in chunks of ``CHUNK_S`` of wall time (20 control periods
+at speed 1; ``speed`` times more when a simulated test runs accelerated). Every ``CHECK_PERIODS`` periods it
+checks the safety detectors and polls for an operator command. A driver that paces itself (real hardware)
+sets the rhythm by blocking until its next period; a simulated rig is paced here to the wall clock. It
+never touches the database: the server stores and streams what it sends, so a crash here loses nothing
+that was sent.
 
-Messages to the server (tuples): ``("started", {...})``, ``("samples", rows)`` (engine COLUMNS layout),
-``("cycle", {...})``, ``("event", {...})``, ``("finished", {"status", "reason", "pacing"})``.
-Commands from the server: ``"stop"`` (ramp-out: the sine tapers to zero over ``taper_cycles``, at least
-one cycle, then ``stopped``) and ``"abort"`` (at once: valve command zero, ``aborted``).
+Every way a test ends closes the valve and says why: completed; ``stop`` (the operator: the target ramps
+out, then ``stopped``); a limit trip (the command ramps to zero open loop, ``aborted``); ``abort`` (0 V at
+once, ``aborted``); a rig fault or a lost link (``failed``: the rig's own watchdog closes the valve when
+the link is gone); an error in the worker (``failed``). The driver is disarmed on every path.
+
+Messages to the server (tuples): ``("started", {...})``, ``("samples", rows)`` (an (n, len(SAMPLE_FIELDS))
+array, sim.samples), ``("cycle", {...})``, ``("event", {...})``, ``("link", stats)``,
+``("finished", {"status", "reason", "pacing", "link", "lost_periods"})``.
+Commands from the server: ``"stop"`` and ``"abort"``.
 """
 
 from __future__ import annotations
@@ -25,24 +31,25 @@ import time
 
 import numpy as np
 
-from sim.engine import C_FORCE, C_Y, CONTROL_PERIOD_S, Scenario
+from sim.controllers import make_controller
+from sim.engine import Scenario
 from sim.isolator import isolator_from_dict
-from sim.profiles import B_CYCLES, B_FREQUENCY, B_START, B_TAPER, SineProfile
+from sim.loop import CONTROL_PERIOD_S, ClosedLoop
+from sim.measurement import FLAG_LOST
+from sim.metrics import loop_metrics
+from sim.profiles import SineProfile
+from sim.samples import Samples
 from sim.tracking import cycle_windows
 
-from .drivers import RigDriver, make_driver
-from .safety import COMMAND_RAMP_S, SafetyLimits, Trip, check_block, command_ramp
-
-try:  # per-cycle loop metrics (sim/metrics.py)
-    from sim.metrics import loop_metrics
-except ImportError:  # pragma: no cover - only while sim/metrics.py did not exist
-    loop_metrics = None
+from .drivers import SIMULATED, ArmConditions, RigDriver, RigFault, SimulatedRig
+from .safety import SafetyLimits, SafetyMonitor, Trip
 
 CHUNK_S = 0.02  # wall time per chunk: samples reach clients at most this much after they are due
 CHECK_PERIODS = 10  # safety detectors run every 10 control periods (10 ms of test time)
 GIL_SWITCH_INTERVAL_S = 0.0005  # CPython's default is 5 ms, longer than the 2 ms lateness budget
 SPIN_S = 0.001  # the pacer sleeps until this long before a chunk is due, then polls the clock (~5 % of one CPU)
 LOOP_POINTS_MAX = 2000  # points of a cycle's loop sent and stored (decimated beyond this)
+LINK_REPORT_S = 0.25  # test time between link-health messages of a driver with a link
 
 
 class ServerGone(Exception):
@@ -94,30 +101,17 @@ def scenario_from_job(job: dict) -> Scenario:
                     dict(spec.get("controller_options") or {}))
 
 
-def ramp_out_profile(blocks: np.ndarray, t_now_s: float, dt_s: float = CONTROL_PERIOD_S):
-    """The packed profile with the running sine block ending smoothly from now, and the new end period.
+def make_driver(rig: str, scenario: Scenario, link: dict | None = None) -> RigDriver:
+    """The driver of a rig named ``simulated`` or ``udp://HOST:PORT`` (with the link settings ``link``).
 
-    The block's cycle count is cut to the first whole cycle at least one taper (>= 1 cycle) after now (or
-    kept, if the block is already tapering out), and later blocks are dropped; the raised-cosine taper-out
-    of sim.profiles does the rest, so the target and its rate stay continuous. Returns ``(blocks, total_periods)``.
+    The simulated rig is built with the test's isolator mounted, as a real rig has its specimen mounted;
+    no driver receives the isolator through the protocol.
     """
-    for i in range(blocks.shape[0]):
-        f = blocks[i, B_FREQUENCY]
-        end = blocks[i, B_START] + blocks[i, B_CYCLES] / f
-        if t_now_s < end:
-            tau = (t_now_s - blocks[i, B_START]) * f
-            taper = blocks[i, B_TAPER]
-            if taper < 1.0 and tau >= 1.0:
-                taper = 1.0  # an untapered block still ramps out over one cycle
-            cycles = math.ceil(tau + max(taper, 1.0) - 1e-9)
-            if cycles >= blocks[i, B_CYCLES]:  # already inside this block's own taper-out: finish it
-                cycles, taper = blocks[i, B_CYCLES], blocks[i, B_TAPER]
-            new = blocks[: i + 1].copy()
-            new[i, B_CYCLES] = cycles
-            new[i, B_TAPER] = taper
-            return new, int(round((blocks[i, B_START] + cycles / f) / dt_s))
-    total = int(round((blocks[-1, B_START] + blocks[-1, B_CYCLES] / blocks[-1, B_FREQUENCY]) / dt_s))
-    return blocks, total
+    if rig == SIMULATED:
+        return SimulatedRig(scenario.isolator, scenario.rig, scenario.noise_seed)
+    from .drivers.udp import UdpRig
+
+    return UdpRig.from_url(rig, **(link or {}))
 
 
 class Pacer:
@@ -161,17 +155,28 @@ class Run:
         self.out = out
         self.commands = commands
         self.scenario = scenario_from_job(job)
-        self.limits = SafetyLimits(**job["limits"])
         self.speed = float(job.get("speed", 1.0))
-        self.driver = driver or make_driver(job.get("driver", "simulated"))
-        if self.speed != 1.0 and not self.driver.can_accelerate:
-            raise ValueError(f"the {self.driver.name} rig runs in real time only (speed = {self.speed:g})")
+        self.driver = driver or make_driver(job.get("rig", SIMULATED), self.scenario, job.get("link"))
+        self.rig = self.driver.describe()
+        if abs(self.rig.control_period_s - CONTROL_PERIOD_S) > 1e-9:
+            raise ValueError(f"the rig {self.rig.name!r} runs at a control period of {self.rig.control_period_s:g} s; "
+                             f"isorig's loop runs at {CONTROL_PERIOD_S:g} s")
+        if self.speed != 1.0 and self.rig.realtime:
+            raise ValueError(f"the rig {self.rig.name!r} runs in real time only (speed = {self.speed:g})")
+        controller = make_controller(self.scenario.controller, **self.scenario.controller_options)
+        self.loop = ClosedLoop(self.scenario.profile, controller,
+                               min(self.scenario.rig.command_limit_v, self.rig.command_limit_v))
+        self.monitor = SafetyMonitor(SafetyLimits(**job["limits"]), self.scenario.supply_pa)
+        self.compiled = getattr(self.driver, "run_compiled", None)
         self.windows = cycle_windows(self.scenario)
         self.next_window = 0
-        self.pending = np.empty((0, 0))
+        self.pending = Samples.empty()
         self.pending_start = 0
+        self.produced: list[Samples] = []  # rows run on the rig and not yet released
         self.pacer: Pacer | None = None
-        self.stopping = False
+        self.trip: Trip | None = None
+        self.lost_periods = 0
+        self.next_link_report_s = 0.0
         self.priority = "normal"
 
     # --- messages ------------------------------------------------------------------------------------
@@ -179,8 +184,7 @@ class Run:
         self.out.send((kind, payload))
 
     def event(self, kind: str, message: str, values: dict | None = None) -> None:
-        self.send("event", {"kind": kind, "message": message, "values": values or {},
-                            "time_s": self.driver.time_s})
+        self.send("event", {"kind": kind, "message": message, "values": values or {}, "time_s": self.loop.time_s})
 
     def poll_command(self) -> str | None:
         try:
@@ -191,113 +195,158 @@ class Run:
         return None
 
     # --- cycles --------------------------------------------------------------------------------------
-    def collect_cycles(self, rows: np.ndarray) -> None:
-        self.pending = rows if self.pending.size == 0 else np.concatenate([self.pending, rows])
+    def collect_cycles(self, rows: Samples) -> None:
+        self.pending = Samples.concatenate([self.pending, rows])
         while self.next_window < len(self.windows):
             block, i0, i1, _f = self.windows[self.next_window]
-            if i1 > self.driver.period:
+            if i1 > self.loop.period:
                 break
             seg = self.pending[i0 - self.pending_start: i1 - self.pending_start]
             self.next_window += 1
-            if seg.shape[0] >= 2:
+            if len(seg) >= 2:
                 self.send_cycle(self.next_window, block, seg)
-            drop = i1 - self.pending_start
-            self.pending = self.pending[drop:]
+            self.pending = self.pending[i1 - self.pending_start:]
             self.pending_start = i1
 
-    def send_cycle(self, number: int, block: int, seg: np.ndarray) -> None:
-        d, f = seg[:, C_Y], seg[:, C_FORCE]
-        metrics = {}
-        if loop_metrics is not None:
-            try:
-                metrics = loop_metrics(d, f)
-            except ValueError as exc:  # non-finite samples: no metrics for this cycle
-                metrics = {"error": str(exc)}
+    def send_cycle(self, number: int, block: int, seg: Samples) -> None:
+        d, f = seg["displacement_m"], seg["force_n"]
+        try:
+            metrics = loop_metrics(d, f)
+        except ValueError as exc:  # non-finite samples: no metrics for this cycle
+            metrics = {"error": str(exc)}
         step = max(1, math.ceil(len(d) / LOOP_POINTS_MAX))
-        self.send("cycle", {"cycle": number, "block": block, "t_start_s": float(seg[0, 0]),
-                            "t_end_s": float(seg[-1, 0] + CONTROL_PERIOD_S), "metrics": metrics,
+        self.send("cycle", {"cycle": number, "block": block, "t_start_s": float(seg["time_s"][0]),
+                            "t_end_s": float(seg["time_s"][-1] + CONTROL_PERIOD_S), "metrics": metrics,
                             "displacement_m": d[::step].copy(), "force_n": f[::step].copy()})
 
     # --- the loop ------------------------------------------------------------------------------------
     def execute(self) -> tuple[str, str | None]:
-        driver = self.driver
-        driver.arm(self.scenario)
+        """Arm, run to the end (or to a stop, trip, abort or fault), disarm; the final (status, reason)."""
+        driver, loop = self.driver, self.loop
+        status = "failed"
+        try:
+            driver.arm(ArmConditions(self.scenario.supply_pa, self.job.get("test_id")))
+            status, reason = self._run()
+            return status, reason
+        except RigFault as exc:
+            status = "failed"
+            self.release(self.take_produced(), pace=False)  # every sample received before the fault is kept
+            reason = f"rig fault at t = {loop.time_s:.3f} s: {exc}"
+            self.event("rig_fault", reason, {"link": driver.link_stats()})
+            return status, reason
+        except ServerGone:
+            raise
+        except Exception:  # a bug or an unexpected error: keep what was measured, then report it (main)
+            self.release(self.take_produced(), pace=False)
+            raise
+        finally:
+            driver.disarm(success=status in ("completed", "stopped"))
+
+    def _run(self) -> tuple[str, str | None]:
+        driver, loop = self.driver, self.loop
         chunk = max(1, round(CHUNK_S * self.speed / CONTROL_PERIOD_S))
         self.pacer = Pacer(self.speed)
         self.send("started", {"wall_t0": self.pacer.wall_t0, "chunk_periods": chunk,
-                              "total_periods": driver.total_periods, "priority": self.priority})
-        try:
-            command = None
-            while not driver.done:
-                if command == "abort":
-                    driver.write_valve_command(0.0)
-                    self.event("operator", f"abort at t = {driver.time_s:.3f} s: valve command set to zero at once",
-                               {"action": "abort"})
-                    return "aborted", f"operator abort at t = {driver.time_s:.3f} s"
-                if command == "stop" and not self.stopping:
-                    self.stopping = True
-                    blocks, total = ramp_out_profile(driver.blocks, driver.time_s)
-                    driver.set_profile(blocks, min(total, driver.total_periods))
-                    self.windows = [w for w in self.windows if w[2] <= driver.total_periods]
-                    self.event("operator", f"stop at t = {driver.time_s:.3f} s: ramping out, ends at "
-                               f"t = {driver.total_periods * CONTROL_PERIOD_S:.3f} s",
-                               {"action": "stop", "ends_at_s": driver.total_periods * CONTROL_PERIOD_S})
-                rows, trip, command = self.closed_loop_chunk(chunk)
-                self.release(rows)
-                if trip is not None:
-                    return self.controlled_stop(trip)
-            if self.stopping:
-                return "stopped", f"operator stop; ramped out to t = {driver.time_s:.3f} s"
-            return "completed", None
-        finally:
-            driver.disarm()
+                              "total_periods": loop.total_periods, "priority": self.priority,
+                              "rig": self.rig.to_dict()})
+        command = None
+        while not loop.done:
+            if command == "abort":
+                driver.write(0.0)
+                self.event("operator", f"abort at t = {loop.time_s:.3f} s: valve command set to zero at once",
+                           {"action": "abort"})
+                return "aborted", f"operator abort at t = {loop.time_s:.3f} s"
+            if command == "stop" and not loop.stopping and self.trip is None:
+                end_s = loop.ramp_out()
+                self.windows = [w for w in self.windows if w[2] <= loop.total_periods]
+                self.event("operator", f"stop at t = {loop.time_s:.3f} s: ramping out, ends at t = {end_s:.3f} s",
+                           {"action": "stop", "ends_at_s": end_s})
+            rows, command = self.chunk(chunk)
+            self.release(rows)
+            if len(rows) == 0:  # the rig cannot run on (a simulated rig diverged)
+                if self.trip is None:
+                    self.trip_now(Trip("rig_fault", 0, loop.time_s, f"{driver.fault() or 'the rig stopped'} at "
+                                       f"t = {loop.time_s:.3f} s", {"time_s": loop.time_s}))
+                break
+        if self.trip is not None:
+            return "aborted", self.trip.message
+        if loop.stopping:
+            return "stopped", f"operator stop; ramped out to t = {loop.time_s:.3f} s"
+        return "completed", None
 
-    def closed_loop_chunk(self, n: int) -> tuple[np.ndarray, Trip | None, str | None]:
-        """Up to n periods in blocks of CHECK_PERIODS; stops early at a trip or an operator command."""
-        driver = self.driver
-        parts = []
-        trip = command = None
+    def trip_now(self, trip: Trip) -> None:
+        """A limit trip: record it and begin the controlled stop (the command ramps to zero, open loop)."""
+        self.trip = trip
+        self.event("limit_trip", trip.message, {"detector": trip.detector, **trip.values})
+        self.loop.begin_command_ramp()
+
+    def periods(self, n: int) -> Samples:
+        """Up to n periods of the loop on the rig: one compiled call, or read/step/write/wait per period.
+
+        Each period's rows join ``produced`` as soon as they exist, so a fault raised later in the chunk
+        (by ``wait_next_period``) loses none of them."""
+        loop, driver = self.loop, self.driver
+        first = len(self.produced)
+        if self.compiled is not None:
+            self.produced.append(self.compiled(loop, n))
+        else:
+            end = min(loop.period + n, loop.end_period)
+            while loop.period < end:
+                u, rows = loop.step(driver.read())
+                self.produced.append(rows)
+                driver.write(u)
+                driver.wait_next_period()
+        return Samples.concatenate(self.produced[first:])
+
+    def take_produced(self) -> Samples:
+        rows, self.produced = Samples.concatenate(self.produced), []
+        return rows
+
+    def chunk(self, n: int) -> tuple[Samples, str | None]:
+        """Up to n periods in blocks of CHECK_PERIODS, checking the detectors after each block (until a trip)
+        and polling for an operator command; stops early at a trip or a command."""
+        loop = self.loop
+        command = None
         done = 0
-        while done < n and not driver.done:
+        while done < n and not loop.done:
             m = min(CHECK_PERIODS, n - done)
-            block = driver.run_closed_loop(m)
-            parts.append(block)
-            done += block.shape[0]
-            trip = check_block(block, self.limits)
-            fault = driver.fault()
-            if trip is None and fault is not None:
-                trip = Trip("non_finite", block.shape[0] - 1, driver.time_s, f"{fault} at t = {driver.time_s:.3f} s",
-                            {"time_s": driver.time_s})
-            if trip is not None or block.shape[0] < m:
+            block = self.periods(m)
+            done += len(block)
+            if self.trip is None:
+                trip = self.monitor.check(block)
+                fault = self.driver.fault()
+                if trip is None and fault is not None:
+                    trip = Trip("rig_fault", len(block) - 1, loop.time_s, f"{fault} at t = {loop.time_s:.3f} s",
+                                {"time_s": loop.time_s})
+                if trip is not None:
+                    self.trip_now(trip)
+                    break
+            if len(block) < m:
                 break
             command = self.poll_command()
             if command is not None:
                 break
-        rows = np.concatenate(parts) if parts else np.empty((0, 0))
-        return rows, trip, command
+        return self.take_produced(), command
 
-    def release(self, rows: np.ndarray) -> None:
-        if rows.size == 0:
+    def release(self, rows: Samples, pace: bool = True) -> None:
+        if len(rows) == 0:
             return
-        self.pacer.wait_until(self.driver.time_s)
-        self.send("samples", rows)
+        if pace and not self.rig.realtime:  # a real rig paced the chunk itself
+            self.pacer.wait_until(self.loop.time_s)
+        self.lost_periods += int(np.count_nonzero(np.nan_to_num(rows["flags"]).astype(np.int64) & FLAG_LOST))
+        self.send("samples", rows.array)
         self.collect_cycles(rows)
+        if self.loop.time_s >= self.next_link_report_s:
+            self.next_link_report_s = self.loop.time_s + LINK_REPORT_S
+            link = self.driver.link_stats()
+            if link:
+                self.send("link", {**link, "lost_periods": self.lost_periods})
 
-    def controlled_stop(self, trip: Trip) -> tuple[str, str]:
-        """A limit trip: record it, ramp the valve command to zero (open loop), end ``aborted``."""
-        driver = self.driver
-        self.event("limit_trip", trip.message, {"detector": trip.detector, **trip.values})
-        ramp = command_ramp(driver.last_command_v, COMMAND_RAMP_S, CONTROL_PERIOD_S)
-        chunk = max(1, round(CHUNK_S * self.speed / CONTROL_PERIOD_S))
-        for i0 in range(0, len(ramp), chunk):
-            parts = []
-            for u in ramp[i0: i0 + chunk]:
-                driver.write_valve_command(float(u))
-                parts.append(driver.step(1))
-            rows = np.concatenate(parts)
-            self.pacer.wait_until(driver.time_s)
-            self.send("samples", rows)
-        return "aborted", trip.message
+    def pacing(self) -> dict:
+        stats = self.pacer.stats() if self.pacer is not None else {}
+        if self.rig.realtime:
+            stats = {"chunks": stats.get("chunks", 0), "realtime_rig": True}
+        return {**stats, "priority": self.priority}
 
 
 def raise_priority() -> str:
@@ -331,12 +380,12 @@ def main(job: dict, out, commands) -> None:
         run = Run(job, outbox, commands)
         run.priority = priority
         status, reason = run.execute()
-        run.send("finished", {"status": status, "reason": reason,
-                              "pacing": {**run.pacer.stats(), "priority": run.priority}})
+        run.send("finished", {"status": status, "reason": reason, "pacing": run.pacing(),
+                              "link": run.driver.link_stats(), "lost_periods": run.lost_periods})
     except ServerGone:
         return
     except Exception as exc:  # report any failure to the server instead of dying silently
-        pacing = run.pacer.stats() if run is not None and run.pacer is not None else {}
+        pacing = run.pacing() if run is not None else {}
         try:
             outbox.send(("finished", {"status": "failed", "reason": f"worker error: {type(exc).__name__}: {exc}",
                                       "pacing": pacing}))

@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 
-from sim.engine import C_PL, C_Y, Scenario, Simulation, warm_up
+from sim.engine import Scenario, Simulation, warm_up
 
 SUBSTEPS = (1, 2, 5, 10)  # 1 ms, 0.5 ms, 0.2 ms, 0.1 ms
 REFERENCE_SUBSTEPS = 50  # 0.02 ms
@@ -27,8 +27,8 @@ def main():
             t0 = time.perf_counter()
             out = Simulation(scenario, plant_substeps=n).run().samples
             rtf = scenario.duration_s / (time.perf_counter() - t0)
-            dy = np.max(np.abs(out[:, C_Y] - ref[:, C_Y]))
-            dp = np.max(np.abs(out[:, C_PL] - ref[:, C_PL]))
+            dy = np.max(np.abs(out["displacement_m"] - ref["displacement_m"]))
+            dp = np.max(np.abs(out["load_pressure_pa"] - ref["load_pressure_pa"]))
             print(f"{label:34s} {1.0 / n:8.2f} ms {dy * 1e6:11.4f} {dp:13.1f} {rtf:12.0f}")
 
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .engine import C_TARGET, C_U, C_URAW, C_Y, CONTROL_PERIOD_S, Scenario, run_batch
+from .engine import CONTROL_PERIOD_S, Scenario, run_batch
 from .isolator import load_isolator
 from .profiles import max_amplitude_m
 from .rig import BAR_PA, DEFAULT_RIG, LITRE_PER_MIN_M3_S, RigParameters
@@ -165,7 +165,7 @@ def jsonable(rows: list[dict]) -> list[dict]:
     return [{k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in r.items()} for r in rows]
 
 
-def limit_cycle_rms_m(samples: np.ndarray, scenario: Scenario) -> float:
+def limit_cycle_rms_m(samples, scenario: Scenario) -> float:
     """RMS of the error that does not repeat from cycle to cycle, above LIMIT_CYCLE_BAND_HZ (m).
 
     A converged periodic response repeats every cycle; a limit cycle (a self-sustained oscillation at
@@ -175,12 +175,12 @@ def limit_cycle_rms_m(samples: np.ndarray, scenario: Scenario) -> float:
     block = scenario.profile[-1]
     windows = cycle_windows(scenario)
     full = windows[block.taper_cycles:block.cycles - block.taper_cycles]
-    if len(full) < 2 or full[-1][2] > samples.shape[0]:
+    if len(full) < 2 or full[-1][2] > len(samples):
         return float("nan")
     (_, a0, a1, _), (_, b0, b1, _) = full[-2], full[-1]
     n = min(a1 - a0, b1 - b0)
-    e_prev = samples[a0:a0 + n, C_Y] - samples[a0:a0 + n, C_TARGET]
-    e_last = samples[b0:b0 + n, C_Y] - samples[b0:b0 + n, C_TARGET]
+    e = samples["displacement_m"] - samples["target_m"]
+    e_prev, e_last = e[a0:a0 + n], e[b0:b0 + n]
     spectrum = np.fft.rfft(e_last - e_prev)
     freqs = np.fft.rfftfreq(n, CONTROL_PERIOD_S)
     spectrum[freqs <= LIMIT_CYCLE_BAND_HZ] = 0.0
@@ -195,7 +195,7 @@ def point_figures(point: GridPoint, result) -> dict:
     cycles = summary["cycles"]
     last = summary.get("last_two_cycles", {})
     from3 = [c["rms_y_minus_r_m"] for c in cycles[2:]]
-    u = result.samples[:, C_U]
+    u = result.samples["voltage_v"]
     return {
         "controller": point.controller,
         "isolator": point.isolator,
@@ -210,7 +210,7 @@ def point_figures(point: GridPoint, result) -> dict:
         "first_cycle_peak_m": cycles[0]["peak_abs_y_minus_r_m"] if cycles else float("nan"),
         "amplitude_error": last.get("amplitude_error", float("nan")),
         "phase_error_deg": last.get("phase_error_deg", float("nan")),
-        "saturated_share": float(np.mean(np.abs(result.samples[:, C_URAW]) >= scenario.rig.command_limit_v)),
+        "saturated_share": float(np.mean(np.abs(result.samples["command_raw_v"]) >= scenario.rig.command_limit_v)),
         "peak_flow_l_per_min": summary["peak_flow_l_per_min"],
         "pump_flow_l_per_min": scenario.rig.pump_max_flow_m3_per_s / LITRE_PER_MIN_M3_S,
         "limit_cycle_rms_m": limit_cycle_rms_m(result.samples, scenario),

@@ -1,13 +1,10 @@
-"""Closed-loop engine: controller at 1 kHz with zero-order hold, plant by fixed-step RK4.
+"""Offline engine: a test's closed loop (sim.loop) around the simulated rig (sim.plant), as fast as it runs.
 
-Plant step: 0.2 ms (5 RK4 substeps per control period). The closed-loop eigenvalues of the rig
-model are about -176 +- 180j (valve) and -90 +- 365j (oil column), so RK4 is stable well beyond
-1 ms; at 0.2 ms the displacement agrees with a 0.02 ms reference to far below 1 um (see
-``scripts/step_size_study.py`` and docs/engine.md). Everything is deterministic: no random
-numbers, no threads inside one run.
-
-A ``Simulation`` advances in chunks (``advance(n_periods)``) so a worker can pace it in real time;
-``run_batch`` runs many scenarios on all cores.
+``Simulation(scenario)`` builds the scenario's ``ClosedLoop`` and ``SimulatedPlant`` and advances them
+together in chunks (``advance(n_periods)``, one compiled call per chunk), so a worker can pace it in real
+time; ``run()`` goes to the end and returns a ``Result`` with named samples (sim.samples). ``run_batch``
+runs many scenarios on all cores. Everything is deterministic: the sensor noise (zero by default) is a
+pure function of the seed and the period.
 """
 
 from __future__ import annotations
@@ -16,52 +13,16 @@ import os
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 
-import numpy as np
-from numba import njit
-
-from .controllers import DEFAULT_CONTROLLER, Controller, controller_step, make_controller
-from .controllers.base import (
-    M_LOAD_PRESSURE,
-    M_POSITION,
-    M_SUPPLY_PRESSURE,
-    M_TARGET,
-    M_TARGET_RATE,
-    M_TIME,
-    N_MEAS,
-    N_REPORT,
-)
+from .controllers import DEFAULT_CONTROLLER, Controller, make_controller
 from .isolator import Isolator, load_isolator
-from .profiles import SineProfile, pack_profile, profile_duration_s, target, validate_profile
-from .rig import (
-    BAR_PA,
-    DEFAULT_RIG,
-    N_STATES,
-    P_KD,
-    P_KW,
-    P_SUPPLY,
-    P_ULIM,
-    X_PL,
-    X_V,
-    X_VE,
-    X_W,
-    X_Y,
-    RigParameters,
-    load_flow,
-    pack_plant,
-    rk4_step,
-    valve_command,
-)
+from .loop import CONTROL_PERIOD_S, ClosedLoop
+from .plant import PLANT_SUBSTEPS, SimulatedPlant
+from .profiles import SineProfile, profile_duration_s, validate_profile
+from .rig import BAR_PA, DEFAULT_RIG, RigParameters
+from .samples import Samples
 
-CONTROL_PERIOD_S = 1.0e-3
-PLANT_SUBSTEPS = 5  # 0.2 ms RK4 step
-
-# Sample columns. The first ten are the CSV columns of `isorig simulate`.
-CSV_COLUMNS = ("time_s", "target_m", "model_m", "displacement_m", "voltage_v", "force_n",
-               "load_pressure_pa", "ar_hat", "ay_hat", "as_hat")
-EXTRA_COLUMNS = ("velocity_m_per_s", "flow_m3_per_s", "command_raw_v", "valve_v")
-COLUMNS = CSV_COLUMNS + EXTRA_COLUMNS
-(C_TIME, C_TARGET, C_MODEL, C_Y, C_U, C_FORCE, C_PL, C_AR, C_AY, C_AS,
- C_VEL, C_FLOW, C_URAW, C_VALVE) = range(len(COLUMNS))
+__all__ = ["CONTROL_PERIOD_S", "PLANT_SUBSTEPS", "Result", "Scenario", "Simulation", "run_batch", "run_scenario",
+           "warm_up"]
 
 
 @dataclass
@@ -75,6 +36,7 @@ class Scenario:
     controller_options: dict = field(default_factory=dict)
     rig: RigParameters = DEFAULT_RIG
     label: str = ""
+    noise_seed: int = 0  # sensor noise (sim.sensors); only matters when the rig declares noise
 
     @classmethod
     def sine(cls, isolator: str | Isolator, supply_bar: float, amplitude_m: float, frequency_hz: float,
@@ -109,66 +71,6 @@ class Scenario:
         }
 
 
-@njit(cache=True)
-def run_periods(x, plant, kind, cparams, cstate, blocks, k0, n, substeps, dt, out, u_hold=np.nan):
-    """Advance the closed loop n control periods from period k0; one row of ``out`` per period.
-
-    Each row holds the measurement at the start of the period and the command applied over it.
-    With a finite ``u_hold`` the loop is open: the controller is not stepped, that command is held, and
-    the target, model and adapted columns are NaN. Returns the number of rows written (fewer than n if
-    the state became non-finite).
-    """
-    meas = np.empty(N_MEAS)
-    report = np.empty(N_REPORT)
-    k1 = np.empty(N_STATES)
-    k2 = np.empty(N_STATES)
-    k3 = np.empty(N_STATES)
-    k4 = np.empty(N_STATES)
-    tmp = np.empty(N_STATES)
-    h = dt / substeps
-    ulim = plant[P_ULIM]
-    for i in range(n):
-        t = (k0 + i) * dt
-        if np.isfinite(u_hold):
-            r = np.nan
-            report[:] = np.nan
-            u_raw = u_hold
-        else:
-            r, rdot = target(t, blocks)
-            meas[M_TIME] = t
-            meas[M_TARGET] = r
-            meas[M_TARGET_RATE] = rdot
-            meas[M_POSITION] = x[X_Y]
-            meas[M_LOAD_PRESSURE] = x[X_PL]
-            meas[M_SUPPLY_PRESSURE] = plant[P_SUPPLY]
-            u_raw = controller_step(kind, cparams, cstate, meas, dt, report)
-        u = min(max(u_raw, -ulim), ulim)
-        if not np.isfinite(u):
-            u = 0.0
-        row = out[i]
-        row[C_TIME] = t
-        row[C_TARGET] = r
-        row[C_MODEL] = report[0]
-        row[C_Y] = x[X_Y]
-        row[C_U] = u
-        row[C_FORCE] = plant[P_KD] * x[X_Y] + plant[P_KW] * x[X_W]
-        row[C_PL] = x[X_PL]
-        row[C_AR] = report[1]
-        row[C_AY] = report[2]
-        row[C_AS] = report[3]
-        row[C_VEL] = x[X_V]
-        row[C_FLOW] = load_flow(x[X_VE], x[X_PL], plant)
-        row[C_URAW] = u_raw
-        row[C_VALVE] = x[X_VE]
-        v_c = valve_command(u, plant)
-        for _ in range(substeps):
-            rk4_step(x, v_c, plant, h, k1, k2, k3, k4, tmp)
-        for j in range(N_STATES):
-            if not np.isfinite(x[j]):
-                return i + 1
-    return n
-
-
 class Simulation:
     """A scenario in progress; ``advance`` runs it forward in chunks and returns the new samples."""
 
@@ -177,55 +79,38 @@ class Simulation:
         if validate:
             scenario.validate()
         self.scenario = scenario
-        self.controller = controller or make_controller(scenario.controller, **scenario.controller_options)
-        self.plant = pack_plant(scenario.rig, scenario.isolator, scenario.supply_pa)
-        self.blocks = pack_profile(scenario.profile)
-        self.state = np.zeros(N_STATES)
-        self.controller_state = self.controller.new_state()
-        self.period = 0
-        self.total_periods = scenario.n_periods
-        self.diverged = False
-        self.plant_substeps = plant_substeps
+        controller = controller or make_controller(scenario.controller, **scenario.controller_options)
+        self.loop = ClosedLoop(scenario.profile, controller, scenario.rig.command_limit_v)
+        self.plant = SimulatedPlant(scenario.rig, scenario.isolator, scenario.supply_pa, scenario.noise_seed,
+                                    substeps=plant_substeps)
+
+    @property
+    def controller(self) -> Controller:
+        return self.loop.controller
+
+    @property
+    def period(self) -> int:
+        return self.loop.period
+
+    @property
+    def total_periods(self) -> int:
+        return self.loop.end_period
+
+    @property
+    def diverged(self) -> bool:
+        return self.plant.diverged
 
     @property
     def done(self) -> bool:
-        return self.period >= self.total_periods or self.diverged
+        return self.loop.done or self.plant.diverged
 
     @property
     def time_s(self) -> float:
-        return self.period * CONTROL_PERIOD_S
+        return self.loop.time_s
 
-    def advance(self, n_periods: int) -> np.ndarray:
-        """Run up to n_periods more control periods; returns an array (rows, len(COLUMNS))."""
-        n = max(0, min(int(n_periods), self.total_periods - self.period))
-        if self.diverged or n == 0:
-            return np.empty((0, len(COLUMNS)))
-        out = np.empty((n, len(COLUMNS)))
-        written = run_periods(self.state, self.plant, self.controller.kind, self.controller.params,
-                              self.controller_state, self.blocks, self.period, n, self.plant_substeps,
-                              CONTROL_PERIOD_S, out)
-        self.period += written
-        if written < n:
-            self.diverged = True
-        return out[:written]
-
-    def advance_open_loop(self, n_periods: int, command_v: float) -> np.ndarray:
-        """Hold the valve command ``command_v`` (saturated at the limit) for n periods, controller idle.
-
-        Not bounded by the profile's end: a controlled stop ramps the command after the test time is over.
-        """
-        n = max(0, int(n_periods))
-        if self.diverged or n == 0:
-            return np.empty((0, len(COLUMNS)))
-        out = np.empty((n, len(COLUMNS)))
-        u = float(command_v) if np.isfinite(command_v) else 0.0
-        written = run_periods(self.state, self.plant, self.controller.kind, self.controller.params,
-                              self.controller_state, self.blocks, self.period, n, self.plant_substeps,
-                              CONTROL_PERIOD_S, out, u)
-        self.period += written
-        if written < n:
-            self.diverged = True
-        return out[:written]
+    def advance(self, n_periods: int) -> Samples:
+        """Run up to n_periods more control periods; returns their rows."""
+        return self.plant.run_closed(self.loop, n_periods)
 
     def run(self, chunk_periods: int = 5000, progress=None) -> Result:
         """Run to the end; ``progress(fraction)`` is called after each chunk."""
@@ -234,18 +119,17 @@ class Simulation:
             chunks.append(self.advance(chunk_periods))
             if progress is not None:
                 progress(self.period / max(self.total_periods, 1))
-        samples = np.concatenate(chunks) if chunks else np.empty((0, len(COLUMNS)))
-        return Result(self.scenario, samples, self.diverged)
+        return Result(self.scenario, Samples.concatenate(chunks), self.diverged)
 
 
 @dataclass
 class Result:
     scenario: Scenario
-    samples: np.ndarray
+    samples: Samples
     diverged: bool = False
 
-    def column(self, name: str) -> np.ndarray:
-        return self.samples[:, COLUMNS.index(name)]
+    def column(self, name: str):
+        return self.samples[name]
 
     def summary(self) -> dict:
         from .tracking import tracking_summary

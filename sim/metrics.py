@@ -254,12 +254,10 @@ def profile_cycle_starts_s(blocks) -> tuple[list[float], float]:
     return starts, t0
 
 
-def scenario_cycle_metrics(samples: np.ndarray, scenario) -> list[dict]:
-    """Per-cycle metrics of an engine run, split by the command's phase (the scenario's profile)."""
-    from .engine import C_FORCE, C_TIME, C_Y
-
+def scenario_cycle_metrics(samples, scenario) -> list[dict]:
+    """Per-cycle metrics of an engine run (``sim.samples.Samples``), split by the command's phase."""
     starts, end = profile_cycle_starts_s(scenario.profile)
-    return cycle_metrics(samples[:, C_TIME], samples[:, C_Y], samples[:, C_FORCE], starts, end)
+    return cycle_metrics(samples["time_s"], samples["displacement_m"], samples["force_n"], starts, end)
 
 
 # --- reading a force-displacement record from CSV (any machine's data; other columns ignored) ---

@@ -6,21 +6,22 @@ import io
 
 import numpy as np
 
-from .engine import CSV_COLUMNS
+from .samples import RECORD_FIELDS
 
 
-def samples_to_csv(samples: np.ndarray, header: bool = True) -> str:
-    """CSV text of the CSV columns; NaN (no such quantity for this controller) becomes an empty cell."""
+def samples_to_csv(samples, header: bool = True) -> str:
+    """CSV text of the record fields (``RECORD_FIELDS``) of a ``Samples``; NaN (no such quantity for this
+    controller) becomes an empty cell."""
     buf = io.StringIO()
     if header:
-        buf.write(",".join(CSV_COLUMNS) + "\n")
-    block = samples[:, : len(CSV_COLUMNS)]
+        buf.write(",".join(RECORD_FIELDS) + "\n")
+    block = samples.select(RECORD_FIELDS)
     if block.size:
         np.savetxt(buf, block, fmt="%.9g", delimiter=",")
     text = buf.getvalue()
     return text.replace("nan", "")
 
 
-def write_csv(path, samples: np.ndarray) -> None:
+def write_csv(path, samples) -> None:
     with open(path, "w", newline="") as fh:
         fh.write(samples_to_csv(samples))

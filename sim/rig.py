@@ -64,6 +64,12 @@ class RigParameters:
     max_supply_pa: float = _p(210.0 * BAR_PA, "Pa", "paper", "pump and relief valve, 210 bar")
     min_supply_pa: float = _p(10.0 * BAR_PA, "Pa", "assumed", "below this the valve law is not meaningful")
     command_limit_v: float = _p(10.0, "V", "paper", "valve command saturation +-10 V")
+    # instrumentation (sim.sensors): what the controller reads is the true value late, noisy and rounded
+    position_latency_s: float = _p(0.0, "s", "assumed", "position sensor and acquisition delay")
+    position_noise_rms_m: float = _p(0.0, "m", "assumed", "RMS noise of the position reading")
+    position_resolution_m: float = _p(0.0, "m", "assumed", "position reading rounded to this step (0: none)")
+    pressure_latency_s: float = _p(0.0, "s", "assumed", "load pressure sensor delay")
+    pressure_noise_rms_pa: float = _p(0.0, "Pa", "assumed", "RMS noise of the load pressure reading")
 
     @property
     def friction_force_n(self) -> float:

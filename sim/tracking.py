@@ -11,7 +11,7 @@ from .rig import LITRE_PER_MIN_M3_S
 
 def cycle_windows(scenario) -> list[tuple[int, int, int, float]]:
     """(block index, first sample, end sample, frequency) of every target cycle, from the profile."""
-    from .engine import CONTROL_PERIOD_S
+    from .loop import CONTROL_PERIOD_S
 
     windows = []
     start = 0.0
@@ -33,24 +33,31 @@ def fitted_sine(t: np.ndarray, y: np.ndarray, frequency_hz: float) -> tuple[floa
     return math.hypot(a, b), math.atan2(b, a)
 
 
+def _peak_abs(x: np.ndarray) -> float:
+    """Largest finite |x|; NaN where nothing is known (a real rig does not measure the flow)."""
+    finite = x[np.isfinite(x)]
+    return float(np.max(np.abs(finite))) if finite.size else float("nan")
+
+
 def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(x * x))) if x.size else float("nan")
 
 
-def tracking_summary(samples: np.ndarray, scenario) -> dict:
-    """Per-cycle RMS of y - y_m and y - r, and figures over the last two full-amplitude cycles."""
-    from .engine import C_FLOW, C_MODEL, C_TARGET, C_TIME, C_U, C_URAW, C_Y
+def tracking_summary(samples, scenario) -> dict:
+    """Per-cycle RMS of y - y_m and y - r, and figures over the last two full-amplitude cycles.
 
-    n = samples.shape[0]
+    ``samples``: a ``sim.samples.Samples`` of the test's rows from period 0.
+    """
+    n = len(samples)
+    y, r, y_m = samples["displacement_m"], samples["target_m"], samples["model_m"]
     limit = scenario.rig.command_limit_v
     per_cycle = []
     windows = cycle_windows(scenario)
     for number, (b_index, i0, i1, _f) in enumerate(windows, start=1):
         if i1 > n:
             break
-        seg = samples[i0:i1]
-        e_model = seg[:, C_Y] - seg[:, C_MODEL]
-        e_target = seg[:, C_Y] - seg[:, C_TARGET]
+        e_model = y[i0:i1] - y_m[i0:i1]
+        e_target = y[i0:i1] - r[i0:i1]
         per_cycle.append({
             "cycle": number,
             "block": b_index,
@@ -58,13 +65,13 @@ def tracking_summary(samples: np.ndarray, scenario) -> dict:
             "rms_y_minus_r_m": _rms(e_target),
             "peak_abs_y_minus_r_m": float(np.max(np.abs(e_target))),
         })
-    finite = bool(np.all(np.isfinite(samples[:, [C_Y, C_U, C_TARGET]])))
+    finite = bool(np.all(np.isfinite(y)) and np.all(np.isfinite(samples["voltage_v"])) and np.all(np.isfinite(r)))
     summary = {
         "samples": n,
         "all_finite": finite,
-        "saturated_share": float(np.mean(np.abs(samples[:, C_URAW]) >= limit)) if n else 0.0,
-        "peak_flow_l_per_min": float(np.max(np.abs(samples[:, C_FLOW])) / LITRE_PER_MIN_M3_S) if n else 0.0,
-        "rms_y_minus_r_m": _rms(samples[:, C_Y] - samples[:, C_TARGET]),
+        "saturated_share": float(np.mean(np.abs(samples["command_raw_v"]) >= limit)) if n else 0.0,
+        "peak_flow_l_per_min": _peak_abs(samples["flow_m3_per_s"]) / LITRE_PER_MIN_M3_S,
+        "rms_y_minus_r_m": _rms(y - r),
         "cycles": per_cycle,
     }
     # last two cycles at full amplitude (outside the taper) of the last block
@@ -72,11 +79,12 @@ def tracking_summary(samples: np.ndarray, scenario) -> dict:
     last_block = [w for w in windows if w[0] == len(scenario.profile) - 1]
     full = last_block[block.taper_cycles:block.cycles - block.taper_cycles]
     if len(full) >= 2 and full[-1][2] <= n:
-        seg = samples[full[-2][1]:full[-1][2]]
-        amp_y, ph_y = fitted_sine(seg[:, C_TIME], seg[:, C_Y], block.frequency_hz)
-        amp_r, ph_r = fitted_sine(seg[:, C_TIME], seg[:, C_TARGET], block.frequency_hz)
+        sel = slice(full[-2][1], full[-1][2])
+        t = samples["time_s"][sel]
+        amp_y, ph_y = fitted_sine(t, y[sel], block.frequency_hz)
+        amp_r, ph_r = fitted_sine(t, r[sel], block.frequency_hz)
         dphi = math.degrees(math.atan2(math.sin(ph_y - ph_r), math.cos(ph_y - ph_r)))
-        e = seg[:, C_Y] - seg[:, C_TARGET]
+        e = y[sel] - r[sel]
         summary["last_two_cycles"] = {
             "rms_y_minus_r_m": _rms(e),
             "rms_y_minus_r_over_amplitude": _rms(e) / block.amplitude_m,

@@ -6,7 +6,7 @@ import sys
 import pytest
 
 from isorig.cli import main
-from sim.engine import CSV_COLUMNS
+from sim.samples import RECORD_FIELDS
 
 
 def test_simulate_writes_csv_and_summary(tmp_path):
@@ -15,7 +15,7 @@ def test_simulate_writes_csv_and_summary(tmp_path):
     assert rc == 0
     with open(tmp_path / "timeseries.csv") as fh:
         rows = list(csv.reader(fh))
-    assert tuple(rows[0]) == CSV_COLUMNS
+    assert tuple(rows[0]) == RECORD_FIELDS
     assert len(rows) == 1 + 3000
     assert float(rows[2][0]) == pytest.approx(0.001)
     summary = json.loads((tmp_path / "summary.json").read_text())

@@ -7,8 +7,9 @@ import pytest
 
 from isorig.cli import main
 from sim import compare
-from sim.engine import C_TARGET, C_TIME, C_Y, COLUMNS, CONTROL_PERIOD_S, Scenario
+from sim.engine import CONTROL_PERIOD_S, Scenario
 from sim.rig import DEFAULT_RIG
+from sim.samples import Samples
 
 
 def test_grid_points_cover_the_issue_grid_within_the_envelope():
@@ -35,11 +36,11 @@ def test_robust_corners_perturb_only_the_nominal_values_by_30_percent():
 
 def synthetic_samples(scenario, error):
     n = scenario.n_periods
-    s = np.zeros((n, len(COLUMNS)))
+    s = Samples.empty(n)
     t = np.arange(n) * CONTROL_PERIOD_S
-    s[:, C_TIME] = t
-    s[:, C_TARGET] = 0.02 * np.sin(2 * np.pi * t)
-    s[:, C_Y] = s[:, C_TARGET] + error(t)
+    s["time_s"] = t
+    s["target_m"] = 0.02 * np.sin(2 * np.pi * t)
+    s["displacement_m"] = s["target_m"] + error(t)
     return s
 
 

@@ -1,8 +1,9 @@
 import numpy as np
 import pytest
 
-from sim.engine import C_AR, C_MODEL, C_TARGET, C_U, C_Y, Scenario, Simulation, run_batch
+from sim.engine import Scenario, Simulation, run_batch
 from sim.profiles import ProfileError, SineProfile, pack_profile, target, target_series
+from sim.samples import Samples
 
 
 def test_taper_profile_starts_and_ends_at_rest():
@@ -48,18 +49,18 @@ def test_chunks_equal_one_run_and_are_deterministic():
     parts = []
     while not sim.done:
         parts.append(sim.advance(333))
-    np.testing.assert_array_equal(np.concatenate(parts), whole)
-    assert whole.shape[0] == 3000
+    np.testing.assert_array_equal(Samples.concatenate(parts).array, whole.array)
+    assert len(whole) == 3000
 
 
 def test_pid_closed_loop_tracks_the_target():
     s = Scenario.sine("IUT_a", 100.0, 0.02, 0.5, 4, controller="pid")
     res = Simulation(s).run()
-    y, r = res.samples[:, C_Y], res.samples[:, C_TARGET]
-    assert np.all(np.isfinite(res.samples[:, [C_Y, C_U]]))
+    y, r = res.samples["displacement_m"], res.samples["target_m"]
+    assert np.all(np.isfinite(res.samples.select(["displacement_m", "voltage_v"])))
     assert np.max(np.abs(y)) > 0.015  # it moved
     assert np.sqrt(np.mean((y - r) ** 2)) < 0.1 * 0.02
-    assert np.all(np.isnan(res.samples[:, C_MODEL]))  # no reference model
+    assert np.all(np.isnan(res.samples["model_m"]))  # no reference model
 
 
 def test_mrac_closed_loop_converges_to_reference_model():
@@ -69,35 +70,37 @@ def test_mrac_closed_loop_converges_to_reference_model():
     rms = [c["rms_y_minus_ym_m"] for c in cycles]
     assert all(np.isfinite(rms))
     assert rms[-1] < 0.6 * rms[1]  # adaptation reduces y - y_m cycle after cycle
-    assert np.all(np.isfinite(res.samples[:, [C_MODEL, C_AR]]))
+    assert np.all(np.isfinite(res.samples.select(["model_m", "ar_hat"])))
 
 
 def test_batch_matches_serial_runs():
     scenarios = [Scenario.sine(iso, bar, 0.02, 1.0, 2) for iso in ("IUT_a", "IUT_b") for bar in (70.0, 100.0)]
     batch = run_batch(scenarios, processes=2)
     for s, b in zip(scenarios, batch, strict=False):
-        np.testing.assert_array_equal(Simulation(s).run().samples, b.samples)
+        np.testing.assert_array_equal(Simulation(s).run().samples.array, b.samples.array)
 
 
-def test_open_loop_holds_the_command_and_leaves_the_controller_idle():
-    from sim.engine import C_FORCE, C_URAW, PLANT_SUBSTEPS
+def test_command_ramp_runs_open_loop_on_the_plant_and_leaves_the_controller_idle():
+    from sim.plant import PLANT_SUBSTEPS
     from sim.rig import N_STATES, rk4_step, valve_command
 
-    sim = Simulation(Scenario.sine("IUT_a", 100.0, 0.02, 1.0, 2, controller="mrac"))
-    controller_before = sim.controller_state.copy()
-    rows = sim.advance_open_loop(300, 3.0)
-    assert rows.shape[0] == 300 and sim.period == 300
-    np.testing.assert_array_equal(sim.controller_state, controller_before)  # not stepped
-    assert np.all(rows[:, C_U] == 3.0) and np.all(rows[:, C_URAW] == 3.0)
-    assert np.all(np.isnan(rows[:, [C_TARGET, C_MODEL, C_AR]]))
-    # the same plant stepped by hand with the command held
-    x = np.zeros(N_STATES)
+    sim = Simulation(Scenario.sine("IUT_a", 100.0, 0.02, 1.0, 2, controller="pid"))
+    sim.advance(400)
+    u0 = sim.loop.last_command_v
+    assert abs(u0) > 0.5
+    controller_before = sim.loop.controller_state.copy()
+    x = sim.plant.state.copy()
+    sim.loop.begin_command_ramp(0.1)
+    rows = sim.advance(5000)
+    assert len(rows) == 100 and sim.done  # the ramp is the loop's end
+    np.testing.assert_array_equal(sim.loop.controller_state, controller_before)  # not stepped
+    expected = u0 * (1.0 - np.arange(1, 101) / 100)
+    np.testing.assert_allclose(rows["voltage_v"], expected, rtol=0, atol=1e-15)
+    assert rows["voltage_v"][-1] == 0.0
+    assert np.all(np.isnan(rows["target_m"]))
+    # the same plant stepped by hand with each command held
     work = [np.empty(N_STATES) for _ in range(5)]
-    v_c = valve_command(3.0, sim.plant)
-    for i in range(300):
-        assert rows[i, C_Y] == x[0]
+    for i in range(100):
+        assert rows["displacement_m"][i] == x[0]
         for _ in range(PLANT_SUBSTEPS):
-            rk4_step(x, v_c, sim.plant, 1e-3 / PLANT_SUBSTEPS, *work)
-    assert rows[-1, C_Y] > 0 and rows[-1, C_FORCE] > 0  # it pushed the table
-    # it runs beyond the profile's end, as a controlled stop's ramp must
-    assert sim.advance_open_loop(5000, 0.0).shape[0] == 5000
+            rk4_step(x, valve_command(expected[i], sim.plant.params), sim.plant.params, 1e-3 / PLANT_SUBSTEPS, *work)

@@ -8,11 +8,12 @@ import numpy as np
 import pytest
 
 from backend.reports import ReportBundle, bundle_from_csv, render_report_pdf, report_json
-from sim.engine import C_FORCE, C_Y, Scenario, Simulation
+from sim.engine import Scenario, Simulation
 from sim.isolator import PRESETS
 from sim.metrics import scenario_cycle_metrics
 from sim.protocols import load_protocol
 from sim.records import write_csv
+from sim.samples import SAMPLE_FIELDS, Samples
 
 PDFTOPPM = shutil.which("pdftoppm") or ("/usr/bin/pdftoppm" if shutil.os.path.exists("/usr/bin/pdftoppm") else None)
 
@@ -24,13 +25,13 @@ def protocol_run(name="quick_check", controller="pid", degrade_cycle=None):
     samples = Simulation(scenario).run().samples
     if degrade_cycle is not None:  # a softening isolator in one cycle
         p = protocol.cycle_plan()[degrade_cycle - 1]
-        sel = (samples[:, 0] >= p["t_start_s"] - 5e-4) & (samples[:, 0] < p["t_end_s"] + 5e-4)
-        samples[sel, C_FORCE] *= 0.7
+        t = samples["time_s"]
+        samples["force_n"][(t >= p["t_start_s"] - 5e-4) & (t < p["t_end_s"] + 5e-4)] *= 0.7
     cycles = scenario_cycle_metrics(samples, scenario)
     for c in cycles:
         j = min(c["i_end"] + 1, len(samples))
-        c["displacement_m"] = samples[c["i_start"]:j, C_Y]
-        c["force_n"] = samples[c["i_start"]:j, C_FORCE]
+        c["displacement_m"] = samples["displacement_m"][c["i_start"]:j]
+        c["force_n"] = samples["force_n"][c["i_start"]:j]
     record = {"id": 7, "label": "report test", "status": "completed", "created_at": "2026-01-02T03:04:05+00:00",
               "isolator": "IUT_a", "supply_bar": 100.0, "controller": controller, "driver": "simulated",
               "profile": {"kind": "protocol", "name": name}, "duration_s": scenario.duration_s,
@@ -116,7 +117,7 @@ def test_report_from_simulate_csv_uses_its_summary(tmp_path, capsys):
     bundle = bundle_from_csv(tmp_path / "timeseries.csv")
     assert [c["cycle"] for c in bundle.cycles] == [1, 2, 3, 4, 5]  # split by the command's phase
     assert bundle.record["isolator"] == "IUT_a" and bundle.record["supply_bar"] == 100.0
-    assert np.isnan(bundle.samples[:, 2]).all()  # model_m is empty for PID: NaN, not an error
+    assert np.isnan(bundle.samples["model_m"]).all()  # model_m is empty for PID: NaN, not an error
     out = tmp_path / "r.pdf"
     code = main(["report", "--csv", str(tmp_path / "timeseries.csv"), "--out", str(out), "--json",
                  str(tmp_path / "r.json"), "--no-identify", "--protocol", "quick_check"])
@@ -197,11 +198,9 @@ def test_report_cli_errors_are_one_line(argv, message, capsys):
 
 
 def test_report_of_a_test_that_never_ran():
-    from sim.engine import COLUMNS
-
     bundle = ReportBundle({"id": 3, "status": "ready", "isolator": "IUT_b",
                            "profile": {"kind": "protocol", "name": "quick_check", "protocol": None}},
-                          np.empty((0, len(COLUMNS))), [], [])
+                          Samples.empty(), [], [])
     rep = report_json(bundle)
     assert rep["cycles"] == [] and rep["identification"]["available"] is False
     # nothing measured: every judged cycle is "missing", so the protocol fails, it never passes by absence
@@ -215,7 +214,6 @@ def test_report_of_a_test_that_never_ran():
 def test_a_crowded_header_continues_on_a_second_page():
     """Ten levels, six failing rules and a long controller parameter list do not run into the footer."""
     import backend.reports as reports
-    from sim.engine import COLUMNS
 
     proto = load_protocol("en15129_type_test").to_dict()
     proto["levels"] = [{"fraction": 0.1 * (i + 1), "cycles": 3} for i in range(10)]
@@ -227,7 +225,7 @@ def test_a_crowded_header_continues_on_a_second_page():
     plt = reports.plot_style()
     counts = []
     for record in (crowded, plain):
-        bundle = ReportBundle(record, np.zeros((0, len(COLUMNS))), [], [])
+        bundle = ReportBundle(record, Samples.empty(), [], [])
         rep = report_json(bundle, identify=False)
         figs = reports._page_header(plt, bundle, rep["controller"], reports._isolator_of(record),
                                     reports._protocol_of(record)[0], rep["acceptance"], rep["identification"],
@@ -300,21 +298,19 @@ def test_table_lines_sit_where_text_objects_put_them(tmp_path):
 def test_report_columns_only_change_nothing_the_report_says(tmp_path, controller, cycles):
     """all_columns=False skips model_m and load_pressure_pa and reads the adaptive estimates from the last rows
     (PID has none: empty cells); report.json stays the same."""
-    from sim.engine import COLUMNS
-
     scenario = Scenario.sine("IUT_a", 100.0, 0.02, 1.0, cycles, controller=controller, taper_cycles=1)
     write_csv(tmp_path / "timeseries.csv", Simulation(scenario).run().samples)
     full = bundle_from_csv(tmp_path / "timeseries.csv")
     some = bundle_from_csv(tmp_path / "timeseries.csv", all_columns=False)
-    for j, name in enumerate(COLUMNS):
+    for name in SAMPLE_FIELDS:
         if name in ("model_m", "load_pressure_pa"):
-            assert np.isnan(some.samples[:, j]).all()
+            assert np.isnan(some.samples[name]).all()
         elif name in ("ar_hat", "ay_hat", "as_hat"):
-            read = np.isfinite(some.samples[:, j])
-            assert read.any() == np.isfinite(full.samples[:, j]).any() and read[-1] == read.any()
-            np.testing.assert_array_equal(some.samples[read, j], full.samples[read, j])
+            read = np.isfinite(some.samples[name])
+            assert read.any() == np.isfinite(full.samples[name]).any() and read[-1] == read.any()
+            np.testing.assert_array_equal(some.samples[name][read], full.samples[name][read])
         else:
-            np.testing.assert_array_equal(full.samples[:, j], some.samples[:, j])
+            np.testing.assert_array_equal(full.samples[name], some.samples[name])
     assert comparable(report_json(full)) == comparable(report_json(some))
     assert (controller == "pid") == (not some_final(some))
 
@@ -348,7 +344,7 @@ def test_final_estimates_of_a_small_csv(tmp_path, monkeypatch, last_rows, final,
         full = bundle_from_csv(path)
         assert sorted(tail) == sorted(final)
         for name, values in tail.items():
-            column = full.samples[:, reports.COLUMNS.index(name)]
+            column = full.samples[name]
             if tail_bytes >= path.stat().st_size:  # the whole file: every row
                 np.testing.assert_array_equal(values, column)
             else:

@@ -11,10 +11,11 @@ from fastapi import APIRouter, Query, Request
 from fastapi.responses import Response, StreamingResponse
 
 from sim.controllers import CONTROLLER_NAMES
-from sim.engine import CSV_COLUMNS, Scenario
+from sim.engine import Scenario
 from sim.isolator import IsolatorError
 from sim.profiles import ProfileError, SineProfile, max_amplitude_m, max_frequency_hz
 from sim.rig import BAR_PA, DEFAULT_RIG
+from sim.samples import RECORD_FIELDS, Samples
 from sim.tracking import cycle_windows
 
 from .. import store
@@ -61,10 +62,10 @@ def build_test(session, body: TestCreate, request: Request) -> dict:
     if not (0 < body.speed <= settings.max_speed):
         raise ApiError(422, f"speed = {body.speed:g} is outside (0, {settings.max_speed:g}]", "speed", body.speed,
                        f"(0, {settings.max_speed:g}]")
-    from ..drivers import DRIVERS
+    from ..drivers import SIMULATED
 
-    if body.speed != 1.0 and not DRIVERS[service.driver].can_accelerate:
-        raise ApiError(422, f"the {service.driver} rig runs in real time: speed must be 1", "speed", body.speed, "1")
+    if body.speed != 1.0 and service.driver != SIMULATED:
+        raise ApiError(422, f"the rig {service.driver} runs in real time: speed must be 1", "speed", body.speed, "1")
     blocks = profile_blocks(body.profile)
     scenario = Scenario(isolator, body.supply_bar * BAR_PA, blocks, body.controller, rig=DEFAULT_RIG)
     scenario.validate()  # ProfileError -> 422 with field, value, limit
@@ -137,16 +138,16 @@ def list_tests(session: SessionDep,
     return [store.test_record(session, t, with_events=False) for t in tests]
 
 
-CSV_FORMATS = ["%.9g"] + ["%.7g"] * (len(CSV_COLUMNS) - 1)  # stored samples keep 7 significant digits
+CSV_FORMATS = ["%.9g"] + ["%.7g"] * (len(RECORD_FIELDS) - 1)  # stored samples keep 7 significant digits
 
 
-def samples_csv(block, header: bool) -> str:
-    """CSV text of the ten CSV columns (as ``isorig simulate`` writes them; NaN -> empty cell)."""
+def samples_csv(block: Samples, header: bool) -> str:
+    """CSV text of the record fields (as ``isorig simulate`` writes them; NaN -> empty cell)."""
     buf = io.StringIO()
     if header:
-        buf.write(",".join(CSV_COLUMNS) + "\n")
-    if block.size:
-        np.savetxt(buf, block[:, : len(CSV_COLUMNS)], fmt=CSV_FORMATS, delimiter=",")
+        buf.write(",".join(RECORD_FIELDS) + "\n")
+    if len(block):
+        np.savetxt(buf, block.select(RECORD_FIELDS), fmt=CSV_FORMATS, delimiter=",")
     return buf.getvalue().replace("nan", "")
 
 
@@ -222,7 +223,7 @@ def get_csv(test_id: TestId, request: Request, session: SessionDep) -> Streaming
 
     def generate():
         with sessions() as s:
-            yield samples_csv(np.empty((0, len(CSV_COLUMNS))), header=True)
+            yield samples_csv(Samples.empty(), header=True)
             for block in store.iter_sample_blocks(s, test_id):
                 yield samples_csv(block, header=False)
 

@@ -1,15 +1,28 @@
-"""Rig drivers: the seam between the worker's control loop and a rig (simulated or real). See base.py."""
+"""Rig drivers: the seam between the worker's loop and a rig (simulated or real). See base.py.
 
-from .base import Measurement, RigDriver
+A rig is named by a URL-like string: ``simulated`` (the default) or ``udp://HOST:PORT`` (a real-time I/O
+target or ``isorig rig-emulator`` speaking docs/rig-protocol.md).
+"""
+
+from __future__ import annotations
+
+from .base import ArmConditions, Channel, CommandRefused, RigDescription, RigDriver, RigFault, check_command
 from .simulated import SimulatedRig
 
-DRIVERS = {"simulated": SimulatedRig}
+SIMULATED = "simulated"
 
 
-def make_driver(name: str) -> RigDriver:
-    if name not in DRIVERS:
-        raise ValueError(f"unknown rig driver {name!r}; available: {', '.join(DRIVERS)}")
-    return DRIVERS[name]()
+def rig_kind(rig: str) -> str:
+    """``simulated`` or ``udp``; a clear error for anything else."""
+    if rig == SIMULATED:
+        return SIMULATED
+    if rig.startswith("udp://"):
+        from .udp import parse_udp_url
+
+        parse_udp_url(rig)
+        return "udp"
+    raise ValueError(f"unknown rig {rig!r}; allowed: 'simulated' or 'udp://HOST:PORT'")
 
 
-__all__ = ["DRIVERS", "Measurement", "RigDriver", "SimulatedRig", "make_driver"]
+__all__ = ["SIMULATED", "ArmConditions", "Channel", "CommandRefused", "RigDescription", "RigDriver", "RigFault",
+           "SimulatedRig", "check_command", "rig_kind"]

@@ -1,142 +1,137 @@
-"""The rig driver interface: what the worker needs from a rig, simulated or real.
+"""The rig driver protocol: what isorig needs from a rig, simulated or real. I/O only.
 
-A driver is armed for one test (hydraulics enabled, valve amplifier on), then advanced period by period
-at the control rate: read the sensors, write the valve command, step. ``run_closed_loop`` closes the
-test's controller (sim.controllers) around the driver one period at a time; a driver may override it
-with something faster that does the same (the simulated rig runs the compiled engine for a whole chunk).
-Every method returns or takes SI units. A hardware driver implements the abstract methods and nothing
-else in the backend changes.
+A driver reads sensors and writes the valve command, once per control period; it knows nothing of the
+isolator under test, the controller, the target or how samples are recorded (sim.loop does all that,
+above every driver). A lab connects its rig by implementing seven methods (docs/drivers.md):
+
+======================  =======================================================================================
+``describe()``          name, channels with units, command limit, control period, whether it paces itself
+``arm(conditions)``     hydraulics on at the test's supply pressure, valve amplifier enabled; period 0 begins
+``read()``              the current period's ``sim.measurement.Measurement`` (never blocks)
+``write(command_v)``    the valve command for the current period; refuses NaN, inf and |u| > the limit
+``wait_next_period()``  returns when the next period has begun (a real rig blocks until its next sample)
+``disarm(success)``     valve command zero and hydraulics made safe; idempotent. ``success=False``: at once
+``fault()``             a fault the rig reports (a string), or None
+======================  =======================================================================================
+
+Stop, abort and faults, side by side (after bluesky's ``stop(success)``): an operator stop and a limit
+trip are handled above the driver (sim.loop ramps the target or the command out through ``write``), then
+``disarm(success=True)``; an abort writes 0 V and calls ``disarm(success=False)``; a lost link or a rig
+fault raises ``RigFault`` from ``read``/``wait_next_period`` (never a hang) and the worker calls
+``disarm(success=False)``. A real rig must also close its valve by itself when commands stop coming (its
+watchdog): the host cannot be trusted to be there.
+
+Optional capability: ``run_compiled(loop, n)`` runs n periods of a ``sim.loop.ClosedLoop`` in one call
+(only the simulated rig has it: it is how a simulated test runs faster than real time).
 """
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, field
 
-import numpy as np
+from sim.measurement import Measurement
 
-from sim.controllers.base import (
-    M_LOAD_PRESSURE,
-    M_POSITION,
-    M_SUPPLY_PRESSURE,
-    M_TARGET,
-    M_TARGET_RATE,
-    M_TIME,
-    N_MEAS,
+
+class RigFault(Exception):
+    """The rig or its link failed: the test cannot go on (it ends ``failed`` with this message)."""
+
+
+class CommandRefused(ValueError):
+    """A command the driver will not apply: not finite, or beyond the declared limit."""
+
+
+@dataclass(frozen=True)
+class Channel:
+    """One measured quantity: its name in ``Measurement``, its SI unit, what it is."""
+
+    name: str
+    unit: str
+    description: str
+
+
+#: what every driver measures (the first fields of sim.measurement.Measurement)
+STANDARD_CHANNELS = (
+    Channel("position_m", "m", "table displacement from the position sensor"),
+    Channel("force_n", "N", "isolator force (load cell, or A_p P_L less friction)"),
+    Channel("load_pressure_pa", "Pa", "load pressure P_L across the piston"),
+    Channel("supply_pressure_pa", "Pa", "supply pressure P_s"),
+    Channel("status", "-", "status and fault bits (sim.measurement STATUS_*)"),
 )
-from sim.engine import (
-    C_AR,
-    C_AS,
-    C_AY,
-    C_FORCE,
-    C_MODEL,
-    C_PL,
-    C_TARGET,
-    C_TIME,
-    C_U,
-    C_URAW,
-    C_Y,
-    COLUMNS,
-    CONTROL_PERIOD_S,
-    Scenario,
-)
-from sim.profiles import target
 
 
-@dataclass
-class Measurement:
-    """What a rig measures at the start of a control period."""
+@dataclass(frozen=True)
+class RigDescription:
+    """What a driver declares about its rig."""
 
-    time_s: float
-    position_m: float
-    force_n: float
-    load_pressure_pa: float
+    name: str
+    kind: str
+    control_period_s: float
+    command_limit_v: float
+    channels: tuple[Channel, ...] = STANDARD_CHANNELS
+    #: True if ``wait_next_period`` blocks until the next period in real time (hardware); False if the
+    #: caller paces it (a simulation, which may also run faster than real time)
+    realtime: bool = True
+    details: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class ArmConditions:
+    """Operating conditions the rig is armed for."""
+
     supply_pressure_pa: float
+    test_id: int | None = None
+
+
+def check_command(command_v: float, limit_v: float) -> float:
+    """The command as a float, or ``CommandRefused`` naming what is wrong (for ``write`` implementations)."""
+    try:
+        u = float(command_v)
+    except (TypeError, ValueError):
+        raise CommandRefused(f"valve command {command_v!r} is not a number") from None
+    if not math.isfinite(u):
+        raise CommandRefused(f"valve command {u!r} V is not finite; refused (the valve keeps its last command)")
+    if abs(u) > limit_v:
+        raise CommandRefused(f"valve command {u:g} V is beyond the rig's limit of +-{limit_v:g} V; refused")
+    return u
 
 
 class RigDriver(ABC):
-    """A rig behind one interface: arm/disarm, read sensors, write the valve command, step."""
-
-    name = "abstract"
-    control_period_s = CONTROL_PERIOD_S
-    #: whether the rig can run faster than real time (only a simulation can)
-    can_accelerate = False
-
-    def __init__(self) -> None:
-        self.scenario: Scenario | None = None
-        self.blocks: np.ndarray | None = None
-        self.controller = None
-        self.controller_state: np.ndarray | None = None
-        self.period = 0
-        self.total_periods = 0
-        self.last_command_v = 0.0
-
-    # --- what every driver implements ---------------------------------------------------------------
-    @abstractmethod
-    def arm(self, scenario: Scenario) -> None:
-        """Prepare the rig for this test (supply pressure, valve amplifier on); time starts at 0."""
+    """A rig behind the driver protocol (see the module docstring)."""
 
     @abstractmethod
-    def disarm(self) -> None:
-        """Valve command to zero and the rig made safe. Safe to call more than once."""
+    def describe(self) -> RigDescription:
+        """Name, channels, command limit, control period, real-time or not."""
+
+    @abstractmethod
+    def arm(self, conditions: ArmConditions) -> None:
+        """Make the rig ready at these conditions; period 0 begins. Raises ``RigFault`` if it cannot."""
 
     @abstractmethod
     def read(self) -> Measurement:
-        """The sensors now (start of the current control period)."""
+        """The measurement of the current period (does not block)."""
 
     @abstractmethod
-    def write_valve_command(self, u_v: float) -> None:
-        """The valve command in volts for the current period (the driver applies its own saturation)."""
+    def write(self, command_v: float) -> None:
+        """The valve command for the current period, in volts. Raises ``CommandRefused`` for NaN, inf or
+        a command beyond ``describe().command_limit_v``; a refused command is never applied."""
 
     @abstractmethod
-    def step(self, n_periods: int = 1) -> np.ndarray:
-        """Hold the last command for n periods; rows in the engine's COLUMNS layout (one per period)."""
+    def wait_next_period(self) -> None:
+        """Return once the next period has begun. Raises ``RigFault`` if the rig does not answer in time."""
+
+    @abstractmethod
+    def disarm(self, success: bool = True) -> None:
+        """Valve command zero, rig safe. Safe to call any number of times, armed or not, after a fault too."""
 
     def fault(self) -> str | None:
-        """A fault the rig itself reports (e.g. a non-finite state), or None."""
+        """A fault the rig reports now, or None."""
         return None
 
-    # --- closed loop ---------------------------------------------------------------------------------
-    @property
-    def done(self) -> bool:
-        return self.period >= self.total_periods
-
-    @property
-    def time_s(self) -> float:
-        return self.period * self.control_period_s
-
-    def set_profile(self, blocks: np.ndarray, total_periods: int) -> None:
-        """Replace the target profile from now on (used by the ramp-out of an operator stop)."""
-        self.blocks = blocks
-        self.total_periods = total_periods
-
-    def run_closed_loop(self, n_periods: int) -> np.ndarray:
-        """The test's controller around the rig for up to n periods, one period at a time."""
-        n = max(0, min(n_periods, self.total_periods - self.period))
-        out = np.full((n, len(COLUMNS)), np.nan)
-        meas = np.empty(N_MEAS)
-        dt = self.control_period_s
-        limit = self.scenario.rig.command_limit_v
-        for i in range(n):
-            m = self.read()
-            t = self.period * dt
-            r, rdot = target(t, self.blocks)
-            meas[M_TIME], meas[M_TARGET], meas[M_TARGET_RATE] = t, r, rdot
-            meas[M_POSITION], meas[M_LOAD_PRESSURE], meas[M_SUPPLY_PRESSURE] = (
-                m.position_m, m.load_pressure_pa, m.supply_pressure_pa)
-            u_raw, report = self.controller.step(self.controller_state, meas, dt)
-            u = min(max(u_raw, -limit), limit) if np.isfinite(u_raw) else 0.0
-            self.write_valve_command(u)
-            row = self.step(1)[0]
-            row[C_TARGET], row[C_URAW] = r, u_raw
-            row[C_MODEL], row[C_AR], row[C_AY], row[C_AS] = report
-            out[i] = row
-        return out
-
-
-def measured_row(m: Measurement, u_v: float) -> np.ndarray:
-    """A sample row from a measurement (columns a real rig does not measure stay NaN)."""
-    row = np.full(len(COLUMNS), np.nan)
-    row[C_TIME], row[C_Y], row[C_FORCE], row[C_PL], row[C_U] = (
-        m.time_s, m.position_m, m.force_n, m.load_pressure_pa, u_v)
-    return row
+    def link_stats(self) -> dict:
+        """Health of the link to the rig (latency, lost packets, last sequence); empty if there is no link."""
+        return {}

@@ -1,82 +1,65 @@
-"""The simulated rig: sim.engine's fifth-order rig model (eqs. 1-4) behind the driver interface.
+"""The simulated rig behind the driver protocol: sim.plant's fifth-order model with a mounted isolator.
 
-Closed-loop chunks run in the compiled engine (``Simulation.advance``); open-loop periods (the command
-ramp of a controlled stop, or the generic per-period loop of the driver interface) hold the command in
-the same engine (``Simulation.advance_open_loop``).
+The isolator is part of the simulated hardware (it is given when the rig is built, as a specimen is
+mounted on a real rig), never passed through the protocol. ``run_compiled(loop, n)`` is the optional fast
+path: n periods of the loop around the plant in one compiled call, the same ``control_period`` and the
+same sensor readings as the per-period path.
 """
 
 from __future__ import annotations
 
-import numpy as np
+from sim.isolator import Isolator
+from sim.loop import CONTROL_PERIOD_S, ClosedLoop
+from sim.measurement import Measurement
+from sim.plant import SimulatedPlant
+from sim.rig import DEFAULT_RIG, RigParameters
+from sim.samples import Samples
 
-from sim.engine import (
-    C_U,
-    Scenario,
-    Simulation,
-)
-from sim.rig import (
-    P_KD,
-    P_KW,
-    P_SUPPLY,
-    P_ULIM,
-    X_PL,
-    X_W,
-    X_Y,
-)
-
-from .base import Measurement, RigDriver
+from .base import ArmConditions, RigDescription, RigDriver, check_command
 
 
 class SimulatedRig(RigDriver):
-    """The rig model of sim/ stepped in place of hardware; may run faster than real time."""
+    """The rig model of sim/ in place of hardware; paced by the caller, so it may run faster than real time."""
 
-    name = "simulated"
-    can_accelerate = True
+    def __init__(self, isolator: Isolator, rig: RigParameters = DEFAULT_RIG, noise_seed: int = 0):
+        self.rig = rig
+        self.isolator = isolator
+        self.noise_seed = noise_seed
+        self.plant: SimulatedPlant | None = None
+        self.armed = False
+        self.command_v = 0.0
 
-    def __init__(self) -> None:
-        super().__init__()
-        self.sim: Simulation | None = None
+    def describe(self) -> RigDescription:
+        return RigDescription(name=f"simulated rig ({self.isolator.name} mounted)", kind="simulated",
+                              control_period_s=CONTROL_PERIOD_S, command_limit_v=self.rig.command_limit_v,
+                              realtime=False, details={"model": "fifth-order, eqs. (2)-(4)",
+                                                       "isolator": self.isolator.name})
 
-    def arm(self, scenario: Scenario) -> None:
-        # load the compiled kernels (from numba's cache) before the clock starts
-        Simulation(scenario, validate=False).advance(2)
-        self.scenario = scenario
-        self.sim = Simulation(scenario)
-        self.blocks = self.sim.blocks
-        self.controller = self.sim.controller
-        self.controller_state = self.sim.controller_state
-        self.period = 0
-        self.total_periods = self.sim.total_periods
-        self.last_command_v = 0.0
+    def arm(self, conditions: ArmConditions) -> None:
+        self.plant = SimulatedPlant(self.rig, self.isolator, conditions.supply_pressure_pa, self.noise_seed)
+        self.command_v = 0.0
+        self.armed = True
 
-    def disarm(self) -> None:
-        self.last_command_v = 0.0
+    def read(self) -> Measurement:
+        return self.plant.measure()
+
+    def write(self, command_v: float) -> None:
+        self.command_v = check_command(command_v, self.rig.command_limit_v)
+
+    def wait_next_period(self) -> None:
+        self.plant.advance(self.command_v if self.armed else 0.0)
+
+    def disarm(self, success: bool = True) -> None:
+        self.command_v = 0.0
+        self.armed = False
 
     def fault(self) -> str | None:
-        if self.sim is not None and (self.sim.diverged or not np.all(np.isfinite(self.sim.state))):
+        if self.plant is not None and self.plant.diverged:
             return "the simulated rig's state became non-finite"
         return None
 
-    def read(self) -> Measurement:
-        x, p = self.sim.state, self.sim.plant
-        return Measurement(self.time_s, float(x[X_Y]), float(p[P_KD] * x[X_Y] + p[P_KW] * x[X_W]),
-                           float(x[X_PL]), float(p[P_SUPPLY]))
-
-    def write_valve_command(self, u_v: float) -> None:
-        limit = self.sim.plant[P_ULIM]
-        self.last_command_v = float(min(max(u_v, -limit), limit)) if np.isfinite(u_v) else 0.0
-
-    def step(self, n_periods: int = 1) -> np.ndarray:
-        rows = self.sim.advance_open_loop(n_periods, self.last_command_v)
-        self.period = self.sim.period
-        return rows
-
-    def run_closed_loop(self, n_periods: int) -> np.ndarray:
-        sim = self.sim
-        sim.blocks = self.blocks
-        sim.total_periods = self.total_periods
-        rows = sim.advance(n_periods)
-        self.period = sim.period
-        if rows.shape[0]:
-            self.last_command_v = float(rows[-1, C_U])
+    def run_compiled(self, loop: ClosedLoop, n_periods: int) -> Samples:
+        """Up to n periods of ``loop`` around the plant in one compiled call."""
+        rows = self.plant.run_closed(loop, n_periods)
+        self.command_v = loop.last_command_v
         return rows

@@ -327,7 +327,9 @@ def _unpack(fd: int, layout: dict, cycles: list):
     for c, places in zip(cycles, layout["loops"], strict=True):
         for key, (start, n) in zip(LOOP_KEYS, places, strict=True):
             c[key] = buf[start:start + n]
-    return buf[:shape[0] * shape[1]].reshape(shape)
+    from sim.samples import Samples
+
+    return Samples(buf[:shape[0] * shape[1]].reshape(shape))
 
 
 def _receive(conn, received: dict) -> None:
@@ -407,8 +409,6 @@ def _loader(args, meta, conn, task_conn, shared, unused, parent) -> None:
     _child_setup(unused, parent)
     import traceback
 
-    import numpy as np
-
     from backend.reports import identification_task, report_json
 
     try:
@@ -426,7 +426,7 @@ def _loader(args, meta, conn, task_conn, shared, unused, parent) -> None:
         report = report_json(bundle, identify=False, meta=meta, identification=answer)
         times = {"load_s": t1 - t0, "metrics_s": time.perf_counter() - t1}
         try:
-            layout = _pack(shared, np.asarray(bundle.samples, dtype=np.float64), bundle.cycles)
+            layout = _pack(shared, bundle.samples.array, bundle.cycles)
         except OSError as exc:  # no room for the shared memory file (ftruncate, mmap)
             _send(conn, (NO_SHARED_MEMORY, str(exc)))
             return

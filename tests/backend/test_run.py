@@ -9,7 +9,7 @@ import math
 import numpy as np
 from conftest import AUTH, create_and_start, sine_test, wait_for
 
-from sim.engine import CSV_COLUMNS
+from sim.samples import CSV_FIELDS, RECORD_FIELDS
 
 
 def test_completed_test_stores_every_sample_and_cycle(client):
@@ -25,7 +25,7 @@ def test_completed_test_stores_every_sample_and_cycle(client):
     assert kinds.count("operator") >= 2 and kinds[-1] == "status"
     text = client.get(f"/api/tests/{test_id}/data.csv").text
     rows = list(csv.reader(io.StringIO(text)))
-    assert tuple(rows[0]) == CSV_COLUMNS
+    assert tuple(rows[0]) == RECORD_FIELDS
     assert len(rows) == 1 + 1500
     t = np.array([float(r[0]) for r in rows[1:]])
     assert np.allclose(np.diff(t), 1e-3)
@@ -57,7 +57,7 @@ def test_websocket_receives_live_frames(client):
             if m["type"] == "status" and m["status"] != "running":
                 break
     batches = seen["samples"]
-    assert batches and all(b["columns"] == list(CSV_COLUMNS) for b in batches)
+    assert batches and all(b["columns"] == list(CSV_FIELDS) for b in batches)
     seqs = [b["seq"] for b in batches]
     assert seqs == sorted(seqs)
     rows = [r for b in batches for r in b["rows"]]

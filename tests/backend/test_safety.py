@@ -6,44 +6,89 @@ import numpy as np
 import pytest
 from conftest import create_and_start, wait_for
 
-from backend.safety import LimitError, SafetyLimits, check_block, command_ramp, make_limits
-from sim.engine import C_FORCE, C_PL, C_TARGET, C_TIME, C_U, C_Y, COLUMNS
+from backend.safety import FROZEN_PERIODS, LimitError, SafetyLimits, SafetyMonitor, check_block, make_limits
+from sim.measurement import STATUS_ARMED, STATUS_SENSOR_FAULT, STATUS_WATCHDOG
 from sim.rig import DEFAULT_RIG
+from sim.samples import Samples
 
 LIMITS = SafetyLimits(displacement_m=0.1, force_n=1e5, load_pressure_pa=2e7, tracking_error_m=0.005)
 
 
 def rows(n=20):
-    r = np.zeros((n, len(COLUMNS)))
-    r[:, C_TIME] = np.arange(n) * 1e-3
+    r = Samples(np.zeros((n, len(Samples.empty().fields))))
+    r["time_s"] = np.arange(n) * 1e-3
+    r["supply_pressure_pa"] = 100e5
+    r["flags"] = STATUS_ARMED
     return r
 
 
-@pytest.mark.parametrize(("column", "value", "detector"), [
-    (C_Y, 0.12, "displacement"), (C_Y, -0.12, "displacement"), (C_FORCE, -2e5, "force"),
-    (C_PL, 2.5e7, "load_pressure"), (C_TARGET, 0.006, "tracking_error"), (C_Y, np.nan, "non_finite"),
-    (C_U, np.inf, "non_finite"),
+@pytest.mark.parametrize(("field", "value", "detector"), [
+    ("measured_displacement_m", 0.12, "displacement"), ("measured_displacement_m", -0.12, "displacement"),
+    ("force_n", -2e5, "force"), ("load_pressure_pa", 2.5e7, "load_pressure"), ("target_m", 0.006, "tracking_error"),
+    ("measured_displacement_m", np.nan, "non_finite"), ("voltage_v", np.inf, "non_finite"),
+    ("supply_pressure_pa", np.nan, "non_finite"), ("supply_pressure_pa", 40e5, "supply_pressure"),
+    ("flags", STATUS_ARMED | STATUS_SENSOR_FAULT, "rig_fault"), ("flags", STATUS_WATCHDOG, "rig_fault"),
 ])
-def test_each_detector_trips_on_its_quantity(column, value, detector):
+def test_each_detector_trips_on_its_quantity(field, value, detector):
     r = rows()
-    assert check_block(r, LIMITS) is None
-    r[7, column] = value
-    trip = check_block(r, LIMITS)
+    assert check_block(r, LIMITS, 100e5) is None
+    r[field][7] = value
+    trip = check_block(r, LIMITS, 100e5)
     assert trip is not None and trip.detector == detector and trip.index == 7
     assert abs(trip.time_s - 0.007) < 1e-12
-    if detector != "non_finite":
-        assert trip.values["limit"] > 0 and "limit" in trip.message
+    if detector not in ("non_finite", "rig_fault"):
+        assert trip.values["limit"] > 0 and "limit" in trip.message or "lost" in trip.message
+    if detector == "rig_fault":
+        assert ("sensor fault" in trip.message) or ("watchdog" in trip.message)
+
+
+def test_detectors_read_the_sensor_not_the_simulations_truth():
+    r = rows()
+    r["displacement_m"] = 0.5  # the true table (a simulation) beyond the stroke; the sensor reads 0
+    assert check_block(r, LIMITS) is None
 
 
 def test_first_offending_sample_wins_and_ramp_rows_skip_tracking():
     r = rows()
-    r[12, C_Y] = 0.2
-    r[5, C_FORCE] = 3e5
+    r["measured_displacement_m"][12] = 0.2
+    r["force_n"][5] = 3e5
     assert check_block(r, LIMITS).detector == "force"
     r = rows()
-    r[:, C_TARGET] = np.nan  # open-loop ramp rows have no target
-    r[:, C_Y] = 0.05
+    r["target_m"] = np.nan  # open-loop ramp rows have no target
+    r["measured_displacement_m"] = 0.05
     assert check_block(r, LIMITS) is None
+
+
+def stuck_run(stuck_from, command_v, periods=600, n=30):
+    """Blocks of n periods of a sine whose reading sticks at 1 mm from ``stuck_from`` on; the first trip."""
+    monitor = SafetyMonitor(LIMITS, 100e5)
+    for t0 in range(0, periods, n):
+        r = rows(n)
+        k = t0 + np.arange(n)
+        r["time_s"] = k * 1e-3
+        r["target_m"] = 0.004 * np.sin(2 * np.pi * k * 1e-3)
+        r["measured_displacement_m"] = np.where(k < stuck_from, r["target_m"], 0.001)
+        r["voltage_v"] = command_v
+        trip = monitor.check(r)
+        if trip is not None:
+            return trip
+    return None
+
+
+def test_a_frozen_reading_trips_only_while_the_valve_is_open():
+    tripped = stuck_run(150, command_v=3.0)
+    assert tripped is not None and tripped.detector == "position_frozen"
+    assert tripped.values["unchanged_periods"] >= FROZEN_PERIODS and "stuck" in tripped.message
+    assert tripped.time_s == pytest.approx(0.25, abs=0.002)
+    assert stuck_run(150, command_v=1.0) is None  # a nearly closed valve: a resting table reads the same
+    assert stuck_run(150, command_v=np.where(np.arange(30) == 7, 0.0, 3.0)) is None  # the run must be unbroken
+    # at rest nothing moves: the same reading is fine
+    monitor = SafetyMonitor(LIMITS, 100e5)
+    for _ in range(20):
+        r = rows(30)
+        r["measured_displacement_m"] = 0.001
+        r["target_m"] = 0.001
+        assert monitor.check(r) is None
 
 
 def test_limits_bounded_by_the_rig():
@@ -53,11 +98,6 @@ def test_limits_bounded_by_the_rig():
         make_limits(DEFAULT_RIG, {"displacement_m": 0.5})
     with pytest.raises(LimitError):
         make_limits(DEFAULT_RIG, {"force_n": 0})
-
-
-def test_command_ramp_reaches_zero():
-    ramp = command_ramp(4.0, 0.1, 1e-3)
-    assert len(ramp) == 100 and ramp[-1] == 0.0 and np.all(np.diff(ramp) < 0)
 
 
 @pytest.mark.parametrize(("limits", "detector"), [

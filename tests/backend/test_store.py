@@ -14,7 +14,8 @@ from backend import store
 from backend.codec import decode_samples, encode_samples
 from backend.db import make_engine, session_factory, upgrade
 from backend.models import Base
-from sim.engine import COLUMNS, Scenario, Simulation
+from sim.engine import Scenario, Simulation
+from sim.samples import N_FIELDS
 
 
 def test_migrations_match_the_models(tmp_path):
@@ -28,7 +29,7 @@ def test_migrations_match_the_models(tmp_path):
 
 
 def test_sample_codec_keeps_7_digits_and_compresses():
-    rows = Simulation(Scenario.sine("IUT_b", 70, 0.03, 1.0, 3, controller="pid")).run().samples[:1000]
+    rows = Simulation(Scenario.sine("IUT_b", 70, 0.03, 1.0, 3, controller="pid")).run().samples[:1000].array
     data = encode_samples(rows)
     back = decode_samples(data, *rows.shape)
     assert np.array_equal(back[:, 0], rows[:, 0])  # time exact
@@ -43,7 +44,7 @@ def make_bundle(url: str) -> store.TestBundle:
     engine = make_engine(url)
     upgrade(engine)
     sessions = session_factory(engine)
-    rows = np.random.default_rng(1).normal(size=(2500, len(COLUMNS)))
+    rows = np.random.default_rng(1).normal(size=(2500, N_FIELDS))
     rows[:, 0] = np.arange(2500) * 1e-3
     with sessions() as s:
         t = store.create_test(s, isolator="IUT_a", supply_bar=100.0, controller="pid", speed=1.0,
@@ -60,7 +61,7 @@ def make_bundle(url: str) -> store.TestBundle:
             store.load_test_bundle(s, t.id + 1)
     engine.dispose()
     assert bundle.samples.shape == rows.shape
-    assert np.allclose(bundle.samples, rows, rtol=1e-6, atol=1e-6)
+    assert np.allclose(bundle.samples.array, rows, rtol=1e-6, atol=1e-6)
     return bundle
 
 

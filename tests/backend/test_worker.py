@@ -1,20 +1,24 @@
-"""The worker loop and the driver seam, in-process (no server): generic loop, ramp-out, fault handling."""
+"""The worker loop and the driver seam, in-process (no server): per-period and compiled paths, every stop path."""
 
 from __future__ import annotations
 
+import dataclasses
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from backend import worker
-from backend.drivers import SimulatedRig
+from backend.drivers import RigFault, SimulatedRig
 from backend.safety import default_limits
-from backend.worker import Pacer, Run, ramp_out_profile
-from sim.engine import C_TARGET, C_U, C_Y, CSV_COLUMNS, Scenario
+from backend.worker import Pacer, Run
 from sim.isolator import PRESETS
-from sim.profiles import SineProfile, pack_profile, target_series
+from sim.profiles import SineProfile
 from sim.rig import DEFAULT_RIG
+from sim.samples import Samples
+
+NOISY_RIG = dataclasses.replace(DEFAULT_RIG, position_latency_s=0.002, position_noise_rms_m=5e-6,
+                                position_resolution_m=1e-6, pressure_noise_rms_pa=2e4)
 
 
 class Pipe:
@@ -35,33 +39,64 @@ class Pipe:
 
     def now(self):
         samples = [m for k, m in self.sent if k == "samples"]
-        return samples[-1][-1, 0] if samples else 0.0
+        return samples[-1][-1][0] if samples else 0.0
 
 
 def job(speed=50.0, cycles=3, controller="pid"):
-    return {"test_id": 1, "driver": "simulated", "speed": speed,
+    return {"test_id": 1, "rig": "simulated", "speed": speed,
             "scenario": {"isolator": PRESETS["IUT_a"].to_dict(), "supply_pa": 100e5,
                          "profile": [SineProfile(0.01, 2.0, cycles, 1).to_dict()], "controller": controller},
             "limits": default_limits(DEFAULT_RIG).to_dict()}
 
 
-class PythonLoopRig(SimulatedRig):
-    """The simulated plant driven through the generic, one-period-at-a-time loop of RigDriver."""
+class PerPeriodRig(SimulatedRig):
+    """The simulated rig without its compiled fast path: the worker drives it read/write/wait per period."""
 
-    def run_closed_loop(self, n_periods):
-        return super(SimulatedRig, self).run_closed_loop(n_periods)
+    run_compiled = None
 
 
-def test_generic_driver_loop_matches_the_compiled_engine():
-    scenario = Scenario.sine("IUT_a", 100, 0.01, 2.0, 2, controller="pid")
-    fast, slow = SimulatedRig(), PythonLoopRig()
-    fast.arm(scenario)
-    slow.arm(scenario)
-    a = fast.run_closed_loop(300)
-    b = slow.run_closed_loop(300)
-    assert a.shape == b.shape
-    np.testing.assert_allclose(b[:, : len(CSV_COLUMNS)], a[:, : len(CSV_COLUMNS)], rtol=1e-9, atol=1e-12)
-    assert np.max(np.abs(a[:, C_Y])) > 1e-3
+class Recorder(PerPeriodRig):
+    """Remembers how it was disarmed and every command written."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.disarms = []
+        self.commands = []
+
+    def write(self, command_v):
+        super().write(command_v)
+        self.commands.append(command_v)
+
+    def disarm(self, success=True):
+        super().disarm(success)
+        self.disarms.append(success)
+
+
+def samples_of(out) -> Samples:
+    return Samples(np.concatenate([m for k, m in out.sent if k == "samples"]))
+
+
+def run_with(driver_class, spec=None, commands=None, **kwargs):
+    spec = spec or job()
+    scenario = worker.scenario_from_job(spec)
+    driver = driver_class(scenario.isolator, **kwargs)
+    out = Pipe()
+    run = Run(spec, out, Pipe(), driver=driver)
+    if commands:
+        run.commands = Pipe(commands=commands)
+        run.commands.now = lambda: run.loop.time_s
+    status, reason = run.execute()
+    return status, reason, out, driver
+
+
+@pytest.mark.parametrize("rig", [DEFAULT_RIG, NOISY_RIG], ids=["ideal sensors", "late noisy sensors"])
+def test_per_period_driver_path_equals_the_compiled_path(rig):
+    _, _, fast, _ = run_with(SimulatedRig, job(cycles=2), rig=rig, noise_seed=4)
+    _, _, slow, _ = run_with(PerPeriodRig, job(cycles=2), rig=rig, noise_seed=4)
+    a, b = samples_of(fast), samples_of(slow)
+    assert len(a) == len(b) == 1000
+    np.testing.assert_array_equal(np.nan_to_num(a.array, nan=9e9), np.nan_to_num(b.array, nan=9e9))
+    assert np.max(np.abs(a["displacement_m"])) > 5e-3
 
 
 def test_run_sends_everything_and_completes():
@@ -69,58 +104,83 @@ def test_run_sends_everything_and_completes():
     run = Run(job(), out, Pipe())
     status, reason = run.execute()
     assert (status, reason) == ("completed", None)
-    samples = np.concatenate([m for k, m in out.sent if k == "samples"])
-    assert samples.shape[0] == 1500 and np.allclose(np.diff(samples[:, 0]), 1e-3)
+    samples = samples_of(out)
+    assert len(samples) == 1500 and np.allclose(np.diff(samples["time_s"]), 1e-3)
     assert [m["cycle"] for k, m in out.sent if k == "cycle"] == [1, 2, 3]
-    assert out.sent[0][0] == "started"
+    assert out.sent[0][0] == "started" and out.sent[0][1]["rig"]["kind"] == "simulated"
     stats = run.pacer.stats()
     assert stats["chunks"] == len([1 for k, _ in out.sent if k == "samples"])
 
 
-def test_non_finite_state_trips_a_controlled_stop():
-    class FaultyRig(SimulatedRig):
-        def run_closed_loop(self, n):
-            rows = super().run_closed_loop(n)
-            if self.time_s > 0.3:
-                rows[-1, C_Y] = np.nan
-            return rows
+def test_a_non_finite_reading_trips_a_controlled_stop_and_disarms():
+    class FaultyRig(Recorder):
+        def read(self):
+            m = super().read()
+            return dataclasses.replace(m, position_m=float("nan")) if m.time_s > 0.3 else m
 
-    out = Pipe()
-    run = Run(job(), out, Pipe(), driver=FaultyRig())
-    status, reason = run.execute()
+    status, reason, out, driver = run_with(FaultyRig)
     assert status == "aborted" and "non-finite" in reason
     trip = [m for k, m in out.sent if k == "event" and m["kind"] == "limit_trip"]
     assert len(trip) == 1 and trip[0]["values"]["detector"] == "non_finite"
-    samples = np.concatenate([m for k, m in out.sent if k == "samples"])
-    assert samples[-1, C_U] == 0.0 and 0.3 < samples[-1, 0] < 0.5
-
-
-def test_ramp_out_profile_is_continuous_and_ends_at_a_cycle():
-    blocks = pack_profile([SineProfile(0.02, 1.0, 10, 2), SineProfile(0.01, 2.0, 4, 1)])
-    for t_stop, end_expected in ((0.3, 3.0), (3.27, 6.0), (7.9, 10.0), (9.5, 10.0)):
-        new, total = ramp_out_profile(blocks, t_stop)
-        assert new.shape[0] == 1  # the later block is dropped
-        end = total * 1e-3
-        assert abs(end - end_expected) < 1e-9
-        t = np.arange(0.0, end + 1e-9, 1e-3)
-        before, after = target_series(blocks, t), target_series(new, t)
-        assert np.allclose(before[t <= t_stop], after[t <= t_stop])
-        assert abs(after[-1]) < 1e-9 and np.max(np.abs(np.diff(after))) < 2 * np.pi * 0.02 * 1e-3 * 1.5
-    # a stop inside the last block's own taper-out changes nothing
-    new, total = ramp_out_profile(blocks, 11.9)
-    assert new.shape == blocks.shape and total == 12000
+    samples = samples_of(out)
+    assert samples["voltage_v"][-1] == 0.0 and 0.3 < samples["time_s"][-1] < 0.5
+    assert np.all(np.abs(np.diff(samples["voltage_v"][-100:])) < 0.2)  # a ramp, not a step
+    assert np.isnan(samples["target_m"][-100:]).all()  # open loop
+    assert driver.disarms == [False]
 
 
 def test_stop_command_ends_stopped_with_target_tapered():
-    run = Run(job(cycles=10), Pipe(), Pipe())
-    commands = Pipe(commands=[(1.1, "stop")])
-    commands.now = lambda: run.driver.time_s
-    run.commands = commands
-    out = run.out
-    status, _ = run.execute()
+    status, _, out, driver = run_with(Recorder, job(cycles=10), commands=[(1.1, "stop")])
     assert status == "stopped"
-    samples = np.concatenate([m for k, m in out.sent if k == "samples"])
-    assert 1.1 < samples[-1, 0] < 2.1 + 0.02 and abs(samples[-1, C_TARGET]) < 1e-6
+    samples = samples_of(out)
+    assert 1.1 < samples["time_s"][-1] < 2.1 + 0.02 and abs(samples["target_m"][-1]) < 1e-6
+    assert driver.disarms == [True]
+
+
+def test_abort_writes_zero_at_once_and_disarms_unsuccessfully():
+    status, reason, _, driver = run_with(Recorder, job(cycles=10), commands=[(0.5, "abort")])
+    assert status == "aborted" and "operator abort" in reason
+    assert driver.commands[-1] == 0.0 and abs(driver.commands[-2]) > 0.1
+    assert driver.disarms == [False]
+
+
+def test_a_rig_fault_ends_the_test_failed_with_every_sample_before_it():
+    class LinkDies(Recorder):
+        def wait_next_period(self):
+            if self.plant.period >= 777:
+                raise RigFault("no measurement for 0.05 s: link lost")
+            super().wait_next_period()
+
+    status, reason, out, driver = run_with(LinkDies)
+    assert status == "failed" and "link lost" in reason
+    assert driver.disarms == [False]
+    assert [m["kind"] for k, m in out.sent if k == "event"] == ["rig_fault"]
+    samples = samples_of(out)
+    assert len(samples) == 778  # every period measured before the fault (0 to 777) was sent
+    np.testing.assert_array_equal(samples["time_s"], np.arange(778) * 1e-3)
+
+
+def test_a_rig_reporting_a_fault_bit_trips():
+    from sim.measurement import STATUS_SENSOR_FAULT
+
+    class SensorFault(Recorder):
+        def read(self):
+            m = super().read()
+            return dataclasses.replace(m, status=m.status | STATUS_SENSOR_FAULT) if m.period >= 200 else m
+
+    status, reason, _, driver = run_with(SensorFault)
+    assert status == "aborted" and "sensor fault" in reason and "t = 0.200 s" in reason
+    assert driver.disarms == [False]
+
+
+def test_a_rig_with_another_control_period_is_refused():
+    class SlowRig(SimulatedRig):
+        def describe(self):
+            return dataclasses.replace(super().describe(), control_period_s=0.002)
+
+    scenario = worker.scenario_from_job(job())
+    with pytest.raises(ValueError, match="control period of 0.002 s"):
+        Run(job(), Pipe(), Pipe(), driver=SlowRig(scenario.isolator))
 
 
 class FakeClock:
@@ -162,3 +222,12 @@ def test_pacer_polls_without_sleeping_inside_spin_s_and_counts_a_missed_deadline
     clock.t += 0.01  # the chunk took too long: the next deadline has passed
     pacer.wait_until(0.005)
     assert clock.slept == [] and pacer.lateness_s[-1] == pytest.approx(0.0055, abs=2 * clock.poll_s)
+
+
+@pytest.mark.parametrize("controller", ["mrac", "pid", "servo"])
+def test_no_detector_trips_on_a_normal_test(controller):
+    """The paper's MRAC barely moves the table at first (a_r_hat(0) = 0): no detector may take that for a fault."""
+    spec = job(cycles=4, controller=controller)
+    spec["scenario"]["profile"] = [SineProfile(0.02, 1.0, 4, 1).to_dict()]
+    status, reason, _, _ = run_with(SimulatedRig, spec)
+    assert (status, reason) == ("completed", None)

@@ -1,0 +1,257 @@
+"""The closed loop: one control period, the same compiled code for the offline engine and the live worker.
+
+Each period ``control_period`` takes the rig's measurement, computes the target r(t) (sim.profiles),
+steps the controller (sim.controllers), saturates the command at the rig's limit (a non-finite command
+becomes 0 V: the only saturation and NaN guard of the project) and writes the period's row (sim.samples).
+``ClosedLoop`` holds what a test's loop needs (profile, controller and its state, command limit, period
+count) and the two ways a test ends early, both above any rig driver so that every driver gets them:
+
+- ``ramp_out()``: the operator's stop. The running sine block tapers to zero over ``taper_cycles`` (at
+  least one cycle) from the next whole cycle; the controller stays in the loop.
+- ``begin_command_ramp()``: a controlled stop after a limit trip. The controller is no longer trusted:
+  the command ramps linearly from its last value to zero over ``COMMAND_RAMP_S`` (open loop, no target).
+
+The offline engine runs many periods in one compiled call (sim.plant); a real rig runs them one at a time
+through ``ClosedLoop.step(measurement)``. Both call ``control_period``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .controllers import Controller, controller_step
+from .controllers.base import (
+    M_LOAD_PRESSURE,
+    M_POSITION,
+    M_SUPPLY_PRESSURE,
+    M_TARGET,
+    M_TARGET_RATE,
+    M_TIME,
+    N_MEAS,
+    N_REPORT,
+)
+from .measurement import FLAG_LOST, FLAG_OPEN_LOOP, Measurement
+from .profiles import B_CYCLES, B_FREQUENCY, B_START, B_TAPER, SineProfile, pack_profile, profile_duration_s, target
+from .samples import (
+    _AR,
+    _AS,
+    _AY,
+    _FLAGS,
+    _FLOW,
+    _FORCE,
+    _MODEL,
+    _PL,
+    _PS,
+    _TARGET,
+    _TIME,
+    _U,
+    _URAW,
+    _VALVE,
+    _VEL,
+    _Y,
+    _YMEAS,
+    N_FIELDS,
+    Samples,
+)
+
+CONTROL_PERIOD_S = 1.0e-3
+COMMAND_RAMP_S = 0.1  # controlled stop: the valve command ramps from its last value to zero in this time
+
+# Loop parameters and state (packed for compiled code).
+L_DT, L_ULIM = range(2)
+N_LOOP_PARAMS = 2
+LS_MODE, LS_RAMP_U0, LS_RAMP_K0, LS_RAMP_N, LS_LAST_U = range(5)
+N_LOOP_STATE = 5
+MODE_CLOSED, MODE_RAMP = 0.0, 1.0
+
+
+@njit(cache=True)
+def saturate(u_raw, limit):
+    """The command applied: u_raw clipped to +-limit; a non-finite command becomes 0 V."""
+    if not np.isfinite(u_raw):
+        return 0.0
+    return min(max(u_raw, -limit), limit)
+
+
+@njit(cache=True)
+def control_period(k, position_m, force_n, load_pressure_pa, supply_pressure_pa, status, lp, ls, kind, cparams,
+                   cstate, blocks, meas, report, row):
+    """One control period k from a measurement; fills ``row`` and returns the command in volts.
+
+    ``row`` receives the controller's side of the period (time, target, model, command, adapted
+    parameters) and the measurement; the plant-only fields (velocity, flow, valve) are left NaN and the
+    displacement is the reading, for the caller to overwrite where the true state is known.
+    """
+    dt = lp[L_DT]
+    t = k * dt
+    flags = status
+    if ls[LS_MODE] == MODE_RAMP:
+        j = k - ls[LS_RAMP_K0] + 1.0
+        n = ls[LS_RAMP_N]
+        u_raw = ls[LS_RAMP_U0] * (1.0 - j / n) if j < n else 0.0
+        r = np.nan
+        for i in range(N_REPORT):
+            report[i] = np.nan
+        flags |= FLAG_OPEN_LOOP
+    else:
+        r, rdot = target(t, blocks)
+        meas[M_TIME] = t
+        meas[M_TARGET] = r
+        meas[M_TARGET_RATE] = rdot
+        meas[M_POSITION] = position_m
+        meas[M_LOAD_PRESSURE] = load_pressure_pa
+        meas[M_SUPPLY_PRESSURE] = supply_pressure_pa
+        u_raw = controller_step(kind, cparams, cstate, meas, dt, report)
+    u = saturate(u_raw, lp[L_ULIM])
+    ls[LS_LAST_U] = u
+    row[_TIME] = t
+    row[_TARGET] = r
+    row[_MODEL] = report[0]
+    row[_Y] = position_m
+    row[_U] = u
+    row[_FORCE] = force_n
+    row[_PL] = load_pressure_pa
+    row[_AR] = report[1]
+    row[_AY] = report[2]
+    row[_AS] = report[3]
+    row[_VEL] = np.nan
+    row[_FLOW] = np.nan
+    row[_URAW] = u_raw
+    row[_VALVE] = np.nan
+    row[_YMEAS] = position_m
+    row[_PS] = supply_pressure_pa
+    row[_FLAGS] = flags
+    return u
+
+
+def ramp_out_profile(blocks: np.ndarray, t_now_s: float, dt_s: float = CONTROL_PERIOD_S) -> tuple[np.ndarray, int]:
+    """The packed profile with the running sine block ending smoothly from now, and the new end period.
+
+    The block's cycle count is cut to the first whole cycle at least one taper (>= 1 cycle) after now (or
+    kept, if the block is already tapering out), and later blocks are dropped; the raised-cosine taper-out
+    of sim.profiles does the rest, so the target and its rate stay continuous. Returns ``(blocks, total_periods)``.
+    """
+    for i in range(blocks.shape[0]):
+        f = blocks[i, B_FREQUENCY]
+        end = blocks[i, B_START] + blocks[i, B_CYCLES] / f
+        if t_now_s < end:
+            tau = (t_now_s - blocks[i, B_START]) * f
+            taper = blocks[i, B_TAPER]
+            if taper < 1.0 and tau >= 1.0:
+                taper = 1.0  # an untapered block still ramps out over one cycle
+            cycles = math.ceil(tau + max(taper, 1.0) - 1e-9)
+            if cycles >= blocks[i, B_CYCLES]:  # already inside this block's own taper-out: finish it
+                cycles, taper = blocks[i, B_CYCLES], blocks[i, B_TAPER]
+            new = blocks[: i + 1].copy()
+            new[i, B_CYCLES] = cycles
+            new[i, B_TAPER] = taper
+            return new, int(round((blocks[i, B_START] + cycles / f) / dt_s))
+    total = int(round((blocks[-1, B_START] + blocks[-1, B_CYCLES] / blocks[-1, B_FREQUENCY]) / dt_s))
+    return blocks, total
+
+
+class ClosedLoop:
+    """A test's loop: target profile, controller and its state, command limit, and where it stands.
+
+    ``period`` is the next control period to run. ``step(measurement)`` runs one period (the path of a
+    real rig); sim.plant runs many periods in one compiled call on the same arrays.
+    """
+
+    def __init__(self, profile: list[SineProfile], controller: Controller, command_limit_v: float,
+                 control_period_s: float = CONTROL_PERIOD_S):
+        if not (math.isfinite(command_limit_v) and command_limit_v > 0):
+            raise ValueError(f"command_limit_v = {command_limit_v!r} must be a positive number of volts")
+        self.profile = list(profile)
+        self.blocks = pack_profile(self.profile)
+        self.controller = controller
+        self.controller_state = controller.new_state()
+        self.control_period_s = float(control_period_s)
+        self.params = np.array([self.control_period_s, float(command_limit_v)])
+        self.state = np.zeros(N_LOOP_STATE)
+        self.period = 0
+        self.total_periods = int(round(profile_duration_s(self.profile) / self.control_period_s))
+        self.stopping = False  # the operator's ramp-out is under way
+        self.last_measurement: Measurement | None = None
+        self._meas = np.empty(N_MEAS)
+        self._report = np.full(N_REPORT, np.nan)
+
+    # --- where the loop stands --------------------------------------------------------------------------
+    @property
+    def command_limit_v(self) -> float:
+        return float(self.params[L_ULIM])
+
+    @property
+    def time_s(self) -> float:
+        return self.period * self.control_period_s
+
+    @property
+    def ramping(self) -> bool:
+        """A controlled stop (command ramp to zero, open loop) is under way."""
+        return self.state[LS_MODE] == MODE_RAMP
+
+    @property
+    def end_period(self) -> int:
+        if self.ramping:
+            return int(self.state[LS_RAMP_K0] + self.state[LS_RAMP_N])
+        return self.total_periods
+
+    @property
+    def done(self) -> bool:
+        return self.period >= self.end_period
+
+    def remaining(self, n_periods: int) -> int:
+        """How many of the next n periods the loop still runs."""
+        return max(0, min(int(n_periods), self.end_period - self.period))
+
+    @property
+    def last_command_v(self) -> float:
+        return float(self.state[LS_LAST_U])
+
+    # --- the two early ends ----------------------------------------------------------------------------
+    def ramp_out(self) -> float:
+        """Operator stop: taper the target out from the next whole cycle; returns the new end time in s."""
+        if not self.stopping and not self.ramping:
+            self.stopping = True
+            self.blocks, total = ramp_out_profile(self.blocks, self.time_s, self.control_period_s)
+            self.total_periods = min(total, self.total_periods)
+        return self.end_period * self.control_period_s
+
+    def begin_command_ramp(self, duration_s: float = COMMAND_RAMP_S) -> None:
+        """Controlled stop: from this period on, the command ramps from its last value to zero, open loop."""
+        if self.ramping:
+            return
+        self.state[LS_MODE] = MODE_RAMP
+        self.state[LS_RAMP_U0] = self.state[LS_LAST_U]
+        self.state[LS_RAMP_K0] = self.period
+        self.state[LS_RAMP_N] = max(1, int(round(duration_s / self.control_period_s)))
+
+    # --- one period at a time (a real rig) ------------------------------------------------------------
+    def step(self, m: Measurement) -> tuple[float, Samples]:
+        """The command for the measurement's period and the rows up to it.
+
+        Periods the rig counted but whose measurement never arrived (``m.period`` ahead of the loop) are
+        run first on the last measurement held and flagged lost; their commands were never sent.
+        """
+        if m.period < self.period:
+            raise ValueError(f"measurement of period {m.period} is older than the loop's period {self.period}")
+        n = m.period - self.period + 1
+        rows = np.empty((n, N_FIELDS))
+        held = self.last_measurement or m
+        for i in range(n - 1):
+            self._run_period(held, held.status | FLAG_LOST, rows[i])
+        u = self._run_period(m, m.status, rows[n - 1])
+        self.last_measurement = m
+        return u, Samples(rows)
+
+    def _run_period(self, m: Measurement, status: int, row: np.ndarray) -> float:
+        u = control_period(self.period, m.position_m, m.force_n, m.load_pressure_pa, m.supply_pressure_pa,
+                           status, self.params, self.state, self.controller.kind, self.controller.params,
+                           self.controller_state, self.blocks, self._meas, self._report, row)
+        if math.isfinite(m.true_position_m):  # a simulation knows the true table state
+            row[_Y], row[_VEL], row[_FLOW], row[_VALVE] = (m.true_position_m, m.velocity_m_per_s, m.flow_m3_per_s,
+                                                           m.valve_v)
+        self.period += 1
+        return u

@@ -1,0 +1,144 @@
+"""The simulated rig: the fifth-order model (eqs. 2-4) with one isolator, its sensors, stepped per period.
+
+``SimulatedPlant`` is the hardware a simulation stands in for: ``measure()`` reads the sensors at the
+start of the current period (sim.sensors), ``advance(command_v)`` holds the command for one period
+(zero-order hold, fixed-step RK4 with ``substeps`` steps of the plant). ``run_closed(loop, n)`` runs n
+periods of a ``sim.loop.ClosedLoop`` around it in one compiled call: the same ``control_period`` as the
+per-period path, the same sensor readings, to the last bit.
+
+The plant step is 0.2 ms (5 RK4 substeps per 1 ms control period). The closed-loop eigenvalues of the rig
+model are about -176 +- 180j (valve) and -90 +- 365j (oil column), so RK4 is stable well beyond 1 ms; at
+0.2 ms the displacement agrees with a 0.02 ms reference to far below 1 um (scripts/step_size_study.py,
+docs/engine.md).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .controllers.base import N_MEAS, N_REPORT
+from .isolator import Isolator
+from .loop import CONTROL_PERIOD_S, ClosedLoop, control_period
+from .measurement import STATUS_ARMED, Measurement
+from .rig import (
+    N_STATES,
+    P_KD,
+    P_KW,
+    P_SUPPLY,
+    X_PL,
+    X_V,
+    X_VE,
+    X_W,
+    X_Y,
+    RigParameters,
+    load_flow,
+    pack_plant,
+    rk4_step,
+    valve_command,
+)
+from .samples import _FLOW, _VALVE, _VEL, _Y, N_FIELDS, Samples
+from .sensors import new_history, pack_sensors, sense
+
+PLANT_SUBSTEPS = 5  # 0.2 ms RK4 step
+
+
+@njit(cache=True)
+def advance_period(x, v_c, p, substeps, h, k1, k2, k3, k4, tmp):
+    """Hold the valve voltage v_c for one control period (substeps RK4 steps of h); False if x went non-finite."""
+    for _ in range(substeps):
+        rk4_step(x, v_c, p, h, k1, k2, k3, k4, tmp)
+    for j in range(N_STATES):
+        if not np.isfinite(x[j]):
+            return False
+    return True
+
+
+@njit(cache=True)
+def run_closed(x, p, substeps, sp, history, lp, ls, kind, cparams, cstate, blocks, k0, n, out):
+    """n closed-loop periods from period k0: sense, ``control_period``, plant. Returns the rows written
+    (fewer than n if the plant state became non-finite)."""
+    meas = np.empty(N_MEAS)
+    report = np.full(N_REPORT, np.nan)
+    sensed = np.empty(2)
+    k1 = np.empty(N_STATES)
+    k2 = np.empty(N_STATES)
+    k3 = np.empty(N_STATES)
+    k4 = np.empty(N_STATES)
+    tmp = np.empty(N_STATES)
+    h = lp[0] / substeps
+    for i in range(n):
+        k = k0 + i
+        sense(x[X_Y], x[X_PL], k, sp, history, sensed)
+        row = out[i]
+        force = p[P_KD] * x[X_Y] + p[P_KW] * x[X_W]
+        u = control_period(k, sensed[0], force, sensed[1], p[P_SUPPLY], STATUS_ARMED, lp, ls, kind, cparams,
+                           cstate, blocks, meas, report, row)
+        row[_Y] = x[X_Y]
+        row[_VEL] = x[X_V]
+        row[_FLOW] = load_flow(x[X_VE], x[X_PL], p)
+        row[_VALVE] = x[X_VE]
+        if not advance_period(x, valve_command(u, p), p, substeps, h, k1, k2, k3, k4, tmp):
+            return i + 1
+    return n
+
+
+class SimulatedPlant:
+    """The rig model with one isolator at one supply pressure, as hardware: sensors in, valve command out."""
+
+    def __init__(self, rig: RigParameters, isolator: Isolator, supply_pa: float, noise_seed: int = 0,
+                 control_period_s: float = CONTROL_PERIOD_S, substeps: int = PLANT_SUBSTEPS):
+        self.rig = rig
+        self.isolator = isolator
+        self.control_period_s = control_period_s
+        self.substeps = substeps
+        self.params = pack_plant(rig, isolator, supply_pa)
+        self.sensors = pack_sensors(rig, control_period_s, noise_seed)
+        self.history = new_history()
+        self.state = np.zeros(N_STATES)
+        self.period = 0
+        self.diverged = False
+        self._work = tuple(np.empty(N_STATES) for _ in range(5))
+        self._sensed = np.empty(2)
+
+    @property
+    def supply_pa(self) -> float:
+        return float(self.params[P_SUPPLY])
+
+    @property
+    def force_n(self) -> float:
+        x, p = self.state, self.params
+        return float(p[P_KD] * x[X_Y] + p[P_KW] * x[X_W])
+
+    def measure(self) -> Measurement:
+        """The sensors at the start of the current period (and the true state, which only a simulation has)."""
+        x = self.state
+        sense(x[X_Y], x[X_PL], self.period, self.sensors, self.history, self._sensed)
+        return Measurement(self.period, self.period * self.control_period_s, float(self._sensed[0]), self.force_n,
+                           float(self._sensed[1]), self.supply_pa, STATUS_ARMED, float(x[X_Y]), float(x[X_V]),
+                           float(load_flow(x[X_VE], x[X_PL], self.params)), float(x[X_VE]))
+
+    def advance(self, command_v: float) -> None:
+        """Hold ``command_v`` (eq. 2 gives the valve voltage) over the current period."""
+        if not self.diverged:
+            ok = advance_period(self.state, valve_command(float(command_v), self.params), self.params, self.substeps,
+                                self.control_period_s / self.substeps, *self._work)
+            self.diverged = not ok
+        self.period += 1
+
+    def run_closed(self, loop: ClosedLoop, n_periods: int) -> Samples:
+        """Up to n periods of ``loop`` around this plant in one compiled call (the fast path)."""
+        if loop.period != self.period:
+            raise ValueError(f"loop at period {loop.period}, plant at period {self.period}: they must run together")
+        n = loop.remaining(n_periods)
+        if n == 0 or self.diverged:
+            return Samples.empty()
+        out = np.empty((n, N_FIELDS))
+        written = run_closed(self.state, self.params, self.substeps, self.sensors, self.history, loop.params,
+                             loop.state, loop.controller.kind, loop.controller.params, loop.controller_state,
+                             loop.blocks, self.period, n, out)
+        self.period += written
+        loop.period += written
+        if written < n:
+            self.diverged = True
+        return Samples(out[:written])

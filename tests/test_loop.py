@@ -1,0 +1,156 @@
+"""The one closed loop (sim.loop), the simulated plant (sim.plant) and the sensor model (sim.sensors)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from sim.controllers import CONTROLLER_NAMES, make_controller
+from sim.engine import Scenario, Simulation
+from sim.loop import ClosedLoop, ramp_out_profile, saturate
+from sim.measurement import FLAG_LOST, FLAG_OPEN_LOOP, STATUS_ARMED, Measurement
+from sim.plant import SimulatedPlant
+from sim.profiles import SineProfile, pack_profile, target_series
+from sim.rig import DEFAULT_RIG
+from sim.samples import RECORD_FIELDS, SAMPLE_FIELDS, Samples
+from sim.sensors import standard_normal
+
+NOISY_RIG = dataclasses.replace(DEFAULT_RIG, position_latency_s=0.0025, position_noise_rms_m=5e-6,
+                                position_resolution_m=1e-6, pressure_latency_s=0.001, pressure_noise_rms_pa=2e4)
+
+
+def per_period(scenario: Scenario, n: int) -> Samples:
+    """The scenario's loop around its plant one period at a time (the path of a real rig)."""
+    loop = ClosedLoop(scenario.profile, make_controller(scenario.controller), scenario.rig.command_limit_v)
+    plant = SimulatedPlant(scenario.rig, scenario.isolator, scenario.supply_pa, scenario.noise_seed)
+    parts = []
+    for _ in range(n):
+        u, rows = loop.step(plant.measure())
+        plant.advance(u)
+        parts.append(rows)
+    return Samples.concatenate(parts)
+
+
+@pytest.mark.parametrize("controller", CONTROLLER_NAMES)
+@pytest.mark.parametrize("rig", [DEFAULT_RIG, NOISY_RIG], ids=["ideal sensors", "late noisy sensors"])
+def test_per_period_path_equals_the_compiled_engine(controller, rig):
+    scenario = Scenario.sine("IUT_a", 100, 0.01, 2.0, 2, controller=controller, rig=rig, noise_seed=3)
+    compiled = Simulation(scenario).advance(700)
+    stepped = per_period(scenario, 700)
+    np.testing.assert_array_equal(np.nan_to_num(stepped.array, nan=1e300), np.nan_to_num(compiled.array, nan=1e300))
+    if controller == "mrac":  # the paper's MRAC starts from a_r_hat = 0: it adapts before the table moves
+        assert np.ptp(compiled["ar_hat"]) > 0
+    else:
+        assert np.max(np.abs(compiled["displacement_m"])) > 1e-3
+
+
+def test_sensor_reading_is_late_noisy_and_rounded_and_the_record_keeps_both():
+    scenario = Scenario.sine("IUT_a", 100, 0.02, 1.0, 3, controller="servo", rig=NOISY_RIG, noise_seed=11)
+    s = Simulation(scenario).run().samples
+    true, read = s["displacement_m"], s["measured_displacement_m"]
+    assert np.allclose(read / 1e-6, np.round(read / 1e-6), atol=1e-6)  # multiples of the resolution
+    lag = 2.5  # periods: the reading is the true value 2.5 ms ago, plus noise
+    delayed = 0.5 * (np.roll(true, 2) + np.roll(true, 3))
+    residual = (read - delayed)[10:]
+    assert 4e-6 < np.std(residual) < 6e-6  # noise RMS 5 um (+ rounding 0.29 um)
+    assert abs(np.mean(residual)) < 5e-7
+    assert np.std(read[10:] - true[10:]) > np.std(residual) + 1e-6  # the lag shows against the true value
+    assert lag == NOISY_RIG.position_latency_s / 1e-3
+    # the controller saw the reading, not the truth: it tracks the late signal well
+    assert np.sqrt(np.mean((true - s["target_m"]) ** 2)) < 0.02 * 0.02
+
+
+def test_noise_is_a_pure_function_of_seed_period_and_channel():
+    draws = np.array([standard_normal(5, k, 0) for k in range(20000)])
+    assert abs(np.mean(draws)) < 0.03 and abs(np.std(draws) - 1.0) < 0.03
+    assert standard_normal(5, 123, 0) == standard_normal(5, 123, 0)
+    assert standard_normal(5, 123, 0) != standard_normal(6, 123, 0) != standard_normal(5, 123, 1)
+
+
+def test_sensor_parameters_are_checked():
+    with pytest.raises(ValueError, match="position_latency_s"):
+        SimulatedPlant(dataclasses.replace(DEFAULT_RIG, position_latency_s=0.5), Scenario.sine(
+            "IUT_a", 100, 0.01, 1, 1).isolator, 100e5)
+    with pytest.raises(ValueError, match="pressure_noise_rms_pa"):
+        SimulatedPlant(dataclasses.replace(DEFAULT_RIG, pressure_noise_rms_pa=float("nan")), Scenario.sine(
+            "IUT_a", 100, 0.01, 1, 1).isolator, 100e5)
+
+
+def test_saturation_and_the_nan_guard_live_in_one_place():
+    assert saturate(12.0, 10.0) == 10.0 and saturate(-12.0, 10.0) == -10.0 and saturate(3.0, 10.0) == 3.0
+    assert saturate(float("nan"), 10.0) == 0.0 and saturate(float("inf"), 10.0) == 0.0
+    loop = ClosedLoop([SineProfile(0.01, 1.0, 2, 0)], make_controller("pid"), 10.0)
+    u, rows = loop.step(Measurement(0, 0.0, float("nan"), 0.0, 0.0, 100e5))
+    assert u == 0.0 and rows["voltage_v"][0] == 0.0 and np.isnan(rows["command_raw_v"][0])
+    loop = ClosedLoop([SineProfile(0.01, 1.0, 2, 0)], make_controller("pid"), 10.0)  # the NaN stays in its state
+    u, rows = loop.step(Measurement(0, 0.0, -5.0, 0.0, 0.0, 100e5))  # five metres off: a huge command
+    assert u == 10.0 and rows["command_raw_v"][0] > 10.0
+
+
+def test_lost_measurements_become_flagged_rows_on_the_held_reading():
+    loop = ClosedLoop([SineProfile(0.01, 1.0, 2, 0)], make_controller("servo"), 10.0)
+    loop.step(Measurement(0, 0.0, 0.0, 0.0, 0.0, 100e5))
+    u, rows = loop.step(Measurement(3, 3e-3, 2e-4, 10.0, 1e5, 100e5))  # periods 1 and 2 never arrived
+    assert len(rows) == 3 and loop.period == 4
+    np.testing.assert_allclose(rows["time_s"], [1e-3, 2e-3, 3e-3])
+    flags = rows["flags"].astype(int)
+    assert list(flags & FLAG_LOST) == [FLAG_LOST, FLAG_LOST, 0] and all(flags & STATUS_ARMED)
+    assert list(rows["measured_displacement_m"]) == [0.0, 0.0, 2e-4]
+    with pytest.raises(ValueError, match="older"):
+        loop.step(Measurement(2, 2e-3, 0.0, 0.0, 0.0, 100e5))
+
+
+def test_command_ramp_is_open_loop_and_ends_the_loop():
+    loop = ClosedLoop([SineProfile(0.02, 1.0, 5, 1)], make_controller("pid"), 10.0)
+    for k in range(300):
+        u, _ = loop.step(Measurement(k, k * 1e-3, 0.0, 0.0, 0.0, 100e5))
+    u0 = loop.last_command_v
+    assert u0 > 1.0
+    loop.begin_command_ramp(0.05)
+    loop.begin_command_ramp(0.5)  # a second trip changes nothing
+    assert loop.end_period == 350
+    commands = []
+    while not loop.done:
+        u, rows = loop.step(Measurement(loop.period, loop.time_s, 0.0, 0.0, 0.0, 100e5))
+        commands.append(u)
+        assert np.isnan(rows["target_m"][0]) and int(rows["flags"][0]) & FLAG_OPEN_LOOP
+    np.testing.assert_allclose(commands, u0 * (1 - np.arange(1, 51) / 50), atol=1e-12)
+    assert commands[-1] == 0.0
+
+
+def test_ramp_out_profile_is_continuous_and_ends_at_a_cycle():
+    blocks = pack_profile([SineProfile(0.02, 1.0, 10, 2), SineProfile(0.01, 2.0, 4, 1)])
+    for t_stop, end_expected in ((0.3, 3.0), (3.27, 6.0), (7.9, 10.0), (9.5, 10.0)):
+        new, total = ramp_out_profile(blocks, t_stop)
+        assert new.shape[0] == 1  # the later block is dropped
+        end = total * 1e-3
+        assert abs(end - end_expected) < 1e-9
+        t = np.arange(0.0, end + 1e-9, 1e-3)
+        before, after = target_series(blocks, t), target_series(new, t)
+        assert np.allclose(before[t <= t_stop], after[t <= t_stop])
+        assert abs(after[-1]) < 1e-9 and np.max(np.abs(np.diff(after))) < 2 * np.pi * 0.02 * 1e-3 * 1.5
+    # a stop inside the last block's own taper-out changes nothing
+    new, total = ramp_out_profile(blocks, 11.9)
+    assert new.shape == blocks.shape and total == 12000
+
+
+def test_loop_ramp_out_ends_the_test_early_and_only_once():
+    loop = ClosedLoop([SineProfile(0.02, 1.0, 10, 1)], make_controller("pid"), 10.0)
+    loop.period = 1300
+    assert loop.ramp_out() == pytest.approx(3.0)
+    assert loop.ramp_out() == pytest.approx(3.0) and loop.total_periods == 3000
+
+
+def test_samples_are_addressed_by_name():
+    s = Samples.empty(4)
+    s["force_n"] = [1.0, 2.0, 3.0, 4.0]
+    assert list(s[1:3]["force_n"]) == [2.0, 3.0] and len(s[s["force_n"] > 2]) == 2
+    with pytest.raises(KeyError, match="no field 'force'"):
+        s["force"]
+    with pytest.raises(TypeError, match="by its name"):
+        s[:, 3]
+    old = Samples.from_stored(np.ones((2, 14)))  # a record stored before the sensor fields existed
+    assert np.isnan(old["measured_displacement_m"]).all() and old["valve_v"][0] == 1.0
+    assert set(RECORD_FIELDS) <= set(SAMPLE_FIELDS)
