@@ -36,6 +36,26 @@ STATUS_INTERVAL_S = 0.25  # wall time between status messages while a test runs
 MAX_CHUNK_ROWS = 1000  # one stored chunk holds at most ~1 s of samples
 
 
+LOOP_POINTS_MAX = 2000  # points of a cycle's loop streamed and stored (decimated beyond this)
+
+
+def cycle_with_metrics(payload: dict) -> dict:
+    """A cycle as the worker sends it (full-resolution displacement and force) with its loop metrics
+    (sim.metrics), the loop decimated to at most ``LOOP_POINTS_MAX`` points for the stream and the store.
+
+    Done here, not in the worker: the real-time process runs the loop and nothing else (a cycle's metrics
+    took 1 ms, a whole period, in the control thread)."""
+    from sim.metrics import loop_metrics
+
+    d, f = payload["displacement_m"], payload["force_n"]
+    try:
+        metrics = loop_metrics(d, f)
+    except ValueError as exc:  # non-finite samples: no metrics for this cycle
+        metrics = {"error": str(exc)}
+    step = max(1, -(-len(d) // LOOP_POINTS_MAX))
+    return {**payload, "metrics": metrics, "displacement_m": d[::step].copy(), "force_n": f[::step].copy()}
+
+
 def lost_periods(samples: Samples) -> int:
     """Periods whose measurement never arrived (flagged by the loop, sim.measurement.FLAG_LOST)."""
     from sim.measurement import FLAG_LOST
@@ -249,6 +269,7 @@ class RigService:
                     run.link = store.clean_json(payload)
                     continue  # shown live, not stored (the final figures go into the summary)
                 elif kind == "cycle":
+                    payload = cycle_with_metrics(payload)
                     run.cycles_done = payload["cycle"]
                     self.hub.publish_threadsafe({
                         "type": "cycle", "test_id": test_id, "cycle": payload["cycle"],

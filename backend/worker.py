@@ -15,14 +15,14 @@ once, ``aborted``); a rig fault or a lost link (``failed``: the rig's own watchd
 the link is gone); an error in the worker (``failed``). The driver is disarmed on every path.
 
 Messages to the server (tuples): ``("started", {...})``, ``("samples", rows)`` (an (n, len(SAMPLE_FIELDS))
-array, sim.samples), ``("cycle", {...})``, ``("event", {...})``, ``("link", stats)``,
-``("finished", {"status", "reason", "pacing", "link", "lost_periods"})``.
+array, sim.samples), ``("cycle", {...})`` (the loop of a completed cycle; the service adds its metrics),
+``("event", {...})``, ``("link", stats)``, ``("finished", {"status", "reason", "pacing", "link", "lost_periods"})``.
 Commands from the server: ``"stop"`` and ``"abort"``.
 """
 
 from __future__ import annotations
 
-import math
+import gc
 import os
 import queue
 import sys
@@ -35,8 +35,7 @@ from sim.controllers import make_controller
 from sim.engine import Scenario
 from sim.isolator import isolator_from_dict
 from sim.loop import CONTROL_PERIOD_S, ClosedLoop
-from sim.measurement import FLAG_LOST
-from sim.metrics import loop_metrics
+from sim.measurement import FLAG_LOST, Measurement
 from sim.profiles import SineProfile
 from sim.samples import Samples
 from sim.tracking import cycle_windows
@@ -48,7 +47,6 @@ CHUNK_S = 0.02  # wall time per chunk: samples reach clients at most this much a
 CHECK_PERIODS = 10  # safety detectors run every 10 control periods (10 ms of test time)
 GIL_SWITCH_INTERVAL_S = 0.0005  # CPython's default is 5 ms, longer than the 2 ms lateness budget
 SPIN_S = 0.001  # the pacer sleeps until this long before a chunk is due, then polls the clock (~5 % of one CPU)
-LOOP_POINTS_MAX = 2000  # points of a cycle's loop sent and stored (decimated beyond this)
 LINK_REPORT_S = 0.25  # test time between link-health messages of a driver with a link
 
 
@@ -166,6 +164,10 @@ class Run:
         controller = make_controller(self.scenario.controller, **self.scenario.controller_options)
         self.loop = ClosedLoop(self.scenario.profile, controller,
                                min(self.scenario.rig.command_limit_v, self.rig.command_limit_v))
+        if self.rig.realtime:  # load the compiled period before the rig is armed: its watchdog will not wait
+            ClosedLoop(self.scenario.profile, make_controller(self.scenario.controller,
+                                                              **self.scenario.controller_options),
+                       self.loop.command_limit_v).step(Measurement(0, 0.0, 0.0, 0.0, 0.0, self.scenario.supply_pa))
         self.monitor = SafetyMonitor(SafetyLimits(**job["limits"]), self.scenario.supply_pa)
         self.compiled = getattr(self.driver, "run_compiled", None)
         self.windows = cycle_windows(self.scenario)
@@ -173,6 +175,7 @@ class Run:
         self.pending = Samples.empty()
         self.pending_start = 0
         self.produced: list[Samples] = []  # rows run on the rig and not yet released
+        self.answered = False  # a command was written for the rig's current period: wait for the next one
         self.pacer: Pacer | None = None
         self.trip: Trip | None = None
         self.lost_periods = 0
@@ -209,21 +212,17 @@ class Run:
             self.pending_start = i1
 
     def send_cycle(self, number: int, block: int, seg: Samples) -> None:
-        d, f = seg["displacement_m"], seg["force_n"]
-        try:
-            metrics = loop_metrics(d, f)
-        except ValueError as exc:  # non-finite samples: no metrics for this cycle
-            metrics = {"error": str(exc)}
-        step = max(1, math.ceil(len(d) / LOOP_POINTS_MAX))
+        """The cycle's loop at full resolution; the service computes its metrics (service.cycle_with_metrics)."""
         self.send("cycle", {"cycle": number, "block": block, "t_start_s": float(seg["time_s"][0]),
-                            "t_end_s": float(seg["time_s"][-1] + CONTROL_PERIOD_S), "metrics": metrics,
-                            "displacement_m": d[::step].copy(), "force_n": f[::step].copy()})
+                            "t_end_s": float(seg["time_s"][-1] + CONTROL_PERIOD_S),
+                            "displacement_m": seg["displacement_m"].copy(), "force_n": seg["force_n"].copy()})
 
     # --- the loop ------------------------------------------------------------------------------------
     def execute(self) -> tuple[str, str | None]:
         """Arm, run to the end (or to a stop, trip, abort or fault), disarm; the final (status, reason)."""
         driver, loop = self.driver, self.loop
         status = "failed"
+        gc.freeze()  # what exists now is never scanned again: no collector pause of this size inside the loop
         try:
             driver.arm(ArmConditions(self.scenario.supply_pa, self.job.get("test_id")))
             status, reason = self._run()
@@ -251,8 +250,7 @@ class Run:
                               "rig": self.rig.to_dict()})
         command = None
         while not loop.done:
-            if command == "abort":
-                driver.write(0.0)
+            if command == "abort":  # disarm(success=False) in execute closes the valve at once
                 self.event("operator", f"abort at t = {loop.time_s:.3f} s: valve command set to zero at once",
                            {"action": "abort"})
                 return "aborted", f"operator abort at t = {loop.time_s:.3f} s"
@@ -281,10 +279,11 @@ class Run:
         self.loop.begin_command_ramp()
 
     def periods(self, n: int) -> Samples:
-        """Up to n periods of the loop on the rig: one compiled call, or read/step/write/wait per period.
+        """Up to n periods of the loop on the rig: one compiled call, or wait/read/step/write per period.
 
-        Each period's rows join ``produced`` as soon as they exist, so a fault raised later in the chunk
-        (by ``wait_next_period``) loses none of them."""
+        The wait comes first, so the worker's own work (detectors, sending samples) runs after a command is
+        written, while the rig's next period goes on, never between a measurement and its answer. Each
+        period's rows join ``produced`` as soon as they exist: a fault raised by a wait loses none of them."""
         loop, driver = self.loop, self.driver
         first = len(self.produced)
         if self.compiled is not None:
@@ -292,10 +291,12 @@ class Run:
         else:
             end = min(loop.period + n, loop.end_period)
             while loop.period < end:
+                if self.answered:
+                    driver.wait_next_period()
                 u, rows = loop.step(driver.read())
                 self.produced.append(rows)
                 driver.write(u)
-                driver.wait_next_period()
+                self.answered = True
         return Samples.concatenate(self.produced[first:])
 
     def take_produced(self) -> Samples:
@@ -347,6 +348,48 @@ class Run:
         if self.rig.realtime:
             stats = {"chunks": stats.get("chunks", 0), "realtime_rig": True}
         return {**stats, "priority": self.priority}
+
+
+class Collector:
+    """An outbox that keeps what a run sends (for a run in this process, without the service)."""
+
+    def __init__(self):
+        self.messages: list[tuple[str, object]] = []
+
+    def send(self, message) -> None:
+        self.messages.append(message)
+
+    def samples(self) -> Samples:
+        return Samples.concatenate([Samples(rows) for kind, rows in self.messages if kind == "samples"])
+
+    def of_kind(self, kind: str) -> list:
+        return [payload for k, payload in self.messages if k == kind]
+
+
+class AbortSwitch:
+    """Operator commands for a run in this process: ``abort()`` (e.g. from Ctrl-C) is seen at the next check."""
+
+    def __init__(self):
+        self.pending: list[str] = []
+
+    def abort(self, *_args) -> None:
+        self.pending.append("abort")
+
+    def poll(self, *_args) -> bool:
+        return bool(self.pending)
+
+    def recv(self) -> str:
+        return self.pending.pop(0)
+
+
+def run_here(job: dict, commands: AbortSwitch | None = None) -> tuple[Run, Collector, str, str | None]:
+    """Run a job in this process (``isorig simulate --rig ...``): the same loop, detectors and stop paths as
+    the service's worker. Returns the run, what it sent, the final status and its reason."""
+    out = Collector()
+    run = Run(job, out, commands or AbortSwitch())
+    run.priority = raise_priority() if job.get("realtime", True) else "normal"
+    status, reason = run.execute()
+    return run, out, status, reason
 
 
 def raise_priority() -> str:

@@ -11,7 +11,8 @@ import importlib
 import sys
 import time
 
-COMMAND_MODULES = ("simulate", "bench", "analyze", "report", "serve", "bench_stream", "identify", "compare")
+COMMAND_MODULES = ("simulate", "bench", "analyze", "report", "serve", "bench_stream", "identify", "compare",
+                   "rig_emulator")
 
 
 class UsageError(Exception):

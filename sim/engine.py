@@ -159,10 +159,13 @@ def run_batch(scenarios: list[Scenario], processes: int | None = None) -> list[R
 
 
 def warm_up() -> None:
-    """Compile the engine's kernels for every controller (cached on disk after the first time)."""
+    """Compile the engine's kernels for every controller (cached on disk after the first time), the compiled
+    fast path and the per-period path of a real rig alike."""
     from .controllers import CONTROLLER_NAMES
 
     for name in CONTROLLER_NAMES:
         s = Scenario.sine("IUT_a", 100.0, 0.01, 1.0, 1, controller=name, taper_cycles=0)
-        Simulation(s).advance(2)
+        sim = Simulation(s)
+        sim.advance(2)
+        sim.loop.step(sim.plant.measure())
 

@@ -55,6 +55,18 @@ def advance_period(x, v_c, p, substeps, h, k1, k2, k3, k4, tmp):
 
 
 @njit(cache=True)
+def advance_period_split(x, v_old, v_new, switch, p, substeps, h, k1, k2, k3, k4, tmp):
+    """One period whose valve voltage changes from v_old to v_new after ``switch`` substeps (a command that
+    arrived within the period, as the rig emulator applies it); False if x went non-finite."""
+    for i in range(substeps):
+        rk4_step(x, v_old if i < switch else v_new, p, h, k1, k2, k3, k4, tmp)
+    for j in range(N_STATES):
+        if not np.isfinite(x[j]):
+            return False
+    return True
+
+
+@njit(cache=True)
 def run_closed(x, p, substeps, sp, history, lp, ls, kind, cparams, cstate, blocks, k0, n, out):
     """n closed-loop periods from period k0: sense, ``control_period``, plant. Returns the rows written
     (fewer than n if the plant state became non-finite)."""
@@ -118,11 +130,18 @@ class SimulatedPlant:
                            float(self._sensed[1]), self.supply_pa, STATUS_ARMED, float(x[X_Y]), float(x[X_V]),
                            float(load_flow(x[X_VE], x[X_PL], self.params)), float(x[X_VE]))
 
-    def advance(self, command_v: float) -> None:
-        """Hold ``command_v`` (eq. 2 gives the valve voltage) over the current period."""
+    def advance(self, command_v: float, new_command_v: float | None = None, switch_fraction: float = 0.0) -> None:
+        """Hold ``command_v`` (eq. 2 gives the valve voltage) over the current period; with ``new_command_v``,
+        switch to it at the first plant step from ``switch_fraction`` of the period on (0: at once)."""
         if not self.diverged:
-            ok = advance_period(self.state, valve_command(float(command_v), self.params), self.params, self.substeps,
-                                self.control_period_s / self.substeps, *self._work)
+            v_old = valve_command(float(command_v), self.params)
+            h = self.control_period_s / self.substeps
+            if new_command_v is None:
+                ok = advance_period(self.state, v_old, self.params, self.substeps, h, *self._work)
+            else:
+                switch = min(self.substeps, max(0, int(np.ceil(switch_fraction * self.substeps - 1e-9))))
+                ok = advance_period_split(self.state, v_old, valve_command(float(new_command_v), self.params), switch,
+                                          self.params, self.substeps, h, *self._work)
             self.diverged = not ok
         self.period += 1
 

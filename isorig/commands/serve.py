@@ -6,12 +6,14 @@ import sys
 
 
 def register(sub) -> None:
-    p = sub.add_parser("serve", help="run the service: REST API, websockets, dashboard (simulated rig)")
+    p = sub.add_parser("serve", help="run the service: REST API, websockets, dashboard (simulated or UDP rig)")
     p.add_argument("--host", default=None, help="interface to listen on (default 127.0.0.1; ISORIG_HOST)")
     p.add_argument("--port", type=int, default=None, help="TCP port (default 8000; ISORIG_PORT)")
     p.add_argument("--database-url", default=None,
                    help="SQLAlchemy URL (default: SQLite in the user data directory; ISORIG_DATABASE_URL)")
     p.add_argument("--data-dir", default=None, help="data directory for the SQLite file and the token file")
+    p.add_argument("--rig", default=None, help="the rig: 'simulated' (default) or udp://HOST:PORT, a real-time I/O "
+                   "target or `isorig rig-emulator` (ISORIG_RIG; link settings ISORIG_RIG_*, docs/backend.md)")
     p.add_argument("--log-level", default="info", choices=("critical", "error", "warning", "info", "debug"))
     p.set_defaults(func=run)
 
@@ -28,14 +30,20 @@ def _masked(url: str) -> str:
 
 def run(args) -> int:
     import uvicorn
+    from pydantic import ValidationError
 
     from backend.app import create_app
     from backend.settings import Settings
     from isorig.cli import UsageError
 
     overrides = {k: v for k, v in (("host", args.host), ("port", args.port), ("database_url", args.database_url),
-                                   ("data_dir", args.data_dir)) if v is not None}
-    settings = Settings(**overrides)
+                                   ("data_dir", args.data_dir), ("rig", args.rig)) if v is not None}
+    try:
+        settings = Settings(**overrides)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        field = ".".join(str(p) for p in first["loc"])
+        raise UsageError(f"isorig serve: {field}: {first['msg'].removeprefix('Value error, ')}") from None
     if not (0 < settings.port < 65536):
         raise UsageError(f"isorig serve: --port {settings.port} is outside 1-65535")
     if settings.service_nice:
@@ -53,7 +61,8 @@ def run(args) -> int:
               f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}", file=sys.stderr)
         return 2
     print(f"isorig: serving on http://{settings.host}:{settings.port}/ (API docs at /docs), "
-          f"database {app.state.engine.url.render_as_string(hide_password=True)}", file=sys.stderr, flush=True)
+          f"database {app.state.engine.url.render_as_string(hide_password=True)}, rig {settings.rig}",
+          file=sys.stderr, flush=True)
     uvicorn.run(app, host=settings.host, port=settings.port, log_level=args.log_level,
                 ws_per_message_deflate=settings.ws_per_message_deflate)
     return 0

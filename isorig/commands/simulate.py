@@ -1,4 +1,10 @@
-"""`isorig simulate`: one closed-loop test on the simulated rig -> timeseries.csv + summary.json."""
+"""`isorig simulate`: one closed-loop test -> timeseries.csv + summary.json.
+
+On the simulated rig (default) the test runs in the compiled engine as fast as it can; with
+``--rig udp://HOST:PORT`` the same test runs in real time through the UDP driver, with the service's loop,
+detectors and stop paths (backend.worker.run_here), and the summary adds the final status, its reason and
+the link's figures. The exit code is 0 only for a completed test.
+"""
 
 from __future__ import annotations
 
@@ -13,7 +19,7 @@ def register(sub) -> None:
     from sim.controllers import CONTROLLER_NAMES, DEFAULT_CONTROLLER
     from sim.isolator import PRESETS
 
-    p = sub.add_parser("simulate", help="run one closed-loop test on the simulated rig")
+    p = sub.add_parser("simulate", help="run one closed-loop test on the simulated rig, or on a UDP rig in real time")
     p.add_argument("--isolator", default="IUT_a",
                    help=f"preset ({', '.join(PRESETS)}) or path to an isolator .json file")
     p.add_argument("--supply-bar", type=float, default=100.0, help="supply pressure in bar (default 100)")
@@ -27,6 +33,11 @@ def register(sub) -> None:
     p.add_argument("--controller-option", action="append", default=[], metavar="NAME=VALUE", type=option_pair,
                    help="override a controller default, e.g. dimensionless_as=true or gamma=5e4 (repeatable)")
     p.add_argument("--out", required=True, help="output directory for timeseries.csv and summary.json")
+    p.add_argument("--rig", default="simulated",
+                   help="'simulated' (default: the compiled engine, faster than real time) or udp://HOST:PORT "
+                        "(a real-time I/O target or `isorig rig-emulator`, in real time)")
+    p.add_argument("--link-timeout-s", type=float, default=0.05,
+                   help="UDP rig: a link silent this long ends the test failed (default 0.05 s)")
     p.set_defaults(func=run)
 
 
@@ -58,6 +69,8 @@ def run(args) -> int:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise UsageError(f"isorig simulate: cannot create --out {out}: {exc.strerror}") from None
+    if args.rig != "simulated":
+        return run_on_rig(args, scenario, out)
     progress = Progress(f"simulating {scenario.duration_s:g} s")
     t0 = time.perf_counter()
     result = Simulation(scenario, validate=False).run(progress=progress)
@@ -74,3 +87,49 @@ def run(args) -> int:
              f"({100 * last['rms_y_minus_r_over_amplitude']:.2f} % of amplitude); " if last else "")
           + f"saturated samples {100 * summary['saturated_share']:.2f} %")
     return 0 if not result.diverged else 1
+
+
+def run_on_rig(args, scenario, out: Path) -> int:
+    """The test in real time on the rig ``args.rig`` through its driver; same files as the engine's run."""
+    import signal
+
+    from backend.drivers import rig_kind
+    from backend.safety import default_limits
+    from backend.worker import AbortSwitch, run_here
+    from sim.engine import Result
+    from sim.records import write_csv
+
+    try:
+        rig_kind(args.rig)
+    except ValueError as exc:
+        raise UsageError(f"isorig simulate: --rig: {exc}") from None
+    if not (0 < args.link_timeout_s <= 5):
+        raise UsageError(f"isorig simulate: --link-timeout-s {args.link_timeout_s:g} is outside (0, 5] s")
+    job = {"test_id": None, "rig": args.rig, "speed": 1.0,
+           "link": {"period_s": 1e-3, "timeout_s": args.link_timeout_s, "arm_timeout_s": 2.0},
+           "scenario": {"isolator": scenario.isolator.to_dict(), "supply_pa": scenario.supply_pa,
+                        "profile": [b.to_dict() for b in scenario.profile], "controller": scenario.controller,
+                        "controller_options": scenario.controller_options},
+           "limits": default_limits(scenario.rig).to_dict()}
+    switch = AbortSwitch()
+    previous = signal.signal(signal.SIGINT, switch.abort)  # Ctrl-C: abort the test, valve closed, files written
+    print(f"running {scenario.duration_s:g} s in real time on {args.rig} (Ctrl-C aborts)")
+    t0 = time.perf_counter()
+    try:
+        run, sent, status, reason = run_here(job, switch)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    samples = sent.samples()
+    write_csv(out / "timeseries.csv", samples)
+    summary = Result(scenario, samples, diverged=False).summary()
+    summary.update(rig=args.rig, status=status, reason=reason, wall_time_s=time.perf_counter() - t0,
+                   lost_periods=run.lost_periods, link=run.driver.link_stats(), pacing=run.pacing(),
+                   events=sent.of_kind("event"))
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=float))
+    last = summary.get("last_two_cycles", {})
+    print(f"wrote {out / 'timeseries.csv'} ({len(samples)} samples) and {out / 'summary.json'}")
+    print(f"test {status}" + (f": {reason}" if reason else "")
+          + (f"; last two cycles RMS |y - r| {100 * last['rms_y_minus_r_over_amplitude']:.3f} % of amplitude"
+             if last else "")
+          + f"; {run.lost_periods} period(s) lost on the link")
+    return 0 if status == "completed" else 1

@@ -1,0 +1,259 @@
+"""A rig over UDP: a real-time I/O target (or ``isorig rig-emulator``) speaking docs/rig-protocol.md.
+
+The rig is the clock: it sends one MEASUREMENT per control period and the driver answers each with one
+COMMAND. ``wait_next_period`` blocks until the next measurement arrives; a gap in the rig's sequence
+numbers means measurements were lost (the loop records those periods as lost, sim.loop). Whatever is
+malformed, damaged, of another protocol version or session, stale or duplicated is dropped and counted,
+never used. No measurement for ``timeout_s`` raises ``RigFault`` (the rig's own watchdog closes its valve
+meanwhile), as does a rig that stops reporting itself armed (watchdog, restart, interlock).
+
+Standard library only (socket, struct, zlib): the protocol needs nothing more.
+"""
+
+from __future__ import annotations
+
+import math
+import secrets
+import select
+import socket
+import time
+from urllib.parse import urlsplit
+
+from sim.emulator import protocol as proto
+from sim.latency import LatencyHistogram
+from sim.measurement import RIG_FAULT_BITS, STATUS_ARMED, Measurement, describe_status
+from sim.rig import DEFAULT_RIG
+
+from .base import ArmConditions, RigDescription, RigDriver, RigFault, check_command
+
+ARM_RESEND_S = 0.05  # ARM is repeated this often until the rig answers
+DISARM_REPEATS = 3  # DISARM travels on UDP too: sent three times
+
+
+def parse_udp_url(url: str) -> tuple[str, int]:
+    """``udp://HOST:PORT`` -> (host, port), or a ValueError that says what is wrong."""
+    parts = urlsplit(url)
+    try:
+        port = parts.port
+    except ValueError:
+        port = None
+    if parts.scheme != "udp" or not parts.hostname or port is None or parts.path not in ("", "/"):
+        raise ValueError(f"rig {url!r} is not of the form udp://HOST:PORT (e.g. udp://127.0.0.1:5555)")
+    if not (1 <= port <= 65535):
+        raise ValueError(f"rig {url!r}: port {port} is outside [1, 65535]")
+    return parts.hostname, port
+
+
+class UdpRig(RigDriver):
+    """A rig at ``host:port`` over the isorig rig protocol, version 1."""
+
+    def __init__(self, host: str, port: int, period_s: float = 1e-3, timeout_s: float = 0.05,
+                 arm_timeout_s: float = 2.0, command_limit_v: float = DEFAULT_RIG.command_limit_v):
+        for name, value in (("period_s", period_s), ("timeout_s", timeout_s), ("arm_timeout_s", arm_timeout_s)):
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} = {value!r} must be a positive number of seconds")
+        self.host, self.port = host, port
+        self.period_s = period_s
+        self.timeout_s = timeout_s
+        self.arm_timeout_s = arm_timeout_s
+        self.command_limit_v = command_limit_v
+        self.sock: socket.socket | None = None
+        self.session = 0
+        self.last_sequence: int | None = None
+        self.current: Measurement | None = None
+        self.received_at = 0.0
+        self._reset_stats()
+
+    @classmethod
+    def from_url(cls, url: str, **link) -> UdpRig:
+        host, port = parse_udp_url(url)
+        return cls(host, port, **link)
+
+    @property
+    def url(self) -> str:
+        return f"udp://{self.host}:{self.port}"
+
+    def _reset_stats(self) -> None:
+        self.stats = {"received": 0, "lost": 0, "rejected": {}, "commands_sent": 0}
+        self.rig_counters = {"commands_missed": 0, "packets_rejected": 0}
+        self.round_trip = LatencyHistogram()  # as the rig saw it: measurement sent -> command arrived
+        self.answer = LatencyHistogram()  # in this process: measurement received -> command sent
+
+    def describe(self) -> RigDescription:
+        return RigDescription(name=self.url, kind="udp", control_period_s=self.period_s,
+                              command_limit_v=self.command_limit_v, realtime=True,
+                              details={"host": self.host, "port": self.port, "protocol_version": proto.VERSION,
+                                       "link_timeout_s": self.timeout_s, "arm_timeout_s": self.arm_timeout_s})
+
+    # --- socket ---------------------------------------------------------------------------------------
+    def _open(self) -> socket.socket:
+        if self.sock is None:
+            sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+            try:
+                sock.connect((self.host, self.port))  # only the rig's datagrams reach this socket
+            except OSError as exc:
+                sock.close()
+                raise RigFault(f"cannot reach the rig at {self.url}: {exc.strerror or exc}") from None
+            sock.setblocking(False)
+            self.sock = sock
+        return self.sock
+
+    def _send(self, data: bytes) -> None:
+        try:
+            self.sock.send(data)
+        except OSError:  # e.g. ECONNREFUSED from an earlier datagram: nobody listens yet; the timeouts decide
+            pass
+
+    def _reject(self, reason: str) -> None:
+        self.stats["rejected"][reason] = self.stats["rejected"].get(reason, 0) + 1
+
+    def _receive(self, deadline: float) -> proto.Packet | None:
+        """The next valid MEASUREMENT of this session, or None at the deadline (a past deadline: what is
+        already queued, without waiting)."""
+        while True:
+            wait = max(0.0, deadline - time.perf_counter())
+            readable, _, _ = select.select([self.sock], [], [], wait)
+            if not readable:
+                return None
+            try:
+                data = self.sock.recv(proto.MAX_PACKET + 64)
+            except (BlockingIOError, InterruptedError):
+                continue
+            except OSError:  # ECONNREFUSED after a send to a port nobody listens on
+                continue
+            try:
+                packet = proto.decode(data)
+            except proto.PacketError as exc:
+                self._reject(exc.reason)
+                continue
+            if packet.kind != proto.MEASUREMENT:
+                self._reject("kind")
+                continue
+            if packet.session != self.session:
+                self._reject("session")
+                if packet.session == 0 and self.current is not None:
+                    raise RigFault(f"the rig at {self.url} is no longer armed (it restarted or was disarmed by "
+                                   "someone else); nothing moves until a new test is started")
+                continue
+            return packet
+
+    # --- protocol -------------------------------------------------------------------------------------
+    def arm(self, conditions: ArmConditions) -> None:
+        self._open()
+        self._reset_stats()
+        self.session = secrets.randbits(32) or 1
+        self.current = None
+        arm = proto.encode(proto.ARM, self.session, 0, time.perf_counter_ns(), conditions.supply_pressure_pa)
+        end = time.perf_counter() + self.arm_timeout_s
+        while time.perf_counter() < end:
+            self._send(arm)
+            packet = self._receive(min(end, time.perf_counter() + ARM_RESEND_S))
+            if packet is None:
+                continue
+            rig_period = packet.fields["period_ns"] * 1e-9
+            if abs(rig_period - self.period_s) > 1e-9:
+                self.disarm(success=False)
+                raise RigFault(f"the rig at {self.url} runs at a control period of {rig_period:g} s; "
+                               f"this service is set for {self.period_s:g} s (rig_period_s)")
+            if not packet.fields["status"] & STATUS_ARMED:
+                continue
+            self._accept(packet)
+            return
+        self.disarm(success=False)
+        raise RigFault(f"no answer from the rig at {self.url} within {self.arm_timeout_s:g} s of ARM "
+                       "(is it running and reachable?)")
+
+    def _accept(self, packet: proto.Packet) -> None:
+        f = packet.fields
+        seq = packet.sequence
+        if self.current is not None:
+            gap = seq - self.current.period - 1
+            if gap < 0:
+                self._reject("stale")
+                return
+            self.stats["lost"] += gap
+        self.received_at = time.perf_counter()
+        self.stats["received"] += 1
+        self.rig_counters = {"commands_missed": f["commands_missed"], "packets_rejected": f["packets_rejected"]}
+        if f["command_latency_us"] and f["command_sequence"] == seq - 1:  # the rig's figure for our last answer
+            self.round_trip.add(f["command_latency_us"] / 1e3)
+        self.last_sequence = seq
+        self.current = Measurement(seq, seq * self.period_s, f["position_m"], f["force_n"], f["load_pressure_pa"],
+                                   f["supply_pressure_pa"], int(f["status"]))
+
+    def read(self) -> Measurement:
+        if self.current is None:
+            raise RigFault(f"the rig at {self.url} is not armed")
+        return self.current
+
+    def write(self, command_v: float) -> None:
+        u = check_command(command_v, self.command_limit_v)
+        if self.current is None or self.sock is None:
+            raise RigFault(f"the rig at {self.url} is not armed")
+        self._send(proto.encode(proto.COMMAND, self.session, self.current.period, time.perf_counter_ns(), u))
+        self.stats["commands_sent"] += 1
+        self.answer.add((time.perf_counter() - self.received_at) * 1e3)
+
+    def wait_next_period(self) -> None:
+        if self.current is None:
+            raise RigFault(f"the rig at {self.url} is not armed")
+        last = self.current.period
+        while self.current.period == last:
+            packet = self._receive(self.received_at + self.timeout_s)
+            if packet is None:
+                raise RigFault(f"no measurement from the rig at {self.url} for {self.timeout_s:g} s "
+                               f"(last sequence {last}): link lost")
+            self._accept(packet)
+        while True:  # measurements that queued up while the host was late: the newest counts, the rest are lost
+            packet = self._receive(0.0)
+            if packet is None:
+                break
+            self._accept(packet)
+        status = self.current.status
+        if not status & STATUS_ARMED:
+            raise RigFault(f"the rig at {self.url} disarmed itself ({describe_status(status & RIG_FAULT_BITS)})")
+
+    def disarm(self, success: bool = True) -> None:
+        if self.sock is not None:
+            if self.session:
+                packet = proto.encode(proto.DISARM, self.session, 0, time.perf_counter_ns())
+                for _ in range(DISARM_REPEATS):
+                    self._send(packet)
+            self.sock.close()
+            self.sock = None
+        self.current = None
+
+    def link_stats(self) -> dict:
+        out = {"rig": self.url, "last_sequence": self.last_sequence,
+               "received": self.stats["received"], "lost": self.stats["lost"],
+               "rejected": sum(self.stats["rejected"].values()), "rejected_by_reason": dict(self.stats["rejected"]),
+               "rig_commands_missed": self.rig_counters["commands_missed"],
+               "rig_packets_rejected": self.rig_counters["packets_rejected"]}
+        if self.round_trip.n:
+            out.update(round_trip_p50_ms=self.round_trip.percentile_ms(50),
+                       round_trip_p99_ms=self.round_trip.percentile_ms(99), round_trip_max_ms=self.round_trip.max_ms)
+        if self.answer.n:
+            out.update(answer_p99_ms=self.answer.percentile_ms(99), answer_max_ms=self.answer.max_ms)
+        return out
+
+
+def probe(url: str, timeout_s: float = 0.2) -> dict:
+    """One HELLO to the rig at ``url``: is it there, what does it say, how long did it take."""
+    host, port = parse_udp_url(url)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.settimeout(timeout_s)
+        t0 = time.perf_counter()
+        try:
+            sock.connect((host, port))
+            sock.send(proto.encode(proto.HELLO, 0, 0, time.perf_counter_ns()))
+            while True:
+                packet = proto.decode(sock.recv(proto.MAX_PACKET + 64))
+                if packet.kind == proto.MEASUREMENT:
+                    break
+        except (OSError, proto.PacketError) as exc:
+            return {"rig": url, "connected": False, "detail": f"no answer within {timeout_s:g} s ({exc})"}
+        status = int(packet.fields["status"])
+        return {"rig": url, "connected": True, "round_trip_ms": (time.perf_counter() - t0) * 1e3,
+                "armed": bool(status & STATUS_ARMED), "status": describe_status(status),
+                "period_s": packet.fields["period_ns"] * 1e-9, "protocol_version": proto.VERSION}

@@ -1,0 +1,84 @@
+"""`isorig rig-emulator`: the rig model in real time behind the UDP rig protocol, with fault injection."""
+
+from __future__ import annotations
+
+import signal
+import sys
+
+from isorig.cli import UsageError
+
+
+def register(sub) -> None:
+    from sim.isolator import PRESETS
+
+    p = sub.add_parser("rig-emulator", help="run the rig model in real time behind the UDP rig protocol "
+                       "(what a lab's real-time I/O target runs), until stopped")
+    p.add_argument("--port", type=int, required=True, help="UDP port to listen on (0: any free port, printed)")
+    p.add_argument("--host", default="127.0.0.1", help="interface to listen on (default 127.0.0.1)")
+    p.add_argument("--isolator", default="IUT_a",
+                   help=f"the specimen mounted: a preset ({', '.join(PRESETS)}) or an isolator .json file")
+    p.add_argument("--period-s", type=float, default=1e-3, help="control period in s (default 0.001)")
+    p.add_argument("--watchdog-ms", type=float, default=10.0,
+                   help="no valid command for this long and the rig closes its valve (default 10 ms)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the injected faults' randomness and sensor noise")
+    p.add_argument("--status-file", help="JSON file with the rig's counters and timings, rewritten twice a second")
+    g = p.add_argument_group("fault injection (times count from the ARM of the test)")
+    g.add_argument("--packet-loss-pct", type=float, default=0.0, help="drop this share of datagrams, both ways")
+    g.add_argument("--latency-ms", type=float, default=0.0, help="delay every measurement by this much")
+    g.add_argument("--jitter-ms", type=float, default=0.0, help="... plus or minus up to this much (uniform)")
+    g.add_argument("--drop-link-after-s", type=float, help="cut the link for good after this time")
+    g.add_argument("--restart-after-s", type=float,
+                   help="restart after this time: session and host forgotten, valve closed, silent until a new ARM")
+    g.add_argument("--sensor-fault", choices=("stuck", "nan", "out-of-range"),
+                   help="the position sensor sticks, reads NaN or reads out of range (silently)")
+    g.add_argument("--sensor-fault-after-s", type=float, default=0.0, help="when the sensor fault begins")
+    g.add_argument("--supply-loss-after-s", type=float, help="the pump stops: supply pressure decays from this time")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from pathlib import Path
+
+    from sim.emulator.server import EmulatorConfig, Faults, RigEmulator
+    from sim.isolator import load_isolator
+
+    faults = Faults(args.packet_loss_pct, args.latency_ms, args.jitter_ms, args.drop_link_after_s,
+                    args.restart_after_s, args.sensor_fault, args.sensor_fault_after_s, args.supply_loss_after_s)
+    config = EmulatorConfig(load_isolator(args.isolator), args.port, args.host, period_s=args.period_s,
+                            watchdog_s=args.watchdog_ms / 1e3, seed=args.seed, faults=faults,
+                            status_file=Path(args.status_file) if args.status_file else None)
+    try:
+        emulator = RigEmulator(config)
+    except OSError as exc:
+        raise UsageError(f"isorig rig-emulator: cannot listen on {args.host}:{args.port}: {exc.strerror}") from None
+    priority = _raise_priority()
+    stop = lambda *_: emulator.stop()  # noqa: E731
+    signal.signal(signal.SIGTERM, stop)
+    signal.signal(signal.SIGINT, stop)
+    print(f"isorig rig-emulator: udp://{args.host}:{emulator.port}, isolator {config.isolator.name}, period "
+          f"{config.period_s:g} s, watchdog {config.watchdog_s * 1e3:g} ms, priority {priority}", file=sys.stderr,
+          flush=True)
+    try:
+        emulator.serve()
+    finally:
+        emulator.close()
+    counters = emulator.status()["counters"]
+    print(f"isorig rig-emulator: stopped after {counters['ticks']} periods, {counters['arms']} test(s) armed",
+          file=sys.stderr)
+    return 0
+
+
+def _raise_priority() -> str:
+    """Round-robin real-time priority if allowed, else nice -10, else nothing: a real-time target's place."""
+    import os
+
+    try:
+        os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(20))
+        return "SCHED_RR 20"
+    except (AttributeError, OSError):
+        pass
+    try:
+        os.nice(-10)
+        return "nice -10"
+    except OSError:
+        return "normal"

@@ -1,0 +1,422 @@
+"""The rig emulator: sim.plant's fifth-order rig and isolator in real time behind the rig protocol.
+
+This is what a lab's real-time I/O target runs, played by a process of its own. Every control period
+(a tick) it integrates the plant over the period that just ended, reads the sensors (sim.sensors: the same
+latency, noise and resolution as the simulated rig) and sends one MEASUREMENT to the host that armed it.
+A COMMAND answering that measurement takes effect at the first plant step after it arrives (a command that
+misses its period is counted and applied late, the previous one is held meanwhile). The rig holds its own
+watchdog: no valid command for ``watchdog_s`` and it closes the valve and disarms itself, whatever the host
+does. Before ARM and after DISARM it only answers HELLO; the valve stays closed (0 V).
+
+Faults are injected by ``Faults`` (the ``isorig rig-emulator`` flags), timed from the ARM of the test:
+packet loss (each datagram, both ways), added latency and jitter on measurements, a link that drops for
+good, a restart (the rig forgets session and host: nothing moves until a new ARM), a position sensor
+stuck, NaN or out of range (silent: the host must see it in the values), and supply pressure loss.
+
+Counters and timings go to ``status()`` and, if asked, to a JSON file a thread rewrites twice a second (file
+I/O never runs in the loop: a slow disk once stalled it for 131 ms). Timings are fixed-size histograms
+(sim.latency): nothing grows with the length of a test.
+"""
+
+from __future__ import annotations
+
+import heapq
+import json
+import math
+import os
+import random
+import select
+import socket
+import threading
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from ..isolator import Isolator
+from ..latency import LatencyHistogram
+from ..measurement import STATUS_ARMED, STATUS_COMMAND_MISSED, STATUS_SUPPLY_LOW, STATUS_WATCHDOG
+from ..plant import SimulatedPlant
+from ..rig import DEFAULT_RIG, P_SUPPLY, RigParameters
+from . import protocol as proto
+
+SENSOR_FAULTS = ("stuck", "nan", "out-of-range")
+OUT_OF_RANGE_M = 1.0  # what a broken position sensor reads in the out-of-range fault
+SUPPLY_DECAY_S = 0.05  # time constant of the supply pressure after a pump loss
+SUPPLY_LOW_FRACTION = 0.5
+STALE_PERIODS = 10  # a command answering a measurement older than this is stale
+SPIN_S = 2e-4  # the loop sleeps until this long before a tick, then polls
+STATUS_EVERY_S = 0.5
+
+
+@dataclass
+class Faults:
+    """Fault injection; every time counts from the ARM of the test (None: never)."""
+
+    packet_loss_pct: float = 0.0
+    latency_ms: float = 0.0
+    jitter_ms: float = 0.0
+    drop_link_after_s: float | None = None
+    restart_after_s: float | None = None
+    sensor_fault: str | None = None
+    sensor_fault_after_s: float = 0.0
+    supply_loss_after_s: float | None = None
+
+    def check(self) -> None:
+        """A clear ValueError for anything out of range."""
+        if not (0.0 <= self.packet_loss_pct <= 100.0):
+            raise ValueError(f"packet loss = {self.packet_loss_pct!r} % is outside [0, 100] %")
+        for name in ("latency_ms", "jitter_ms"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and 0.0 <= value <= 1000.0):
+                raise ValueError(f"{name.replace('_ms', '')} = {value!r} ms is outside [0, 1000] ms")
+        for name in ("drop_link_after_s", "restart_after_s", "supply_loss_after_s", "sensor_fault_after_s"):
+            value = getattr(self, name)
+            if value is not None and not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f"{name} = {value!r} s must be a time >= 0 s")
+        if self.sensor_fault is not None and self.sensor_fault not in SENSOR_FAULTS:
+            raise ValueError(f"sensor fault {self.sensor_fault!r} is unknown; allowed: {', '.join(SENSOR_FAULTS)}")
+
+
+@dataclass
+class EmulatorConfig:
+    isolator: Isolator
+    port: int
+    host: str = "127.0.0.1"
+    rig: RigParameters = DEFAULT_RIG
+    period_s: float = 1e-3
+    watchdog_s: float = 0.01
+    seed: int = 0
+    faults: Faults = field(default_factory=Faults)
+    status_file: Path | None = None
+
+    def check(self) -> None:
+        if not (1e-4 <= self.period_s <= 0.1):
+            raise ValueError(f"period = {self.period_s!r} s is outside [0.0001, 0.1] s")
+        if not (self.period_s <= self.watchdog_s <= 1.0):
+            raise ValueError(f"watchdog = {self.watchdog_s!r} s must be in [one period, 1] s")
+        if not (0 <= self.port <= 65535):
+            raise ValueError(f"port {self.port!r} is outside [0, 65535]")
+        self.faults.check()
+
+
+class RigEmulator:
+    """One emulated rig on one UDP port (see the module docstring)."""
+
+    def __init__(self, config: EmulatorConfig):
+        config.check()
+        self.config = config
+        self.period_s = config.period_s
+        self.faults = config.faults
+        self.random = random.Random(config.seed)
+        self.plant = SimulatedPlant(config.rig, config.isolator, 0.0, config.seed, config.period_s)
+        warm = SimulatedPlant(config.rig, config.isolator, 1e7, config.seed, config.period_s)
+        warm.measure()  # load the compiled plant before serving: a real-time target does not stall at its first ARM
+        warm.advance(0.0)
+        warm.advance(0.0, 1.0, 0.5)
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+        self.sock.bind((config.host, config.port))
+        self.sock.setblocking(False)
+        self.port = self.sock.getsockname()[1]
+        self.delayed: list[tuple[float, int, bytes, tuple]] = []
+        self.stopped = False
+        self.counters = {"ticks": 0, "arms": 0, "disarms": 0, "measurements_sent": 0, "measurements_dropped": 0,
+                         "commands_applied": 0, "commands_late": 0, "periods_missed": 0, "incoming_dropped": 0,
+                         "restarts": 0, "link_dropped": False}
+        self.rejected: dict[str, int] = {}
+        self.latency = LatencyHistogram()  # per answered measurement: command arrival - measurement sent
+        self.tick_lateness = LatencyHistogram()
+        self.watchdog_trips: list[dict] = []
+        self._reset_session()
+
+    # --- rig state ------------------------------------------------------------------------------------
+    def _reset_session(self) -> None:
+        """What a restart forgets: the session, the host, the command, the counters of the test."""
+        self.armed = False
+        self.session = 0
+        self.host_addr = None
+        self.sequence = -1
+        self.command_v = 0.0
+        self.pending: tuple[float, float, int] | None = None  # (command, arrival time, sequence)
+        self.last_applied_seq = -1
+        self.last_command_time = 0.0
+        self.arm_time = None
+        self.supply_set_pa = 0.0
+        self.latched_status = 0
+        self.missed = 0
+        self.rejected_count = 0
+        self.answered_this_period = False
+        self.sent_ns: dict[int, int] = {}
+        self.stuck_reading = None
+        self.last_latency_us = 0
+
+    def test_time(self, now: float) -> float | None:
+        return None if self.arm_time is None else now - self.arm_time
+
+    def _fault_due(self, after_s: float | None, now: float) -> bool:
+        t = self.test_time(now)
+        return after_s is not None and t is not None and t >= after_s
+
+    # --- packets in -----------------------------------------------------------------------------------
+    def _reject(self, reason: str) -> None:
+        self.rejected[reason] = self.rejected.get(reason, 0) + 1
+        self.rejected_count += 1
+
+    def receive(self, data: bytes, addr, arrival: float) -> None:
+        if self.counters["link_dropped"]:
+            return
+        if self.faults.packet_loss_pct and self.random.random() * 100.0 < self.faults.packet_loss_pct:
+            self.counters["incoming_dropped"] += 1
+            return
+        try:
+            packet = proto.decode(data)
+        except proto.PacketError as exc:
+            self._reject(exc.reason)
+            return
+        if packet.kind == proto.HELLO:
+            self._send_measurement(addr, hello=True)
+        elif packet.kind == proto.ARM:
+            self._arm(packet, addr, arrival)
+        elif packet.kind == proto.DISARM:
+            if self.armed and packet.session == self.session:
+                self._apply(0.0, arrival)
+                self.armed = False
+                self.counters["disarms"] += 1
+            elif packet.session != self.session:
+                self._reject("session")
+        elif packet.kind == proto.COMMAND:
+            self._command(packet, arrival)
+        else:
+            self._reject("kind")
+
+    def _arm(self, packet: proto.Packet, addr, arrival: float) -> None:
+        supply = packet.fields["supply_pressure_pa"]
+        rig = self.config.rig
+        if packet.session == 0 or not (rig.min_supply_pa <= supply <= rig.max_supply_pa):
+            self._reject("arm")
+            return
+        if self.armed and packet.session == self.session:
+            return  # the host repeats ARM until it hears the rig: already armed
+        self._reset_session()
+        self.armed = True
+        self.session = packet.session
+        self.host_addr = addr
+        self.arm_time = arrival
+        self.last_command_time = arrival
+        self.supply_set_pa = supply
+        self.plant.params[P_SUPPLY] = supply
+        self.counters["arms"] += 1
+
+    def _command(self, packet: proto.Packet, arrival: float) -> None:
+        if not self.armed or packet.session != self.session:
+            self._reject("session")
+            return
+        seq, u = packet.sequence, packet.fields["command_v"]
+        if seq <= self.last_applied_seq or (self.pending is not None and seq <= self.pending[2]):
+            self._reject("stale")  # a duplicate, or older than what this rig already has
+            return
+        if seq > self.sequence:
+            self._reject("future")
+            return
+        if seq < self.sequence - STALE_PERIODS:
+            self._reject("stale")
+            return
+        if not (math.isfinite(u) and abs(u) <= self.config.rig.command_limit_v):
+            self._reject("value")
+            return
+        self.pending = (u, arrival, seq)
+        sent = self.sent_ns.pop(seq, None)
+        if sent is not None:
+            latency_ns = time.perf_counter_ns() - sent
+            self.latency.add(latency_ns / 1e6)
+            self.last_latency_us = min(int(latency_ns / 1000), proto.U32)
+        if seq == self.sequence:
+            self.answered_this_period = True
+        else:
+            self.counters["commands_late"] += 1
+
+    def _apply(self, command_v: float, arrival: float) -> None:
+        """A command (or DISARM's 0 V) arriving now: it takes effect within the current period."""
+        self.pending = (command_v, arrival, self.pending[2] if self.pending else self.last_applied_seq)
+
+    # --- the tick -------------------------------------------------------------------------------------
+    def integrate(self, tick_start: float) -> None:
+        """The plant over the period that just ended, the command switching where it arrived."""
+        if self.pending is None:
+            self.plant.advance(self.command_v)
+            return
+        u, arrival, seq = self.pending
+        self.pending = None
+        fraction = max(0.0, (arrival - tick_start) / self.period_s)
+        self.plant.advance(self.command_v, u, fraction)
+        self.command_v = u
+        if seq > self.last_applied_seq:
+            self.last_applied_seq = seq
+            self.last_command_time = arrival
+            self.counters["commands_applied"] += 1
+
+    def after_tick(self, now: float) -> None:
+        faults = self.faults
+        if self.armed and not self.answered_this_period and self.sequence >= 0:
+            self.missed += 1
+            self.counters["periods_missed"] += 1
+            status_missed = STATUS_COMMAND_MISSED
+        else:
+            status_missed = 0
+        self.answered_this_period = False
+        if self.armed and now - self.last_command_time > self.config.watchdog_s:
+            self.watchdog_trips.append({"test_time_s": self.test_time(now),
+                                        "after_last_command_ms": (now - self.last_command_time) * 1e3,
+                                        "last_command_v": self.command_v})
+            self.command_v = 0.0  # the valve closes now: the next period integrates at 0 V
+            self.armed = False
+            self.latched_status |= STATUS_WATCHDOG
+            self.sequence += 1
+            self._send_measurement(self.host_addr, session=self.session)  # the host hears why, if it still can
+            return
+        if self._fault_due(faults.restart_after_s, now) and self.counters["restarts"] == 0:
+            self.counters["restarts"] += 1
+            self._reset_session()  # forgets the host: it will hear nothing more from this rig
+            self.arm_time = None
+            return
+        if self._fault_due(faults.drop_link_after_s, now):
+            self.counters["link_dropped"] = True
+        if self._fault_due(faults.supply_loss_after_s, now):
+            t = self.test_time(now) - faults.supply_loss_after_s
+            self.plant.params[P_SUPPLY] = self.supply_set_pa * math.exp(-t / SUPPLY_DECAY_S)
+        if self.armed:
+            self.sequence += 1
+            self._send_measurement(self.host_addr, extra_status=status_missed)
+
+    def _reading(self, m) -> float:
+        faults = self.faults
+        if faults.sensor_fault is None or not self._fault_due(faults.sensor_fault_after_s, time.perf_counter()):
+            return m.position_m
+        if faults.sensor_fault == "nan":
+            return math.nan
+        if faults.sensor_fault == "out-of-range":
+            return OUT_OF_RANGE_M
+        if self.stuck_reading is None:
+            self.stuck_reading = m.position_m
+        return self.stuck_reading
+
+    def _send_measurement(self, addr, hello: bool = False, extra_status: int = 0, session: int | None = None) -> None:
+        if addr is None or self.counters["link_dropped"]:
+            return
+        m = self.plant.measure()
+        supply = float(self.plant.params[P_SUPPLY])
+        status = self.latched_status | extra_status
+        if self.armed:
+            status |= STATUS_ARMED
+            if supply < SUPPLY_LOW_FRACTION * self.supply_set_pa:
+                status |= STATUS_SUPPLY_LOW
+        now_ns = time.perf_counter_ns()
+        seq = max(self.sequence, 0)
+        if session is None:
+            session = self.session if self.armed or hello else 0
+        packet = proto.encode(proto.MEASUREMENT, session, seq, now_ns,
+                              self._reading(m), m.force_n, m.load_pressure_pa, supply, status,
+                              min(self.missed, proto.U32), min(self.rejected_count, proto.U32),
+                              max(self.last_applied_seq, 0), self.last_latency_us,
+                              int(round(self.period_s * 1e9)))
+        if not hello:
+            self.sent_ns[seq] = now_ns
+            self.sent_ns.pop(seq - STALE_PERIODS - 1, None)
+        if self.faults.packet_loss_pct and self.random.random() * 100.0 < self.faults.packet_loss_pct:
+            self.counters["measurements_dropped"] += 1
+            return
+        delay = self.faults.latency_ms
+        if self.faults.jitter_ms:
+            delay += self.random.uniform(-self.faults.jitter_ms, self.faults.jitter_ms)
+        if delay > 0:
+            heapq.heappush(self.delayed, (time.perf_counter() + delay / 1e3, seq, packet, addr))
+        else:
+            self._sendto(packet, addr)
+
+    def _sendto(self, packet: bytes, addr) -> None:
+        try:
+            self.sock.sendto(packet, addr)
+            self.counters["measurements_sent"] += 1
+        except OSError:
+            self.counters["measurements_dropped"] += 1
+
+    # --- the real-time loop ---------------------------------------------------------------------------
+    def _pump_until(self, due: float) -> None:
+        """Receive and send delayed packets until the wall clock reaches ``due``."""
+        while True:
+            now = time.perf_counter()
+            while self.delayed and self.delayed[0][0] <= now:
+                _, _, packet, addr = heapq.heappop(self.delayed)
+                if not self.counters["link_dropped"]:
+                    self._sendto(packet, addr)
+            if now >= due:
+                return
+            wait = due - now - (SPIN_S if self.armed else 0.0)  # an idle rig need not be on time to the us
+            if self.delayed:
+                wait = min(wait, self.delayed[0][0] - now)
+            readable, _, _ = select.select([self.sock], [], [], max(0.0, wait))
+            if readable:
+                while True:
+                    try:
+                        data, addr = self.sock.recvfrom(proto.MAX_PACKET + 64)
+                    except (BlockingIOError, InterruptedError):
+                        break
+                    except OSError:
+                        break
+                    self.receive(data, addr, time.perf_counter())
+
+    def serve(self, duration_s: float | None = None) -> None:
+        """Run ticks until ``stop()`` (or for ``duration_s``)."""
+        writer = None
+        if self.config.status_file is not None:
+            writer = threading.Thread(target=self._status_writer, daemon=True, name="isorig-emulator-status")
+            writer.start()
+        t0 = start = time.perf_counter()
+        k = 0
+        while not self.stopped:
+            tick_start = t0 + k * self.period_s
+            due = tick_start + self.period_s
+            self._pump_until(due)
+            now = time.perf_counter()
+            self.tick_lateness.add((now - due) * 1e3)
+            self.integrate(tick_start)
+            self.after_tick(now)
+            self.counters["ticks"] += 1
+            k += 1
+            if now - tick_start > 0.5:  # fell far behind (the machine stalled): restart the schedule
+                t0, k = now, 0
+            if duration_s is not None and now - start >= duration_s:
+                break
+        self.stopped = True
+        if writer is not None:
+            writer.join()
+        self.write_status()
+
+    def _status_writer(self) -> None:
+        while not self.stopped:
+            self.write_status()
+            time.sleep(STATUS_EVERY_S)
+
+    def stop(self) -> None:
+        self.stopped = True
+
+    def close(self) -> None:
+        self.sock.close()
+
+    def status(self) -> dict:
+        return {"pid": os.getpid(), "port": self.port, "isolator": self.config.isolator.name,
+                "period_s": self.period_s, "watchdog_s": self.config.watchdog_s, "faults": asdict(self.faults),
+                "armed": self.armed, "session": self.session, "sequence": self.sequence,
+                "command_v": self.command_v, "position_m": float(self.plant.state[0]),
+                "counters": dict(self.counters), "rejected": dict(self.rejected),
+                "command_latency": self.latency.summary(above_ms=self.period_s * 1e3),
+                "tick_lateness": self.tick_lateness.summary(above_ms=1.0),
+                "watchdog_trips": list(self.watchdog_trips)}
+
+    def write_status(self) -> None:
+        path = self.config.status_file
+        if path is None:
+            return
+        tmp = Path(str(path) + ".tmp")
+        tmp.write_text(json.dumps(self.status(), indent=1))
+        os.replace(tmp, path)

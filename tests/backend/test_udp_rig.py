@@ -1,0 +1,333 @@
+"""The real-rig path: the rig protocol, the UDP driver and the rig emulator in its own process, with faults.
+
+Every test here runs ``isorig rig-emulator`` as a separate process in real time and, where a whole test is
+run, ``isorig simulate --rig udp://...`` as another: nothing is stepped in-process.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import socket
+import time
+
+import numpy as np
+import pytest
+from emulator import Emulator, read_record, simulate_on
+
+from backend.drivers import ArmConditions, RigFault, SimulatedRig
+from backend.drivers.check import DriverCheckError, check_driver
+from backend.drivers.udp import UdpRig, parse_udp_url, probe
+from sim.emulator import protocol as proto
+from sim.isolator import PRESETS
+from sim.measurement import FLAG_LOST, STATUS_ARMED, STATUS_COMMAND_MISSED
+
+MISSED_PERIODS_MAX = 0.01  # a share of periods: what a loaded CI machine may miss on loopback in these short tests
+
+
+# --- the protocol --------------------------------------------------------------------------------------------
+
+def test_packets_round_trip_and_every_malformed_one_is_named():
+    data = proto.encode(proto.MEASUREMENT, 7, 12, 99, 0.01, 2.0, 3.0, 4.0, STATUS_ARMED, 1, 2, 11, 250, 1_000_000)
+    packet = proto.decode(data)
+    assert (packet.kind, packet.session, packet.sequence, packet.time_ns) == (proto.MEASUREMENT, 7, 12, 99)
+    assert packet.fields["position_m"] == 0.01 and packet.fields["period_ns"] == 1_000_000
+    assert len(data) == proto.SIZES[proto.MEASUREMENT] == 84
+    command = proto.encode(proto.COMMAND, 7, 12, 5, -3.5)
+    assert proto.decode(command).fields == {"command_v": -3.5}
+    bad = {
+        "short": data[:20],
+        "magic": b"XXXX" + data[4:],
+        "version": data[:4] + (2).to_bytes(2, "little") + data[6:],
+        "kind": data[:6] + (9).to_bytes(2, "little") + data[8:],
+        "size": command[:-4] + b"\0" + command[-4:],
+        "crc": data[:30] + bytes([data[30] ^ 1]) + data[31:],
+    }
+    for reason, datagram in bad.items():
+        with pytest.raises(proto.PacketError) as exc:
+            proto.decode(datagram)
+        assert exc.value.reason == reason, (reason, str(exc.value))
+
+
+@pytest.mark.parametrize("url", ["udp://localhost", "tcp://127.0.0.1:5", "udp://127.0.0.1:99999", "udp://:5"])
+def test_udp_urls_are_checked(url):
+    with pytest.raises(ValueError, match="udp://"):
+        parse_udp_url(url)
+
+
+# --- the conformance check -------------------------------------------------------------------------------------
+
+def test_the_simulated_rig_conforms():
+    report = check_driver(SimulatedRig(PRESETS["IUT_a"]),
+                          inject_fault=lambda d: d.plant.state.__setitem__(0, math.nan))
+    assert report.ok and len(report.results) > 25
+
+
+class AcceptsNaN(SimulatedRig):
+    def write(self, command_v):
+        self.command_v = command_v
+
+
+class GoesBackwards(SimulatedRig):
+    def read(self):
+        m = super().read()
+        return dataclasses.replace(m, period=m.period - 2 * (m.period % 7 == 3), time_s=m.time_s)
+
+
+class HangsAfterDisarm(SimulatedRig):
+    def wait_next_period(self):
+        while not self.armed:
+            time.sleep(0.05)
+        super().wait_next_period()
+
+
+class WrongUnits(SimulatedRig):
+    def describe(self):
+        desc = super().describe()
+        channels = tuple(dataclasses.replace(c, unit="mm") if c.name == "position_m" else c for c in desc.channels)
+        return dataclasses.replace(desc, channels=channels)
+
+
+@pytest.mark.parametrize(("driver_class", "failure"), [
+    (AcceptsNaN, "write(nan V) is refused"), (GoesBackwards, "never backwards"),
+    (HangsAfterDisarm, "never hangs"), (WrongUnits, "SI units"),
+])
+def test_the_check_finds_a_driver_that_does_not_conform(driver_class, failure):
+    with pytest.raises(DriverCheckError, match=r"(?s)FAIL.*" + failure.replace("(", r"\(").replace(")", r"\)")):
+        check_driver(driver_class(PRESETS["IUT_a"]), periods=50, fault_timeout_s=0.5)
+
+
+def test_the_udp_driver_conforms_against_the_emulator_process(tmp_path):
+    emulator = Emulator(tmp_path)
+    try:
+        report = check_driver(UdpRig("127.0.0.1", emulator.port), inject_fault=lambda d: emulator.kill())
+        assert report.ok, str(report)
+        assert "RigFault" in str(report) or "link lost" in str(report)
+    finally:
+        emulator.stop()
+
+
+def test_probe_says_whether_the_rig_answers(tmp_path):
+    emulator = Emulator(tmp_path)
+    try:
+        answer = probe(emulator.url)
+        assert answer["connected"] and not answer["armed"] and answer["period_s"] == pytest.approx(1e-3)
+    finally:
+        emulator.stop()
+    assert probe(emulator.url, timeout_s=0.1)["connected"] is False
+
+
+# --- whole tests through the emulator ------------------------------------------------------------------------
+
+def test_a_test_through_the_emulator_completes_and_tracks_like_the_simulated_rig(tmp_path):
+    emulator = Emulator(tmp_path)
+    try:
+        code, summary, output = simulate_on(emulator.url, tmp_path / "udp", cycles=4)
+    finally:
+        status = emulator.stop()
+    assert code == 0, output
+    assert summary["status"] == "completed" and summary["reason"] is None and summary["rig"] == emulator.url
+    record = read_record(tmp_path / "udp")
+    assert len(record["time_s"]) == 2000 and np.all(np.diff(record["time_s"]) > 0)
+    assert np.array_equal(record["displacement_m"], record["measured_displacement_m"])  # a real rig: the reading
+    missed = np.count_nonzero(record["flags"].astype(int) & STATUS_COMMAND_MISSED)
+    assert missed <= MISSED_PERIODS_MAX * 2000
+    assert status["counters"]["arms"] == 1 and status["counters"]["disarms"] == 1 and not status["armed"]
+    assert summary["link"]["received"] >= 1990 and summary["link"]["round_trip_p50_ms"] < 1.0
+    code, local, _ = simulate_on("simulated", tmp_path / "local", cycles=4)
+    assert code == 0
+    through = summary["last_two_cycles"]["rms_y_minus_r_over_amplitude"]
+    assert abs(through - local["last_two_cycles"]["rms_y_minus_r_over_amplitude"]) < 1e-3  # 0.1 % of amplitude
+
+
+def test_link_silent_longer_than_the_timeout(tmp_path):
+    """The link drops: the test fails with the reason, every sample before is kept, the rig's own watchdog
+    closes the valve."""
+    emulator = Emulator(tmp_path, "--drop-link-after-s", "0.6")
+    try:
+        code, summary, output = simulate_on(emulator.url, tmp_path / "out", cycles=6)
+        status = emulator.fresh_status()
+    finally:
+        emulator.stop()
+    assert code == 1, output
+    assert summary["status"] == "failed" and "link lost" in summary["reason"]
+    record = read_record(tmp_path / "out")
+    n = len(record["time_s"])
+    assert 560 <= n <= 620  # up to the drop, nothing after it
+    np.testing.assert_allclose(record["time_s"], np.arange(n) * 1e-3, atol=1e-9)
+    assert [e["kind"] for e in summary["events"]] == ["rig_fault"]
+    trip = status["watchdog_trips"]
+    assert len(trip) == 1 and trip[0]["after_last_command_ms"] <= 20.0
+    assert status["command_v"] == 0.0 and not status["armed"]
+
+
+def test_one_percent_packet_loss_goes_on_and_flags_the_lost_periods(tmp_path):
+    emulator = Emulator(tmp_path, "--packet-loss-pct", "1", "--seed", "7")
+    try:
+        code, summary, output = simulate_on(emulator.url, tmp_path / "out", cycles=4)
+        status = emulator.stop()
+    finally:
+        emulator.stop()
+    assert code == 0 and summary["status"] == "completed", output
+    flags = read_record(tmp_path / "out")["flags"].astype(int)
+    lost = int(np.count_nonzero(flags & FLAG_LOST))
+    assert lost == summary["lost_periods"] >= 5  # about 1 % of 2000 measurements never arrived
+    assert status["counters"]["measurements_dropped"] >= 5 and status["counters"]["incoming_dropped"] >= 5
+    assert summary["link"]["lost"] >= status["counters"]["measurements_dropped"] - 2
+    assert summary["last_two_cycles"]["rms_y_minus_r_over_amplitude"] < 0.01
+
+
+def test_a_restarted_rig_moves_nothing_until_a_new_test(tmp_path):
+    emulator = Emulator(tmp_path, "--restart-after-s", "0.6")
+    try:
+        code, summary, _ = simulate_on(emulator.url, tmp_path / "out", cycles=6)
+        first = emulator.fresh_status()
+        time.sleep(0.5)
+        later = emulator.fresh_status()
+        code2, summary2, output2 = simulate_on(emulator.url, tmp_path / "again", cycles=3)
+    finally:
+        emulator.stop()
+    assert code == 1 and summary["status"] == "failed" and "link lost" in summary["reason"]
+    assert first["counters"]["restarts"] == 1 and not first["armed"] and first["command_v"] == 0.0
+    assert later["position_m"] == pytest.approx(first["position_m"], abs=1e-6)  # the table stays where it is
+    assert code2 == 0 and summary2["status"] == "completed", output2  # a new test arms it again
+
+
+def test_an_emulator_process_killed_and_started_again_mid_test(tmp_path):
+    emulator = Emulator(tmp_path, name="first")
+    run = simulate_on(emulator.url, tmp_path / "out", cycles=8, wait=False)
+    try:
+        deadline = time.monotonic() + 60
+        while not (emulator.status()["armed"] and emulator.status()["sequence"] > 1000):  # a second into the test
+            assert time.monotonic() < deadline and run.poll() is None, "the test did not start"
+            time.sleep(0.1)
+        emulator.kill()
+        second = Emulator(tmp_path, port=emulator.port, name="second")
+        output, _ = run.communicate(timeout=60)
+        status = second.fresh_status()
+        second.stop()
+    finally:
+        if run.poll() is None:
+            run.kill()
+    assert run.returncode == 1, output
+    assert "failed" in output and "link lost" in output
+    assert status["counters"]["arms"] == 0 and not status["armed"] and status["command_v"] == 0.0
+    assert len(read_record(tmp_path / "out")["time_s"]) > 200
+
+
+@pytest.mark.parametrize(("fault", "detector", "words"), [
+    ("nan", "non_finite", "non-finite"),
+    ("out-of-range", "displacement", "displacement limit"),
+    ("stuck", "position_frozen", "stuck sensor"),
+])
+def test_a_sensor_fault_trips_a_controlled_stop(tmp_path, fault, detector, words):
+    emulator = Emulator(tmp_path, "--sensor-fault", fault, "--sensor-fault-after-s", "0.5")
+    try:
+        code, summary, output = simulate_on(emulator.url, tmp_path / "out", cycles=6)
+    finally:
+        emulator.stop()
+    assert code == 1 and summary["status"] == "aborted" and words in summary["reason"], output
+    trips = [e for e in summary["events"] if e["kind"] == "limit_trip"]
+    assert len(trips) == 1 and trips[0]["values"]["detector"] == detector
+    record = read_record(tmp_path / "out")
+    assert record["voltage_v"][-1] == 0.0 and np.all(np.abs(np.diff(record["voltage_v"][-100:])) < 0.5)
+    assert 0.5 < record["time_s"][-1] < 1.0  # stopped soon after the fault
+
+
+def test_supply_pressure_loss_trips_a_controlled_stop(tmp_path):
+    emulator = Emulator(tmp_path, "--supply-loss-after-s", "0.5")
+    try:
+        code, summary, output = simulate_on(emulator.url, tmp_path / "out", cycles=6)
+    finally:
+        emulator.stop()
+    assert code == 1 and summary["status"] == "aborted" and "supply pressure lost" in summary["reason"], output
+    assert 0.5 < read_record(tmp_path / "out")["time_s"][-1] < 1.0
+
+
+# --- packets that must never be applied ---------------------------------------------------------------------------
+
+def test_bad_commands_never_reach_the_emulators_valve(tmp_path):
+    emulator = Emulator(tmp_path)
+    try:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+            sock.connect(("127.0.0.1", emulator.port))
+            sock.settimeout(1.0)
+            session = 4242
+            sock.send(proto.encode(proto.ARM, session, 0, 0, 100e5))
+            m = proto.decode(sock.recv(256))
+            assert m.session == session and m.fields["status"] & STATUS_ARMED
+            seq = m.sequence
+            good = proto.encode(proto.COMMAND, session, seq, 0, 0.0)
+            wrong_version = bytearray(proto.encode(proto.COMMAND, session, seq, 0, 9.0))
+            wrong_version[4] = 2
+            damaged = bytearray(proto.encode(proto.COMMAND, session, seq, 0, 9.0))
+            damaged[30] ^= 0xFF
+            for datagram in (bytes(wrong_version), bytes(damaged), good[:20],
+                             proto.encode(proto.COMMAND, session + 1, seq, 0, 9.0),  # another session
+                             proto.encode(proto.COMMAND, session, seq + 50, 0, 9.0),  # a future period
+                             proto.encode(proto.COMMAND, session, seq, 0, math.nan),
+                             good, good,  # the valid one, then the same packet again
+                             proto.encode(proto.COMMAND, session, seq, 0, 9.0),  # stale: that period is answered
+                             proto.encode(proto.DISARM, session, 0, 0)):  # at once: the rig's watchdog is 10 ms
+                sock.send(datagram)
+        status = emulator.fresh_status()
+    finally:
+        emulator.stop()
+    rejected = status["rejected"]
+    assert rejected == {"version": 1, "crc": 1, "short": 1, "session": 1, "future": 1, "value": 1, "stale": 2}
+    assert status["counters"]["commands_applied"] == 1  # the valid 0 V command only
+    assert status["command_v"] == 0.0 and abs(status["position_m"]) < 1e-6  # no 9 V ever reached the valve
+
+
+class FakeRig:
+    """A rig played by the test: answers ARM with a good measurement, then sends what the test says."""
+
+    def __init__(self):
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(2.0)
+        self.port = self.sock.getsockname()[1]
+
+    def measurement(self, session, seq, position_m, version=None, crc_ok=True):
+        data = bytearray(proto.encode(proto.MEASUREMENT, session, seq, 0, position_m, 0.0, 0.0, 100e5, STATUS_ARMED,
+                                      0, 0, 0, 0, 1_000_000))
+        if version is not None:
+            data[4] = version
+        if not crc_ok:
+            data[-1] ^= 0xFF
+        return bytes(data)
+
+
+def test_bad_measurements_never_reach_the_loop():
+    rig = FakeRig()
+    driver = UdpRig("127.0.0.1", rig.port, timeout_s=1.0)
+    try:
+        import threading
+
+        def play():
+            data, host = rig.sock.recvfrom(256)
+            arm = proto.decode(data)
+            s = arm.session
+            rig.sock.sendto(rig.measurement(s, 0, 0.001), host)
+            time.sleep(0.1)  # the driver is armed and waits for period 1
+            for datagram in (rig.measurement(s, 1, 0.5, version=2), rig.measurement(s, 1, 0.5, crc_ok=False),
+                             rig.measurement(s + 1, 1, 0.5), rig.measurement(s, 0, 0.5),  # another session, stale
+                             rig.measurement(s, 1, 0.002), rig.measurement(s, 1, 0.5)):  # good, then a duplicate
+                rig.sock.sendto(datagram, host)
+
+        player = threading.Thread(target=play)
+        player.start()
+        driver.arm(ArmConditions(100e5))
+        assert driver.read().position_m == 0.001
+        driver.write(0.0)
+        time.sleep(0.2)  # everything has arrived
+        driver.wait_next_period()
+        m = driver.read()
+        player.join()
+        assert (m.period, m.position_m) == (1, 0.002)  # none of the 0.5 m readings was used
+        assert driver.link_stats()["rejected_by_reason"] == {"version": 1, "crc": 1, "session": 1, "stale": 2}
+        with pytest.raises(RigFault, match="link lost"):
+            driver.wait_next_period()  # the fake rig is silent now
+    finally:
+        driver.disarm(success=False)
+        rig.sock.close()
