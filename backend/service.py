@@ -131,6 +131,35 @@ class RigService:
         return {"status": "running", "test_id": run.test_id, "driver": self.driver, "time_s": run.time_s,
                 "worker_pid": run.process.pid, "link": run.link}
 
+    def rig_info(self) -> dict:
+        """Which rig this service drives and with which link settings (what the dashboard shows)."""
+        from .drivers import SIMULATED
+
+        if self.driver == SIMULATED:
+            return {"kind": "simulated", "name": "simulated rig", "url": SIMULATED,
+                    "detail": "the fifth-order rig model runs in the worker, faster than real time if asked"}
+        from .drivers.udp import parse_udp_url
+
+        host, port = parse_udp_url(self.driver)
+        link = self.settings.link_settings()
+        return {"kind": "udp", "name": self.driver, "url": self.driver, "host": host, "port": port,
+                "control_period_s": link["period_s"], "link_timeout_s": link["timeout_s"],
+                "arm_timeout_s": link["arm_timeout_s"], "protocol": "isorig rig protocol v1 (docs/rig-protocol.md)"}
+
+    def link_health(self) -> dict:
+        """The link to the rig: the running test's figures (latency, lost packets, last sequence), else one
+        HELLO to the rig (is it there, how long it took)."""
+        from .drivers import SIMULATED
+
+        if self.driver == SIMULATED:
+            return {"kind": "simulated", "connected": True}
+        run = self.active
+        if run is not None and not run.finished.is_set():
+            return {"kind": "udp", "connected": True, "armed": True, "test_id": run.test_id, **run.link}
+        from .drivers.udp import probe
+
+        return {"kind": "udp", **probe(self.driver, timeout_s=0.2)}
+
     # --- operator actions ----------------------------------------------------------------------------
     def start(self, test_id: int, actor: str = "operator") -> None:
         with self._lock:

@@ -43,8 +43,6 @@ class Settings(BaseSettings):
     rig_link_timeout_s: float = Field(default=0.05, gt=0, le=5.0, description="UDP rig: a link silent this long "
                                       "ends the test 'failed' (the rig's watchdog closes its valve by itself)")
     rig_arm_timeout_s: float = Field(default=2.0, gt=0, le=60.0, description="UDP rig: how long arming may take")
-    rig_watchdog_s: float = Field(default=0.01, gt=0, le=1.0, description="UDP rig: asked of the rig at arm: "
-                                  "no valid command for this long and it closes the valve by itself")
 
     @field_validator("rig")
     @classmethod
@@ -57,7 +55,7 @@ class Settings(BaseSettings):
     def link_settings(self) -> dict:
         """What the worker's UDP driver is built with (host and port come from ``rig``)."""
         return {"period_s": self.rig_period_s, "timeout_s": self.rig_link_timeout_s,
-                "arm_timeout_s": self.rig_arm_timeout_s, "watchdog_s": self.rig_watchdog_s}
+                "arm_timeout_s": self.rig_arm_timeout_s}
 
     @property
     def resolved_database_url(self) -> str:

@@ -20,12 +20,22 @@ def health(request: Request) -> dict:
             "rig": request.app.state.service.state()["status"]}
 
 
+@router.get("/api/rig/link", summary="The link to the rig: live figures during a test, else a probe")
+def rig_link(request: Request) -> dict:
+    """Simulated rig: always connected. UDP rig: while a test runs, its round trip (p50, p99), measurements
+    received and lost, packets rejected, the rig's missed commands and the last sequence; when idle, one
+    HELLO to the rig (connected or not, round trip, armed)."""
+    return request.app.state.service.link_health()
+
+
 @router.get("/api/rig", summary="Rig parameters, envelope, limits and state")
 def rig(request: Request) -> dict:
     rig = DEFAULT_RIG
     service = request.app.state.service
     return {
         "driver": service.driver,
+        "rig": service.rig_info(),
+        "link": service.link_health(),
         "parameters": rig.describe(),
         "envelope": {
             "stroke_m": rig.stroke_m,

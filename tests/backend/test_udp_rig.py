@@ -331,3 +331,43 @@ def test_bad_measurements_never_reach_the_loop():
     finally:
         driver.disarm(success=False)
         rig.sock.close()
+
+
+# --- the service on a UDP rig ------------------------------------------------------------------------------------
+
+def test_the_service_runs_a_test_on_the_emulator_and_shows_the_link(tmp_path):
+    from conftest import AUTH, make_settings, sine_test, wait_for
+    from fastapi.testclient import TestClient
+
+    from backend.app import create_app
+
+    emulator = Emulator(tmp_path)
+    try:
+        with TestClient(create_app(make_settings(tmp_path, rig=emulator.url))) as client:
+            rig = client.get("/api/rig").json()
+            assert rig["rig"]["kind"] == "udp" and rig["rig"]["port"] == emulator.port
+            assert rig["rig"]["control_period_s"] == 1e-3 and rig["rig"]["link_timeout_s"] == 0.05
+            assert rig["link"]["connected"] and not rig["link"]["armed"]
+            r = client.post("/api/tests", json=sine_test(speed=2.0), headers=AUTH)
+            assert r.status_code == 422 and "real time" in r.json()["detail"]  # no faster than real time
+            r = client.post("/api/tests", json=sine_test(speed=1.0), headers=AUTH)
+            assert r.status_code == 201 and r.json()["driver"] == emulator.url
+            test_id = r.json()["id"]
+            assert client.post(f"/api/tests/{test_id}/start", headers=AUTH).status_code == 200
+            deadline = time.monotonic() + 30  # the worker starts in a few seconds under pytest
+            while True:
+                live = client.get("/api/rig/link").json()
+                if live.get("armed") and live.get("last_sequence", 0) > 100 or time.monotonic() > deadline:
+                    break
+                time.sleep(0.05)
+            assert live["armed"] and live["test_id"] == test_id and live["last_sequence"] > 100, live
+            assert live["round_trip_p50_ms"] < 1.0 and "lost" in live and "rejected" in live
+            record = wait_for(client, test_id)
+            assert record["status"] == "completed", record["reason"]
+            assert record["samples_stored"] == 1500
+            summary = record["summary"]
+            assert summary["lost_periods"] >= 0 and summary["link"]["received"] >= 1490
+            assert summary["link"]["rig"] == emulator.url and summary["pacing"]["realtime_rig"] is True
+            assert client.get("/api/rig/link").json()["armed"] is False
+    finally:
+        emulator.stop()
