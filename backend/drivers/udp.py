@@ -62,6 +62,7 @@ class UdpRig(RigDriver):
         self.last_sequence: int | None = None
         self.current: Measurement | None = None
         self.received_at = 0.0
+        self.received_wall_s: float | None = None  # wall clock (time.time) of the last measurement
         self._reset_stats()
 
     @classmethod
@@ -174,6 +175,7 @@ class UdpRig(RigDriver):
                 return
             self.stats["lost"] += gap
         self.received_at = time.perf_counter()
+        self.received_wall_s = time.time()
         self.stats["received"] += 1
         self.rig_counters = {"commands_missed": f["commands_missed"], "packets_rejected": f["packets_rejected"]}
         if f["command_latency_us"] and f["command_sequence"] == seq - 1:  # the rig's figure for our last answer
@@ -225,7 +227,7 @@ class UdpRig(RigDriver):
         self.current = None
 
     def link_stats(self) -> dict:
-        out = {"rig": self.url, "last_sequence": self.last_sequence,
+        out = {"rig": self.url, "last_sequence": self.last_sequence, "last_received_wall_s": self.received_wall_s,
                "received": self.stats["received"], "lost": self.stats["lost"],
                "rejected": sum(self.stats["rejected"].values()), "rejected_by_reason": dict(self.stats["rejected"]),
                "rig_commands_missed": self.rig_counters["commands_missed"],

@@ -58,7 +58,8 @@ def _percentiles(values) -> dict:
 
 
 class Service:
-    def __init__(self, data_dir: str, database_url: str | None, nice: int = 0, deflate: bool = False):
+    def __init__(self, data_dir: str, database_url: str | None, nice: int = 0, deflate: bool = False,
+                 rig: str | None = None):
         self.port = _free_port()
         self.token = secrets.token_urlsafe(16)
         self.base = f"http://127.0.0.1:{self.port}"
@@ -68,6 +69,8 @@ class Service:
                "--log-level", "warning"]
         if database_url:
             cmd += ["--database-url", database_url]
+        if rig:
+            cmd += ["--rig", rig]
         self.process = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                                         preexec_fn=(lambda: os.nice(nice)) if nice else None)
 
@@ -173,6 +176,8 @@ async def _paced_run(svc: Service, http, duration_s: float, clients: int) -> dic
 
 
 def _storage_run(svc: Service, http, minutes: float, speed: float) -> dict:
+    from sim.samples import N_FIELDS
+
     cycles = int(round(minutes * 60))
     test_id = _create(http, svc, cycles, speed)
     http.post(f"{svc.base}/api/tests/{test_id}/start", headers={"Authorization": f"Bearer {svc.token}"})
@@ -183,8 +188,8 @@ def _storage_run(svc: Service, http, minutes: float, speed: float) -> dict:
         time.sleep(0.5)
     stored = record["summary"]["storage_bytes"]
     return {"test_id": test_id, "status": record["status"], "minutes": record["time_s"] / 60,
-            "samples": record["samples_stored"], "columns": 14, "speed": speed, "storage_bytes": stored,
-            "storage_mb": stored / 1e6, "raw_float64_mb": record["samples_stored"] * 14 * 8 / 1e6}
+            "samples": record["samples_stored"], "columns": N_FIELDS, "speed": speed, "storage_bytes": stored,
+            "storage_mb": stored / 1e6, "raw_float64_mb": record["samples_stored"] * N_FIELDS * 8 / 1e6}
 
 
 def run(args) -> int:

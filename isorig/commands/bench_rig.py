@@ -1,0 +1,216 @@
+"""`isorig bench-rig`: the real-rig targets, measured against `isorig rig-emulator` in its own process.
+
+1. ``stream``: the service drives the emulator over loopback (``isorig serve --rig udp://...``) for
+   ``--duration-s`` (default 600 s) at 1 kHz while ``--clients`` websocket clients (default 10) watch. The
+   lateness of the control period is measured where it matters, at the rig: from the moment it sends a
+   period's measurement to the moment the host's command for that period arrives (p50, p99, max); a period
+   is missed when no command arrived before the rig's next period began. Targets: p99 < 1 ms, fewer than
+   0.1 % of periods missed.
+2. ``tracking``: the paper's scenarios (IUT_a 100 bar 20 mm, IUT_b 70 bar 30 mm, at 0.5 and 1 Hz, the
+   default controller) through the emulator (``isorig simulate --rig``) and on the in-process simulated rig;
+   the last two cycles' RMS |y - r| / amplitude of both. Target: within 0.1 % of the amplitude.
+3. ``link-drop``: the emulator cuts its link 3 s into a test run by the service: how long after the last
+   command the emulator's watchdog closed the valve (target <= 20 ms), and how long after the link timeout
+   the test was marked failed in the store (target <= 100 ms); ``--drops`` repetitions.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from datetime import datetime
+from pathlib import Path
+
+PARTS = ("stream", "tracking", "link-drop")
+TRACKING_CASES = (("IUT_a", 100.0, 0.02, 0.5), ("IUT_a", 100.0, 0.02, 1.0), ("IUT_b", 70.0, 0.03, 0.5),
+                  ("IUT_b", 70.0, 0.03, 1.0))
+
+
+def register(sub) -> None:
+    p = sub.add_parser("bench-rig", help="measure the real-rig targets against `isorig rig-emulator`")
+    p.add_argument("--parts", nargs="+", choices=PARTS, default=list(PARTS), help="what to measure (default all)")
+    p.add_argument("--duration-s", type=float, default=600.0, help="length of the streamed test (default 600)")
+    p.add_argument("--clients", type=int, default=10, help="websocket clients watching it (default 10)")
+    p.add_argument("--cycles", type=int, default=12, help="cycles of each tracking case (default 12)")
+    p.add_argument("--drops", type=int, default=3, help="link-drop repetitions (default 3)")
+    p.add_argument("--json", action="store_true", help="print the figures as JSON")
+    p.set_defaults(func=run)
+
+
+class EmulatorProcess:
+    """`isorig rig-emulator` on a free port with a status file."""
+
+    def __init__(self, folder: Path, *flags: str, isolator: str = "IUT_a"):
+        import re
+
+        self.status_file = folder / f"emulator-{time.monotonic_ns()}.json"
+        self.process = subprocess.Popen([sys.executable, "-m", "isorig", "rig-emulator", "--port", "0",
+                                         "--isolator", isolator, "--status-file", str(self.status_file), *flags],
+                                        stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
+        match = re.search(r"udp://[\d.]+:(\d+)", self.process.stderr.readline())
+        if match is None:
+            self.process.kill()
+            raise RuntimeError("isorig rig-emulator did not start")
+        self.url = f"udp://127.0.0.1:{match.group(1)}"
+
+    def status(self) -> dict:
+        time.sleep(0.6)  # rewritten twice a second
+        return json.loads(self.status_file.read_text())
+
+    def stop(self) -> dict:
+        self.process.terminate()
+        self.process.wait(10)
+        return json.loads(self.status_file.read_text())
+
+
+def _stream(folder: Path, duration_s: float, clients: int) -> dict:
+    import asyncio
+
+    import httpx
+
+    from .bench_stream import Service, _paced_run
+
+    emulator = EmulatorProcess(folder)
+    svc = Service(str(folder), None, rig=emulator.url)
+    try:
+        with httpx.Client(timeout=30) as http:
+            svc.wait_up(http)
+            print(f"[stream] {duration_s:g} s at 1 kHz on {emulator.url}, {clients} websocket clients ...",
+                  file=sys.stderr)
+            result = asyncio.run(_paced_run(svc, http, duration_s, clients))
+    finally:
+        svc.stop()
+        status = emulator.stop()
+    counters = status["counters"]
+    periods = counters["measurements_sent"] + counters["measurements_dropped"]
+    result["rig"] = {"command_latency": status["command_latency"], "periods": periods,
+                     "periods_missed": counters["periods_missed"],
+                     "missed_share": counters["periods_missed"] / max(periods, 1),
+                     "commands_late": counters["commands_late"], "rejected": status["rejected"],
+                     "tick_lateness": status["tick_lateness"]}
+    return result
+
+
+def _tracking(folder: Path, cycles: int) -> list[dict]:
+    rows = []
+    for isolator, supply_bar, amplitude_m, frequency_hz in TRACKING_CASES:
+        args = ["--isolator", isolator, "--supply-bar", str(supply_bar), "--amplitude-m", str(amplitude_m),
+                "--frequency-hz", str(frequency_hz), "--cycles", str(cycles)]
+        out = {}
+        emulator = EmulatorProcess(folder, isolator=isolator)
+        print(f"[tracking] {isolator} {supply_bar:g} bar {1e3 * amplitude_m:g} mm {frequency_hz:g} Hz, "
+              f"{cycles / frequency_hz:g} s through {emulator.url} ...", file=sys.stderr)
+        try:
+            for rig in ("simulated", emulator.url):
+                target = folder / f"{isolator}-{frequency_hz:g}-{'sim' if rig == 'simulated' else 'udp'}"
+                proc = subprocess.run([sys.executable, "-m", "isorig", "simulate", "--rig", rig, "--out", str(target),
+                                       *args], capture_output=True, text=True)
+                summary = json.loads((target / "summary.json").read_text())
+                out[rig] = {"exit": proc.returncode, "status": summary.get("status", "completed"),
+                            "rms_last2": summary["last_two_cycles"]["rms_y_minus_r_over_amplitude"],
+                            "lost_periods": summary.get("lost_periods", 0)}
+        finally:
+            emulator.stop()
+        sim, udp = out["simulated"], out[emulator.url]
+        rows.append({"isolator": isolator, "supply_bar": supply_bar, "amplitude_m": amplitude_m,
+                     "frequency_hz": frequency_hz, "cycles": cycles, "simulated_rms_last2": sim["rms_last2"],
+                     "emulator_rms_last2": udp["rms_last2"], "difference": udp["rms_last2"] - sim["rms_last2"],
+                     "emulator_status": udp["status"], "emulator_lost_periods": udp["lost_periods"]})
+    return rows
+
+
+def _link_drop(folder: Path, drops: int) -> list[dict]:
+    import httpx
+
+    from .bench_stream import Service, _create
+
+    rows = []
+    for i in range(drops):
+        emulator = EmulatorProcess(folder, "--drop-link-after-s", "3")
+        svc = Service(str(folder / f"drop-{i}"), None, rig=emulator.url)
+        (folder / f"drop-{i}").mkdir(exist_ok=True)
+        try:
+            with httpx.Client(timeout=30) as http:
+                svc.wait_up(http)
+                test_id = _create(http, svc, 10, 1.0)
+                http.post(f"{svc.base}/api/tests/{test_id}/start",
+                          headers={"Authorization": f"Bearer {svc.token}"}).raise_for_status()
+                while (record := http.get(f"{svc.base}/api/tests/{test_id}").json())["status"] in ("ready",
+                                                                                                  "running"):
+                    time.sleep(0.2)
+                timeout_s = http.get(f"{svc.base}/api/rig").json()["rig"]["link_timeout_s"]
+        finally:
+            svc.stop()
+        status = emulator.stop()
+        fault = next(e for e in record["events"] if e["kind"] == "rig_fault")
+        last_wall = fault["values"]["link"]["last_received_wall_s"]
+        ended = datetime.fromisoformat(record["ended_at"]).timestamp()
+        trips = status["watchdog_trips"]
+        rows.append({"test_id": test_id, "status": record["status"], "reason": record["reason"],
+                     "valve_zero_after_last_command_ms": trips[0]["after_last_command_ms"] if trips else None,
+                     "marked_failed_after_timeout_ms": (ended - last_wall - timeout_s) * 1e3,
+                     "samples_kept": record["samples_stored"], "link_timeout_s": timeout_s})
+        print(f"[link-drop] {i + 1}/{drops}: {rows[-1]['status']}", file=sys.stderr)
+    return rows
+
+
+def run(args) -> int:
+    from isorig.cli import UsageError
+
+    if args.duration_s < 2 or args.clients < 0 or args.cycles < 4 or args.drops < 1:
+        raise UsageError("isorig bench-rig: --duration-s >= 2, --clients >= 0, --cycles >= 4, --drops >= 1")
+    results: dict = {"load_average_start": os.getloadavg(), "cpus": os.cpu_count()}
+    with tempfile.TemporaryDirectory(prefix="isorig-bench-rig-") as tmp:
+        folder = Path(tmp)
+        if "tracking" in args.parts:
+            results["tracking"] = _tracking(folder, args.cycles)
+        if "link-drop" in args.parts:
+            results["link_drop"] = _link_drop(folder, args.drops)
+        if "stream" in args.parts:
+            results["stream"] = _stream(folder, args.duration_s, args.clients)
+    results["load_average_end"] = os.getloadavg()
+    if args.json:
+        print(json.dumps(results, indent=2))
+        return 0
+    _print(results)
+    return 0
+
+
+def _print(results: dict) -> None:
+    if "tracking" in results:
+        print("[tracking] last two cycles' RMS |y - r| / amplitude, default controller  [target: within 0.1 %]")
+        print("  case                          simulated   emulator   difference  status")
+        for r in results["tracking"]:
+            case = f"{r['isolator']} {r['supply_bar']:g} bar {1e3 * r['amplitude_m']:g} mm {r['frequency_hz']:g} Hz"
+            print(f"  {case:28s}  {100 * r['simulated_rms_last2']:8.3f} %  {100 * r['emulator_rms_last2']:8.3f} %"
+                  f"  {100 * r['difference']:+9.3f} %  {r['emulator_status']}, "
+                  f"{r['emulator_lost_periods']} lost")
+    for r in results.get("link_drop", []):
+        print(f"[link-drop] test {r['test_id']} {r['status']} ({r['samples_kept']} samples kept): valve 0 V at the "
+              f"emulator {r['valve_zero_after_last_command_ms']:.1f} ms after the last command [target <= 20 ms]; "
+              f"marked failed {r['marked_failed_after_timeout_ms']:.0f} ms after the {1e3 * r['link_timeout_s']:g} ms "
+              "timeout [target <= 100 ms]")
+    if "stream" in results:
+        s = results["stream"]
+        rig = s["rig"]
+        lat = rig["command_latency"]
+        print(f"[stream] test {s['test_id']} {s['status']}, {s['test_time_s']:.1f} s at 1 kHz, {s['clients']} "
+              "websocket clients watching")
+        print(f"  lateness of the control period at the rig (measurement sent -> command arrived): p50 "
+              f"{lat['p50_ms']:.2f} ms, p99 {lat['p99_ms']:.2f} ms, max {lat['max_ms']:.2f} ms over {lat['n']} "
+              "periods  [target p99 < 1 ms]")
+        print(f"  periods missed (no command before the rig's next period): {rig['periods_missed']} of "
+              f"{rig['periods']} ({100 * rig['missed_share']:.3f} %)  [target < 0.1 %]; late commands applied "
+              f"{rig['commands_late']}; rejected {rig['rejected'] or 0}")
+        link = s["pacing"]
+        lat_c = s["latency"]
+        if lat_c.get("n"):
+            print(f"  sample-to-client latency p95 {lat_c['p95_ms']:.1f} ms; samples per client "
+                  f"{min(s['samples_per_client'])}-{max(s['samples_per_client'])} of {s['samples_stored']}; "
+                  f"worker {link.get('priority', '?')}")
+    print(f"machine: {results['cpus']} CPUs, load average {results['load_average_start'][0]:.1f} at start, "
+          f"{results['load_average_end'][0]:.1f} at end")
