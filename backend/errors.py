@@ -80,7 +80,7 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(ProfileError)
     async def _profile_error(_request: Request, exc: ProfileError):
-        field = exc.field if exc.field in ("supply_bar",) else f"profile.{exc.field}"
+        field = exc.field if exc.field in ("supply_bar", "vertical_load_n") else f"profile.{exc.field}"
         return error_response(422, str(exc), field, exc.value, exc.limit)
 
     @app.exception_handler(LimitError)

@@ -36,9 +36,10 @@ class TestRecord(Base):
     label: Mapped[str] = mapped_column(String(200), default="")
     isolator: Mapped[str] = mapped_column(String(64), index=True)
     supply_bar: Mapped[float] = mapped_column(Float)
+    vertical_load_n: Mapped[float | None] = mapped_column(Float)  # None: recorded before it was a condition
     controller: Mapped[str] = mapped_column(String(32))
     speed: Mapped[float] = mapped_column(Float, default=1.0)
-    driver: Mapped[str] = mapped_column(String(32), default="simulated")
+    driver: Mapped[str] = mapped_column(String(200), default="simulated")  # simulated | udp://HOST:PORT
     request: Mapped[dict] = mapped_column(JSON)  # the POST body as accepted
     scenario: Mapped[dict] = mapped_column(JSON)  # sim.engine.Scenario.describe()
     limits: Mapped[dict] = mapped_column(JSON)  # safety limits in force

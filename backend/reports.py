@@ -487,7 +487,8 @@ def _header_lines(bundle, ctrl: dict, iso, protocol) -> list[tuple[str, str]]:
     scenario = r.get("scenario") or {}
     date = r.get("started_at") or r.get("created_at") or "-"
     status = str(r.get("status") or "-") + (f" ({r['reason']})" if r.get("reason") else "")
-    rig = r.get("rig") or (f"{r['driver']} rig" if r.get("driver") else None) or \
+    driver = r.get("driver")
+    rig = r.get("rig") or ("simulated rig (sim.rig defaults)" if driver == "simulated" else driver) or \
         ("simulated rig (sim.rig defaults)" if scenario.get("control_period_s") else "-")
     lines = [
         ("Lab", r.get("lab") or "-"),
@@ -504,6 +505,9 @@ def _header_lines(bundle, ctrl: dict, iso, protocol) -> list[tuple[str, str]]:
         lines.append(("Isolator", str(r.get("isolator") or "not recorded")))
     sb = _num(r.get("supply_bar"))
     lines.append(("Supply pressure", f"{sb:g} bar" if sb is not None else "not recorded"))
+    load = _num(r.get("vertical_load_n", (r.get("scenario") or {}).get("vertical_load_n")))
+    lines.append(("Vertical load", f"{load / 1e3:g} kN" if load is not None else "not recorded (before 2026-11-24: "
+                  "the rig's 125 kN)"))
     for k, text in enumerate(_profile_text(r, protocol)):
         lines.append(("Profile" if k == 0 else "", text))
     lines.append(("Controller", str(ctrl.get("name") or "not recorded")

@@ -51,6 +51,9 @@ class TestCreate(StrictModel):
 
     isolator: str = Field(min_length=1, max_length=64, description="a preset or a user isolator's name")
     supply_bar: float = Field(description="supply pressure in bar")
+    vertical_load_n: float | None = Field(None, description="vertical load on the specimen in N, from 0 to the "
+                                          "rig's jack capacity (GET /api/rig); default: the isolator's design "
+                                          "load, else the rig's default (1.25e5 N)")
     controller: str = Field(DEFAULT_CONTROLLER, max_length=32, description="controller name")
     speed: float = Field(1.0, description="time scale of a simulated test: 1 = real time, 20 = 20x faster")
     profile: ProfileIn
@@ -73,6 +76,7 @@ class EnvelopeCheckOut(BaseModel):
     max_amplitude_m: float | None = Field(None, description="largest amplitude at this frequency (sine only)")
     max_frequency_hz: float | None = Field(None, description="highest frequency at this amplitude (sine only)")
     max_force_n: float | None = Field(None, description="A_p P_s at this supply pressure")
+    max_vertical_load_n: float | None = Field(None, description="the vertical jack's capacity, N")
 
 
 class IsolatorIn(StrictModel):
@@ -85,6 +89,8 @@ class IsolatorIn(StrictModel):
     kd_n_per_m: float
     kw_n: float
     description: str = Field("", max_length=200)
+    design_vertical_load_n: float | None = Field(None, description="the vertical load its tests run under by "
+                                                 "default, N")
 
 
 class ErrorOut(BaseModel):
@@ -112,6 +118,7 @@ class TestOut(BaseModel):
     ended_at: str | None
     isolator: str
     supply_bar: float
+    vertical_load_n: float | None
     controller: str
     speed: float
     driver: str
@@ -139,6 +146,7 @@ class IsolatorOut(BaseModel):
     kd_n_per_m: float
     kw_n: float
     description: str = ""
+    design_vertical_load_n: float | None = None
 
 
 ERROR_RESPONSES = {

@@ -85,6 +85,7 @@ def test_record(session: Session, test: TestRecord, with_events: bool = True) ->
         "ended_at": _iso(test.ended_at),
         "isolator": test.isolator,
         "supply_bar": test.supply_bar,
+        "vertical_load_n": test.vertical_load_n,
         "controller": test.controller,
         "speed": test.speed,
         "driver": test.driver,

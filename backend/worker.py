@@ -96,7 +96,7 @@ def scenario_from_job(job: dict) -> Scenario:
     blocks = [SineProfile(b["amplitude_m"], b["frequency_hz"], int(b["cycles"]), int(b["taper_cycles"]),
                           b.get("offset_m", 0.0)) for b in spec["profile"]]
     return Scenario(isolator_from_dict(spec["isolator"]), spec["supply_pa"], blocks, spec["controller"],
-                    dict(spec.get("controller_options") or {}))
+                    dict(spec.get("controller_options") or {}), vertical_load_n=spec.get("vertical_load_n"))
 
 
 def make_driver(rig: str, scenario: Scenario, link: dict | None = None) -> RigDriver:
@@ -224,7 +224,8 @@ class Run:
         status = "failed"
         gc.freeze()  # what exists now is never scanned again: no collector pause of this size inside the loop
         try:
-            driver.arm(ArmConditions(self.scenario.supply_pa, self.job.get("test_id")))
+            driver.arm(ArmConditions(self.scenario.supply_pa, self.scenario.effective_vertical_load_n,
+                                     self.job.get("test_id")))
             status, reason = self._run()
             return status, reason
         except RigFault as exc:

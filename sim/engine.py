@@ -37,6 +37,9 @@ class Scenario:
     rig: RigParameters = DEFAULT_RIG
     label: str = ""
     noise_seed: int = 0  # sensor noise (sim.sensors); only matters when the rig declares noise
+    #: the vertical load on the specimen, N (friction mu N + F_c of eq. 1); None: the isolator's design load,
+    #: else the rig's default (the paper's 1.25e5 N)
+    vertical_load_n: float | None = None
 
     @classmethod
     def sine(cls, isolator: str | Isolator, supply_bar: float, amplitude_m: float, frequency_hz: float,
@@ -47,6 +50,20 @@ class Scenario:
         return cls(iso, supply_bar * BAR_PA, [prof], controller, **kwargs)
 
     @property
+    def effective_vertical_load_n(self) -> float:
+        if self.vertical_load_n is not None:
+            return self.vertical_load_n
+        if self.isolator.design_vertical_load_n is not None:
+            return self.isolator.design_vertical_load_n
+        return self.rig.vertical_load_n
+
+    @property
+    def plant_rig(self) -> RigParameters:
+        """The rig under this test's vertical load (its friction follows, eq. 1)."""
+        load = self.effective_vertical_load_n
+        return self.rig if load == self.rig.vertical_load_n else self.rig.with_changes(vertical_load_n=load)
+
+    @property
     def duration_s(self) -> float:
         return profile_duration_s(self.profile)
 
@@ -55,13 +72,14 @@ class Scenario:
         return int(round(self.duration_s / CONTROL_PERIOD_S))
 
     def validate(self) -> None:
-        validate_profile(self.profile, self.rig, self.isolator, self.supply_pa)
+        validate_profile(self.profile, self.plant_rig, self.isolator, self.supply_pa)
 
     def describe(self) -> dict:
         return {
             "label": self.label,
             "isolator": self.isolator.to_dict(),
             "supply_bar": self.supply_pa / BAR_PA,
+            "vertical_load_n": self.effective_vertical_load_n,
             "profile": [b.to_dict() for b in self.profile],
             "controller": self.controller,
             "controller_options": self.controller_options,
@@ -81,7 +99,7 @@ class Simulation:
         self.scenario = scenario
         controller = controller or make_controller(scenario.controller, **scenario.controller_options)
         self.loop = ClosedLoop(scenario.profile, controller, scenario.rig.command_limit_v)
-        self.plant = SimulatedPlant(scenario.rig, scenario.isolator, scenario.supply_pa, scenario.noise_seed,
+        self.plant = SimulatedPlant(scenario.plant_rig, scenario.isolator, scenario.supply_pa, scenario.noise_seed,
                                     substeps=plant_substeps)
 
     @property

@@ -4,7 +4,8 @@
     dw/dt = rho_BW d' { 1 + |w|^n sigma_BW [ 1 - sgn(d' w) - 1/sigma_BW ] }
 
 Presets IUT_a and IUT_b are the paper's Tables I and II. User isolators come from JSON
-objects with the keys ``name, rho_bw_per_m, sigma_bw, n, kd_n_per_m, kw_n``.
+objects with the keys ``name, rho_bw_per_m, sigma_bw, n, kd_n_per_m, kw_n`` and, optionally,
+``design_vertical_load_n`` (the load its tests run under unless a test says otherwise) and ``description``.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ LIMITS = {
     "kd_n_per_m": (0.0, 1.0e9, "N/m"),
     "kw_n": (0.0, 1.0e7, "N"),
 }
+DESIGN_LOAD_LIMIT_N = (0.0, 1.0e8)  # checked against the rig's jack when a test is made
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9_.\- ]{1,64}$")
 
 
@@ -47,6 +49,7 @@ class Isolator:
     kd_n_per_m: float
     kw_n: float
     description: str = ""
+    design_vertical_load_n: float | None = None  # the default vertical load of its tests (None: the rig's)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -102,7 +105,15 @@ def isolator_from_dict(data: dict) -> Isolator:
     description = data.get("description", "")
     if not isinstance(description, str):
         raise IsolatorError("field 'description' must be a string")
-    return Isolator(name=name, description=description[:200], **values)
+    load = data.get("design_vertical_load_n")
+    if load is not None:
+        lo, hi = DESIGN_LOAD_LIMIT_N
+        if isinstance(load, bool) or not isinstance(load, (int, float)) or not math.isfinite(load) \
+                or not (lo <= load <= hi):
+            raise IsolatorError(f"field 'design_vertical_load_n' = {load!r} must be a number of newtons in "
+                                f"[{lo:g}, {hi:g}] N (or absent)")
+        load = float(load)
+    return Isolator(name=name, description=description[:200], design_vertical_load_n=load, **values)
 
 
 def load_isolator(spec: str | Path) -> Isolator:

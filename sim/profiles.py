@@ -135,8 +135,9 @@ def check_supply(supply_pa: float, rig: RigParameters) -> None:
 def envelope_problem(block: SineProfile, rig: RigParameters, isolator: Isolator, supply_pa: float):
     """The first envelope limit a sine block violates, as a ProfileError, or None.
 
-    Limits: stroke; pump flow A_p * 2 pi f A <= Q_pump; force kd A + kw + friction + viscous and
-    inertial forces <= A_p P_s; valve flow capacity at the load pressure of the peak-velocity point.
+    Limits: stroke; pump flow A_p * 2 pi f A <= Q_pump; force kd (|offset| + A) + kw + friction at the
+    test's vertical load (mu N + F_c, eq. 1) + viscous and inertial forces <= A_p P_s; valve flow capacity at
+    the load pressure of the peak-velocity point. ``rig`` carries the test's vertical load.
     """
     a, f = block.amplitude_m, block.frequency_hz
     reach = abs(block.offset_m) + a
@@ -154,14 +155,16 @@ def envelope_problem(block: SineProfile, rig: RigParameters, isolator: Isolator,
                             f"frequency_hz = {f:g} Hz) exceeds the pump's "
                             f"{rig.pump_max_flow_m3_per_s / LITRE_PER_MIN_M3_S:.0f} l/min; at this amplitude "
                             f"frequency_hz must be <= {f_max:.3g} Hz")
-    force = (isolator.peak_force_n(a) + rig.friction_force_n + rig.viscous_n_s_per_m * v_peak
+    force = (isolator.peak_force_n(reach) + rig.friction_force_n + rig.viscous_n_s_per_m * v_peak
              + rig.mass_kg * omega ** 2 * a)
     f_max = rig.max_force_n(supply_pa)
     if force > f_max:
+        at = f"amplitude_m = {a:g} m" + (f" about offset_m = {block.offset_m:g} m" if block.offset_m else "")
         return ProfileError("amplitude_m", a, f"A_p P_s = {f_max:.4g} N",
-                            f"the test needs up to {force:.4g} N (isolator {isolator.name} at amplitude_m = {a:g} m) "
+                            f"the test needs up to {force:.4g} N (isolator {isolator.name} at {at}, friction "
+                            f"{rig.friction_force_n:.4g} N at a vertical load of {rig.vertical_load_n / 1e3:g} kN) "
                             f"but the rig can push at most A_p P_s = {f_max:.4g} N at {supply_pa / BAR_PA:g} bar; "
-                            f"lower the amplitude or raise supply_bar")
+                            f"lower the amplitude, the offset or the vertical load, or raise supply_bar")
     # valve capacity where the velocity peaks (d = 0): load pressure from hysteretic + friction forces
     p_load = (isolator.kw_n + rig.friction_force_n + rig.viscous_n_s_per_m * v_peak) / rig.piston_area_m2
     opening = rig.driver_gain_positive * rig.command_limit_v - rig.dead_zone_v
@@ -176,9 +179,16 @@ def envelope_problem(block: SineProfile, rig: RigParameters, isolator: Isolator,
     return None
 
 
+def check_vertical_load(vertical_load_n: float, rig: RigParameters) -> None:
+    """The vertical load must be a number of newtons within [0, the jack's capacity]."""
+    _number("vertical_load_n", vertical_load_n, 0.0, rig.max_vertical_load_n, "N")
+
+
 def validate_profile(blocks: list[SineProfile], rig: RigParameters, isolator: Isolator, supply_pa: float) -> None:
-    """Raise ProfileError if any block is malformed or outside the envelope (before anything runs)."""
+    """Raise ProfileError if any block is malformed or outside the envelope (before anything runs);
+    ``rig`` carries the test's vertical load."""
     check_supply(supply_pa, rig)
+    check_vertical_load(rig.vertical_load_n, rig)
     if not blocks:
         raise ProfileError("profile", [], "at least one block", "the profile has no sine block")
     for b in blocks:

@@ -36,7 +36,9 @@ class RigParameters:
 
     mass_kg: float = _p(1200.0, "kg", "assumed", "table, rod and part of the isolator (rig-notes)")
     friction_coefficient: float = _p(0.015, "-", "assumed", "mu of the linear guides, eq. (1)")
-    vertical_load_n: float = _p(1.25e5, "N", "paper", "vertical load on the specimen, section V")
+    vertical_load_n: float = _p(1.25e5, "N", "paper", "vertical load on the specimen, section V; a test "
+                                "condition (sim.engine.Scenario.vertical_load_n), this is its default")
+    max_vertical_load_n: float = _p(850e3, "N", "paper", "capacity of the vertical jack, section II")
     coulomb_force_n: float = _p(4550.0, "N", "calibrated",
                                 "F_c, seal friction, eq. (1); with mu N the intercept of a_s over P_s "
                                 "(Tables III-IV, scripts/calibrate.py)")

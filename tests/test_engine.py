@@ -104,3 +104,35 @@ def test_command_ramp_runs_open_loop_on_the_plant_and_leaves_the_controller_idle
         assert rows["displacement_m"][i] == x[0]
         for _ in range(PLANT_SUBSTEPS):
             rk4_step(x, valve_command(expected[i], sim.plant.params), sim.plant.params, 1e-3 / PLANT_SUBSTEPS, *work)
+
+
+def test_the_vertical_load_is_a_test_condition_and_sets_the_friction():
+    from sim.isolator import PRESETS, Isolator
+    from sim.rig import DEFAULT_RIG
+
+    base = Scenario.sine("IUT_a", 100.0, 0.02, 1.0, 2)
+    assert base.effective_vertical_load_n == DEFAULT_RIG.vertical_load_n == 1.25e5  # the paper's
+    heavy = Scenario.sine("IUT_a", 100.0, 0.02, 1.0, 2, vertical_load_n=6e5)
+    friction = heavy.plant_rig.friction_force_n
+    assert friction - base.plant_rig.friction_force_n == pytest.approx(DEFAULT_RIG.friction_coefficient * 4.75e5)
+    assert Simulation(heavy).plant.params[1] == friction  # P_FRICTION of the plant
+    assert heavy.describe()["vertical_load_n"] == 6e5
+    designed = Isolator(**{**PRESETS["IUT_b"].to_dict(), "design_vertical_load_n": 4e5})
+    assert Scenario(designed, 70e5, base.profile).effective_vertical_load_n == 4e5  # the isolator's default
+    assert Scenario(designed, 70e5, base.profile, vertical_load_n=0.0).effective_vertical_load_n == 0.0
+    for bad in (-1.0, 9e5, float("nan")):
+        with pytest.raises(ProfileError) as exc:
+            Scenario.sine("IUT_a", 100.0, 0.02, 1.0, 2, vertical_load_n=bad).validate()
+        assert exc.value.field == "vertical_load_n" and "850000" in exc.value.limit
+
+
+def test_the_envelope_counts_the_offset_and_the_friction_at_the_load():
+    # the example: a 50 mm offset and a 40 mm sine at 100 bar need more than A_p P_s
+    with pytest.raises(ProfileError, match="offset_m = 0.05 m") as exc:
+        Scenario.sine("IUT_a", 100.0, 0.04, 0.1, 2, offset_m=0.05).validate()
+    assert exc.value.field == "amplitude_m"
+    Scenario.sine("IUT_a", 100.0, 0.04, 0.1, 2).validate()  # the same sine about zero fits
+    # friction: a load the jack can give takes the margin away
+    Scenario.sine("IUT_a", 100.0, 0.075, 0.1, 2, vertical_load_n=0.0).validate()  # 81.6 mm is the most at 0 N
+    with pytest.raises(ProfileError, match="vertical load of 850 kN"):
+        Scenario.sine("IUT_a", 100.0, 0.075, 0.1, 2, vertical_load_n=8.5e5).validate()  # 71.5 mm

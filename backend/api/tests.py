@@ -67,18 +67,21 @@ def build_test(session, body: TestCreate, request: Request) -> dict:
     if body.speed != 1.0 and service.driver != SIMULATED:
         raise ApiError(422, f"the rig {service.driver} runs in real time: speed must be 1", "speed", body.speed, "1")
     blocks = profile_blocks(body.profile)
-    scenario = Scenario(isolator, body.supply_bar * BAR_PA, blocks, body.controller, rig=DEFAULT_RIG)
-    scenario.validate()  # ProfileError -> 422 with field, value, limit
+    scenario = Scenario(isolator, body.supply_bar * BAR_PA, blocks, body.controller, rig=DEFAULT_RIG,
+                        vertical_load_n=body.vertical_load_n)
+    scenario.validate()  # ProfileError -> 422 with field, value, limit (vertical_load_n among them)
     if scenario.duration_s > settings.max_test_duration_s:
         raise ApiError(422, f"the profile lasts {scenario.duration_s:g} s, longer than the allowed "
                             f"{settings.max_test_duration_s:g} s", "profile", scenario.duration_s,
                        f"<= {settings.max_test_duration_s:g} s")
     limits = make_limits(DEFAULT_RIG, body.limits.model_dump() if body.limits else None)
     job_scenario = {"isolator": isolator.to_dict(), "supply_pa": scenario.supply_pa,
+                    "vertical_load_n": scenario.effective_vertical_load_n,
                     "profile": [b.to_dict() for b in blocks], "controller": body.controller,
                     "controller_options": {}}
     return {
         "label": body.label, "isolator": isolator.name, "supply_bar": body.supply_bar,
+        "vertical_load_n": scenario.effective_vertical_load_n,
         "controller": body.controller, "speed": body.speed, "driver": service.driver,
         "request": {**body.model_dump(mode="json"), "job_scenario": job_scenario},
         "scenario": clean_json(scenario.describe()), "limits": limits.to_dict(),
@@ -103,6 +106,7 @@ def check_test(body: TestCreate, request: Request, session: SessionDep) -> Envel
     supply_pa = body.supply_bar * BAR_PA
     if DEFAULT_RIG.min_supply_pa <= supply_pa <= DEFAULT_RIG.max_supply_pa:
         out["max_force_n"] = DEFAULT_RIG.max_force_n(supply_pa)
+        out["max_vertical_load_n"] = DEFAULT_RIG.max_vertical_load_n
         if isinstance(body.profile, SineProfileIn):
             try:
                 isolator = resolve_isolator(session, body.isolator)

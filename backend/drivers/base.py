@@ -84,6 +84,7 @@ class ArmConditions:
     """Operating conditions the rig is armed for."""
 
     supply_pressure_pa: float
+    vertical_load_n: float = 1.25e5  # the jack's setting for the test
     test_id: int | None = None
 
 

@@ -36,7 +36,8 @@ class SimulatedRig(RigDriver):
                                                        "isolator": self.isolator.name})
 
     def arm(self, conditions: ArmConditions) -> None:
-        self.plant = SimulatedPlant(self.rig, self.isolator, conditions.supply_pressure_pa, self.noise_seed)
+        rig = self.rig.with_changes(vertical_load_n=conditions.vertical_load_n)  # the jack: friction follows
+        self.plant = SimulatedPlant(rig, self.isolator, conditions.supply_pressure_pa, self.noise_seed)
         self.command_v = 0.0
         self.armed = True
 

@@ -145,7 +145,8 @@ class UdpRig(RigDriver):
         self._reset_stats()
         self.session = secrets.randbits(32) or 1
         self.current = None
-        arm = proto.encode(proto.ARM, self.session, 0, time.perf_counter_ns(), conditions.supply_pressure_pa)
+        arm = proto.encode(proto.ARM, self.session, 0, time.perf_counter_ns(), conditions.supply_pressure_pa,
+                           conditions.vertical_load_n)
         end = time.perf_counter() + self.arm_timeout_s
         while time.perf_counter() < end:
             self._send(arm)

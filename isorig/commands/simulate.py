@@ -23,6 +23,9 @@ def register(sub) -> None:
     p.add_argument("--isolator", default="IUT_a",
                    help=f"preset ({', '.join(PRESETS)}) or path to an isolator .json file")
     p.add_argument("--supply-bar", type=float, default=100.0, help="supply pressure in bar (default 100)")
+    p.add_argument("--vertical-load-n", type=float, default=None,
+                   help="vertical load on the specimen in N, 0 to the jack's 850 kN (default: the isolator's "
+                        "design load, else 1.25e5 N as in the paper)")
     p.add_argument("--amplitude-m", type=float, default=0.02, help="sine amplitude in m (default 0.02)")
     p.add_argument("--frequency-hz", type=float, default=1.0, help="sine frequency in Hz (default 1)")
     p.add_argument("--cycles", type=whole_number, default=30, help="number of cycles (default 30)")
@@ -62,7 +65,7 @@ def run(args) -> int:
 
     scenario = Scenario.sine(args.isolator, args.supply_bar, args.amplitude_m, args.frequency_hz, args.cycles,
                              controller=args.controller, taper_cycles=args.taper_cycles, offset_m=args.offset_m,
-                             controller_options=dict(args.controller_option))
+                             controller_options=dict(args.controller_option), vertical_load_n=args.vertical_load_n)
     scenario.validate()
     out = Path(args.out)
     try:
@@ -108,6 +111,7 @@ def run_on_rig(args, scenario, out: Path) -> int:
     job = {"test_id": None, "rig": args.rig, "speed": 1.0,
            "link": {"period_s": 1e-3, "timeout_s": args.link_timeout_s, "arm_timeout_s": 2.0},
            "scenario": {"isolator": scenario.isolator.to_dict(), "supply_pa": scenario.supply_pa,
+                        "vertical_load_n": scenario.effective_vertical_load_n,
                         "profile": [b.to_dict() for b in scenario.profile], "controller": scenario.controller,
                         "controller_options": scenario.controller_options},
            "limits": default_limits(scenario.rig).to_dict()}

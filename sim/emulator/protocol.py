@@ -10,7 +10,7 @@ Every packet is little-endian: a 24-byte header, a payload that depends on the k
              command_latency_us u32 | period_ns u32
     COMMAND  (host -> rig), sequence = the measurement it answers
              command_v f64
-    ARM      (host -> rig) supply_pressure_pa f64          session = the host's new session id (not 0)
+    ARM      (host -> rig) supply_pressure_pa f64 | vertical_load_n f64     session = the host's new id (not 0)
     DISARM   (host -> rig) no payload
     HELLO    (host -> rig) no payload: the rig answers with one MEASUREMENT (how the service probes the link)
     trailer  crc32 u32
@@ -36,7 +36,7 @@ HEADER = struct.Struct("<4sHHIIQ")
 PAYLOADS = {
     MEASUREMENT: struct.Struct("<ddddIIIIII"),
     COMMAND: struct.Struct("<d"),
-    ARM: struct.Struct("<d"),
+    ARM: struct.Struct("<dd"),
     DISARM: struct.Struct("<"),
     HELLO: struct.Struct("<"),
 }
@@ -67,7 +67,8 @@ class Packet:
 
 MEASUREMENT_FIELDS = ("position_m", "force_n", "load_pressure_pa", "supply_pressure_pa", "status",
                       "commands_missed", "packets_rejected", "command_sequence", "command_latency_us", "period_ns")
-PAYLOAD_FIELDS = {MEASUREMENT: MEASUREMENT_FIELDS, COMMAND: ("command_v",), ARM: ("supply_pressure_pa",),
+PAYLOAD_FIELDS = {MEASUREMENT: MEASUREMENT_FIELDS, COMMAND: ("command_v",),
+                  ARM: ("supply_pressure_pa", "vertical_load_n"),
                   DISARM: (), HELLO: ()}
 
 

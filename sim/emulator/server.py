@@ -36,7 +36,7 @@ from ..isolator import Isolator
 from ..latency import LatencyHistogram
 from ..measurement import STATUS_ARMED, STATUS_COMMAND_MISSED, STATUS_SUPPLY_LOW, STATUS_WATCHDOG
 from ..plant import SimulatedPlant
-from ..rig import DEFAULT_RIG, P_SUPPLY, RigParameters
+from ..rig import DEFAULT_RIG, P_FRICTION, P_SUPPLY, RigParameters
 from . import protocol as proto
 
 SENSOR_FAULTS = ("stuck", "nan", "out-of-range")
@@ -142,6 +142,7 @@ class RigEmulator:
         self.last_command_time = 0.0
         self.arm_time = None
         self.supply_set_pa = 0.0
+        self.vertical_load_n = None
         self.latched_status = 0
         self.missed = 0
         self.rejected_count = 0
@@ -190,9 +191,10 @@ class RigEmulator:
             self._reject("kind")
 
     def _arm(self, packet: proto.Packet, addr, arrival: float) -> None:
-        supply = packet.fields["supply_pressure_pa"]
+        supply, load = packet.fields["supply_pressure_pa"], packet.fields["vertical_load_n"]
         rig = self.config.rig
-        if packet.session == 0 or not (rig.min_supply_pa <= supply <= rig.max_supply_pa):
+        if packet.session == 0 or not (rig.min_supply_pa <= supply <= rig.max_supply_pa) \
+                or not (0.0 <= load <= rig.max_vertical_load_n):
             self._reject("arm")
             return
         if self.armed and packet.session == self.session:
@@ -205,6 +207,8 @@ class RigEmulator:
         self.last_command_time = arrival
         self.supply_set_pa = supply
         self.plant.params[P_SUPPLY] = supply
+        self.plant.params[P_FRICTION] = rig.with_changes(vertical_load_n=load).friction_force_n  # the jack
+        self.vertical_load_n = load
         self.counters["arms"] += 1
 
     def _command(self, packet: proto.Packet, arrival: float) -> None:
@@ -407,6 +411,7 @@ class RigEmulator:
         return {"pid": os.getpid(), "port": self.port, "isolator": self.config.isolator.name,
                 "period_s": self.period_s, "watchdog_s": self.config.watchdog_s, "faults": asdict(self.faults),
                 "armed": self.armed, "session": self.session, "sequence": self.sequence,
+                "supply_pa": self.supply_set_pa, "vertical_load_n": self.vertical_load_n,
                 "command_v": self.command_v, "position_m": float(self.plant.state[0]),
                 "counters": dict(self.counters), "rejected": dict(self.rejected),
                 "command_latency": self.latency.summary(above_ms=self.period_s * 1e3),

@@ -171,3 +171,29 @@ def test_envelope_check_explains_without_creating(client):
     proto = client.post("/api/tests/check", json=sine_test(profile={"kind": "protocol", "name": "/etc/passwd"}))
     assert proto.status_code in (200, 422) and proto.json().get("ok") is not True
     assert len(client.get("/api/tests").json()) == before  # nothing was created
+
+
+def test_the_vertical_load_is_a_condition_of_the_test(client):
+    from conftest import AUTH, sine_test
+
+    r = client.post("/api/tests", json=sine_test(vertical_load_n=4e5), headers=AUTH)
+    assert r.status_code == 201 and r.json()["vertical_load_n"] == 4e5
+    assert r.json()["scenario"]["vertical_load_n"] == 4e5
+    r = client.post("/api/tests", json=sine_test(), headers=AUTH)
+    assert r.json()["vertical_load_n"] == 1.25e5  # the paper's, the rig's default
+    for bad in (-5.0, 9e5):
+        r = client.post("/api/tests", json=sine_test(vertical_load_n=bad), headers=AUTH)
+        body = r.json()
+        assert r.status_code == 422 and body["field"] == "vertical_load_n" and "850000" in body["limit"], body
+    assert client.post("/api/tests/check", json=sine_test(vertical_load_n=9e5)).json()["ok"] is False
+    rig = client.get("/api/rig").json()["envelope"]
+    assert rig["max_vertical_load_n"] == 850e3 and rig["vertical_load_n_default"] == 1.25e5
+    # a user isolator's design load is the default of its tests
+    iso = {"name": "LRB_design", "rho_bw_per_m": 150.0, "sigma_bw": 0.5, "n": 1.0, "kd_n_per_m": 7e5,
+           "kw_n": 4e4, "design_vertical_load_n": 3.5e5}
+    assert client.post("/api/isolators", json=iso, headers=AUTH).status_code == 201
+    r = client.post("/api/tests", json=sine_test(isolator="LRB_design"), headers=AUTH)
+    assert r.status_code == 201 and r.json()["vertical_load_n"] == 3.5e5
+    bad_iso = {**iso, "name": "LRB_kN", "design_vertical_load_n": -1}
+    r = client.post("/api/isolators", json=bad_iso, headers=AUTH)
+    assert r.status_code == 422 and "design_vertical_load_n" in r.json()["detail"]

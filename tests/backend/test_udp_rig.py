@@ -253,7 +253,7 @@ def test_bad_commands_never_reach_the_emulators_valve(tmp_path):
             sock.connect(("127.0.0.1", emulator.port))
             sock.settimeout(1.0)
             session = 4242
-            sock.send(proto.encode(proto.ARM, session, 0, 0, 100e5))
+            sock.send(proto.encode(proto.ARM, session, 0, 0, 100e5, 1.25e5))
             m = proto.decode(sock.recv(256))
             assert m.session == session and m.fields["status"] & STATUS_ARMED
             seq = m.sequence
@@ -350,7 +350,7 @@ def test_the_service_runs_a_test_on_the_emulator_and_shows_the_link(tmp_path):
             assert rig["link"]["connected"] and not rig["link"]["armed"]
             r = client.post("/api/tests", json=sine_test(speed=2.0), headers=AUTH)
             assert r.status_code == 422 and "real time" in r.json()["detail"]  # no faster than real time
-            r = client.post("/api/tests", json=sine_test(speed=1.0), headers=AUTH)
+            r = client.post("/api/tests", json=sine_test(speed=1.0, vertical_load_n=3e5), headers=AUTH)
             assert r.status_code == 201 and r.json()["driver"] == emulator.url
             test_id = r.json()["id"]
             assert client.post(f"/api/tests/{test_id}/start", headers=AUTH).status_code == 200
@@ -370,4 +370,5 @@ def test_the_service_runs_a_test_on_the_emulator_and_shows_the_link(tmp_path):
             assert summary["link"]["rig"] == emulator.url and summary["pacing"]["realtime_rig"] is True
             assert client.get("/api/rig/link").json()["armed"] is False
     finally:
-        emulator.stop()
+        status = emulator.stop()
+    assert status["vertical_load_n"] == 3e5 and status["supply_pa"] == 100e5  # ARM carried the conditions
