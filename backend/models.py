@@ -77,6 +77,7 @@ class CycleRecord(Base):
     test_id: Mapped[int] = mapped_column(ForeignKey("tests.id", ondelete="CASCADE"), index=True)
     cycle: Mapped[int] = mapped_column(Integer)  # 1-based
     block: Mapped[int] = mapped_column(Integer, default=0)
+    phase: Mapped[str | None] = mapped_column(String(16))  # sim.tracking.PHASES; None: stored before phases
     t_start_s: Mapped[float] = mapped_column(Float)
     t_end_s: Mapped[float] = mapped_column(Float)
     metrics: Mapped[dict] = mapped_column(JSON)

@@ -22,6 +22,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from sim.engine import Scenario
 from sim.loop import CONTROL_PERIOD_S
+from sim.metrics import headline_figures
 from sim.samples import CSV_FIELDS, Samples
 from sim.tracking import tracking_summary
 
@@ -301,7 +302,7 @@ class RigService:
                     payload = cycle_with_metrics(payload)
                     run.cycles_done = payload["cycle"]
                     self.hub.publish_threadsafe({
-                        "type": "cycle", "test_id": test_id, "cycle": payload["cycle"],
+                        "type": "cycle", "test_id": test_id, "cycle": payload["cycle"], "phase": payload.get("phase"),
                         "metrics": store.clean_json(payload["metrics"]),
                         "loop": {"displacement_m": payload["displacement_m"].tolist(),
                                  "force_n": payload["force_n"].tolist()}})
@@ -367,7 +368,7 @@ class RigService:
                     flush()
                     store.add_cycle(session, test_id, payload["cycle"], payload["block"], payload["t_start_s"],
                                     payload["t_end_s"], payload["metrics"], payload["displacement_m"],
-                                    payload["force_n"])
+                                    payload["force_n"], payload.get("phase"))
                     session.commit()
                 elif kind == "event":
                     flush()
@@ -435,7 +436,7 @@ class RigService:
                                      "message": message, "values": store.clean_json(values)})
 
     def _summary(self, session: Session, test, job: dict, pacing: dict, link: dict) -> dict:
-        """Tracking figures (sim.tracking), loop-metric means over the full-amplitude cycles, pacing, the
+        """Tracking figures (sim.tracking), loop-metric means over the steady cycles (sim.metrics), pacing, the
         periods lost on the link and its health."""
         samples = store.load_samples(session, test.id)
         scenario: Scenario = scenario_from_job(job)
@@ -450,19 +451,9 @@ class RigService:
             tracking.pop("samples", None)
             summary["tracking"] = tracking
         cycles = store.load_cycles(session, test.id, arrays=False)
-        taper = {b: scenario.profile[b].taper_cycles for b in range(len(scenario.profile))}
-        counts = {b: scenario.profile[b].cycles for b in range(len(scenario.profile))}
-        first = {}
-        for c in cycles:
-            first.setdefault(c["block"], c["cycle"])
-        full = [c for c in cycles
-                if taper[c["block"]] <= c["cycle"] - first[c["block"]] < counts[c["block"]] - taper[c["block"]]]
-        means = {}
-        for key in ("k_eff_n_per_m", "edc_j", "xi_eff", "qd_n", "kd_n_per_m"):
-            values = [c[key] for c in full if isinstance(c.get(key), (int, float))]
-            if values:
-                means[key] = float(np.mean(values))
+        headline = headline_figures(cycles)
         summary["cycles_done"] = len(cycles)
-        summary["full_amplitude_cycles"] = len(full)
-        summary["loop_metrics_mean"] = means
+        summary["steady_cycles"] = headline["steady_cycles"]
+        summary["excluded_cycles"] = headline["excluded_cycles"]
+        summary["loop_metrics_mean"] = headline["means"]  # over the steady cycles only (sim.metrics)
         return store.clean_json(summary)

@@ -191,22 +191,43 @@ def storage_bytes(session: Session, test_id: int) -> int:
 # --- cycles ----------------------------------------------------------------------------------------------
 
 def add_cycle(session: Session, test_id: int, cycle: int, block: int, t_start_s: float, t_end_s: float,
-              metrics: dict, displacement_m: np.ndarray, force_n: np.ndarray) -> None:
-    session.add(CycleRecord(test_id=test_id, cycle=cycle, block=block, t_start_s=t_start_s, t_end_s=t_end_s,
+              metrics: dict, displacement_m: np.ndarray, force_n: np.ndarray, phase: str | None = None) -> None:
+    session.add(CycleRecord(test_id=test_id, cycle=cycle, block=block, phase=phase, t_start_s=t_start_s,
+                            t_end_s=t_end_s,
                             metrics=clean_json(metrics), n_points=len(displacement_m), codec=ARRAYS_CODEC,
                             loop_data=encode_arrays(displacement_m, force_n)))
 
 
 def load_cycles(session: Session, test_id: int, arrays: bool = True) -> list[dict]:
+    """Every stored cycle: number, block, phase (sim.tracking), time span, loop metrics (and the loop)."""
     out = []
+    legacy = None
     for c in session.scalars(select(CycleRecord).where(CycleRecord.test_id == test_id).order_by(CycleRecord.cycle)):
-        item = {"cycle": c.cycle, "block": c.block, "t_start_s": c.t_start_s, "t_end_s": c.t_end_s, **c.metrics}
+        phase = c.phase
+        if phase is None:  # stored before phases: the planned profile's phase (a stop's ramp-out is not known)
+            if legacy is None:
+                legacy = _planned_phases(session, test_id)
+            phase = legacy[c.cycle - 1] if c.cycle <= len(legacy) else "steady"
+        item = {"cycle": c.cycle, "block": c.block, "phase": phase, "t_start_s": c.t_start_s,
+                "t_end_s": c.t_end_s, **c.metrics}
         if arrays:
             d, f = decode_arrays(c.loop_data, c.n_points, 2)
             item["displacement_m"] = d
             item["force_n"] = f
         out.append(item)
     return out
+
+
+def _planned_phases(session: Session, test_id: int) -> list[str]:
+    from sim.profiles import blocks_from_dicts
+    from sim.tracking import cycle_phases
+
+    test = get_test(session, test_id)
+    blocks = (test.scenario or {}).get("profile") or [] if test is not None else []
+    try:
+        return cycle_phases(blocks_from_dicts(blocks))
+    except (KeyError, TypeError, ValueError):
+        return []
 
 
 # --- events ----------------------------------------------------------------------------------------------

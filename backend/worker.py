@@ -36,9 +36,9 @@ from sim.engine import Scenario
 from sim.isolator import isolator_from_dict
 from sim.loop import CONTROL_PERIOD_S, ClosedLoop
 from sim.measurement import FLAG_LOST, Measurement
-from sim.profiles import SineProfile
+from sim.profiles import B_CYCLES, B_TAPER, blocks_from_dicts
 from sim.samples import Samples
-from sim.tracking import cycle_windows
+from sim.tracking import cycle_phase, cycle_windows
 
 from .drivers import SIMULATED, ArmConditions, RigDriver, RigFault, SimulatedRig
 from .safety import SafetyLimits, SafetyMonitor, Trip
@@ -93,9 +93,8 @@ class Outbox:
 
 def scenario_from_job(job: dict) -> Scenario:
     spec = job["scenario"]
-    blocks = [SineProfile(b["amplitude_m"], b["frequency_hz"], int(b["cycles"]), int(b["taper_cycles"]),
-                          b.get("offset_m", 0.0)) for b in spec["profile"]]
-    return Scenario(isolator_from_dict(spec["isolator"]), spec["supply_pa"], blocks, spec["controller"],
+    return Scenario(isolator_from_dict(spec["isolator"]), spec["supply_pa"], blocks_from_dicts(spec["profile"]),
+                    spec["controller"],
                     dict(spec.get("controller_options") or {}), vertical_load_n=spec.get("vertical_load_n"))
 
 
@@ -172,6 +171,7 @@ class Run:
         self.compiled = getattr(self.driver, "run_compiled", None)
         self.windows = cycle_windows(self.scenario)
         self.next_window = 0
+        self.cycles_in_block: dict[int, int] = {}
         self.pending = Samples.empty()
         self.pending_start = 0
         self.produced: list[Samples] = []  # rows run on the rig and not yet released
@@ -206,14 +206,20 @@ class Run:
                 break
             seg = self.pending[i0 - self.pending_start: i1 - self.pending_start]
             self.next_window += 1
+            index_in_block = self.cycles_in_block.get(block, 0)
+            self.cycles_in_block[block] = index_in_block + 1
             if len(seg) >= 2:
-                self.send_cycle(self.next_window, block, seg)
+                self.send_cycle(self.next_window, block, index_in_block, seg)
             self.pending = self.pending[i1 - self.pending_start:]
             self.pending_start = i1
 
-    def send_cycle(self, number: int, block: int, seg: Samples) -> None:
-        """The cycle's loop at full resolution; the service computes its metrics (service.cycle_with_metrics)."""
-        self.send("cycle", {"cycle": number, "block": block, "t_start_s": float(seg["time_s"][0]),
+    def send_cycle(self, number: int, block: int, index_in_block: int, seg: Samples) -> None:
+        """The cycle's loop at full resolution and its phase (after a stop, the loop's blocks are cut: its
+        last cycles are the ramp-out); the service computes its metrics (service.cycle_with_metrics)."""
+        packed = self.loop.blocks[block]
+        phase = cycle_phase(index_in_block, int(packed[B_CYCLES]), int(packed[B_TAPER]),
+                            self.scenario.profile[block].cycles)
+        self.send("cycle", {"cycle": number, "block": block, "phase": phase, "t_start_s": float(seg["time_s"][0]),
                             "t_end_s": float(seg["time_s"][-1] + CONTROL_PERIOD_S),
                             "displacement_m": seg["displacement_m"].copy(), "force_n": seg["force_n"].copy()})
 

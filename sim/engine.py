@@ -150,10 +150,20 @@ class Result:
         return self.samples[name]
 
     def summary(self) -> dict:
+        """Scenario, tracking figures, and per cycle its phase and loop metrics with the headline figures
+        over the steady cycles (the same figures the service and the report give)."""
+        from .metrics import headline_figures, scenario_cycle_metrics
         from .tracking import tracking_summary
 
-        return {"scenario": self.scenario.describe(), "diverged": self.diverged,
-                **tracking_summary(self.samples, self.scenario)}
+        out = {"scenario": self.scenario.describe(), "diverged": self.diverged,
+               **tracking_summary(self.samples, self.scenario)}
+        loops = {c["cycle"]: c for c in scenario_cycle_metrics(self.samples, self.scenario)} \
+            if len(self.samples) else {}
+        for c in out["cycles"]:
+            loop = loops.get(c["cycle"], {})
+            c.update({k: v for k, v in loop.items() if k not in ("i_start", "i_end")})
+        out["headline"] = headline_figures(list(loops.values()))
+        return out
 
 
 def run_scenario(scenario: Scenario) -> Result:

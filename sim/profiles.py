@@ -47,6 +47,12 @@ class SineProfile:
         return [self]
 
 
+def blocks_from_dicts(blocks: list[dict]) -> list[SineProfile]:
+    """Sine blocks from their stored form (``SineProfile.to_dict()``: a record's scenario, a job)."""
+    return [SineProfile(float(b["amplitude_m"]), float(b["frequency_hz"]), int(b["cycles"]),
+                        int(b.get("taper_cycles", 0)), float(b.get("offset_m", 0.0))) for b in blocks]
+
+
 # Packed block columns.
 B_START, B_AMPLITUDE, B_FREQUENCY, B_CYCLES, B_TAPER, B_OFFSET = range(6)
 N_BLOCK_COLUMNS = 6

@@ -25,6 +25,28 @@ def cycle_windows(scenario) -> list[tuple[int, int, int, float]]:
     return windows
 
 
+STEADY = "steady"
+PHASES = ("taper_in", STEADY, "taper_out", "ramp_out")  # what a cycle of a sine block is
+
+
+def cycle_phase(index_in_block: int, cycles: int, taper_cycles: int, planned_cycles: int | None = None) -> str:
+    """``taper_in``, ``steady``, ``taper_out`` or ``ramp_out`` (the taper of an operator's stop: the block was
+    cut short of its ``planned_cycles``) for the 0-based cycle ``index_in_block`` of a sine block.
+
+    Only steady cycles are at the block's amplitude: headline figures (sim.metrics.headline_figures) and
+    acceptance use them alone; the others are shown, marked and left out."""
+    if index_in_block < taper_cycles:
+        return "taper_in"
+    if index_in_block >= cycles - taper_cycles:
+        return "ramp_out" if planned_cycles is not None and cycles < planned_cycles else "taper_out"
+    return STEADY
+
+
+def cycle_phases(profile) -> list[str]:
+    """The phase of every target cycle of a profile (a list of SineProfile blocks), in order."""
+    return [cycle_phase(c, b.cycles, b.taper_cycles) for b in profile for c in range(b.cycles)]
+
+
 def fitted_sine(t: np.ndarray, y: np.ndarray, frequency_hz: float) -> tuple[float, float]:
     """Least-squares amplitude and phase (rad) of y ~ c + A sin(2 pi f t + phi)."""
     w = 2 * math.pi * frequency_hz

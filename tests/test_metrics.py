@@ -261,3 +261,41 @@ def test_optional_columns_with_empty_cells_after_an_unused_column(tmp_path):
     only = read_csv_columns(path, required=(), optional=("ar_hat",), min_rows=1)
     assert list(only) == ["ar_hat"]
     np.testing.assert_array_equal(only["ar_hat"], [1.0, np.nan, 2.0])
+
+
+def test_cycle_phases_and_headline_figures_from_steady_cycles_only():
+    from sim.engine import Scenario, Simulation
+    from sim.metrics import headline_figures
+    from sim.tracking import cycle_phase
+
+    assert [cycle_phase(c, 6, 1) for c in range(6)] == ["taper_in"] + ["steady"] * 4 + ["taper_out"]
+    assert cycle_phase(3, 4, 1, planned_cycles=10) == "ramp_out"  # a stop cut the block to 4 cycles
+    assert cycle_phase(0, 3, 0) == "steady"
+    summary = Simulation(Scenario.sine("IUT_a", 100.0, 0.02, 1.0, 6, taper_cycles=1)).run().summary()
+    cycles = summary["cycles"]
+    assert [c["phase"] for c in cycles] == ["taper_in", "steady", "steady", "steady", "steady", "taper_out"]
+    keff = [c["k_eff_n_per_m"] for c in cycles]
+    assert keff[0] > 1.05 * max(keff[1:5])  # a taper cycle is smaller and stiffer: it would bias the headline
+    head = summary["headline"]
+    assert head["steady_cycles"] == 4 and head["excluded_cycles"] == {"taper_in": 1, "taper_out": 1}
+    assert head["means"]["k_eff_n_per_m"] == pytest.approx(np.mean(keff[1:5]))
+    # cycles whose metrics failed, or with no phase (older records), are handled
+    mixed = [{"phase": "steady", "k_eff_n_per_m": 2.0}, {"phase": "steady", "error": "non-finite"},
+             {"k_eff_n_per_m": 4.0}, {"phase": "ramp_out", "k_eff_n_per_m": 100.0}]
+    head = headline_figures(mixed)
+    assert head["means"]["k_eff_n_per_m"] == 3.0 and head["steady_cycles"] == 3
+    assert head["excluded_cycles"] == {"ramp_out": 1}
+
+
+def test_cycle_metrics_can_skip_a_cycle_with_a_failed_sensor():
+    from sim.metrics import cycle_metrics
+
+    t = np.arange(0.0, 3.0, 1e-3)
+    d = 0.01 * np.sin(2 * np.pi * t)
+    f = 1e5 * d
+    d[1500] = np.nan  # the second cycle has a NaN reading
+    with pytest.raises(ValueError, match="non-finite"):
+        cycle_metrics(t, d, f, [0.0, 1.0, 2.0], 3.0)
+    cycles = cycle_metrics(t, d, f, [0.0, 1.0, 2.0], 3.0, skip_bad=True)
+    assert [("error" in c) for c in cycles] == [False, True, False]
+    assert cycles[0]["k_eff_n_per_m"] == pytest.approx(1e5, rel=1e-3)

@@ -7,6 +7,7 @@ import io
 import math
 
 import numpy as np
+import pytest
 from conftest import AUTH, create_and_start, sine_test, wait_for
 
 from sim.samples import CSV_FIELDS, RECORD_FIELDS
@@ -35,6 +36,10 @@ def test_completed_test_stores_every_sample_and_cycle(client):
     assert [c["cycle"] for c in cycles] == [1, 2, 3]
     full = cycles[1]
     assert full["k_eff_n_per_m"] > 1e6 and full["edc_j"] > 0
+    assert [c["phase"] for c in cycles] == ["taper_in", "steady", "taper_out"]
+    summary = rec["summary"]  # the headline is the steady cycle's alone
+    assert summary["steady_cycles"] == 1 and summary["excluded_cycles"] == {"taper_in": 1, "taper_out": 1}
+    assert summary["loop_metrics_mean"]["k_eff_n_per_m"] == pytest.approx(full["k_eff_n_per_m"])
     assert len(full["displacement_m"]) == len(full["force_n"]) == 500
     assert client.post(f"/api/tests/{test_id}/start", headers=AUTH).status_code == 409  # not ready any more
     r = client.get(f"/api/tests/{test_id}/report.pdf")

@@ -125,3 +125,25 @@ def test_service_runs_a_test_on_postgresql(tmp_path):
         rec = wait_for(client, create_and_start(client))
         assert rec["status"] == "completed" and rec["samples_stored"] == 1500 and rec["cycles_done"] == 3
         assert len(client.get(f"/api/tests/{rec['id']}/data.csv").text.splitlines()) == 1501
+
+
+def test_cycles_keep_their_phase_and_older_cycles_get_the_planned_one(tmp_path):
+    engine = make_engine(f"sqlite:///{tmp_path / 'p.db'}")
+    upgrade(engine)
+    sessions = session_factory(engine)
+    profile = [{"kind": "sine", "amplitude_m": 0.01, "frequency_hz": 1.0, "cycles": 3, "taper_cycles": 1,
+                "offset_m": 0.0}]
+    loop = np.zeros(10)
+    with sessions() as s:
+        t = store.create_test(s, isolator="IUT_a", supply_bar=100.0, controller="pid", speed=1.0, driver="simulated",
+                              request={"profile": profile[0]}, scenario={"profile": profile}, limits={},
+                              duration_s=3.0, cycles_total=3, label="")
+        for n in (1, 2, 3):  # stored before phases existed: no phase
+            store.add_cycle(s, t.id, n, 0, n - 1.0, float(n), {"k_eff_n_per_m": 1e6 * n}, loop, loop)
+        t2 = store.create_test(s, isolator="IUT_a", supply_bar=100.0, controller="pid", speed=1.0,
+                               driver="simulated", request={}, scenario={"profile": profile}, limits={},
+                               duration_s=3.0, cycles_total=3, label="")
+        store.add_cycle(s, t2.id, 1, 0, 0.0, 1.0, {}, loop, loop, phase="ramp_out")
+        s.commit()
+        assert [c["phase"] for c in store.load_cycles(s, t.id)] == ["taper_in", "steady", "taper_out"]
+        assert store.load_cycles(s, t2.id, arrays=False)[0]["phase"] == "ramp_out"

@@ -135,6 +135,8 @@ def test_stop_command_ends_stopped_with_target_tapered():
     samples = samples_of(out)
     assert 1.1 < samples["time_s"][-1] < 2.1 + 0.02 and abs(samples["target_m"][-1]) < 1e-6
     assert driver.disarms == [True]
+    phases = [m["phase"] for k, m in out.sent if k == "cycle"]  # 2 Hz: stopped in cycle 3, ramped out in 4
+    assert phases == ["taper_in", "steady", "steady", "ramp_out"]
 
 
 def test_abort_writes_zero_at_once_and_disarms_unsuccessfully():
