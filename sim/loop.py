@@ -1,13 +1,16 @@
 """The closed loop: one control period, the same compiled code for the offline engine and the live worker.
 
-Each period ``control_period`` takes the rig's measurement, computes the target r(t) (sim.profiles),
+Each period ``control_period`` takes the rig's measurement, takes the target r(t) from the sine blocks
+(sim.profiles) or from a table of (r, r', r'') per period (a time history, or a hybrid simulation's commands
+written one period ahead),
 steps the controller (sim.controllers), saturates the command at the rig's limit (a non-finite command
 becomes 0 V: the only saturation and NaN guard of the project) and writes the period's row (sim.samples).
 ``ClosedLoop`` holds what a test's loop needs (profile, controller and its state, command limit, period
 count) and the two ways a test ends early, both above any rig driver so that every driver gets them:
 
 - ``ramp_out()``: the operator's stop. The running sine block tapers to zero over ``taper_cycles`` (at
-  least one cycle) from the next whole cycle; the controller stays in the loop.
+  least one cycle) from the next whole cycle; the controller stays in the loop. A table's target fades out
+  over ``FADE_S`` with a raised cosine instead.
 - ``begin_command_ramp()``: a controlled stop after a limit trip. The controller is no longer trusted:
   the command ramps linearly from its last value to zero over ``COMMAND_RAMP_S`` (open loop, no target).
 
@@ -59,6 +62,9 @@ from .samples import (
 
 CONTROL_PERIOD_S = 1.0e-3
 COMMAND_RAMP_S = 0.1  # controlled stop: the valve command ramps from its last value to zero in this time
+FADE_S = 1.0  # an operator's stop of a time history: the target fades to zero over this time
+NO_TABLE = np.zeros((0, 3))
+NO_BLOCKS = np.zeros((1, 6))
 
 # Loop parameters and state (packed for compiled code).
 L_DT, L_ULIM = range(2)
@@ -78,8 +84,11 @@ def saturate(u_raw, limit):
 
 @njit(cache=True)
 def control_period(k, position_m, force_n, load_pressure_pa, supply_pressure_pa, status, lp, ls, kind, cparams,
-                   cstate, blocks, meas, report, row):
+                   cstate, blocks, table, meas, report, row):
     """One control period k from a measurement; fills ``row`` and returns the command in volts.
+
+    The target comes from ``table`` (rows r, r', r'' per period; the last row holds beyond its end) when it
+    has rows, else from the sine ``blocks``.
 
     ``row`` receives the controller's side of the period (time, target, model, command, adapted
     parameters) and the measurement; the plant-only fields (velocity, flow, valve) are left NaN and the
@@ -97,7 +106,12 @@ def control_period(k, position_m, force_n, load_pressure_pa, supply_pressure_pa,
             report[i] = np.nan
         flags |= FLAG_OPEN_LOOP
     else:
-        r, rdot = target(t, blocks)
+        if table.shape[0] > 0:
+            i = k if k < table.shape[0] else table.shape[0] - 1
+            r = table[i, 0]
+            rdot = table[i, 1]
+        else:
+            r, rdot = target(t, blocks)
         meas[M_TIME] = t
         meas[M_TARGET] = r
         meas[M_TARGET_RATE] = rdot
@@ -153,26 +167,54 @@ def ramp_out_profile(blocks: np.ndarray, t_now_s: float, dt_s: float = CONTROL_P
     return blocks, total
 
 
+def fade_table(table: np.ndarray, k0: int, n: int, period_s: float = CONTROL_PERIOD_S) -> None:
+    """Multiply the target of ``table`` from row k0 by a raised cosine that falls from 1 to 0 over n rows (and
+    zero after), keeping r' and r'' the derivatives of the faded r (product rule). In place."""
+    n = max(1, int(n))
+    k1 = min(table.shape[0], k0 + n)
+    if k0 >= table.shape[0]:
+        return
+    x = (np.arange(k0, k1) - k0) / n
+    rate = 1.0 / (n * period_s)
+    w = 0.5 * (1.0 + np.cos(np.pi * x))
+    dw = -0.5 * np.pi * np.sin(np.pi * x) * rate
+    ddw = -0.5 * np.pi ** 2 * np.cos(np.pi * x) * rate ** 2
+    r, rd, rdd = table[k0:k1, 0].copy(), table[k0:k1, 1].copy(), table[k0:k1, 2].copy()
+    table[k0:k1, 0] = w * r
+    table[k0:k1, 1] = w * rd + dw * r
+    table[k0:k1, 2] = w * rdd + 2.0 * dw * rd + ddw * r
+    table[k1:] = 0.0
+
+
 class ClosedLoop:
-    """A test's loop: target profile, controller and its state, command limit, and where it stands.
+    """A test's loop: target (sine profile or table), controller and its state, command limit, and where it
+    stands.
 
     ``period`` is the next control period to run. ``step(measurement)`` runs one period (the path of a
-    real rig); sim.plant runs many periods in one compiled call on the same arrays.
+    real rig); sim.plant runs many periods in one compiled call on the same arrays. With ``table`` (an
+    (n, 3) array of r, r', r'' in m, m/s, m/s2 per period) the target is the table's and the test lasts n
+    periods; ``profile`` is then ignored.
     """
 
     def __init__(self, profile: list[SineProfile], controller: Controller, command_limit_v: float,
-                 control_period_s: float = CONTROL_PERIOD_S):
+                 control_period_s: float = CONTROL_PERIOD_S, table: np.ndarray | None = None):
         if not (math.isfinite(command_limit_v) and command_limit_v > 0):
             raise ValueError(f"command_limit_v = {command_limit_v!r} must be a positive number of volts")
-        self.profile = list(profile)
-        self.blocks = pack_profile(self.profile)
+        if table is not None:
+            table = np.ascontiguousarray(table, dtype=np.float64)
+            if table.ndim != 2 or table.shape[1] != 3 or table.shape[0] == 0:
+                raise ValueError(f"a target table has one row (r, r', r'') per period; got shape {table.shape}")
+        self.table = NO_TABLE if table is None else table
+        self.profile = list(profile) if table is None else []
+        self.blocks = pack_profile(self.profile) if table is None else NO_BLOCKS
         self.controller = controller
         self.controller_state = controller.new_state()
         self.control_period_s = float(control_period_s)
         self.params = np.array([self.control_period_s, float(command_limit_v)])
         self.state = np.zeros(N_LOOP_STATE)
         self.period = 0
-        self.total_periods = int(round(profile_duration_s(self.profile) / self.control_period_s))
+        self.total_periods = (self.table.shape[0] if table is not None
+                              else int(round(profile_duration_s(self.profile) / self.control_period_s)))
         self.stopping = False  # the operator's ramp-out is under way
         self.last_measurement: Measurement | None = None
         self._meas = np.empty(N_MEAS)
@@ -212,12 +254,25 @@ class ClosedLoop:
 
     # --- the two early ends ----------------------------------------------------------------------------
     def ramp_out(self) -> float:
-        """Operator stop: taper the target out from the next whole cycle; returns the new end time in s."""
+        """Operator stop: taper the target out from the next whole cycle (a table: fade it out over
+        ``FADE_S``); returns the new end time in s."""
         if not self.stopping and not self.ramping:
             self.stopping = True
-            self.blocks, total = ramp_out_profile(self.blocks, self.time_s, self.control_period_s)
-            self.total_periods = min(total, self.total_periods)
+            if self.table.shape[0]:
+                n = int(round(FADE_S / self.control_period_s))
+                fade_table(self.table, self.period, n, self.control_period_s)
+                self.total_periods = min(self.period + n, self.total_periods)
+            else:
+                self.blocks, total = ramp_out_profile(self.blocks, self.time_s, self.control_period_s)
+                self.total_periods = min(total, self.total_periods)
         return self.end_period * self.control_period_s
+
+    def set_target(self, period: int, r_m: float, r_dot_m_per_s: float, r_ddot_m_per_s2: float = 0.0) -> None:
+        """Write the target of a coming period into the table (a hybrid simulation computes each command one
+        period ahead). Only for a loop built with a table."""
+        if period < self.period:
+            raise ValueError(f"period {period} has run already (the loop is at {self.period})")
+        self.table[period] = (r_m, r_dot_m_per_s, r_ddot_m_per_s2)
 
     def begin_command_ramp(self, duration_s: float = COMMAND_RAMP_S) -> None:
         """Controlled stop: from this period on, the command ramps from its last value to zero, open loop."""
@@ -249,7 +304,7 @@ class ClosedLoop:
     def _run_period(self, m: Measurement, status: int, row: np.ndarray) -> float:
         u = control_period(self.period, m.position_m, m.force_n, m.load_pressure_pa, m.supply_pressure_pa,
                            status, self.params, self.state, self.controller.kind, self.controller.params,
-                           self.controller_state, self.blocks, self._meas, self._report, row)
+                           self.controller_state, self.blocks, self.table, self._meas, self._report, row)
         if math.isfinite(m.true_position_m):  # a simulation knows the true table state
             row[_Y], row[_VEL], row[_FLOW], row[_VALVE] = (m.true_position_m, m.velocity_m_per_s, m.flow_m3_per_s,
                                                            m.valve_v)

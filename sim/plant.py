@@ -67,7 +67,7 @@ def advance_period_split(x, v_old, v_new, switch, p, substeps, h, k1, k2, k3, k4
 
 
 @njit(cache=True)
-def run_closed(x, p, substeps, sp, history, lp, ls, kind, cparams, cstate, blocks, k0, n, out):
+def run_closed(x, p, substeps, sp, history, lp, ls, kind, cparams, cstate, blocks, table, k0, n, out):
     """n closed-loop periods from period k0: sense, ``control_period``, plant. Returns the rows written
     (fewer than n if the plant state became non-finite)."""
     meas = np.empty(N_MEAS)
@@ -85,7 +85,7 @@ def run_closed(x, p, substeps, sp, history, lp, ls, kind, cparams, cstate, block
         row = out[i]
         force = p[P_KD] * x[X_Y] + p[P_KW] * x[X_W]
         u = control_period(k, sensed[0], force, sensed[1], p[P_SUPPLY], STATUS_ARMED, lp, ls, kind, cparams,
-                           cstate, blocks, meas, report, row)
+                           cstate, blocks, table, meas, report, row)
         row[_Y] = x[X_Y]
         row[_VEL] = x[X_V]
         row[_FLOW] = load_flow(x[X_VE], x[X_PL], p)
@@ -155,7 +155,7 @@ class SimulatedPlant:
         out = np.empty((n, N_FIELDS))
         written = run_closed(self.state, self.params, self.substeps, self.sensors, self.history, loop.params,
                              loop.state, loop.controller.kind, loop.controller.params, loop.controller_state,
-                             loop.blocks, self.period, n, out)
+                             loop.blocks, loop.table, self.period, n, out)
         self.period += written
         loop.period += written
         if written < n:

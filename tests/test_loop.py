@@ -9,6 +9,7 @@ import pytest
 
 from sim.controllers import CONTROLLER_NAMES, make_controller
 from sim.engine import Scenario, Simulation
+from sim.isolator import PRESETS
 from sim.loop import ClosedLoop, ramp_out_profile, saturate
 from sim.measurement import FLAG_LOST, FLAG_OPEN_LOOP, STATUS_ARMED, Measurement
 from sim.plant import SimulatedPlant
@@ -154,3 +155,66 @@ def test_samples_are_addressed_by_name():
     old = Samples.from_stored(np.ones((2, 14)))  # a record stored before the sensor fields existed
     assert np.isnan(old["measured_displacement_m"]).all() and old["valve_v"][0] == 1.0
     assert set(RECORD_FIELDS) <= set(SAMPLE_FIELDS)
+
+
+def sine_table(profile) -> np.ndarray:
+    from sim.profiles import pack_profile, target
+
+    blocks = pack_profile(profile)
+    n = int(round(sum(b.duration_s for b in profile) / 1e-3))
+    rows = np.array([target(k * 1e-3, blocks) for k in range(n)])
+    return np.column_stack([rows, np.gradient(rows[:, 1], 1e-3)])
+
+
+def test_a_target_table_drives_the_loop_like_the_sine_it_holds():
+    from sim.plant import SimulatedPlant
+
+    profile = [SineProfile(0.02, 1.0, 3, 1)]
+    scenario = Scenario(PRESETS["IUT_a"], 100e5, profile, "servo")
+    by_blocks = Simulation(scenario).run().samples
+    loop = ClosedLoop([], make_controller("servo"), 10.0, table=sine_table(profile))
+    plant = SimulatedPlant(DEFAULT_RIG, PRESETS["IUT_a"], 100e5)
+    assert loop.total_periods == 3000
+    parts = []
+    while not loop.done:
+        parts.append(plant.run_closed(loop, 700))
+    by_table = Samples.concatenate(parts)
+    np.testing.assert_array_equal(by_table.array, by_blocks.array)
+
+
+def test_a_hybrid_run_writes_each_target_one_period_ahead():
+    from sim.plant import SimulatedPlant
+
+    table = sine_table([SineProfile(0.01, 2.0, 2, 1)])
+    loop = ClosedLoop([], make_controller("pid"), 10.0, table=np.zeros_like(table))
+    plant = SimulatedPlant(DEFAULT_RIG, PRESETS["IUT_a"], 100e5)
+    for k in range(len(table)):
+        loop.set_target(k, *table[k])  # computed from what was measured before period k
+        u, rows = loop.step(plant.measure())
+        plant.advance(u)
+        assert rows["target_m"][0] == table[k, 0]
+    with pytest.raises(ValueError, match="has run already"):
+        loop.set_target(5, 0.0, 0.0)
+    with pytest.raises(ValueError, match="one row"):
+        ClosedLoop([], make_controller("pid"), 10.0, table=np.zeros((5, 2)))
+
+
+def test_a_stop_fades_a_tables_target_out_smoothly():
+    from sim.loop import FADE_S, fade_table
+
+    t = np.arange(0, 4.0, 1e-3)
+    w = 2 * np.pi * 0.7
+    table = np.column_stack([0.01 * np.sin(w * t), 0.01 * w * np.cos(w * t), -0.01 * w * w * np.sin(w * t)])
+    faded = table.copy()
+    fade_table(faded, 1500, 1000)
+    np.testing.assert_array_equal(faded[:1500], table[:1500])
+    assert np.all(faded[2500:] == 0.0)
+    # r' and r'' stay the derivatives of the faded r (central differences agree to O(dt^2)) inside the fade;
+    # at its two edges r and r' are continuous (r'' of a raised cosine jumps there, by design)
+    np.testing.assert_allclose(np.gradient(faded[1500:2500, 0], 1e-3)[2:-2], faded[1502:2498, 1], atol=2e-6)
+    np.testing.assert_allclose(np.gradient(faded[1500:2500, 1], 1e-3)[2:-2], faded[1502:2498, 2], atol=2e-4)
+    for edge in (1500, 2500):
+        assert np.all(np.abs(faded[edge, :2] - faded[edge - 1, :2]) < [1e-4, 1e-3])
+    loop = ClosedLoop([], make_controller("pid"), 10.0, table=table.copy())
+    loop.period = 1500
+    assert loop.ramp_out() == pytest.approx(1.5 + FADE_S) and loop.total_periods == 2500
