@@ -14,6 +14,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
+from sim.errors import FieldError
 from sim.isolator import IsolatorError
 from sim.profiles import ProfileError
 
@@ -82,6 +83,10 @@ def install(app: FastAPI) -> None:
     async def _profile_error(_request: Request, exc: ProfileError):
         field = exc.field if exc.field in ("supply_bar", "vertical_load_n") else f"profile.{exc.field}"
         return error_response(422, str(exc), field, exc.value, exc.limit)
+
+    @app.exception_handler(FieldError)  # any other input refused with its field (e.g. a controller option)
+    async def _field_error(_request: Request, exc: FieldError):
+        return error_response(422, str(exc), exc.field, exc.value, exc.limit)
 
     @app.exception_handler(LimitError)
     async def _limit_error(_request: Request, exc: LimitError):

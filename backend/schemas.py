@@ -55,6 +55,9 @@ class TestCreate(StrictModel):
                                           "rig's jack capacity (GET /api/rig); default: the isolator's design "
                                           "load, else the rig's default (1.25e5 N)")
     controller: str = Field(DEFAULT_CONTROLLER, max_length=32, description="controller name")
+    controller_options: dict[str, float | bool] | None = Field(
+        None, description="overrides of the controller's defaults (GET /api/rig lists each controller's options "
+                          "with range and unit)")
     speed: float = Field(1.0, description="time scale of a simulated test: 1 = real time, 20 = 20x faster")
     profile: ProfileIn
     limits: LimitsIn | None = None

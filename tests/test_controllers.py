@@ -84,3 +84,35 @@ def test_unknown_controller_and_option():
         make_controller("lqr")
     with pytest.raises(ValueError, match="unknown mrac option"):
         make_controller("mrac", gama=1)
+
+
+@pytest.mark.parametrize(("name", "options", "words"), [
+    ("mrac", {"gamma": float("nan")}, "gamma = nan must be a finite number"),
+    ("mrac", {"a_m_per_s": -5.0}, "outside the allowed range"),
+    ("mrac", {"dimensionless_as": 2.5}, "true or false"),
+    ("pid", {"kp_v_per_m": float("inf")}, "finite number"),
+    ("servo", {"harmonics": 2.5}, "whole number"),
+    ("servo", {"learning_gain": "0.5"}, "finite number"),
+])
+def test_controller_options_are_checked_like_every_input(name, options, words):
+    from sim.controllers import ControllerOptionError
+
+    with pytest.raises(ControllerOptionError, match=words) as exc:
+        make_controller(name, **options)
+    key = next(iter(options))
+    assert exc.value.field == f"controller_options.{key}" and exc.value.limit
+
+
+def test_each_controller_declares_its_options_and_what_it_adapts():
+    from sim.controllers import ADAPTED_LABELS, CONTROLLER_NAMES, describe_controllers
+
+    described = {c["name"]: c for c in describe_controllers()}
+    assert set(described) == set(CONTROLLER_NAMES)
+    for c in described.values():
+        assert all(o["unit"] and o["meaning"] for o in c["options"])
+        assert all(a["column"] in ("model_m", "ar_hat", "ay_hat", "as_hat") and a["unit"] for a in c["adapted"])
+    assert [a["name"] for a in described["mrac"]["adapted"]][1:] == ["a_r_hat", "a_y_hat", "a_s_hat"]
+    assert described["pid"]["adapted"] == [] and ADAPTED_LABELS["pid"] == {}
+    assert ADAPTED_LABELS["servo"]["as_hat"] == "learned frequency (Hz)"
+    defaults = {o["name"]: o["default"] for o in described["mrac"]["options"]}
+    assert defaults["gamma"] == 1e5 and defaults["gamma_as"] == 2.0 and defaults["as0_m"] == 0.04  # section V

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Request
 
-from sim.controllers import CONTROLLER_NAMES, DEFAULT_CONTROLLER
+from sim.controllers import DEFAULT_CONTROLLER, describe_controllers
 from sim.profiles import MAX_CYCLES, MAX_FREQUENCY_HZ
 from sim.rig import BAR_PA, DEFAULT_RIG, LITRE_PER_MIN_M3_S
 
@@ -53,7 +53,7 @@ def rig(request: Request) -> dict:
         },
         "limits_default": default_limits(rig).to_dict(),
         "limits_max": hard_limits(rig).to_dict(),
-        "controllers": list(CONTROLLER_NAMES),
+        "controllers": describe_controllers(),
         "default_controller": DEFAULT_CONTROLLER,
         "state": service.state(),
     }

@@ -10,10 +10,11 @@ import numpy as np
 from fastapi import APIRouter, Query, Request
 from fastapi.responses import Response, StreamingResponse
 
-from sim.controllers import CONTROLLER_NAMES
+from sim.controllers import CONTROLLER_NAMES, make_controller
 from sim.engine import Scenario
+from sim.errors import FieldError
 from sim.isolator import IsolatorError
-from sim.profiles import ProfileError, SineProfile, max_amplitude_m, max_frequency_hz
+from sim.profiles import SineProfile, max_amplitude_m, max_frequency_hz
 from sim.rig import BAR_PA, DEFAULT_RIG
 from sim.samples import RECORD_FIELDS, Samples
 from sim.tracking import cycle_windows
@@ -59,6 +60,8 @@ def build_test(session, body: TestCreate, request: Request) -> dict:
     if body.controller not in CONTROLLER_NAMES:
         raise ApiError(422, f"controller {body.controller!r} is unknown; allowed: {', '.join(CONTROLLER_NAMES)}",
                        "controller", body.controller, ", ".join(CONTROLLER_NAMES))
+    options = dict(body.controller_options or {})
+    make_controller(body.controller, **options)  # ControllerOptionError (422) names the option and its range
     if not (0 < body.speed <= settings.max_speed):
         raise ApiError(422, f"speed = {body.speed:g} is outside (0, {settings.max_speed:g}]", "speed", body.speed,
                        f"(0, {settings.max_speed:g}]")
@@ -67,7 +70,7 @@ def build_test(session, body: TestCreate, request: Request) -> dict:
     if body.speed != 1.0 and service.driver != SIMULATED:
         raise ApiError(422, f"the rig {service.driver} runs in real time: speed must be 1", "speed", body.speed, "1")
     blocks = profile_blocks(body.profile)
-    scenario = Scenario(isolator, body.supply_bar * BAR_PA, blocks, body.controller, rig=DEFAULT_RIG,
+    scenario = Scenario(isolator, body.supply_bar * BAR_PA, blocks, body.controller, options, rig=DEFAULT_RIG,
                         vertical_load_n=body.vertical_load_n)
     scenario.validate()  # ProfileError -> 422 with field, value, limit (vertical_load_n among them)
     if scenario.duration_s > settings.max_test_duration_s:
@@ -78,7 +81,7 @@ def build_test(session, body: TestCreate, request: Request) -> dict:
     job_scenario = {"isolator": isolator.to_dict(), "supply_pa": scenario.supply_pa,
                     "vertical_load_n": scenario.effective_vertical_load_n,
                     "profile": [b.to_dict() for b in blocks], "controller": body.controller,
-                    "controller_options": {}}
+                    "controller_options": options}
     return {
         "label": body.label, "isolator": isolator.name, "supply_bar": body.supply_bar,
         "vertical_load_n": scenario.effective_vertical_load_n,
@@ -96,7 +99,7 @@ def check_test(body: TestCreate, request: Request, session: SessionDep) -> Envel
     try:
         build_test(session, body, request)
         refusal = None
-    except ProfileError as exc:
+    except FieldError as exc:  # the envelope, a controller option
         refusal = {"detail": str(exc), "field": exc.field, "value": _jsonable(exc.value), "limit": exc.limit}
     except ApiError as exc:
         refusal = {"detail": exc.detail, "field": exc.field, "value": _jsonable(exc.value), "limit": exc.limit}

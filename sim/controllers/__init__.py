@@ -5,7 +5,7 @@ from __future__ import annotations
 from numba import njit
 
 from . import mrac, pid, servo
-from .base import Controller
+from .base import Adapted, Controller, ControllerOptionError, Option
 from .mrac import make_mrac, mrac_step
 from .pid import make_pid, pid_step
 from .servo import make_servo, servo_step
@@ -14,13 +14,19 @@ FACTORIES = {"mrac": make_mrac, "pid": make_pid, "servo": make_servo}
 CONTROLLER_NAMES = tuple(FACTORIES)
 DEFAULT_CONTROLLER = "servo"  # what `isorig simulate` and the dashboard use when none is chosen
 
-# What each controller reports in the ar_hat, ay_hat, as_hat columns (label with unit); none for pid.
-ADAPTED_LABELS = {
-    "mrac": {"ar_hat": "a_r_hat (-), eq. (20)", "ay_hat": "a_y_hat (-), eq. (19)", "as_hat": "a_s_hat (m), eq. (18)"},
-    "servo": {"ar_hat": "flow gain, true / nominal (-)", "ay_hat": "dead zone estimate (V)",
-              "as_hat": "locked target frequency (Hz)"},
-    "pid": {},
-}
+OPTIONS: dict[str, dict[str, Option]] = {"mrac": mrac.OPTIONS, "pid": pid.OPTIONS, "servo": servo.OPTIONS}
+#: what each controller reports in the model_m, ar_hat, ay_hat, as_hat columns: name, unit, meaning
+ADAPTED: dict[str, tuple[Adapted, ...]] = {"mrac": mrac.ADAPTED, "pid": pid.ADAPTED, "servo": servo.ADAPTED}
+#: column -> "name (unit)" for the adapted parameters (ar_hat, ay_hat, as_hat) of each controller
+ADAPTED_LABELS = {name: {a.column: f"{a.name} ({a.unit})" for a in adapted if a.column != "model_m"}
+                  for name, adapted in ADAPTED.items()}
+
+
+def describe_controllers() -> list[dict]:
+    """Every controller with its options (default, range, unit, meaning) and what it reports (the API)."""
+    return [{"name": name, "default": name == DEFAULT_CONTROLLER,
+             "options": [spec.describe(key) for key, spec in OPTIONS[name].items()],
+             "adapted": [a.to_dict() for a in ADAPTED[name]]} for name in CONTROLLER_NAMES]
 
 
 def make_controller(name: str, **options) -> Controller:
@@ -40,3 +46,7 @@ def controller_step(kind, params, state, meas, dt, report):
     if kind == servo.KIND:
         return servo_step(params, state, meas, dt, report)
     return 0.0
+
+
+__all__ = ["ADAPTED", "ADAPTED_LABELS", "CONTROLLER_NAMES", "DEFAULT_CONTROLLER", "OPTIONS", "Adapted", "Controller",
+           "ControllerOptionError", "Option", "controller_step", "describe_controllers", "make_controller"]

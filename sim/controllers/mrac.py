@@ -29,7 +29,10 @@ from .base import (
     R_AS,
     R_AY,
     R_MODEL,
+    Adapted,
     Controller,
+    Option,
+    check_options,
 )
 
 KIND = 1
@@ -38,26 +41,30 @@ A_M, B_M, GAMMA, GAMMA_AS, DIMENSIONLESS, AS_MIN, X_CLIP = range(7)
 # State indices.
 S_YM, S_AR, S_AY, S_AS = range(4)
 
-PAPER_DEFAULTS = {
-    "a_m_per_s": 50.0,  # section V
-    "b_m_per_s": 50.0,
-    "gamma": 1.0e5,
-    "gamma_as": 2.0,
-    "as0_m": 0.04,
-    "ar0": 0.0,
-    "ay0": 0.0,
-    "dimensionless_as": False,
-    "as_min_m": 1.0e-3,
-    "x_clip": 0.999,
+OPTIONS = {  # section V of the paper for the defaults
+    "a_m_per_s": Option(50.0, 1e-3, 1e4, "1/s", meaning="reference model pole a_m, eq. (8)"),
+    "b_m_per_s": Option(50.0, 1e-3, 1e4, "1/s", meaning="reference model gain b_m, eq. (8)"),
+    "gamma": Option(1.0e5, 0.0, 1e12, "-", meaning="adaptation gain of a_y_hat and a_r_hat, eqs. (19)-(20)"),
+    "gamma_as": Option(2.0, 0.0, 1e6, "-", meaning="adaptation gain of a_s_hat, eq. (18)"),
+    "as0_m": Option(0.04, 1e-4, 1.0, "m", meaning="a_s_hat(0)"),
+    "ar0": Option(0.0, -1e6, 1e6, "-", meaning="a_r_hat(0)"),
+    "ay0": Option(0.0, -1e6, 1e6, "-", meaning="a_y_hat(0)"),
+    "dimensionless_as": Option(False, kind="bool", meaning="eq. (18) with atanh(y / a_s_hat) instead of atanh(y)"),
+    "as_min_m": Option(1.0e-3, 1e-6, 1.0, "m", meaning="floor of a_s_hat"),
+    "x_clip": Option(0.999, 0.5, 0.999999, "-", meaning="y / a_s_hat is clipped to +-this in eq. (9)"),
 }
+PAPER_DEFAULTS = {name: spec.default for name, spec in OPTIONS.items()}
+ADAPTED = (
+    Adapted("model_m", "reference model y_m", "m", "output of the reference model, eq. (8)"),
+    Adapted("ar_hat", "a_r_hat", "-", "adapted gain on the target r, eq. (20)"),
+    Adapted("ay_hat", "a_y_hat", "-", "adapted gain on the position y, eq. (19)"),
+    Adapted("as_hat", "a_s_hat", "m", "adapted steady-state displacement parameter, eq. (18)"),
+)
 
 
 def make_mrac(**options) -> Controller:
     """The paper's MRAC with section V defaults; any default can be overridden by keyword."""
-    unknown = set(options) - set(PAPER_DEFAULTS)
-    if unknown:
-        raise ValueError(f"unknown mrac option(s) {sorted(unknown)}; allowed: {sorted(PAPER_DEFAULTS)}")
-    o = {**PAPER_DEFAULTS, **options}
+    o = check_options("mrac", OPTIONS, options)
     params = np.array([
         o["a_m_per_s"], o["b_m_per_s"], o["gamma"], o["gamma_as"],
         1.0 if o["dimensionless_as"] else 0.0, o["as_min_m"], o["x_clip"],

@@ -14,26 +14,25 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .base import M_POSITION, M_TARGET, R_AR, R_AS, R_AY, R_MODEL, Controller
+from .base import M_POSITION, M_TARGET, R_AR, R_AS, R_AY, R_MODEL, Controller, Option, check_options
 
 KIND = 2
 KP, KI, KD, TF, ULIM = range(5)
 S_INTEGRAL, S_DFILT, S_YPREV, S_STARTED = range(4)
 
-TUNED_DEFAULTS = {
-    "kp_v_per_m": 1400.0,
-    "ki_v_per_m_s": 80000.0,
-    "kd_v_s_per_m": 0.0,
-    "derivative_filter_s": 0.005,
-    "command_limit_v": 10.0,
+OPTIONS = {  # tuned once by scripts/tune_pid.py
+    "kp_v_per_m": Option(1400.0, 0.0, 1e7, "V/m", meaning="proportional gain"),
+    "ki_v_per_m_s": Option(80000.0, 0.0, 1e9, "V/(m s)", meaning="integral gain"),
+    "kd_v_s_per_m": Option(0.0, 0.0, 1e5, "V s/m", meaning="derivative gain (on the measurement)"),
+    "derivative_filter_s": Option(0.005, 1e-4, 1.0, "s", meaning="time constant of the derivative's filter"),
+    "command_limit_v": Option(10.0, 0.1, 20.0, "V", meaning="saturation used by the anti-windup"),
 }
+TUNED_DEFAULTS = {name: spec.default for name, spec in OPTIONS.items()}
+ADAPTED = ()  # a fixed-gain controller adapts nothing
 
 
 def make_pid(**options) -> Controller:
-    unknown = set(options) - set(TUNED_DEFAULTS)
-    if unknown:
-        raise ValueError(f"unknown pid option(s) {sorted(unknown)}; allowed: {sorted(TUNED_DEFAULTS)}")
-    o = {**TUNED_DEFAULTS, **options}
+    o = check_options("pid", OPTIONS, options)
     params = np.array([o["kp_v_per_m"], o["ki_v_per_m_s"], o["kd_v_s_per_m"], o["derivative_filter_s"],
                        o["command_limit_v"]])
     return Controller("pid", KIND, params, np.zeros(4), o)

@@ -36,8 +36,6 @@ as_hat = the target frequency the learning is locked to, in Hz (0 before the fir
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit
 
@@ -51,7 +49,10 @@ from .base import (
     R_AS,
     R_AY,
     R_MODEL,
+    Adapted,
     Controller,
+    Option,
+    check_options,
 )
 
 KIND = 3
@@ -84,59 +85,53 @@ def _nominal_rig() -> dict:
     }
 
 
-DEFAULTS = {
+OPTIONS = {
     # nominal rig values (the rig's, never the isolator's); taken from sim.rig.DEFAULT_RIG when not given
-    "piston_area_m2": None,
-    "flow_gain_m3_per_s_v_sqrt_pa": None,
-    "dead_zone_v": None,
-    "command_limit_v": None,
+    "piston_area_m2": Option(None, 1e-4, 1.0, "m2", meaning="nominal piston area A_p"),
+    "flow_gain_m3_per_s_v_sqrt_pa": Option(None, 1e-10, 1e-4, "m3/(s V sqrt(Pa))", meaning="nominal valve flow gain"),
+    "dead_zone_v": Option(None, 0.0, 5.0, "V", meaning="nominal valve dead zone (half width)"),
+    "command_limit_v": Option(None, 0.1, 20.0, "V", meaning="valve command saturation"),
     # fixed design constants, the same on every isolator (docs/controller.md)
-    "kp_per_s": 30.0,  # position loop gain: velocity demand per metre of error
-    "velocity_lead_s": 0.006,  # feed-forward lead for the valve lag (r' + tau r'')
-    "learning_lag_s": 0.007,  # delay in the nominal loop model the learning inverts (valve + sampling)
-    "learning_gain": 0.8,  # share of each harmonic's error removed per cycle (times min(1, K_p / (k w)))
-    "harmonics": 15,  # harmonics of the target frequency learned (at most MAX_HARMONICS)
-    "learning_max_hz": 12.0,  # harmonics above this frequency are not learned
-    "dead_zone_ramp_v": 0.05,  # the dead-zone inverse ramps in over +-this command
-    "dead_zone_share": 1.0,  # share of the nominal dead zone that is compensated
-    "min_pressure_drop_share": 0.05,  # floor of P_s - sgn(v) P_L in the valve inverse, share of P_s
-    "frequency_window_s": 0.1,  # forgetting time of the target-frequency estimate
-    "amplitude_floor_m": 1.0e-3,  # learning normalises by max(envelope, this)
-    "c1_max": 1.5,  # projection bound of |c_1| (relative velocity)
-    "ck_max": 0.5,  # projection bound of |c_k|, k >= 2
-    "c0_max_m_per_s": 0.02,  # projection bound of the learned constant velocity
-    "gain_window_s": 0.3,  # forgetting time of the flow-gain estimate
-    "gain_min": 0.25,  # projection of the flow-gain ratio (true / nominal)
-    "gain_max": 6.0,
-    "gain_min_velocity_m_per_s": 0.005,  # the gain estimate moves only with this much RMS nominal velocity
-    "steady_envelope_rate": 0.05,  # learning runs while |d V_env/dt| / (w V_env) stays below this
-    "load_pressure_share": 1.0,  # 1: the valve inverse uses the measured load pressure; 0: only P_s (ablation)
-    "dead_zone_adaptive": 1.0,  # 1: the dead zone is estimated with the flow gain; 0: the nominal one is kept
-    "dead_zone_min_share": 0.5,  # projection of the estimated dead zone, shares of the nominal one
-    "dead_zone_max_share": 1.5,
+    "kp_per_s": Option(30.0, 1e-3, 500.0, "1/s", meaning="position loop gain: velocity demand per metre of error"),
+    "velocity_lead_s": Option(0.006, 0.0, 0.1, "s", meaning="feed-forward lead for the valve lag (r' + tau r'')"),
+    "learning_lag_s": Option(0.007, 0.0, 0.05, "s", meaning="delay of the nominal loop model the learning inverts"),
+    "learning_gain": Option(0.8, 0.0, 1.5, "-", meaning="share of each harmonic's error removed per cycle"),
+    "harmonics": Option(15, 0, MAX_HARMONICS, "-", "int", "harmonics of the target frequency learned"),
+    "learning_max_hz": Option(12.0, 1e-3, 100.0, "Hz", meaning="harmonics above this frequency are not learned"),
+    "dead_zone_ramp_v": Option(0.05, 1e-4, 2.0, "V", meaning="the dead-zone inverse ramps in over +-this"),
+    "dead_zone_share": Option(1.0, 0.0, 2.0, "-", meaning="share of the dead zone that is compensated"),
+    "min_pressure_drop_share": Option(0.05, 1e-3, 1.0, "-", meaning="floor of P_s - sgn(v) P_L, share of P_s"),
+    "frequency_window_s": Option(0.1, 1e-3, 10.0, "s", meaning="forgetting time of the target-frequency estimate"),
+    "amplitude_floor_m": Option(1.0e-3, 1e-6, 0.1, "m", meaning="learning normalises by max(envelope, this)"),
+    "c1_max": Option(1.5, 0.0, 10.0, "-", meaning="projection bound of |c_1| (relative velocity)"),
+    "ck_max": Option(0.5, 0.0, 10.0, "-", meaning="projection bound of |c_k|, k >= 2"),
+    "c0_max_m_per_s": Option(0.02, 0.0, 1.0, "m/s", meaning="projection bound of the learned constant velocity"),
+    "gain_window_s": Option(0.3, 1e-3, 100.0, "s", meaning="forgetting time of the flow-gain estimate"),
+    "gain_min": Option(0.25, 1e-3, 1.0, "-", meaning="lower projection of the flow-gain ratio"),
+    "gain_max": Option(6.0, 1.0, 100.0, "-", meaning="upper projection of the flow-gain ratio"),
+    "gain_min_velocity_m_per_s": Option(0.005, 1e-6, 1.0, "m/s",
+                                        meaning="the gain estimate moves only with this much RMS nominal velocity"),
+    "steady_envelope_rate": Option(0.05, 1e-4, 1.0, "-", meaning="learning runs while the envelope is this steady"),
+    "load_pressure_share": Option(1.0, 0.0, 1.0, "-", meaning="1: the valve inverse uses the measured P_L"),
+    "dead_zone_adaptive": Option(1.0, 0.0, 1.0, "-", meaning="1: the dead zone is estimated with the flow gain"),
+    "dead_zone_min_share": Option(0.5, 0.0, 1.0, "-", meaning="lower projection of the dead zone, share of nominal"),
+    "dead_zone_max_share": Option(1.5, 1.0, 5.0, "-", meaning="upper projection of the dead zone, share of nominal"),
 }
+DEFAULTS = {name: spec.default for name, spec in OPTIONS.items()}
+ADAPTED = (
+    Adapted("model_m", "target r", "m", "the reference is the target itself: the feed-forward removes its lag"),
+    Adapted("ar_hat", "flow gain ratio g", "-", "the valve's true flow gain over the nominal one (estimated)"),
+    Adapted("ay_hat", "dead zone", "V", "the valve's dead zone (estimated)"),
+    Adapted("as_hat", "learned frequency", "Hz", "the target frequency the learning is locked to (0: none)"),
+)
 
 
 def make_servo(**options) -> Controller:
     """The learning servo controller; nominal rig values default to sim.rig.DEFAULT_RIG."""
-    unknown = set(options) - set(DEFAULTS)
-    if unknown:
-        raise ValueError(f"unknown servo option(s) {sorted(unknown)}; allowed: {sorted(DEFAULTS)}")
-    o = {**DEFAULTS, **{k: v for k, v in options.items() if v is not None}}
+    o = check_options("servo", OPTIONS, options)
     for key, value in _nominal_rig().items():
         if o[key] is None:
             o[key] = value
-    for key, value in o.items():
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise ValueError(f"servo option {key} = {value!r} must be a finite number")
-    for key in ("piston_area_m2", "flow_gain_m3_per_s_v_sqrt_pa", "command_limit_v", "kp_per_s",
-                "frequency_window_s", "amplitude_floor_m", "dead_zone_ramp_v", "learning_max_hz"):
-        if o[key] <= 0:
-            raise ValueError(f"servo option {key} = {o[key]!r} must be > 0")
-    if not 0 <= o["harmonics"] <= MAX_HARMONICS or int(o["harmonics"]) != o["harmonics"]:
-        raise ValueError(f"servo option harmonics = {o['harmonics']!r} must be a whole number in [0, {MAX_HARMONICS}]")
-    if not 0 <= o["learning_gain"] <= 1.5:
-        raise ValueError(f"servo option learning_gain = {o['learning_gain']!r} must be in [0, 1.5]")
     params = np.zeros(N_PARAMS)
     params[P_AREA] = o["piston_area_m2"]
     params[P_KQ] = o["flow_gain_m3_per_s_v_sqrt_pa"]

@@ -197,3 +197,19 @@ def test_the_vertical_load_is_a_condition_of_the_test(client):
     bad_iso = {**iso, "name": "LRB_kN", "design_vertical_load_n": -1}
     r = client.post("/api/isolators", json=bad_iso, headers=AUTH)
     assert r.status_code == 422 and "design_vertical_load_n" in r.json()["detail"]
+
+
+def test_controller_options_travel_with_the_test_and_are_checked(client):
+    from conftest import AUTH, sine_test
+
+    r = client.post("/api/tests", json=sine_test(controller="mrac", controller_options={"gamma": 5e4}), headers=AUTH)
+    assert r.status_code == 201 and r.json()["scenario"]["controller_options"] == {"gamma": 5e4}
+    r = client.post("/api/tests", json=sine_test(controller="mrac", controller_options={"gamma": -1}), headers=AUTH)
+    body = r.json()
+    assert r.status_code == 422 and body["field"] == "controller_options.gamma" and "range" in body["detail"]
+    r = client.post("/api/tests", json=sine_test(controller="pid", controller_options={"gama": 1}), headers=AUTH)
+    assert r.status_code == 422 and "unknown pid option" in r.json()["detail"]
+    check = client.post("/api/tests/check", json=sine_test(controller="mrac", controller_options={"x_clip": 2}))
+    assert check.json()["ok"] is False and check.json()["field"] == "controller_options.x_clip"
+    controllers = {c["name"]: c for c in client.get("/api/rig").json()["controllers"]}
+    assert controllers["servo"]["default"] and controllers["mrac"]["adapted"][3]["unit"] == "m"
