@@ -9,15 +9,18 @@ pure function of the seed and the period.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
+
+import numpy as np
 
 from .controllers import DEFAULT_CONTROLLER, Controller, make_controller
 from .isolator import Isolator, load_isolator
 from .loop import CONTROL_PERIOD_S, ClosedLoop
 from .plant import PLANT_SUBSTEPS, SimulatedPlant
-from .profiles import SineProfile, profile_duration_s, validate_profile
+from .profiles import SineProfile, check_vertical_load, profile_duration_s, validate_profile
 from .rig import BAR_PA, DEFAULT_RIG, RigParameters
 from .samples import Samples
 
@@ -40,6 +43,11 @@ class Scenario:
     #: the vertical load on the specimen, N (friction mu N + F_c of eq. 1); None: the isolator's design load,
     #: else the rig's default (the paper's 1.25e5 N)
     vertical_load_n: float | None = None
+    #: the simulated plant only (the rig as it truly is, unknown to the controller): rig or isolator
+    #: parameters by name, from the start ...
+    plant_changes: dict = field(default_factory=dict)
+    #: ... and in the middle of the test: (time_s, name, value), e.g. an isolator that softens as it heats
+    timed_changes: list = field(default_factory=list)
 
     @classmethod
     def sine(cls, isolator: str | Isolator, supply_bar: float, amplitude_m: float, frequency_hz: float,
@@ -59,9 +67,13 @@ class Scenario:
 
     @property
     def plant_rig(self) -> RigParameters:
-        """The rig under this test's vertical load (its friction follows, eq. 1)."""
-        load = self.effective_vertical_load_n
-        return self.rig if load == self.rig.vertical_load_n else self.rig.with_changes(vertical_load_n=load)
+        """The simulated rig: the rig the controller assumes, under this test's vertical load (its friction
+        follows, eq. 1), with the plant-only changes."""
+        return plant_at(self, {})[0]
+
+    @property
+    def plant_isolator(self) -> Isolator:
+        return plant_at(self, {})[1]
 
     @property
     def duration_s(self) -> float:
@@ -72,7 +84,30 @@ class Scenario:
         return int(round(self.duration_s / CONTROL_PERIOD_S))
 
     def validate(self) -> None:
-        validate_profile(self.profile, self.plant_rig, self.isolator, self.supply_pa)
+        """The vertical load, the plant's changes, the envelope (on the rig the controller assumes, under the
+        test's load)."""
+        check_vertical_load(self.effective_vertical_load_n, self.rig)  # against the jack, with its own field
+        self.check_plant()
+        rig = self.rig.with_changes(vertical_load_n=self.effective_vertical_load_n)
+        validate_profile(self.profile, rig, self.isolator, self.supply_pa)
+
+    def check_plant(self) -> None:
+        """Every plant the test will see (with its plant changes, then after each timed change) must be a rig
+        and an isolator: a clear FieldError naming the parameter otherwise."""
+        from .isolator import isolator_from_dict
+        from .rig import RigError
+
+        timed: dict = {}
+        for when in [None, *sorted(self.timed_changes)]:
+            if when is not None:
+                t_s, name, value = when
+                if not (isinstance(t_s, (int, float)) and 0.0 <= t_s <= self.duration_s):
+                    raise RigError("plant_change", t_s, f"[0, {self.duration_s:g}] s",
+                                   f"a plant change at t = {t_s!r} s is outside the test (0 to {self.duration_s:g} s)")
+                timed[name] = value
+            rig, isolator = plant_at(self, timed)
+            rig.check()
+            isolator_from_dict(isolator.to_dict())
 
     def describe(self) -> dict:
         return {
@@ -83,6 +118,10 @@ class Scenario:
             "profile": [b.to_dict() for b in self.profile],
             "controller": self.controller,
             "controller_options": self.controller_options,
+            "rig_changes": {f.name: getattr(self.rig, f.name) for f in dataclasses.fields(self.rig)
+                            if getattr(self.rig, f.name) != getattr(DEFAULT_RIG, f.name)},
+            "plant_changes": dict(self.plant_changes),
+            "timed_changes": [list(c) for c in sorted(self.timed_changes)],
             "duration_s": self.duration_s,
             "control_period_s": CONTROL_PERIOD_S,
             "plant_step_s": CONTROL_PERIOD_S / PLANT_SUBSTEPS,
@@ -97,10 +136,12 @@ class Simulation:
         if validate:
             scenario.validate()
         self.scenario = scenario
-        controller = controller or make_controller(scenario.controller, **scenario.controller_options)
+        controller = controller or make_controller(scenario.controller, rig=scenario.rig, **scenario.controller_options)
         self.loop = ClosedLoop(scenario.profile, controller, scenario.rig.command_limit_v)
-        self.plant = SimulatedPlant(scenario.plant_rig, scenario.isolator, scenario.supply_pa, scenario.noise_seed,
-                                    substeps=plant_substeps)
+        self.plant = SimulatedPlant(scenario.plant_rig, scenario.plant_isolator, scenario.supply_pa,
+                                    scenario.noise_seed, substeps=plant_substeps)
+        self.pending_changes = sorted(scenario.timed_changes)
+        self.changes_applied: dict = {}
 
     @property
     def controller(self) -> Controller:
@@ -127,8 +168,23 @@ class Simulation:
         return self.loop.time_s
 
     def advance(self, n_periods: int) -> Samples:
-        """Run up to n_periods more control periods; returns their rows."""
-        return self.plant.run_closed(self.loop, n_periods)
+        """Run up to n_periods more control periods; returns their rows. A timed plant change takes effect at
+        the first period at or after its time."""
+        parts = []
+        end = self.period + max(0, int(n_periods))
+        while self.period < end and not self.done:
+            if self.pending_changes and self.pending_changes[0][0] <= self.time_s + 1e-12:
+                _t, name, value = self.pending_changes.pop(0)
+                self.changes_applied[name] = value
+                rig, isolator = plant_at(self.scenario, self.changes_applied)
+                self.plant.rebuild(rig, isolator)
+                continue
+            stop = end
+            if self.pending_changes:
+                stop = min(stop, max(self.period + 1, int(np.ceil(self.pending_changes[0][0] / CONTROL_PERIOD_S
+                                                                  - 1e-9))))
+            parts.append(self.plant.run_closed(self.loop, stop - self.period))
+        return Samples.concatenate(parts)
 
     def run(self, chunk_periods: int = 5000, progress=None) -> Result:
         """Run to the end; ``progress(fraction)`` is called after each chunk."""
@@ -164,6 +220,21 @@ class Result:
             c.update({k: v for k, v in loop.items() if k not in ("i_start", "i_end")})
         out["headline"] = headline_figures(list(loops.values()))
         return out
+
+
+ISOLATOR_PARAMETERS = ("rho_bw_per_m", "sigma_bw", "n", "kd_n_per_m", "kw_n")
+
+
+def plant_at(scenario: Scenario, timed: dict) -> tuple[RigParameters, Isolator]:
+    """The simulated rig and isolator: the scenario's rig under its vertical load with its plant changes, then
+    the timed changes made so far (``timed``, name -> value)."""
+    changes = {"vertical_load_n": scenario.effective_vertical_load_n, **scenario.plant_changes, **timed}
+    rig_changes = {k: v for k, v in changes.items() if k not in ISOLATOR_PARAMETERS}
+    iso_changes = {k: v for k, v in changes.items() if k in ISOLATOR_PARAMETERS}
+    rig = scenario.rig.with_changes(**rig_changes) if any(
+        getattr(scenario.rig, k) != v for k, v in rig_changes.items()) else scenario.rig
+    isolator = dataclasses.replace(scenario.isolator, **iso_changes) if iso_changes else scenario.isolator
+    return rig, isolator
 
 
 def run_scenario(scenario: Scenario) -> Result:

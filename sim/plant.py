@@ -113,6 +113,12 @@ class SimulatedPlant:
         self._work = tuple(np.empty(N_STATES) for _ in range(5))
         self._sensed = np.empty(2)
 
+    def rebuild(self, rig: RigParameters, isolator: Isolator) -> None:
+        """The plant's parameters changed (a timed change in the middle of a test): state and history kept."""
+        self.rig, self.isolator = rig, isolator
+        self.params = pack_plant(rig, isolator, self.supply_pa)
+        self.sensors = pack_sensors(rig, self.control_period_s, int(self.sensors[5]))
+
     @property
     def supply_pa(self) -> float:
         return float(self.params[P_SUPPLY])

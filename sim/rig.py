@@ -15,63 +15,84 @@ pressure drop (the square root has infinite slope at 0 and is undefined below it
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 from numba import njit
 
+from .errors import FieldError
 from .isolator import Isolator, bouc_wen_rate
 
 BAR_PA = 1.0e5
+
+
+class RigError(FieldError):
+    """A rig parameter out of its range, of the wrong type, or inconsistent with another one."""
 LITRE_PER_MIN_M3_S = 1.0e-3 / 60.0
 
 
-def _p(value, unit, origin, note):
-    return field(default=value, metadata={"unit": unit, "origin": origin, "note": note})
+def _p(value, unit, origin, note, lo=0.0, hi=math.inf):
+    """A rig parameter: default, unit, origin, note, and the range a lab's rig file may give it."""
+    return field(default=value, metadata={"unit": unit, "origin": origin, "note": note, "min": lo, "max": hi})
 
 
 @dataclass(frozen=True)
 class RigParameters:
     """Every rig parameter in one place, with unit and origin (paper / calibrated / assumed)."""
 
-    mass_kg: float = _p(1200.0, "kg", "assumed", "table, rod and part of the isolator (rig-notes)")
-    friction_coefficient: float = _p(0.015, "-", "assumed", "mu of the linear guides, eq. (1)")
+    mass_kg: float = _p(1200.0, "kg", "assumed", "table, rod and part of the isolator (rig-notes)",
+                        lo=1.0, hi=1e6)
+    friction_coefficient: float = _p(0.015, "-", "assumed", "mu of the linear guides, eq. (1)", lo=0.0, hi=1.0)
     vertical_load_n: float = _p(1.25e5, "N", "paper", "vertical load on the specimen, section V; a test "
-                                "condition (sim.engine.Scenario.vertical_load_n), this is its default")
-    max_vertical_load_n: float = _p(850e3, "N", "paper", "capacity of the vertical jack, section II")
+                                "condition (sim.engine.Scenario.vertical_load_n), this is its default",
+                                lo=0.0, hi=1e8)
+    max_vertical_load_n: float = _p(850e3, "N", "paper", "capacity of the vertical jack, section II",
+                                    lo=0.0, hi=1e8)
     coulomb_force_n: float = _p(4550.0, "N", "calibrated",
                                 "F_c, seal friction, eq. (1); with mu N the intercept of a_s over P_s "
-                                "(Tables III-IV, scripts/calibrate.py)")
-    viscous_n_s_per_m: float = _p(2.0e4, "N s/m", "assumed", "sigma, viscous friction, eq. (1)")
+                                "(Tables III-IV, scripts/calibrate.py)", lo=0.0, hi=1e7)
+    viscous_n_s_per_m: float = _p(2.0e4, "N s/m", "assumed", "sigma, viscous friction, eq. (1)",
+                                  lo=0.0, hi=1e9)
     piston_area_m2: float = _p(0.01246, "m2", "calibrated",
                                "A_p, static balance of the step tests: one-rig compromise of Tables III-IV "
-                               "(scripts/calibrate.py, docs/identification.md)")
-    half_volume_m3: float = _p(2.5e-3, "m3", "assumed", "V_0, oil volume per side at mid-stroke")
-    bulk_modulus_pa: float = _p(1.0e9, "Pa", "assumed", "beta, effective with hoses")
+                               "(scripts/calibrate.py, docs/identification.md)", lo=1e-5, hi=10.0)
+    half_volume_m3: float = _p(2.5e-3, "m3", "assumed", "V_0, oil volume per side at mid-stroke", lo=1e-6, hi=10.0)
+    bulk_modulus_pa: float = _p(1.0e9, "Pa", "assumed", "beta, effective with hoses", lo=1e7, hi=1e11)
     flow_gain_m3_per_s_v_sqrt_pa: float = _p(2.054e-7, "m3/(s V sqrt(Pa))", "calibrated",
-                                             "K_q inside DZ(v_e); sets a_p of Tables III-IV (scripts/calibrate.py)")
+                                             "K_q inside DZ(v_e); sets a_p of Tables III-IV (scripts/calibrate.py)",
+                                             lo=1e-12, hi=0.001)
     dead_zone_v: float = _p(0.6065, "V", "calibrated",
-                            "half width of DZ(v_e), spool overlap; rise of a_p with the step voltage (Tables III-IV)")
-    valve_natural_frequency_rad_s: float = _p(2 * np.pi * 40.0, "rad/s", "assumed", "omega_mv, eq. (3)")
-    valve_damping_ratio: float = _p(0.7, "-", "assumed", "xi_v, eq. (3)")
-    driver_gain_positive: float = _p(1.0, "V/V", "assumed", "k_ep, eq. (2)")
-    driver_gain_negative: float = _p(1.0, "V/V", "assumed", "k_en, eq. (2)")
-    driver_offset_v: float = _p(0.02, "V", "assumed", "v_e0, eq. (2), valve null offset")
+                            "half width of DZ(v_e), spool overlap; rise of a_p with the step voltage (Tables III-IV)",
+                            lo=0.0, hi=100.0)
+    valve_natural_frequency_rad_s: float = _p(2 * np.pi * 40.0, "rad/s", "assumed", "omega_mv, eq. (3)",
+                                              lo=1.0, hi=1e5)
+    valve_damping_ratio: float = _p(0.7, "-", "assumed", "xi_v, eq. (3)", lo=0.01, hi=10.0)
+    driver_gain_positive: float = _p(1.0, "V/V", "assumed", "k_ep, eq. (2)", lo=0.01, hi=100.0)
+    driver_gain_negative: float = _p(1.0, "V/V", "assumed", "k_en, eq. (2)", lo=0.01, hi=100.0)
+    driver_offset_v: float = _p(0.02, "V", "assumed", "v_e0, eq. (2), valve null offset", lo=-5.0, hi=5.0)
     orifice_regularisation_pa: float = _p(2.335e6, "Pa", "calibrated",
-                                          "sqrt(dp) linear below this drop; flattens a_p over P_s (Tables III-IV)")
-    stick_velocity_m_per_s: float = _p(1.0e-4, "m/s", "assumed", "below this speed static friction may hold")
-    stick_time_constant_s: float = _p(1.0e-3, "s", "assumed", "how fast a held table comes to rest")
-    stroke_m: float = _p(0.15, "m", "assumed", "half stroke: |y| must stay below this")
-    pump_max_flow_m3_per_s: float = _p(313.0 * LITRE_PER_MIN_M3_S, "m3/s", "paper", "pump, 313 l/min")
-    max_supply_pa: float = _p(210.0 * BAR_PA, "Pa", "paper", "pump and relief valve, 210 bar")
-    min_supply_pa: float = _p(10.0 * BAR_PA, "Pa", "assumed", "below this the valve law is not meaningful")
-    command_limit_v: float = _p(10.0, "V", "paper", "valve command saturation +-10 V")
+                                          "sqrt(dp) linear below this drop; flattens a_p over P_s (Tables III-IV)",
+                                          lo=1.0, hi=1e8)
+    stick_velocity_m_per_s: float = _p(1.0e-4, "m/s", "assumed", "below this speed static friction may hold",
+                                       lo=1e-9, hi=1.0)
+    stick_time_constant_s: float = _p(1.0e-3, "s", "assumed", "how fast a held table comes to rest", lo=1e-6, hi=1.0)
+    stroke_m: float = _p(0.15, "m", "assumed", "half stroke: |y| must stay below this", lo=0.001, hi=10.0)
+    pump_max_flow_m3_per_s: float = _p(313.0 * LITRE_PER_MIN_M3_S, "m3/s", "paper", "pump, 313 l/min",
+                                       lo=1e-7, hi=10.0)
+    max_supply_pa: float = _p(210.0 * BAR_PA, "Pa", "paper", "pump and relief valve, 210 bar",
+                              lo=1e5, hi=1e8)
+    min_supply_pa: float = _p(10.0 * BAR_PA, "Pa", "assumed", "below this the valve law is not meaningful",
+                              lo=0.0, hi=1e8)
+    command_limit_v: float = _p(10.0, "V", "paper", "valve command saturation +-10 V", lo=0.1, hi=100.0)
     # instrumentation (sim.sensors): what the controller reads is the true value late, noisy and rounded
-    position_latency_s: float = _p(0.0, "s", "assumed", "position sensor and acquisition delay")
-    position_noise_rms_m: float = _p(0.0, "m", "assumed", "RMS noise of the position reading")
-    position_resolution_m: float = _p(0.0, "m", "assumed", "position reading rounded to this step (0: none)")
-    pressure_latency_s: float = _p(0.0, "s", "assumed", "load pressure sensor delay")
-    pressure_noise_rms_pa: float = _p(0.0, "Pa", "assumed", "RMS noise of the load pressure reading")
+    position_latency_s: float = _p(0.0, "s", "assumed", "position sensor and acquisition delay", lo=0.0, hi=0.2)
+    position_noise_rms_m: float = _p(0.0, "m", "assumed", "RMS noise of the position reading", lo=0.0, hi=0.1)
+    position_resolution_m: float = _p(0.0, "m", "assumed", "position reading rounded to this step (0: none)",
+                                      lo=0.0, hi=0.01)
+    pressure_latency_s: float = _p(0.0, "s", "assumed", "load pressure sensor delay", lo=0.0, hi=0.2)
+    pressure_noise_rms_pa: float = _p(0.0, "Pa", "assumed", "RMS noise of the load pressure reading",
+                                      lo=0.0, hi=1e7)
 
     @property
     def friction_force_n(self) -> float:
@@ -84,6 +105,31 @@ class RigParameters:
 
     def with_changes(self, **changes) -> RigParameters:
         return replace(self, **changes)
+
+    def check(self) -> None:
+        """A clear ``RigError`` naming the first parameter that is out of its range or inconsistent."""
+        for f in fields(self):
+            value = getattr(self, f.name)
+            lo, hi, unit = f.metadata["min"], f.metadata["max"], f.metadata["unit"]
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise RigError(f.name, value, f"a finite number in [{lo:g}, {hi:g}] {unit}",
+                               f"rig parameter {f.name} = {value!r} is not a finite number (unit {unit})")
+            if not (lo <= value <= hi):
+                raise RigError(f.name, value, f"[{lo:g}, {hi:g}] {unit}",
+                               f"rig parameter {f.name} = {value:g} {unit} is outside the allowed range "
+                               f"[{lo:g}, {hi:g}] {unit}")
+        if self.dead_zone_v >= self.command_limit_v:
+            raise RigError("dead_zone_v", self.dead_zone_v, f"< command_limit_v = {self.command_limit_v:g} V",
+                           f"dead_zone_v = {self.dead_zone_v:g} V is as wide as the command range "
+                           f"(+-{self.command_limit_v:g} V): the valve could never open")
+        if self.min_supply_pa >= self.max_supply_pa:
+            raise RigError("min_supply_pa", self.min_supply_pa, f"< max_supply_pa = {self.max_supply_pa:g} Pa",
+                           f"min_supply_pa = {self.min_supply_pa:g} Pa is not below max_supply_pa "
+                           f"= {self.max_supply_pa:g} Pa")
+        if self.vertical_load_n > self.max_vertical_load_n:
+            raise RigError("vertical_load_n", self.vertical_load_n, f"<= max_vertical_load_n = "
+                           f"{self.max_vertical_load_n:g} N", f"vertical_load_n = {self.vertical_load_n:g} N is "
+                           f"beyond the jack's capacity max_vertical_load_n = {self.max_vertical_load_n:g} N")
 
     def describe(self) -> list[dict]:
         """Each parameter with its value, unit, origin and note (for docs, API and reports)."""

@@ -35,6 +35,16 @@ def register(sub) -> None:
                    help=f"controller (default {DEFAULT_CONTROLLER})")
     p.add_argument("--controller-option", action="append", default=[], metavar="NAME=VALUE", type=option_pair,
                    help="override a controller default, e.g. dimensionless_as=true or gamma=5e4 (repeatable)")
+    p.add_argument("--rig-file", help="the lab's rig: a .json or .toml file of RigParameters names (SI) over the "
+                   "defaults; what the controller assumes (docs/drivers.md)")
+    p.add_argument("--rig-set", action="append", default=[], metavar="NAME=VALUE",
+                   help="change one rig parameter (after --rig-file), e.g. position_latency_s=0.002 (repeatable)")
+    p.add_argument("--plant-set", action="append", default=[], metavar="NAME=VALUE",
+                   help="change the simulated plant only (the rig as it truly is, unknown to the controller): a "
+                        "rig or isolator parameter, e.g. bulk_modulus_pa=5e8 (repeatable)")
+    p.add_argument("--plant-change", action="append", default=[], metavar="TIME_S:NAME=VALUE",
+                   help="change a rig or isolator parameter of the plant mid-test, e.g. 10:kd_n_per_m=6e5 "
+                        "(repeatable)")
     p.add_argument("--out", required=True, help="output directory for timeseries.csv and summary.json")
     p.add_argument("--rig", default="simulated",
                    help="'simulated' (default: the compiled engine, faster than real time) or udp://HOST:PORT "
@@ -42,6 +52,30 @@ def register(sub) -> None:
     p.add_argument("--link-timeout-s", type=float, default=0.05,
                    help="UDP rig: a link silent this long ends the test failed (default 0.05 s)")
     p.set_defaults(func=run)
+
+
+def rig_arguments(args):
+    """(the rig the controller assumes, plant-only changes, timed plant changes) from the rig flags."""
+    from sim.engine import ISOLATOR_PARAMETERS
+    from sim.rig import DEFAULT_RIG
+    from sim.rigfile import RIG_FIELDS, load_rig_file, parse_assignment, with_assignments
+
+    rig = load_rig_file(args.rig_file).parameters if args.rig_file else DEFAULT_RIG
+    rig = with_assignments(rig, args.rig_set, "--rig-set")
+    allowed = RIG_FIELDS + ISOLATOR_PARAMETERS
+    plant = dict(parse_assignment(a, allowed, "rig or isolator parameter") for a in args.plant_set)
+    timed = []
+    for text in args.plant_change:
+        when, sep, assignment = text.partition(":")
+        try:
+            t_s = float(when)
+        except ValueError:
+            t_s = None
+        if not sep or t_s is None:
+            raise UsageError(f"isorig simulate: --plant-change {text!r} is not TIME_S:NAME=VALUE "
+                             "(e.g. 10:kd_n_per_m=6e5)")
+        timed.append((t_s, *parse_assignment(assignment, allowed, "rig or isolator parameter")))
+    return rig, plant, timed
 
 
 def option_pair(text: str) -> tuple[str, float | bool]:
@@ -63,9 +97,11 @@ def run(args) -> int:
     from sim.engine import Scenario, Simulation
     from sim.records import write_csv
 
+    rig, plant_changes, timed_changes = rig_arguments(args)
     scenario = Scenario.sine(args.isolator, args.supply_bar, args.amplitude_m, args.frequency_hz, args.cycles,
                              controller=args.controller, taper_cycles=args.taper_cycles, offset_m=args.offset_m,
-                             controller_options=dict(args.controller_option), vertical_load_n=args.vertical_load_n)
+                             controller_options=dict(args.controller_option), vertical_load_n=args.vertical_load_n,
+                             rig=rig, plant_changes=plant_changes, timed_changes=timed_changes)
     scenario.validate()
     out = Path(args.out)
     try:

@@ -29,11 +29,12 @@ def describe_controllers() -> list[dict]:
              "adapted": [a.to_dict() for a in ADAPTED[name]]} for name in CONTROLLER_NAMES]
 
 
-def make_controller(name: str, **options) -> Controller:
-    """A controller by name with its defaults, overridden by ``options``."""
+def make_controller(name: str, rig=None, **options) -> Controller:
+    """A controller by name with its defaults, overridden by ``options``; ``rig`` (RigParameters) is the rig the
+    controller may assume (its nominal values), never the isolator."""
     if name not in FACTORIES:
         raise ValueError(f"unknown controller {name!r}; allowed: {', '.join(CONTROLLER_NAMES)}")
-    return FACTORIES[name](**options)
+    return FACTORIES[name](rig=rig, **options)
 
 
 @njit(cache=True)

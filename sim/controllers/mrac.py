@@ -62,7 +62,7 @@ ADAPTED = (
 )
 
 
-def make_mrac(**options) -> Controller:
+def make_mrac(rig=None, **options) -> Controller:
     """The paper's MRAC with section V defaults; any default can be overridden by keyword."""
     o = check_options("mrac", OPTIONS, options)
     params = np.array([

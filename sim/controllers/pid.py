@@ -31,7 +31,7 @@ TUNED_DEFAULTS = {name: spec.default for name, spec in OPTIONS.items()}
 ADAPTED = ()  # a fixed-gain controller adapts nothing
 
 
-def make_pid(**options) -> Controller:
+def make_pid(rig=None, **options) -> Controller:
     o = check_options("pid", OPTIONS, options)
     params = np.array([o["kp_v_per_m"], o["ki_v_per_m_s"], o["kd_v_s_per_m"], o["derivative_filter_s"],
                        o["command_limit_v"]])

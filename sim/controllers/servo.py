@@ -74,14 +74,16 @@ S_C = S_LINE_W + DELAY_LINE
 N_STATE = S_C + 2 * MAX_HARMONICS
 
 
-def _nominal_rig() -> dict:
+def _nominal_rig(rig=None) -> dict:
+    """The nominal values the servo takes from the rig the lab describes (default: sim.rig.DEFAULT_RIG)."""
     from ..rig import DEFAULT_RIG
 
+    rig = rig or DEFAULT_RIG
     return {
-        "piston_area_m2": DEFAULT_RIG.piston_area_m2,
-        "flow_gain_m3_per_s_v_sqrt_pa": DEFAULT_RIG.flow_gain_m3_per_s_v_sqrt_pa,
-        "dead_zone_v": DEFAULT_RIG.dead_zone_v,
-        "command_limit_v": DEFAULT_RIG.command_limit_v,
+        "piston_area_m2": rig.piston_area_m2,
+        "flow_gain_m3_per_s_v_sqrt_pa": rig.flow_gain_m3_per_s_v_sqrt_pa,
+        "dead_zone_v": rig.dead_zone_v,
+        "command_limit_v": rig.command_limit_v,
     }
 
 
@@ -126,10 +128,11 @@ ADAPTED = (
 )
 
 
-def make_servo(**options) -> Controller:
-    """The learning servo controller; nominal rig values default to sim.rig.DEFAULT_RIG."""
+def make_servo(rig=None, **options) -> Controller:
+    """The learning servo controller; nominal rig values from ``rig`` (what the lab's rig file says; default
+    sim.rig.DEFAULT_RIG) unless given as options."""
     o = check_options("servo", OPTIONS, options)
-    for key, value in _nominal_rig().items():
+    for key, value in _nominal_rig(rig).items():
         if o[key] is None:
             o[key] = value
     params = np.zeros(N_PARAMS)

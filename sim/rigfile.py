@@ -1,0 +1,128 @@
+"""A lab's own rig: a rig file (JSON or TOML) over the defaults, and NAME=VALUE changes from the command line.
+
+A rig file holds any subset of the ``RigParameters`` field names with SI values (the unit is in each name:
+``piston_area_m2``, ``dead_zone_v``, ``position_latency_s`` ...), optionally ``name`` and ``description``:
+
+    {"name": "Lab B rig", "piston_area_m2": 0.02, "half_volume_m3": 0.006, "position_latency_s": 0.002}
+
+Unnamed fields keep the defaults of ``sim.rig.DEFAULT_RIG``. Everything is checked at once: unknown names
+(with the nearest known one), values that are not numbers, non-finite or out of range, and combinations that
+cannot be a rig (a dead zone as wide as the command range, a minimum supply above the maximum). One clear
+``RigError`` names the file, the parameter, the value and what is allowed.
+"""
+
+from __future__ import annotations
+
+import difflib
+import json
+import math
+import tomllib
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+from .errors import FieldError
+from .rig import DEFAULT_RIG, RigError, RigParameters
+
+RIG_FIELDS = tuple(f.name for f in fields(RigParameters))
+TEXT_FIELDS = ("name", "description")
+
+
+@dataclass(frozen=True)
+class RigDescription:
+    """A rig as a lab describes it: its parameters, a name, and where they came from."""
+
+    parameters: RigParameters
+    name: str = "isorig default rig (sim.rig)"
+    description: str = ""
+    source: str = "sim.rig defaults"
+
+    def changed(self) -> dict:
+        """The parameters that differ from the defaults."""
+        return {f: getattr(self.parameters, f) for f in RIG_FIELDS
+                if getattr(self.parameters, f) != getattr(DEFAULT_RIG, f)}
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "description": self.description, "source": self.source,
+                "changed": self.changed()}
+
+
+def suggestion(name: str, allowed) -> str:
+    """' (did you mean X?)' for the nearest allowed name (or one it begins), else ''."""
+    close = difflib.get_close_matches(name, allowed, n=1) or [a for a in allowed if a.startswith(name)][:1]
+    return f" (did you mean {close[0]}?)" if close else ""
+
+
+def _unknown(name: str, where: str) -> RigError:
+    hint = suggestion(name, RIG_FIELDS)
+    return RigError(name, None, "a RigParameters field name", f"{where}: {name!r} is not a rig parameter{hint}; "
+                    "see `GET /api/rig` or docs/drivers.md for the names (SI units in each name)")
+
+
+def rig_from_mapping(data: dict, base: RigParameters = DEFAULT_RIG, where: str = "rig") -> RigParameters:
+    """``base`` with the values of ``data`` (field names of RigParameters), checked."""
+    if not isinstance(data, dict):
+        raise RigError("rig", data, "an object of parameter names and values", f"{where}: not an object of "
+                       "parameter names and values")
+    changes = {}
+    for key, value in data.items():
+        if key in TEXT_FIELDS:
+            continue
+        if key not in RIG_FIELDS:
+            raise _unknown(key, where)
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise RigError(key, value, "a number", f"{where}: {key} = {value!r} is not a number")
+        changes[key] = float(value)
+    rig = base.with_changes(**changes)
+    try:
+        rig.check()
+    except RigError as exc:
+        raise RigError(exc.field, exc.value, exc.limit, f"{where}: {exc}") from None
+    return rig
+
+
+def load_rig_file(path: str | Path, base: RigParameters = DEFAULT_RIG) -> RigDescription:
+    """A rig file (``.json`` or ``.toml``) over ``base``."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise RigError("rig_file", str(path), "a readable .json or .toml file",
+                       f"cannot read the rig file {path}: {exc.strerror}") from None
+    try:
+        if path.suffix.lower() == ".toml":
+            data = tomllib.loads(text)
+        else:
+            data = json.loads(text)
+    except (json.JSONDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise RigError("rig_file", str(path), "valid JSON or TOML", f"the rig file {path} is not valid "
+                       f"{'TOML' if path.suffix.lower() == '.toml' else 'JSON'}: {exc}") from None
+    parameters = rig_from_mapping(data, base, where=f"rig file {path}")
+    name = data.get("name", path.stem)
+    description = data.get("description", "")
+    if not isinstance(name, str) or not isinstance(description, str):
+        raise RigError("name", name, "text", f"rig file {path}: name and description must be text")
+    return RigDescription(parameters, name[:100], description[:400], str(path))
+
+
+def parse_assignment(text: str, allowed: tuple[str, ...] = RIG_FIELDS,
+                     what: str = "rig parameter") -> tuple[str, float]:
+    """``NAME=VALUE`` -> (name, value), the name one of ``allowed``, the value a finite number."""
+    name, sep, raw = text.partition("=")
+    name = name.strip()
+    if not sep or not name:
+        raise FieldError(what, text, "NAME=VALUE", f"{text!r} is not NAME=VALUE")
+    if name not in allowed:
+        raise FieldError(name, raw, ", ".join(allowed), f"{name!r} is not a {what}{suggestion(name, allowed)}")
+    try:
+        value = float(raw)
+    except ValueError:
+        raise FieldError(name, raw, "a number", f"{name} = {raw!r} is not a number") from None
+    if not math.isfinite(value):
+        raise FieldError(name, raw, "a finite number", f"{name} = {raw!r} is not a finite number")
+    return name, value
+
+
+def with_assignments(rig: RigParameters, assignments: list[str], where: str) -> RigParameters:
+    """``rig`` with each ``NAME=VALUE`` of ``assignments`` applied, checked."""
+    changes = dict(parse_assignment(a) for a in assignments)
+    return rig_from_mapping(changes, rig, where) if changes else rig
