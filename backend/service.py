@@ -97,6 +97,7 @@ class RigService:
         self.hub = hub
         self.driver = driver or settings.rig  # "simulated" or "udp://HOST:PORT"
         self.active: ActiveRun | None = None
+        self.last_link: dict = {}  # the link figures of the last test that ran on a UDP rig
         self._lock = threading.Lock()
         self._context = None
         self._seq: dict[int, int] = {}
@@ -159,7 +160,10 @@ class RigService:
             return {"kind": "udp", "connected": True, "armed": True, "test_id": run.test_id, **run.link}
         from .drivers.udp import probe
 
-        return {"kind": "udp", **probe(self.driver, timeout_s=0.2)}
+        out = {"kind": "udp", **probe(self.driver, timeout_s=0.2)}
+        if self.last_link:
+            out["last_test"] = self.last_link
+        return out
 
     # --- operator actions ----------------------------------------------------------------------------
     def start(self, test_id: int, actor: str = "operator") -> None:
@@ -400,6 +404,7 @@ class RigService:
                 status, reason, pacing = final["status"], final["reason"], final.get("pacing", {})
                 if final.get("link"):
                     run.link = store.clean_json({**final["link"], "lost_periods": final.get("lost_periods", 0)})
+                    self.last_link = {"test_id": test_id, **run.link}
                 if run.shutdown and status == "aborted":
                     status, reason = "interrupted", "the service shut down while the test was running"
             test = store.get_test(session, test_id)

@@ -254,8 +254,16 @@ def probe(url: str, timeout_s: float = 0.2) -> dict:
                 packet = proto.decode(sock.recv(proto.MAX_PACKET + 64))
                 if packet.kind == proto.MEASUREMENT:
                     break
-        except (OSError, proto.PacketError) as exc:
-            return {"rig": url, "connected": False, "detail": f"no answer within {timeout_s:g} s ({exc})"}
+        except ConnectionRefusedError:
+            return {"rig": url, "connected": False,
+                    "detail": f"nothing listens at {host}:{port} (the rig or its emulator is not running there)"}
+        except TimeoutError:
+            return {"rig": url, "connected": False, "detail": f"no answer from {host}:{port} within {timeout_s:g} s"}
+        except proto.PacketError as exc:
+            return {"rig": url, "connected": False, "detail": f"{host}:{port} answers, but not in the isorig rig "
+                                                              f"protocol v{proto.VERSION} ({exc})"}
+        except OSError as exc:
+            return {"rig": url, "connected": False, "detail": f"cannot reach {host}:{port}: {exc.strerror or exc}"}
         status = int(packet.fields["status"])
         return {"rig": url, "connected": True, "round_trip_ms": (time.perf_counter() - t0) * 1e3,
                 "armed": bool(status & STATUS_ARMED), "status": describe_status(status),

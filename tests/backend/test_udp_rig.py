@@ -114,7 +114,8 @@ def test_probe_says_whether_the_rig_answers(tmp_path):
         assert answer["connected"] and not answer["armed"] and answer["period_s"] == pytest.approx(1e-3)
     finally:
         emulator.stop()
-    assert probe(emulator.url, timeout_s=0.1)["connected"] is False
+    answer = probe(emulator.url, timeout_s=0.1)
+    assert answer["connected"] is False and "nothing listens at 127.0.0.1" in answer["detail"]
 
 
 # --- whole tests through the emulator ------------------------------------------------------------------------
@@ -368,7 +369,9 @@ def test_the_service_runs_a_test_on_the_emulator_and_shows_the_link(tmp_path):
             summary = record["summary"]
             assert summary["lost_periods"] >= 0 and summary["link"]["received"] >= 1490
             assert summary["link"]["rig"] == emulator.url and summary["pacing"]["realtime_rig"] is True
-            assert client.get("/api/rig/link").json()["armed"] is False
+            idle = client.get("/api/rig/link").json()
+            assert idle["armed"] is False and idle["last_test"]["test_id"] == test_id
+            assert idle["last_test"]["received"] >= 1490
     finally:
         status = emulator.stop()
     assert status["vertical_load_n"] == 3e5 and status["supply_pa"] == 100e5  # ARM carried the conditions

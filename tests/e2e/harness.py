@@ -15,6 +15,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 import urllib.error
 import urllib.request
@@ -39,11 +40,12 @@ def free_port() -> int:
 class Server:
     """`isorig serve` in a subprocess on 127.0.0.1 with its own database; restartable on the same port."""
 
-    def __init__(self, workdir: Path, viewer: bool = False, port: int | None = None):
+    def __init__(self, workdir: Path, viewer: bool = False, port: int | None = None, rig: str | None = None):
         self.workdir = Path(workdir)
         self.workdir.mkdir(parents=True, exist_ok=True)
         self.port = port or free_port()
         self.viewer = viewer
+        self.rig = rig  # None: the service's default (simulated); or udp://HOST:PORT
         self.proc: subprocess.Popen | None = None
         self.log_path = self.workdir / "serve.log"
 
@@ -64,8 +66,9 @@ class Server:
 
     def start(self, timeout_s: float = 60.0) -> Server:
         log = open(self.log_path, "ab")
+        rig = ["--rig", self.rig] if self.rig else []
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "isorig", "serve", "--host", "127.0.0.1", "--port", str(self.port)],
+            [sys.executable, "-m", "isorig", "serve", "--host", "127.0.0.1", "--port", str(self.port), *rig],
             cwd=REPO, env=self.env(), stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
@@ -132,6 +135,32 @@ class Server:
                 return rec
             time.sleep(0.2)
         raise AssertionError(f"test {test_id} not in {statuses} after {timeout_s} s: {rec}")
+
+
+class RigEmulator:
+    """`isorig rig-emulator` (an emulated real-time rig on UDP) on a free loopback port; ``url`` is its address."""
+
+    def __init__(self, isolator: str = "IUT_a", port: int = 0):
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "isorig", "rig-emulator", "--port", str(port), "--isolator", isolator],
+            cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
+        line = self.proc.stderr.readline()  # "isorig rig-emulator: udp://127.0.0.1:PORT, ..."
+        match = re.search(r"udp://([\d.]+):(\d+)", line)
+        if match is None:
+            self.stop()
+            raise RuntimeError(f"isorig rig-emulator did not start: {line}")
+        self.url = f"udp://127.0.0.1:{match.group(2)}"
+        # keep reading its stderr so it never blocks on a full pipe
+        threading.Thread(target=self.proc.stderr.read, daemon=True).start()
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
 
 
 def sine_test(amplitude_m=0.03, frequency_hz=0.5, cycles=4, speed=2.0, isolator="IUT_b", supply_bar=70.0,

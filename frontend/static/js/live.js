@@ -63,8 +63,9 @@ class Buffer {
 }
 
 export class LiveView {
-  constructor({ onTest } = {}) {
+  constructor({ onTest, onLink } = {}) {
     this.onTest = onTest || (() => {});
+    this.onLink = onLink || (() => {}); // a status message with a real rig's link figures
     this.buf = new Buffer();
     this.testId = null;
     this.test = null;
@@ -447,6 +448,7 @@ export class LiveView {
       case "status":
         if (msg.test_id !== undefined && msg.test_id !== this.testId) this.followNew(msg.test_id);
         this.onStatus(msg);
+        if (msg.link) this.onLink(msg);
         break;
       case "cycle": if (msg.test_id === this.testId) this.onCycle(msg); break;
       case "event": if (msg.test_id === this.testId || msg.test_id === null || msg.test_id === undefined) this.onEvent(msg); break;

@@ -3,6 +3,7 @@
 import { api, askToken, getToken, operatorPost } from "./api.js";
 import { History } from "./history.js";
 import { LiveView } from "./live.js";
+import { RigLink } from "./rig.js";
 import { runningTestId, SetupPanel } from "./setup.js";
 import { hideAlert, showAlert } from "./ui.js";
 
@@ -11,11 +12,13 @@ const $ = (id) => document.getElementById(id);
 // fluid: 30/s with a GPU, 10/s where WebGL runs in software. /viewer/ opened on its own runs at full rate.
 const VIEWER_MAX_FPS = { hardware: 30, software: 10 };
 
+const rigLink = new RigLink({ onChange: (link) => setup.showRigLink(link) });
 const live = new LiveView({
   onTest: (id, status) => {
     if (currentView === "history") historyView.showList();
     if (status === "completed" || status === "stopped" || status === "aborted") setup.message("", "");
   },
+  onLink: (msg) => rigLink.fromStatus(msg),
 });
 const setup = new SetupPanel({ live });
 const historyView = new History();
@@ -174,6 +177,8 @@ async function main() {
 
   route();
   await setup.init();
+  rigLink.setInfo(setup.rig);
+  rigLink.start();
   await setupViewer();
   document.body.dataset.ready = "1";
 }

@@ -2,6 +2,7 @@
 // controller, the rig envelope for the current choice (asked from the API before Start), Start and Stop.
 
 import { api, ApiError, errorField, operatorPost } from "./api.js";
+import { fmtPeriod, rigKind } from "./rig.js";
 import { el, showAlert } from "./ui.js";
 
 const PARAMS = [
@@ -87,8 +88,34 @@ export class SetupPanel {
     ctl.innerHTML = "";
     for (const n of names) ctl.append(el("option", { value: n, text: n === def ? `${n} (default)` : n }));
     ctl.value = def;
-    const simulated = rig.simulated !== false && (rig.driver === undefined || /sim/i.test(String(rig.driver)));
-    $("speed-row").classList.toggle("hidden", !simulated);
+    // a real rig runs in real time only: the speed is fixed at 1 (the API refuses any other with 422)
+    this.realTimeOnly = rigKind(rig) !== "simulated";
+    const speed = $("f-speed");
+    speed.disabled = this.realTimeOnly;
+    if (this.realTimeOnly) speed.value = "1";
+    const note = $("speed-note");
+    note.textContent = this.realTimeOnly ? "fixed: a real rig runs in real time" : "";
+    note.classList.toggle("hidden", !this.realTimeOnly);
+    $("speed-row").title = this.realTimeOnly
+      ? `the rig ${rig.driver} runs in real time only: speed 1`
+      : "simulated rig only: time scale of the run";
+  }
+
+  /** The rig's link (RigLink): explain before Start why a test would fail on a rig that does not answer. */
+  showRigLink(link) {
+    const box = $("rig-warning");
+    if (!box) return;
+    const l = link.link || {};
+    const down = link.kind === "udp" && link.connected() === "false";
+    box.classList.toggle("hidden", !down);
+    box.dataset.state = down ? "down" : "ok";
+    if (!down) return;
+    const arm = link.info && typeof link.info.arm_timeout_s === "number" ? fmtPeriod(link.info.arm_timeout_s) : "";
+    box.innerHTML = "";
+    box.append(el("b", { text: "Rig not connected: Start would fail." }),
+      el("div", { text: `${link.name()}: ${l.detail || "no answer"}. The service arms the rig at Start and gives ` +
+        `up${arm ? ` after ${arm}` : ""} without an answer; check that the rig (or isorig rig-emulator) runs ` +
+        "and is reachable." }));
   }
 
   async loadIsolators(select) {
@@ -151,7 +178,7 @@ export class SetupPanel {
         taper_cycles: num("f-taper_cycles"),
       },
     };
-    if (!$("speed-row").classList.contains("hidden")) body.speed = num("f-speed");
+    body.speed = this.realTimeOnly ? 1 : num("f-speed");
     return body;
   }
 

@@ -1,0 +1,128 @@
+"""The rig and its link in the dashboard's top bar: the simulated default, and a real rig over UDP
+(`isorig rig-emulator` in its own process, `isorig serve --rig udp://...`): connected, the link figures of a
+running test, and "not connected" once the rig is gone.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+
+from .harness import TOKEN, RigEmulator, Server
+
+VIEWPORTS = [(1366, 768), (1920, 1080)]
+MS = r"\d+(\.\d{1,2})? ms"  # a latency: at most 2 decimals
+
+
+def _shots(page, artifacts, name: str) -> None:
+    """Screenshots at both viewports (the page ends at the first one)."""
+    for width, height in reversed(VIEWPORTS):
+        page.set_viewport_size({"width": width, "height": height})
+        time.sleep(0.2)
+        page.screenshot(path=str(artifacts / f"{name}_{width}x{height}.png"))
+
+
+def _link(page) -> dict:
+    return page.evaluate("() => ({...document.getElementById('rig-link').dataset})")
+
+
+def _fits_top_bar(page) -> None:
+    """The rig block stays inside the top bar, next to the rig status, at this viewport."""
+    box = page.locator("#rig-link").bounding_box()
+    bar = page.locator("#topbar").bounding_box()
+    status = page.locator("#rig-status").bounding_box()
+    assert box["y"] >= bar["y"] and box["y"] + box["height"] <= bar["y"] + bar["height"], (box, bar)
+    assert box["x"] + box["width"] <= status["x"], (box, status)
+
+
+def test_simulated_rig_is_named(server, open_page, artifacts):
+    """The default service drives the simulated rig: named in the top bar, speed editable, no warning."""
+    page, _ = open_page(server.url + "/", width=1366, height=768)
+    page.wait_for_selector("#rig-link[data-kind='simulated'][data-connected='true']", timeout=10000)
+    assert page.inner_text("#rig-name") == "simulated rig"
+    assert page.is_enabled("#f-speed")
+    assert page.is_hidden("#rig-warning")
+    _fits_top_bar(page)
+    if page.is_visible("#alert"):  # a banner of an earlier test of the session
+        page.click("#alert-close")
+    _shots(page, artifacts, "dashboard_simulated_rig")
+    page.click("#rig-link")  # the details popover
+    assert "simulated" in page.inner_text("#rig-details")
+    page.keyboard.press("Escape")
+    assert page.is_hidden("#rig-details")
+
+
+def test_udp_rig_link_health(open_page, artifacts, tmp_path):
+    """A service on an emulated UDP rig: the rig and "connected", speed fixed at 1, a test's round trip and last
+    sequence updating, then "not connected" (and Start explained) once the emulator stops."""
+    emulator = RigEmulator(isolator="IUT_a")
+    srv = None
+    try:
+        srv = Server(tmp_path / "serve", rig=emulator.url).start()
+        page, _ = open_page(srv.url + "/", width=1366, height=768, token=TOKEN)
+        page.wait_for_selector("#rig-link[data-kind='udp'][data-connected='true']", timeout=10000)
+        assert page.inner_text("#rig-name") == emulator.url
+        assert page.inner_text("#rig-state") == "connected"
+        assert re.search(f"round trip {MS}", page.inner_text("#rig-figs")), page.inner_text("#rig-figs")
+        title = page.get_attribute("#rig-link", "title")  # the link settings in the tooltip
+        assert "control period 1 ms" in title and "link timeout" in title and "arm timeout" in title, title
+        page.click("#rig-link")
+        details = page.inner_text("#rig-details")
+        for what in ("host", "port", "control period", "link timeout", "arm timeout", "protocol"):
+            assert what in details, details
+        page.click("#setup h2")  # a click elsewhere closes it
+        assert page.is_hidden("#rig-details")
+        # a real rig runs in real time: speed fixed at 1, with the reason
+        assert not page.is_enabled("#f-speed")
+        assert page.input_value("#f-speed") == "1"
+        assert "real time" in page.inner_text("#speed-note")
+        assert page.is_hidden("#rig-warning")
+        _fits_top_bar(page)
+        _shots(page, artifacts, "dashboard_udp_idle")
+
+        # a short test at speed 1 from the form: the link figures of the running test update
+        page.select_option("#f-isolator", "IUT_a")
+        page.fill("#f-supply_bar", "100")
+        page.fill("#f-amplitude_mm", "10")
+        page.fill("#f-frequency_hz", "1")
+        page.fill("#f-cycles", "5")
+        page.fill("#f-taper_cycles", "1")
+        page.click("#start")
+        page.wait_for_selector("#rig-link[data-source='test'][data-last-sequence]", timeout=15000)
+        first = _link(page)
+        time.sleep(1.0)
+        page.wait_for_function("Number(document.getElementById('rig-link').dataset.lastSequence) > "
+                               f"{int(first['lastSequence']) + 200}", timeout=5000)
+        figs = page.inner_text("#rig-figs")
+        assert re.search(f"round trip p50 {MS}, p99 {MS}", figs), figs
+        for what in ("lost ", "rejected ", "rig missed ", "seq "):
+            assert re.search(what + r"\d+\b", figs), figs
+        assert float(_link(page)["roundTripMs"]) > 0
+        _fits_top_bar(page)
+        _shots(page, artifacts, "dashboard_udp_running")
+        page.click("#rig-link")  # the details: settings and every figure of the running test
+        details = page.inner_text("#rig-details")
+        assert f"test #{page.evaluate('window.__isorig.testId')} running" in details, details
+        assert "measurements lost" in details and "last sequence" in details, details
+        box = page.locator("#rig-details").bounding_box()
+        right = max(box["x"] + box["width"], sum(page.locator("#rig-link").bounding_box()[k] for k in ("x", "width")))
+        clip = {"x": 0, "y": 0, "width": right + 20, "height": box["y"] + box["height"] + 12}
+        page.screenshot(path=str(artifacts / "dashboard_udp_details.png"), clip=clip)
+        page.keyboard.press("Escape")
+        test_id = page.evaluate("window.__isorig.testId")
+        rec = srv.wait_status(test_id, {"completed"}, timeout_s=30)
+        assert rec["speed"] == 1.0 and rec["driver"] == emulator.url, rec
+
+        # the rig goes away: not connected (red) within a poll, and Start says why it would fail
+        emulator.stop()
+        page.wait_for_selector("#rig-link[data-connected='false']", timeout=10000)
+        assert page.inner_text("#rig-state") == "NOT CONNECTED"
+        assert page.is_visible("#rig-warning")
+        assert "Start would fail" in page.inner_text("#rig-warning")
+        assert page.is_enabled("#start")  # the operator may still try
+        _fits_top_bar(page)
+        _shots(page, artifacts, "dashboard_udp_not_connected")
+    finally:
+        emulator.stop()
+        if srv is not None:
+            srv.stop()
