@@ -236,3 +236,35 @@ def test_limit_trip_is_shown_prominently(server, open_page, artifacts):
     assert page.locator("#live-events li.limit_trip").count() >= 1
     assert "tracking_error_m" in page.inner_text("#live-events")
     page.screenshot(path=str(artifacts / "dashboard_limit_trip.png"))
+
+
+def test_vertical_load_is_entered_in_kn_within_the_jacks_range(server, open_page, artifacts):
+    """The field shows its range and default; 900 kN is refused before Start; 300 kN travels with the test."""
+    page, _ = open_page(server.url + "/")
+    page.evaluate(f"localStorage.setItem('isorig.operator_token', '{TOKEN}')")
+    page.reload()
+    page.select_option("#f-isolator", "IUT_a")
+    assert page.inner_text("#vertical-load-note") == "0 to 850 kN; empty: 125 kN"
+    page.fill("#f-supply_bar", "100")
+    page.fill("#f-amplitude_mm", "10")
+    page.fill("#f-frequency_hz", "2")
+    page.fill("#f-cycles", "4")
+    page.fill("#f-speed", "4")
+    page.fill("#f-vertical_load_kn", "900")
+    page.wait_for_function("document.getElementById('envelope').dataset.state === 'refused'", timeout=10000)
+    assert "vertical" in page.inner_text("#envelope").lower() and "850" in page.inner_text("#envelope")
+    assert "invalid" in (page.get_attribute("#f-vertical_load_kn", "class") or "")
+    page.fill("#f-vertical_load_kn", "300")
+    page.wait_for_function("document.getElementById('envelope').dataset.state !== 'refused'", timeout=10000)
+    before = {t["id"] for t in server.call("GET", "/api/tests")[1]}
+    page.click("#start")
+    _wait(lambda: {t["id"] for t in server.call("GET", "/api/tests")[1]} - before, 15, "the new test")
+    test_id = max({t["id"] for t in server.call("GET", "/api/tests")[1]} - before)
+    assert server.call("GET", f"/api/tests/{test_id}")[1]["vertical_load_n"] == 300e3
+    _wait(lambda: page.inner_text("#l-vertical-load") == "300 kN", 15, "the load in the live header")
+    # the adapted parameters under the names and units the servo declares (GET /api/rig)
+    _wait(lambda: "flow gain ratio g (-)" in page.inner_text("#plot-adapt"), 10, "the servo's adapted names")
+    assert "learned frequency (Hz, right)" in page.inner_text("#plot-adapt")
+    assert "valve's true flow gain" in page.inner_text("#adapt-note")
+    page.screenshot(path=str(artifacts / "dashboard_vertical_load.png"))
+    server.wait_status(test_id, {"completed"}, timeout_s=60)

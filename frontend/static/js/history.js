@@ -119,6 +119,8 @@ export class History {
       kv("controller", controllerName(t)),
       kv("created", fmtTime(t.created_at)),
       kv("supply", typeof t.supply_bar === "number" ? `${t.supply_bar} bar` : "-"),
+      kv("vertical load", typeof t.vertical_load_n === "number" ? `${+(t.vertical_load_n / 1e3).toPrecision(4)} kN`
+        : "- (recorded before it was a condition: 125 kN)"),
       kv("speed", typeof t.speed === "number" ? `${t.speed}x` : "-"),
     );
     for (const [key, label, scale, unit] of [

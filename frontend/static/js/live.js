@@ -397,26 +397,46 @@ export class LiveView {
     const iso = t && (t.isolator || (t.scenario && t.scenario.isolator && t.scenario.isolator.name));
     document.getElementById("l-isolator").textContent =
       typeof iso === "string" ? iso : iso && iso.name ? iso.name : "-";
+    const load = t && (typeof t.vertical_load_n === "number" ? t.vertical_load_n
+      : t.scenario && typeof t.scenario.vertical_load_n === "number" ? t.scenario.vertical_load_n : null);
+    document.getElementById("l-vertical-load").textContent = load === null ? "-" : `${+(load / 1e3).toPrecision(4)} kN`;
+  }
+
+  /** What each controller declares it adapts (GET /api/rig: controllers[].adapted): name, unit, meaning. */
+  setControllers(list) {
+    this.declared = {};
+    for (const c of list || []) if (c && c.name) this.declared[c.name] = c.adapted || [];
+    if (this.controllerName !== undefined) this.setController(this.controllerName);
   }
 
   /**
-   * The report columns ar_hat, ay_hat, as_hat are the MRAC's adapted parameters (eqs. 18-20); other controllers
-   * put their own quantities there (docs/controller.md), shown raw under the column names.
+   * The columns ar_hat, ay_hat, as_hat hold what the running controller adapts, under the names and units it
+   * declares (the MRAC: a_r_hat, a_y_hat, a_s_hat of eqs. 18-20; the servo: flow gain ratio, dead zone, learned
+   * frequency; PID: nothing). A length in m is shown in mm.
    */
   setController(name) {
-    const mrac = !name || name === "mrac";
-    const scale = mrac ? 1000 : 1;
+    this.controllerName = name;
+    const adapted = ((this.declared || {})[name] || []).filter((a) => a.column !== "model_m");
+    const byColumn = Object.fromEntries(adapted.map((a) => [a.column, a]));
+    const asInfo = byColumn.as_hat;
+    const scale = (asInfo ? asInfo.unit === "m" : !name || name === "mrac") ? 1000 : 1;
     if (scale !== this.asScale) { // samples that came before the record: rescale them
       const as = this.buf.a.as;
       for (let i = 0; i < this.buf.len; i++) as[i] *= scale / this.asScale;
       this.asScale = scale;
     }
+    const label = (col, right) => {
+      const a = byColumn[col];
+      if (!a) return `${col} (not used)`;
+      const unit = a.unit === "m" ? "mm" : a.unit;
+      return `${a.name} (${unit}${right ? ", right" : ""})`;
+    };
     const note = document.getElementById("adapt-note");
-    if (note) note.textContent = mrac ? "MRAC, eqs. 18-20" : `${name}: its own quantities in these columns (docs/controller.md)`;
-    if (this.plots) {
-      this.plots.adapt.setLabels(mrac ? ["a_r_hat", "a_y_hat", "a_s_hat (mm, right)"]
-        : ["ar_hat column", "ay_hat column", "as_hat column (right)"]);
+    if (note) {
+      note.textContent = !name ? "" : adapted.length ? `${name}: ${adapted.map((a) => a.meaning).join("; ")}`
+        : `${name} adapts nothing (fixed gains)`;
     }
+    if (this.plots) this.plots.adapt.setLabels([label("ar_hat"), label("ay_hat"), label("as_hat", true)]);
   }
 
   /** A message of a test we have no record of (started after hello): fetch its record for the header. */

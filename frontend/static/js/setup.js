@@ -16,6 +16,7 @@ const PARAMS = [
 const FIELD_INPUT = {
   isolator: "f-isolator",
   supply_bar: "f-supply_bar",
+  vertical_load_n: "f-vertical_load_kn",
   amplitude_m: "f-amplitude_mm",
   frequency_hz: "f-frequency_hz",
   cycles: "f-cycles",
@@ -81,6 +82,7 @@ export class SetupPanel {
     }
     const ctl = $("f-controller");
     const rig = this.rig || {};
+    if (Array.isArray(rig.controllers)) this.live.setControllers(rig.controllers.filter((c) => typeof c === "object"));
     const names = rig.controllers
       ? rig.controllers.map((c) => (typeof c === "string" ? c : c.name))
       : ["mrac", "pid"];
@@ -157,6 +159,21 @@ export class SetupPanel {
         el("td", { text: typeof v === "number" ? String(+v.toPrecision(6)) : "-" })));
     }
     if (iso.description) table.append(el("tr", {}, el("td", { text: "note" }), el("td", { text: iso.description })));
+    this.showVerticalLoad();
+  }
+
+  /** The vertical load field: its range (the jack) and its default (the isolator's design load, else the rig's). */
+  showVerticalLoad() {
+    const env = (this.rig && this.rig.envelope) || {};
+    const iso = this.isolators.find((i) => i.name === $("f-isolator").value) || {};
+    const max = typeof env.max_vertical_load_n === "number" ? env.max_vertical_load_n : 850e3;
+    const fallback = typeof env.vertical_load_n_default === "number" ? env.vertical_load_n_default : 125e3;
+    const def = typeof iso.design_vertical_load_n === "number" ? iso.design_vertical_load_n : fallback;
+    const kn = (n) => String(+(n / 1e3).toPrecision(6));
+    $("f-vertical_load_kn").placeholder = kn(def);
+    $("f-vertical_load_kn").max = kn(max);
+    $("vertical-load-note").textContent = `0 to ${kn(max)} kN; empty: ${kn(def)} kN` +
+      (typeof iso.design_vertical_load_n === "number" ? " (the isolator's design load)" : "");
   }
 
   /** The request body of POST /api/tests from the form (SI units; amplitude converted from mm). */
@@ -170,6 +187,7 @@ export class SetupPanel {
       isolator: $("f-isolator").value,
       supply_bar: num("f-supply_bar"),
       controller: $("f-controller").value,
+      vertical_load_n: num("f-vertical_load_kn") === null ? null : num("f-vertical_load_kn") * 1e3,
       profile: {
         kind: "sine",
         amplitude_m: amp === null ? null : amp / 1000,
@@ -204,6 +222,11 @@ export class SetupPanel {
         (body.supply_bar < env.supply_bar_min || body.supply_bar > env.supply_bar_max)) {
       return bad("supply_bar", body.supply_bar, `${env.supply_bar_min}-${env.supply_bar_max} bar`,
         `supply_bar = ${body.supply_bar} bar is outside ${env.supply_bar_min}-${env.supply_bar_max} bar`);
+    }
+    const maxLoad = num(env.max_vertical_load_n) ? env.max_vertical_load_n : 850e3;
+    if (body.vertical_load_n !== null && (!num(body.vertical_load_n) || body.vertical_load_n < 0 || body.vertical_load_n > maxLoad)) {
+      return bad("vertical_load_n", body.vertical_load_n, `0-${maxLoad / 1e3} kN`,
+        `vertical load ${body.vertical_load_n / 1e3} kN is outside 0-${maxLoad / 1e3} kN (the jack)`);
     }
     if (!num(p.amplitude_m) || p.amplitude_m <= 0) return bad("amplitude_m", p.amplitude_m, "> 0", "amplitude must be a positive number");
     if (num(env.stroke_m) && p.amplitude_m > env.stroke_m) {
