@@ -48,6 +48,11 @@ class TestRecord(Base):
     samples_stored: Mapped[int] = mapped_column(Integer, default=0)
     time_s: Mapped[float] = mapped_column(Float, default=0.0)  # last stored sample time
     summary: Mapped[dict | None] = mapped_column(JSON)
+    # a test that ran is never erased: it can be archived (hidden from the list) by a named person for a reason,
+    # and restored
+    archived_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    archived_by: Mapped[str | None] = mapped_column(String(64))
+    archive_reason: Mapped[str | None] = mapped_column(Text)
 
     chunks: Mapped[list[SampleChunk]] = relationship(back_populates="test", cascade="all, delete-orphan",
                                                      passive_deletes=True)

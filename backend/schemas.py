@@ -68,6 +68,13 @@ class TestCreate(StrictModel):
         "profile": {"kind": "sine", "amplitude_m": 0.03, "frequency_hz": 1.0, "cycles": 10, "taper_cycles": 1}}]})
 
 
+class ArchiveIn(StrictModel):
+    """Who archives (or restores) a test and why: a test that ran is never erased through the API."""
+
+    by: str = Field(min_length=1, max_length=64, description="the person's name")
+    reason: str = Field(min_length=3, max_length=400, description="why")
+
+
 class EnvelopeCheckOut(BaseModel):
     """``POST /api/tests/check``: would this test be accepted, and what does the envelope allow around it."""
 
@@ -135,6 +142,7 @@ class TestOut(BaseModel):
     samples_stored: int
     scenario: dict
     summary: dict | None
+    archived: dict | None = None
     events: list[dict] | None = None
 
 

@@ -99,6 +99,8 @@ def test_record(session: Session, test: TestRecord, with_events: bool = True) ->
         "samples_stored": test.samples_stored,
         "scenario": test.scenario,
         "summary": test.summary,
+        "archived": None if test.archived_at is None else {"at": _iso(test.archived_at), "by": test.archived_by,
+                                                            "reason": test.archive_reason},
     }
     if with_events:
         record["events"] = load_events(session, test.id)
@@ -107,8 +109,10 @@ def test_record(session: Session, test: TestRecord, with_events: bool = True) ->
 
 def list_tests(session: Session, status: str | None = None, isolator: str | None = None,
                since: datetime | None = None, until: datetime | None = None,
-               limit: int = 100, offset: int = 0) -> list[TestRecord]:
-    query = select(TestRecord)
+               limit: int = 100, offset: int = 0, archived: bool = False) -> list[TestRecord]:
+    """Tests newest first; archived ones only if ``archived`` (then only they)."""
+    query = select(TestRecord).where(TestRecord.archived_at.is_not(None) if archived
+                                     else TestRecord.archived_at.is_(None))
     if status:
         query = query.where(TestRecord.status == status)
     if isolator:
@@ -131,7 +135,18 @@ def set_status(session: Session, test: TestRecord, status: str, reason: str | No
         test.ended_at = utcnow()
 
 
+def archive_test(session: Session, test: TestRecord, by: str, reason: str) -> None:
+    test.archived_at = utcnow()
+    test.archived_by = by
+    test.archive_reason = reason
+
+
+def restore_test(session: Session, test: TestRecord) -> None:
+    test.archived_at = test.archived_by = test.archive_reason = None
+
+
 def delete_test(session: Session, test: TestRecord) -> None:
+    """Erase a test that never ran (its record holds no measurement). Tests that ran are archived instead."""
     session.execute(delete(SampleChunk).where(SampleChunk.test_id == test.id))
     session.execute(delete(CycleRecord).where(CycleRecord.test_id == test.id))
     session.delete(test)
@@ -260,6 +275,15 @@ def list_user_isolators(session: Session) -> list[dict]:
 def get_user_isolator(session: Session, name: str) -> dict | None:
     row = session.get(UserIsolator, name)
     return row.definition if row is not None else None
+
+
+def delete_user_isolator(session: Session, name: str) -> bool:
+    """Remove a user isolator (records keep their own copy of its parameters). False if there was none."""
+    row = session.get(UserIsolator, name)
+    if row is None:
+        return False
+    session.delete(row)
+    return True
 
 
 def add_user_isolator(session: Session, definition: dict) -> None:

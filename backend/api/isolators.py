@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from fastapi import APIRouter, Path
+from fastapi.responses import Response
 
 from sim.isolator import PRESETS, Isolator, isolator_from_dict
 
@@ -52,6 +53,21 @@ def create_isolator(body: IsolatorIn, session: SessionDep, actor: OperatorDep) -
                     {"action": "create_isolator", "isolator": iso.to_dict()}, actor=actor)
     session.commit()
     return _out(iso, "user")
+
+
+@router.delete("/api/isolators/{name}", status_code=204, summary="Delete a user isolator (operator token)",
+               responses=ERROR_RESPONSES)
+def delete_isolator(name: str, session: SessionDep, actor: OperatorDep) -> Response:
+    """Presets cannot be deleted; a user isolator can (the records of its tests keep their own copy)."""
+    if name in PRESETS:
+        raise ApiError(409, f"isolator {name!r} is a preset (the paper's or a shipped example); only user "
+                            "isolators can be deleted", "name", name)
+    if not store.delete_user_isolator(session, name):
+        raise not_found(f"isolator {name!r}")
+    store.add_event(session, None, "operator", f"user isolator {name!r} deleted by {actor}",
+                    {"action": "delete_isolator", "name": name}, actor=actor)
+    session.commit()
+    return Response(status_code=204)
 
 
 @router.get("/api/isolators/{name}", summary="One isolator", responses=ERROR_RESPONSES)

@@ -22,7 +22,15 @@ from sim.tracking import cycle_windows
 from .. import store
 from ..errors import ApiError, ProtocolError, _jsonable
 from ..safety import make_limits
-from ..schemas import ERROR_RESPONSES, EnvelopeCheckOut, ProtocolProfileIn, SineProfileIn, TestCreate, TestOut
+from ..schemas import (
+    ERROR_RESPONSES,
+    ArchiveIn,
+    EnvelopeCheckOut,
+    ProtocolProfileIn,
+    SineProfileIn,
+    TestCreate,
+    TestOut,
+)
 from ..store import clean_json
 from .deps import OperatorDep, SessionDep, TestId, not_found
 from .isolators import resolve_isolator
@@ -121,14 +129,31 @@ def check_test(body: TestCreate, request: Request, session: SessionDep) -> Envel
     return EnvelopeCheckOut(**out)
 
 
-@router.post("/api/tests", status_code=201, summary="Create a test (operator token); status 'ready'",
-             responses=ERROR_RESPONSES)
-def create_test(body: TestCreate, request: Request, session: SessionDep, actor: OperatorDep) -> TestOut:
+@router.post("/api/tests", status_code=201, summary="Create a test (operator token); status 'ready' (start=true: "
+             "and start it, or leave nothing behind)", responses=ERROR_RESPONSES)
+def create_test(body: TestCreate, request: Request, session: SessionDep, actor: OperatorDep,
+                start: Annotated[bool, Query(description="start it at once; if the start is refused, nothing "
+                                                         "is kept")] = False) -> TestOut:
     fields = build_test(session, body, request)
     test = store.create_test(session, **fields)
     store.add_event(session, test.id, "operator", f"test {test.id} created by {actor}", {"action": "create"},
                     actor=actor)
     session.commit()
+    if start:
+        test_id = test.id
+        try:
+            request.app.state.service.start(test_id, actor)
+        except BaseException:  # refused (another test runs, the rig does not answer ...): leave no orphan behind
+            session.rollback()
+            stale = store.get_test(session, test_id)
+            if stale is not None and stale.status == "ready":
+                store.delete_test(session, stale)
+                store.add_event(session, test_id, "operator", f"test {test_id} not kept: its start was refused",
+                                {"action": "discard"}, actor=actor)
+                session.commit()
+            raise
+        session.expire_all()
+        test = store.get_test(session, test_id)
     return store.test_record(session, test)
 
 
@@ -136,12 +161,13 @@ def create_test(body: TestCreate, request: Request, session: SessionDep, actor: 
             responses=ERROR_RESPONSES)
 def list_tests(session: SessionDep,
                status: Annotated[Status | None, Query(description="only tests with this status")] = None,
+               archived: Annotated[bool, Query(description="the archived tests instead")] = False,
                isolator: Annotated[str | None, Query(max_length=64)] = None,
                since: Annotated[datetime | None, Query(description="created at or after (ISO 8601)")] = None,
                until: Annotated[datetime | None, Query(description="created at or before (ISO 8601)")] = None,
                limit: Annotated[int, Query(ge=1, le=1000)] = 100,
                offset: Annotated[int, Query(ge=0, le=10**9)] = 0) -> list[TestOut]:
-    tests = store.list_tests(session, status, isolator, since, until, limit, offset)
+    tests = store.list_tests(session, status, isolator, since, until, limit, offset, archived)
     return [store.test_record(session, t, with_events=False) for t in tests]
 
 
@@ -196,18 +222,53 @@ def abort_test(test_id: TestId, request: Request, session: SessionDep, actor: Op
     return _record_after(session, test_id, lambda: request.app.state.service.command(test_id, "abort", actor))
 
 
-@router.delete("/api/tests/{test_id}", status_code=204, summary="Delete a test that is not running (operator token)",
+@router.delete("/api/tests/{test_id}", status_code=204, summary="Delete a test that never ran (operator token)",
                responses=ERROR_RESPONSES)
 def delete_test(test_id: TestId, request: Request, session: SessionDep, actor: OperatorDep) -> Response:
+    """Only a test that never ran (status ``ready``) is erased; the record of a test that ran is a lab's
+    record: archive it (``POST /api/tests/{id}/archive``, who and why), never erase it."""
     test = _test_or_404(session, test_id)
     if test.status == "running" or request.app.state.service.running_test_id() == test_id:
         raise ApiError(409, f"test {test_id} is running; stop or abort it before deleting it")
+    if test.status != "ready":
+        raise ApiError(409, f"test {test_id} ran ({test.status}): its record is kept; archive it instead with "
+                            f"POST /api/tests/{test_id}/archive and {{\"by\": <your name>, \"reason\": <why>}}",
+                       "status", test.status, "ready (a test that never ran)")
     store.delete_test(session, test)
     store.add_event(session, test_id, "operator", f"test {test_id} deleted by {actor}", {"action": "delete"},
                     actor=actor)
     session.commit()
     request.app.state.hub.forget(test_id)
     return Response(status_code=204)
+
+
+@router.post("/api/tests/{test_id}/archive", summary="Archive a test that ran: hidden from the list, kept, "
+             "restorable (operator token)", responses=ERROR_RESPONSES)
+def archive_test(test_id: TestId, body: ArchiveIn, request: Request, session: SessionDep,
+                 actor: OperatorDep) -> TestOut:
+    test = _test_or_404(session, test_id)
+    if test.status == "running" or request.app.state.service.running_test_id() == test_id:
+        raise ApiError(409, f"test {test_id} is running; it can be archived once it has ended")
+    if test.archived_at is not None:
+        raise ApiError(409, f"test {test_id} is archived already (by {test.archived_by})")
+    store.archive_test(session, test, body.by, body.reason)
+    store.add_event(session, test_id, "operator", f"test {test_id} archived by {body.by}: {body.reason}",
+                    {"action": "archive", "by": body.by, "reason": body.reason}, actor=actor)
+    session.commit()
+    return store.test_record(session, test)
+
+
+@router.post("/api/tests/{test_id}/restore", summary="Restore an archived test (operator token)",
+             responses=ERROR_RESPONSES)
+def restore_test(test_id: TestId, body: ArchiveIn, session: SessionDep, actor: OperatorDep) -> TestOut:
+    test = _test_or_404(session, test_id)
+    if test.archived_at is None:
+        raise ApiError(409, f"test {test_id} is not archived")
+    store.restore_test(session, test)
+    store.add_event(session, test_id, "operator", f"test {test_id} restored by {body.by}: {body.reason}",
+                    {"action": "restore", "by": body.by, "reason": body.reason}, actor=actor)
+    session.commit()
+    return store.test_record(session, test)
 
 
 @router.get("/api/tests/{test_id}/cycles", summary="Per-cycle loop metrics (arrays=true adds the loops)",

@@ -146,3 +146,50 @@ def test_one_test_at_a_time(client):
     assert client.delete(f"/api/tests/{first}", headers=AUTH).status_code == 409
     assert client.post(f"/api/tests/{first}/abort", headers=AUTH).status_code == 200
     wait_for(client, first)
+
+
+def test_a_test_that_ran_is_archived_never_erased(client):
+    test_id = create_and_start(client)
+    assert wait_for(client, test_id)["status"] == "completed"
+    r = client.delete(f"/api/tests/{test_id}", headers=AUTH)
+    assert r.status_code == 409 and "archive" in r.json()["detail"]
+    assert client.get(f"/api/tests/{test_id}").json()["samples_stored"] == 1500  # nothing erased
+    r = client.post(f"/api/tests/{test_id}/archive", json={"by": "A. Tester", "reason": "x"}, headers=AUTH)
+    assert r.status_code == 422  # a reason of a few words at least
+    r = client.post(f"/api/tests/{test_id}/archive", json={"by": "A. Tester", "reason": "wrong specimen mounted"},
+                    headers=AUTH)
+    assert r.status_code == 200 and r.json()["archived"]["by"] == "A. Tester"
+    assert test_id not in [t["id"] for t in client.get("/api/tests").json()]
+    assert [t["id"] for t in client.get("/api/tests", params={"archived": True}).json()] == [test_id]
+    assert client.get(f"/api/tests/{test_id}/data.csv").status_code == 200  # still readable
+    r = client.post(f"/api/tests/{test_id}/restore", json={"by": "B. Chief", "reason": "archived by mistake"},
+                    headers=AUTH)
+    assert r.status_code == 200 and r.json()["archived"] is None
+    assert test_id in [t["id"] for t in client.get("/api/tests").json()]
+    messages = [e["message"] for e in client.get("/api/events", params={"test_id": test_id}).json()]
+    assert any("archived by A. Tester: wrong specimen mounted" in m for m in messages)
+    assert any("restored by B. Chief" in m for m in messages)
+
+
+def test_a_refused_start_leaves_nothing_behind(client):
+    first = create_and_start(client, speed=2.0)
+    before = {t["id"] for t in client.get("/api/tests").json()}
+    r = client.post("/api/tests", params={"start": True}, json=sine_test(), headers=AUTH)
+    assert r.status_code == 409 and str(first) in r.json()["detail"]
+    assert {t["id"] for t in client.get("/api/tests").json()} == before  # no orphan 'ready' test
+    client.post(f"/api/tests/{first}/abort", headers=AUTH)
+    wait_for(client, first)
+    r = client.post("/api/tests", params={"start": True}, json=sine_test(), headers=AUTH)
+    assert r.status_code == 201 and r.json()["status"] == "running"
+    wait_for(client, r.json()["id"])
+
+
+def test_user_isolators_can_be_deleted_presets_not(client):
+    iso = {"name": "LRB_tmp", "rho_bw_per_m": 150.0, "sigma_bw": 0.5, "n": 1.0, "kd_n_per_m": 7e5, "kw_n": 4e4}
+    assert client.post("/api/isolators", json=iso, headers=AUTH).status_code == 201
+    assert client.delete("/api/isolators/LRB_tmp").status_code == 401  # the operator token
+    assert client.delete("/api/isolators/LRB_tmp", headers=AUTH).status_code == 204
+    assert client.get("/api/isolators/LRB_tmp").status_code == 404
+    assert client.delete("/api/isolators/LRB_tmp", headers=AUTH).status_code == 404
+    r = client.delete("/api/isolators/IUT_a", headers=AUTH)
+    assert r.status_code == 409 and "preset" in r.json()["detail"]
