@@ -7,6 +7,11 @@ few spread starts; the best fit is kept and its RMS residual reported.
 
 ``step_grid`` runs the paper's grid of step tests (20, 30, 40 bar x 2, 4, 6 V) on the fifth-order model,
 eqs. (2)-(4), open loop, and identifies each; ``PAPER_TABLES`` holds Tables III and IV to compare with.
+
+A step test runs under a vertical load N on the specimen, which sets the guide friction mu N + F_c of eq. (1)
+(``vertical_load_n``; default the rig's). The paper does not state the load of its step tests:
+``PAPER_TABLE_VERTICAL_LOAD_N`` holds the load fitted to each table (scripts/calibrate.py,
+docs/identification.md), and ``default_step_vertical_load_n`` picks it for IUT_a and IUT_b.
 """
 
 from __future__ import annotations
@@ -45,6 +50,11 @@ PAPER_TABLES: dict[str, dict[tuple[float, float], tuple[float, float]]] = {
 }
 PAPER_SUPPLY_BAR = (20.0, 30.0, 40.0)
 PAPER_STEP_V = (2.0, 4.0, 6.0)
+# The vertical load N (N) of each table's step tests: not stated in the paper, fitted by scripts/calibrate.py
+# (one load per table, one rig for both isolators, within the jack's 0..850 kN) together with the rig's
+# friction mu N + F_c of eq. (1). Only mu N + F_c enters a step test, so these loads hold with the rig's
+# friction_coefficient and coulomb_force_n of that calibration (docs/identification.md).
+PAPER_TABLE_VERTICAL_LOAD_N: dict[str, float] = {"IUT_a": 0.0, "IUT_b": 8.095e5}
 
 
 @dataclass
@@ -94,10 +104,33 @@ def _open_loop(plant, v_c, n_samples, substeps, h):
     return y
 
 
+def rig_under_load(rig: RigParameters, vertical_load_n: float | None = None) -> RigParameters:
+    """The rig with the vertical load N (N) on the specimen, so that its guide friction mu N + F_c (eq. 1) follows;
+    None keeps the rig's own load. ValueError outside the jack's range [0, rig.max_vertical_load_n]."""
+    if vertical_load_n is None:
+        return rig
+    load_n = float(vertical_load_n)
+    if not 0.0 <= load_n <= rig.max_vertical_load_n:
+        raise ValueError(f"vertical load {load_n:g} N is outside the jack's range [0, {rig.max_vertical_load_n:g}] N")
+    return rig if load_n == rig.vertical_load_n else rig.with_changes(vertical_load_n=load_n)
+
+
+def default_step_vertical_load_n(isolator: Isolator, rig: RigParameters) -> float:
+    """The vertical load (N) a step test of ``isolator`` runs under unless told: the load fitted to its paper
+    table (IUT_a: Table III, IUT_b: Table IV), else the isolator's design load, else the rig's."""
+    if isolator.name in PAPER_TABLE_VERTICAL_LOAD_N:
+        return PAPER_TABLE_VERTICAL_LOAD_N[isolator.name]
+    if isolator.design_vertical_load_n is not None:
+        return isolator.design_vertical_load_n
+    return rig.vertical_load_n
+
+
 def simulate_step(rig: RigParameters, isolator: Isolator, supply_bar: float, step_v: float,
-                  duration_s: float = STEP_DURATION_S, sample_hz: float = SAMPLE_HZ) -> StepRecord:
-    """Open-loop step test of the fifth-order model, eqs. (2)-(4): u = step_v from t = 0, sampled at sample_hz."""
-    plant = pack_plant(rig, isolator, supply_bar * BAR_PA)
+                  duration_s: float = STEP_DURATION_S, sample_hz: float = SAMPLE_HZ,
+                  vertical_load_n: float | None = None) -> StepRecord:
+    """Open-loop step test of the fifth-order model, eqs. (2)-(4): u = step_v from t = 0, sampled at sample_hz,
+    under the vertical load ``vertical_load_n`` (N; friction mu N + F_c of eq. 1; None: the rig's)."""
+    plant = pack_plant(rig_under_load(rig, vertical_load_n), isolator, supply_bar * BAR_PA)
     substeps = max(1, int(round(1.0 / (sample_hz * PLANT_STEP_S))))
     h = 1.0 / (sample_hz * substeps)
     n = int(round(duration_s * sample_hz)) + 1
@@ -187,16 +220,20 @@ def read_step_csv(path) -> StepRecord:
 # ---------------------------------------------------------------------------------------------------
 
 def identify_step(rig: RigParameters, isolator: Isolator, supply_bar: float, step_v: float,
-                  duration_s: float = STEP_DURATION_S, refined_starts: int = REFINED_STARTS) -> dict:
-    """Simulate one step test on the fifth-order model and fit eq. (7); one table row.
+                  duration_s: float = STEP_DURATION_S, refined_starts: int = REFINED_STARTS,
+                  vertical_load_n: float | None = None) -> dict:
+    """Simulate one step test on the fifth-order model (eqs. 2-4) and fit eq. (7); one table row.
 
-    ``tail_drift_m`` is how far the table still moves over the last 30 % of the record (a settled test: ~0).
+    ``vertical_load_n`` (N) sets the friction mu N + F_c of eq. (1) (None: the rig's); the row carries the load
+    used. ``tail_drift_m`` is how far the table still moves over the last 30 % of the record (settled: ~0).
     """
-    rec = simulate_step(rig, isolator, supply_bar, step_v, duration_s)
+    loaded = rig_under_load(rig, vertical_load_n)
+    rec = simulate_step(loaded, isolator, supply_bar, step_v, duration_s)
     fit = fit_first_order(rec.time_s, rec.voltage_v, rec.displacement_m, refined_starts=refined_starts)
     y = rec.displacement_m
-    return {"supply_bar": float(supply_bar), "step_v": float(step_v), "a_p_per_s": fit.a_p_per_s,
-            "a_s_m": fit.a_s_m, "residual_m": fit.residual_m, "final_displacement_m": fit.final_displacement_m,
+    return {"supply_bar": float(supply_bar), "step_v": float(step_v), "vertical_load_n": loaded.vertical_load_n,
+            "a_p_per_s": fit.a_p_per_s, "a_s_m": fit.a_s_m, "residual_m": fit.residual_m,
+            "final_displacement_m": fit.final_displacement_m,
             "tail_drift_m": float(abs(y[-1] - y[int(0.7 * (y.size - 1))])), "fit_time_s": fit.time_s}
 
 
@@ -205,9 +242,13 @@ def _identify_args(args):
 
 
 def step_grid(rig: RigParameters, isolator: Isolator, supply_bar=PAPER_SUPPLY_BAR, step_v=PAPER_STEP_V,
-              duration_s: float = STEP_DURATION_S, pool=None, refined_starts: int = REFINED_STARTS) -> list[dict]:
-    """Identify eq. (7) on every (supply, step) pair; ``pool`` (an Executor) spreads the work over cores."""
-    jobs = [(rig, isolator, float(p), float(v), duration_s, refined_starts) for p in supply_bar for v in step_v]
+              duration_s: float = STEP_DURATION_S, pool=None, refined_starts: int = REFINED_STARTS,
+              vertical_load_n: float | None = None) -> list[dict]:
+    """Identify eq. (7) on every (supply, step) pair under one vertical load (N; None: the rig's);
+    ``pool`` (an Executor) spreads the work over cores."""
+    rig_under_load(rig, vertical_load_n)  # refuse a load outside the jack's range before any work
+    jobs = [(rig, isolator, float(p), float(v), duration_s, refined_starts, vertical_load_n)
+            for p in supply_bar for v in step_v]
     if pool is None:
         return [identify_step(*j) for j in jobs]
     return list(pool.map(_identify_args, jobs))

@@ -9,14 +9,21 @@ Whatever the rig is - its piston area, friction, valve, leakage - the force on t
 only on the supply pressure and the command, not on the isolator. ``common_rest_force_bound`` finds, for each
 (P_s, u) cell of two tables, the smallest relative a_s error that lets ONE force put both isolators at their
 tabulated a_s: no rig under the paper's model can do better on that cell.
+
+That holds while both isolators are tested under the same friction. The guide friction mu N + F_c follows the
+vertical load N on the specimen (eq. 1), which the paper does not state for its step tests: with one load per
+table the rest force is A_p P_s - (mu N_iso + F_c) and differs between the isolators. ``rest_a_s_errors`` gives
+the a_s errors of such a static balance, ``best_rest_balance`` the best (A_p, friction per isolator or shared).
 """
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.optimize import minimize
 
 from .isolator import Isolator, simulate_loop
 from .models import K_VOLT
+from .rig import BAR_PA
 
 BRANCH_MAX_DISPLACEMENT_M = 0.2  # far beyond the tables' largest a_s (0.043 m)
 BRANCH_POINTS = 20001
@@ -83,3 +90,52 @@ def common_rest_force_bound(tables: dict[str, dict[tuple[float, float], float]],
             lo, hi = (lo, mid) if intervals_meet(cell, mid) else (mid, hi)
         bound[cell] = hi
     return bound
+
+
+def rest_a_s_errors(tables: dict[str, dict[tuple[float, float], float]], branches: dict[str, Branch],
+                    piston_area_m2: float, friction_n: dict[str, float]) -> dict[tuple[str, float, float], float]:
+    """Relative a_s error per (isolator, supply_bar, step_v) of a rig resting where A_p P_s - friction_n[name]
+    = F_BW(y) (eq. 3, first line, y' = 0), each isolator under its own friction mu N + F_c (eq. 1), i.e. its own
+    vertical load. ValueError if the rest force leaves an isolator's loading branch (e.g. friction > A_p P_s)."""
+    errors = {}
+    for name, table in tables.items():
+        for (bar, volt), a_s_m in table.items():
+            push_n = piston_area_m2 * bar * BAR_PA - friction_n[name]
+            errors[(name, bar, volt)] = rest_a_s_m(branches[name], push_n, volt) / a_s_m - 1.0
+    return errors
+
+
+def best_rest_balance(tables: dict[str, dict[tuple[float, float], float]], branches: dict[str, Branch],
+                      per_isolator_friction: bool, friction_range_n: tuple[float, float] = (0.0, np.inf),
+                      start_area_m2: float = 0.012,
+                      start_friction_n: float = 5000.0) -> tuple[float, float, dict[str, float]]:
+    """The piston area A_p (m2) and friction (N; one per isolator, or one shared) whose static balance
+    (``rest_a_s_errors``) has the smallest worst |a_s error|: (worst error, A_p, friction per isolator).
+    ``friction_range_n`` bounds each friction, e.g. (F_c, F_c + mu N_max) for loads within the jack's range.
+    Nelder-Mead in log space from a few starts around the given one (the worst error is not smooth)."""
+    names = list(tables)
+    lo_n, hi_n = friction_range_n
+
+    def unpack(theta):
+        friction = np.exp(theta[1:]) if per_isolator_friction else np.full(len(names), np.exp(theta[1]))
+        friction = np.clip(friction, lo_n, hi_n)
+        return float(np.exp(theta[0])), dict(zip(names, map(float, friction), strict=True))
+
+    def worst(theta) -> float:
+        try:
+            return max(abs(e) for e in rest_a_s_errors(tables, branches, *unpack(theta)).values())
+        except ValueError:  # the rest force leaves a branch: far from any useful balance
+            return 10.0
+
+    x0 = np.log([start_area_m2] + [start_friction_n] * (len(names) if per_isolator_friction else 1))
+    best = None
+    for shift in (0.0, 0.3, -0.3):
+        for spread in (0.0, 1.0, -1.0) if per_isolator_friction else (0.0,):
+            start = x0 + shift
+            start[1:] += np.linspace(-spread, spread, start.size - 1)  # frictions apart as well as together
+            sol = minimize(worst, start, method="Nelder-Mead",
+                           options={"xatol": 1e-5, "fatol": 1e-7, "maxfev": 3000})
+            if best is None or sol.fun < best.fun:
+                best = sol
+    area, friction = unpack(best.x)
+    return float(best.fun), area, friction
