@@ -213,7 +213,7 @@ def test_report_of_a_test_that_never_ran():
 
 def test_a_crowded_header_continues_on_a_second_page():
     """Ten levels, six failing rules and a long controller parameter list do not run into the footer."""
-    import backend.reports as reports
+    from backend.reports import data, header, plot_style
 
     proto = load_protocol("en15129_type_test").to_dict()
     proto["levels"] = [{"fraction": 0.1 * (i + 1), "cycles": 3} for i in range(10)]
@@ -222,14 +222,14 @@ def test_a_crowded_header_continues_on_a_second_page():
     crowded = {"id": 9, "status": "aborted", "isolator": "IUT_b", "controller": "servo", "supply_bar": 70,
                "profile": {"kind": "protocol", "protocol": proto}}
     plain = {"id": 10, "status": "aborted", "isolator": "IUT_b", "controller": "pid", "supply_bar": 70}
-    plt = reports.plot_style()
+    plt = plot_style()
     counts = []
     for record in (crowded, plain):
         bundle = ReportBundle(record, Samples.empty(), [], [])
         rep = report_json(bundle, identify=False)
-        figs = reports._page_header(plt, bundle, rep["controller"], reports._isolator_of(record),
-                                    reports._protocol_of(record)[0], rep["acceptance"], rep["identification"],
-                                    rep["tracking"], 1)
+        figs = header.page_header(plt, bundle, rep["controller"], data.isolator_of(record),
+                                  data.protocol_of(record)[0], rep["acceptance"], rep["identification"],
+                                  rep["tracking"], 1)
         counts.append(len(figs))
         for fig in figs:  # every text stays above the footer line
             assert min(t.get_position()[1] for t in fig.texts if t.get_text()) >= 0.015
@@ -271,13 +271,13 @@ def test_a_deferred_identification_still_heads_the_report(tmp_path):
 
 @pytest.mark.skipif(PDFTOTEXT is None, reason="pdftotext (poppler-utils) is not installed")
 def test_table_lines_sit_where_text_objects_put_them(tmp_path):
-    """The table's lines go straight to the renderer; they must land exactly where one Text per line did."""
-    import backend.reports as reports
+    """The table's lines (layout.draw_lines) must land exactly where one Text per line at its baseline puts them."""
+    from backend.reports import layout, plot_style
 
-    plt = reports.plot_style()
+    plt = plot_style()
     lines = ["cycle  t_start", ("    1     0.00", "#c62828"), "", "    3     2.00"]
-    for name, draw in (("artist", reports._draw_lines), ("text", None)):
-        fig = plt.figure(figsize=reports.A4_PORTRAIT_IN)
+    for name, draw in (("artist", layout.draw_lines), ("text", None)):
+        fig = plt.figure(figsize=layout.A4_PORTRAIT_IN)
         if draw:
             draw(fig, lines, 0.05, 0.885, 8.5, 11.0)
         else:
@@ -331,7 +331,7 @@ def some_final(bundle) -> dict:
 def test_final_estimates_of_a_small_csv(tmp_path, monkeypatch, last_rows, final, from_tail, tail_bytes):
     import functools
 
-    import backend.reports as reports
+    from backend.reports import data as reports
 
     rows = "".join(f"{0.01 * i:.2f},{1e-3 * i:g},{10.0 * i:g},{1 + i % 3:g},0.5,{'' if i == 0 else 2}\n"
                    for i in range(60))
@@ -542,3 +542,78 @@ def test_no_pipes_or_no_shared_memory_room_means_one_process(tmp_path, capsys, m
     captured = capsys.readouterr()
     assert "in 1 process" in captured.out and "Traceback" not in captured.err
     assert (tmp_path / "r.pdf").read_bytes()[:5] == b"%PDF-"
+
+
+# --- the modules of backend/reports/ ---------------------------------------------------------------------
+
+def test_the_reports_package_imports_without_matplotlib():
+    """The loader and identifier processes of `isorig report` import backend.reports: no matplotlib until a PDF."""
+    import sys
+
+    code = "import sys, backend.reports; assert 'matplotlib' not in sys.modules, 'matplotlib imported'"
+    subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, timeout=60)
+
+
+@pytest.mark.skipif(PDFTOTEXT is None, reason="pdftotext (poppler-utils) is not installed")
+def test_fixed_pitch_lines_whatever_their_glyphs(tmp_path):
+    """layout.draw_lines keeps every baseline on the pitch, whatever the glyphs' heights (a multi-line Text would
+    not: it centres each line on its own glyphs)."""
+    import re
+
+    from backend.reports import layout, plot_style
+
+    plt = plot_style()
+    fig = plt.figure(figsize=layout.A4_PORTRAIT_IN)
+    lines = ["1111", "____", ("((((", "#c62828"), "", "pppp", "-", "|||| ~~~~"]
+    layout.draw_lines(fig, lines, 0.05, 0.885, 8.5, 11.0)
+    fig.savefig(tmp_path / "lines.pdf")
+    plt.close(fig)
+    boxes = pdf_text(tmp_path / "lines.pdf", "-bbox")[0]
+    y_min = {word: float(y) for y, word in re.findall(r'yMin="([\d.]+)"[^>]*>([^<]+)</word>', boxes)}
+    top = y_min["1111"] - 11.0  # pdftotext measures down from the top of the page, in points
+    for k, item in enumerate(lines, start=1):
+        text = item[0] if isinstance(item, tuple) else item
+        for word in text.split():
+            assert y_min[word] == pytest.approx(top + 11.0 * k, abs=1e-3), (word, k)
+
+
+def test_pages_moved_first_reorders_the_page_tree(tmp_path):
+    """document._pages_moved_first permutes the page tree in place (same length: the byte offsets hold)."""
+    from matplotlib.backends.backend_pdf import PdfPages
+
+    from backend.reports import document, plot_style
+
+    plt = plot_style()
+    pdf = tmp_path / "three.pdf"
+    with PdfPages(pdf) as pages:
+        for word in ("one", "two", "three"):
+            fig = plt.figure(figsize=(3, 3))
+            fig.text(0.5, 0.5, word)
+            pages.savefig(fig)
+            plt.close(fig)
+    data = pdf.read_bytes()
+    moved = document._pages_moved_first(data, 1)
+    assert len(moved) == len(data) and moved != data
+    assert document._pages_moved_first(data, 0) == data
+    assert document._pages_moved_first(data, 4) is None  # more pages than there are
+    assert document._pages_moved_first(b"%PDF-1.4 not matplotlib's page tree", 1) is None
+    (tmp_path / "moved.pdf").write_bytes(moved)
+    if PDFTOTEXT is not None:  # the viewer's order: the last page first
+        assert [p.strip() for p in pdf_text(tmp_path / "moved.pdf")][:3] == ["three", "one", "two"]
+
+
+@pytest.mark.skipif(PDFTOTEXT is None, reason="pdftotext (poppler-utils) is not installed")
+def test_an_unknown_page_tree_means_drawing_again_in_order(tmp_path, monkeypatch):
+    """Where the page tree cannot be reordered, the report is drawn again in order once the fit is there."""
+    from backend.reports import document
+
+    bundle = protocol_run()
+    rep = report_json(bundle, identify=False)
+    fit = {**rep["identification"], "available": True, "source": "a fit made elsewhere",
+           "identified": {"rho_bw_per_m": 150.0, "sigma_bw": 0.5, "n": 1.0, "kd_n_per_m": 1.3e6, "kw_n": 1.7e4}}
+    render_report_pdf(bundle, tmp_path / "now.pdf", report={**rep, "identification": fit})
+    monkeypatch.setattr(document, "_pages_moved_first", lambda _pdf, _n: None)
+    asked = []
+    render_report_pdf(bundle, tmp_path / "later.pdf", report=rep, identification=lambda: asked.append(1) or fit)
+    assert asked == [1]
+    assert pdf_text(tmp_path / "later.pdf") == pdf_text(tmp_path / "now.pdf")
