@@ -63,6 +63,11 @@ def main() -> int:
              "Made by `.venv/bin/python scripts/paper_scenarios.py` (MRAC with the paper's section V settings:",
              "a_m = b_m = 50 1/s, gamma = 1e5, gamma_as = 2, a_s_hat(0) = 0.04 m, eq. (18) literal; 30 s, no taper).",
              "Criterion: all samples finite, RMS of y - y_m per cycle falls, last two cycles under half of cycle 2's.",
+             "",
+             "The rig is `sim.rig.DEFAULT_RIG`, calibrated to the paper's Tables III and IV with one vertical load",
+             "per table (docs/identification.md: IUT_a 0 N, IUT_b 809.5 kN for the step tests, which the paper does",
+             "not state). These scenarios run under the vertical load the paper states for its simulations, section V:",
+             "N = 1.25e5 N (friction mu N + F_c = 3375 N on the calibrated rig).",
              ""]
     ok = True
     for res in results:
