@@ -91,7 +91,8 @@ def _stream(folder: Path, duration_s: float, clients: int) -> dict:
                      "periods_missed": counters["periods_missed"],
                      "missed_share": counters["periods_missed"] / max(periods, 1),
                      "commands_late": counters["commands_late"], "rejected": status["rejected"],
-                     "tick_lateness": status["tick_lateness"]}
+                     "tick_lateness": status["tick_lateness"], "watchdog_trips": status["watchdog_trips"],
+                     "overruns": counters.get("overruns", 0)}
     return result
 
 
@@ -199,7 +200,16 @@ def _print(results: dict) -> None:
         rig = s["rig"]
         lat = rig["command_latency"]
         print(f"[stream] test {s['test_id']} {s['status']}, {s['test_time_s']:.1f} s at 1 kHz, {s['clients']} "
-              "websocket clients watching")
+              "websocket clients watching" + (f"; reason: {s['reason']}" if s.get("reason") else ""))
+        for message in s.get("events", []):
+            print(f"  event: {message}")
+        tick = s["rig"]["tick_lateness"]
+        print(f"  the rig's own ticks: lateness p99 {tick.get('p99_ms', float('nan')):.2f} ms, max "
+              f"{tick.get('max_ms', float('nan')):.2f} ms; overruns {s['rig'].get('overruns', 0)}")
+        trips = s["rig"].get("watchdog_trips") or []
+        for trip in trips:
+            print(f"  the rig's watchdog tripped at t = {trip['test_time_s']:.3f} s, "
+                  f"{trip['after_last_command_ms']:.1f} ms after the last command")
         print(f"  lateness of the control period at the rig (measurement sent -> command arrived): p50 "
               f"{lat['p50_ms']:.2f} ms, p99 {lat['p99_ms']:.2f} ms, max {lat['max_ms']:.2f} ms over {lat['n']} "
               "periods  [target p99 < 1 ms]")

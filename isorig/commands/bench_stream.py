@@ -168,7 +168,10 @@ async def _paced_run(svc: Service, http, duration_s: float, clients: int) -> dic
                 latencies.append((recv_time - (wall_t0 + t + 1e-3)) * 1e3)
             count += len(times)
         per_client_samples.append(count)
-    return {"test_id": test_id, "status": record["status"], "test_time_s": record["time_s"],
+    return {"test_id": test_id, "status": record["status"], "reason": record.get("reason"),
+            "events": [e["message"] for e in (record.get("events") or []) if e.get("kind") in ("rig_fault",
+                                                                                              "limit_trip")],
+            "test_time_s": record["time_s"],
             "samples_stored": record["samples_stored"], "clients": clients,
             "samples_per_client": per_client_samples, "pacing": record["summary"].get("pacing", {}),
             "latency": _percentiles(latencies), "server_cpu": server_cpu,

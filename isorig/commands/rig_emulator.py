@@ -18,8 +18,8 @@ def register(sub) -> None:
     p.add_argument("--isolator", default="IUT_a",
                    help=f"the specimen mounted: a preset ({', '.join(PRESETS)}) or an isolator .json file")
     p.add_argument("--period-s", type=float, default=1e-3, help="control period in s (default 0.001)")
-    p.add_argument("--watchdog-ms", type=float, default=10.0,
-                   help="no valid command for this long and the rig closes its valve (default 10 ms)")
+    p.add_argument("--watchdog-ms", type=float, default=18.0,
+                   help="no valid command for this long and the rig closes its valve (default 18 ms)")
     p.add_argument("--seed", type=int, default=0, help="seed of the injected faults' randomness and sensor noise")
     p.add_argument("--status-file", help="JSON file with the rig's counters and timings, rewritten twice a second")
     g = p.add_argument_group("fault injection (times count from the ARM of the test)")

@@ -269,7 +269,7 @@ def test_bad_commands_never_reach_the_emulators_valve(tmp_path):
                              proto.encode(proto.COMMAND, session, seq, 0, math.nan),
                              good, good,  # the valid one, then the same packet again
                              proto.encode(proto.COMMAND, session, seq, 0, 9.0),  # stale: that period is answered
-                             proto.encode(proto.DISARM, session, 0, 0)):  # at once: the rig's watchdog is 10 ms
+                             proto.encode(proto.DISARM, session, 0, 0)):  # at once: the rig's watchdog is 18 ms
                 sock.send(datagram)
         status = emulator.fresh_status()
     finally:
