@@ -95,7 +95,8 @@ def scenario_from_job(job: dict) -> Scenario:
     spec = job["scenario"]
     return Scenario(isolator_from_dict(spec["isolator"]), spec["supply_pa"], blocks_from_dicts(spec["profile"]),
                     spec["controller"],
-                    dict(spec.get("controller_options") or {}), vertical_load_n=spec.get("vertical_load_n"))
+                    dict(spec.get("controller_options") or {}), vertical_load_n=spec.get("vertical_load_n"),
+                    history=spec.get("history_target"))
 
 
 def make_driver(rig: str, scenario: Scenario, link: dict | None = None) -> RigDriver:
@@ -109,6 +110,19 @@ def make_driver(rig: str, scenario: Scenario, link: dict | None = None) -> RigDr
     from .drivers.udp import UdpRig
 
     return UdpRig.from_url(rig, **(link or {}))
+
+
+def hybrid_from_job(job: dict, scenario: Scenario):
+    """The numerical substructure of a hybrid test (job["hybrid"]: the building as a dict and the ground
+    acceleration at every control period), or None."""
+    spec = job.get("hybrid")
+    if not spec:
+        return None
+    from sim.hybrid import HybridSubstructure
+    from sim.structure import ShearBuilding
+
+    return HybridSubstructure(ShearBuilding.from_dict(spec["building"]), scenario.isolator,
+                              spec["ground_acc_m_per_s2"])
 
 
 class Pacer:
@@ -160,15 +174,19 @@ class Run:
                              f"isorig's loop runs at {CONTROL_PERIOD_S:g} s")
         if self.speed != 1.0 and self.rig.realtime:
             raise ValueError(f"the rig {self.rig.name!r} runs in real time only (speed = {self.speed:g})")
-        controller = make_controller(self.scenario.controller, **self.scenario.controller_options)
-        self.loop = ClosedLoop(self.scenario.profile, controller,
-                               min(self.scenario.rig.command_limit_v, self.rig.command_limit_v))
+        scenario = self.scenario
+        options = scenario.effective_controller_options()
+        controller = make_controller(scenario.controller, rig=scenario.rig, **options)
+        limit = min(scenario.rig.command_limit_v, self.rig.command_limit_v)
+        self.hybrid = hybrid_from_job(job, scenario)
+        table = self.hybrid.target_table() if self.hybrid is not None else scenario.target_table()
+        self.loop = ClosedLoop(scenario.profile, controller, limit, table=table)
         if self.rig.realtime:  # load the compiled period before the rig is armed: its watchdog will not wait
-            ClosedLoop(self.scenario.profile, make_controller(self.scenario.controller,
-                                                              **self.scenario.controller_options),
-                       self.loop.command_limit_v).step(Measurement(0, 0.0, 0.0, 0.0, 0.0, self.scenario.supply_pa))
+            ClosedLoop(scenario.profile, make_controller(scenario.controller, rig=scenario.rig, **options), limit,
+                       table=scenario.target_table()).step(Measurement(0, 0.0, 0.0, 0.0, 0.0, scenario.supply_pa))
         self.monitor = SafetyMonitor(SafetyLimits(**job["limits"]), self.scenario.supply_pa)
-        self.compiled = getattr(self.driver, "run_compiled", None)
+        # a hybrid test computes each target from the last measurement: one period at a time on every rig
+        self.compiled = getattr(self.driver, "run_compiled", None) if self.hybrid is None else None
         self.windows = cycle_windows(self.scenario)
         self.next_window = 0
         self.cycles_in_block: dict[int, int] = {}
@@ -300,7 +318,10 @@ class Run:
             while loop.period < end:
                 if self.answered:
                     driver.wait_next_period()
-                u, rows = loop.step(driver.read())
+                m = driver.read()
+                if self.hybrid is not None:
+                    self.hybrid.on_measurement(m, loop)
+                u, rows = loop.step(m)
                 self.produced.append(rows)
                 driver.write(u)
                 self.answered = True
@@ -322,6 +343,10 @@ class Run:
             done += len(block)
             if self.trip is None:
                 trip = self.monitor.check(block)
+                if trip is None and self.hybrid is not None and self.hybrid.tripped:
+                    trip = Trip("rths_stability", len(block) - 1, loop.time_s,
+                                f"hybrid simulation unstable at t = {loop.time_s:.3f} s: {self.hybrid.monitor.reason}",
+                                {"time_s": loop.time_s, **self.hybrid.monitor.to_dict()})
                 fault = self.driver.fault()
                 if trip is None and fault is not None:
                     trip = Trip("rig_fault", len(block) - 1, loop.time_s, f"{fault} at t = {loop.time_s:.3f} s",

@@ -48,6 +48,8 @@ class Scenario:
     plant_changes: dict = field(default_factory=dict)
     #: ... and in the middle of the test: (time_s, name, value), e.g. an isolator that softens as it heats
     timed_changes: list = field(default_factory=list)
+    #: a displacement time history (sim.history.HistoryTarget) instead of the sine ``profile``
+    history: object | None = None
 
     @classmethod
     def sine(cls, isolator: str | Isolator, supply_bar: float, amplitude_m: float, frequency_hz: float,
@@ -77,11 +79,31 @@ class Scenario:
 
     @property
     def duration_s(self) -> float:
+        if self.history is not None:
+            return self.history.n_samples * CONTROL_PERIOD_S
         return profile_duration_s(self.profile)
 
     @property
     def n_periods(self) -> int:
+        if self.history is not None:
+            return self.history.n_samples
         return int(round(self.duration_s / CONTROL_PERIOD_S))
+
+    def effective_controller_options(self) -> dict:
+        """The options the controller runs with: for a time history (no repeating cycle to learn) the servo's
+        tracking mode, sim.controllers.servo.HISTORY_MODE, under what the test asks."""
+        if self.history is not None and self.controller == "servo":
+            from .controllers.servo import HISTORY_MODE
+
+            return {**HISTORY_MODE, **self.controller_options}
+        return dict(self.controller_options)
+
+    def target_table(self):
+        """The table of (r, r', r'') per period for a time history (a copy: a stop fades it), else None."""
+        if self.history is None:
+            return None
+        h = self.history
+        return np.column_stack([h.r_m, h.r_dot_m_per_s, h.r_ddot_m_per_s2])
 
     def validate(self) -> None:
         """The vertical load, the plant's changes, the envelope (on the rig the controller assumes, under the
@@ -89,6 +111,15 @@ class Scenario:
         check_vertical_load(self.effective_vertical_load_n, self.rig)  # against the jack, with its own field
         self.check_plant()
         rig = self.rig.with_changes(vertical_load_n=self.effective_vertical_load_n)
+        if self.history is not None:
+            from .history import history_envelope_problem
+            from .profiles import check_supply
+
+            check_supply(self.supply_pa, rig)
+            problem = history_envelope_problem(self.history, rig, self.isolator, self.supply_pa)
+            if problem is not None:
+                raise problem
+            return
         validate_profile(self.profile, rig, self.isolator, self.supply_pa)
 
     def check_plant(self) -> None:
@@ -116,8 +147,10 @@ class Scenario:
             "supply_bar": self.supply_pa / BAR_PA,
             "vertical_load_n": self.effective_vertical_load_n,
             "profile": [b.to_dict() for b in self.profile],
+            "history": self.history.to_dict() if self.history is not None else None,
             "controller": self.controller,
             "controller_options": self.controller_options,
+            "controller_options_in_force": self.effective_controller_options(),
             "rig_changes": {f.name: getattr(self.rig, f.name) for f in dataclasses.fields(self.rig)
                             if getattr(self.rig, f.name) != getattr(DEFAULT_RIG, f.name)},
             "plant_changes": dict(self.plant_changes),
@@ -136,8 +169,10 @@ class Simulation:
         if validate:
             scenario.validate()
         self.scenario = scenario
-        controller = controller or make_controller(scenario.controller, rig=scenario.rig, **scenario.controller_options)
-        self.loop = ClosedLoop(scenario.profile, controller, scenario.rig.command_limit_v)
+        controller = controller or make_controller(scenario.controller, rig=scenario.rig,
+                                                   **scenario.effective_controller_options())
+        self.loop = ClosedLoop(scenario.profile, controller, scenario.rig.command_limit_v,
+                               table=scenario.target_table())
         self.plant = SimulatedPlant(scenario.plant_rig, scenario.plant_isolator, scenario.supply_pa,
                                     scenario.noise_seed, substeps=plant_substeps)
         self.pending_changes = sorted(scenario.timed_changes)
@@ -213,6 +248,13 @@ class Result:
 
         out = {"scenario": self.scenario.describe(), "diverged": self.diverged,
                **tracking_summary(self.samples, self.scenario)}
+        if self.scenario.history is not None:
+            from .hybrid_metrics import tracking_criteria
+
+            s = self.samples
+            if len(s) > 10:
+                out["criteria"] = tracking_criteria(s["target_m"], s["displacement_m"], CONTROL_PERIOD_S)
+            return out
         loops = {c["cycle"]: c for c in scenario_cycle_metrics(self.samples, self.scenario)} \
             if len(self.samples) else {}
         for c in out["cycles"]:

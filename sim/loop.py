@@ -174,7 +174,7 @@ def fade_table(table: np.ndarray, k0: int, n: int, period_s: float = CONTROL_PER
     k1 = min(table.shape[0], k0 + n)
     if k0 >= table.shape[0]:
         return
-    x = (np.arange(k0, k1) - k0) / n
+    x = (np.arange(k0, k1) - k0 + 1) / n  # the fade's last row is exactly 0
     rate = 1.0 / (n * period_s)
     w = 0.5 * (1.0 + np.cos(np.pi * x))
     dw = -0.5 * np.pi * np.sin(np.pi * x) * rate

@@ -96,6 +96,8 @@ def tracking_summary(samples, scenario) -> dict:
         "rms_y_minus_r_m": _rms(y - r),
         "cycles": per_cycle,
     }
+    if not scenario.profile:  # a time history: no cycles (its figures: sim.hybrid_metrics)
+        return summary
     # last two cycles at full amplitude (outside the taper) of the last block
     block = scenario.profile[-1]
     last_block = [w for w in windows if w[0] == len(scenario.profile) - 1]

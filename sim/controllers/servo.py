@@ -62,7 +62,8 @@ MAX_HARMONICS = 24
 (P_AREA, P_KQ, P_DZ, P_ULIM, P_KP, P_TAU_V, P_TAU_L, P_GAMMA, P_NH, P_FMAX, P_DZ_RAMP, P_DP_MIN,
  P_TW, P_AFLOOR, P_C1MAX, P_CKMAX, P_C0MAX, P_DZ_FRAC, P_GW, P_GMIN, P_GMAX, P_GVMIN, P_STEADY,
  P_PL_SHARE, P_DZ_ADAPT, P_DZ_LO, P_DZ_HI) = range(27)
-N_PARAMS = 27
+P_JERK_LEAD, P_INTEGRAL = 27, 28
+N_PARAMS = 29
 DELAY_LINE = 32  # samples of the regressor history kept for the valve estimate
 
 # State indices; the delay line and the harmonic coefficients (real, imaginary) follow.
@@ -118,8 +119,16 @@ OPTIONS = {
     "dead_zone_adaptive": Option(1.0, 0.0, 1.0, "-", meaning="1: the dead zone is estimated with the flow gain"),
     "dead_zone_min_share": Option(0.5, 0.0, 1.0, "-", meaning="lower projection of the dead zone, share of nominal"),
     "dead_zone_max_share": Option(1.5, 1.0, 5.0, "-", meaning="upper projection of the dead zone, share of nominal"),
+    # arbitrary (non-periodic) commands: the second-order lag of the valve and the oil column, fed forward
+    "jerk_lead_s2": Option(0.0, 0.0, 1e-3, "s2", meaning="feed-forward of the target jerk (0: off, as on "
+                           "sines, where the learning does it; time histories turn it on)"),
+    "integral_per_s": Option(0.0, 0.0, 100.0, "1/s", meaning="integral action on the position error (0: off, as "
+                             "on sines, where the learned constant does it; time histories turn it on)"),
 }
 DEFAULTS = {name: spec.default for name, spec in OPTIONS.items()}
+#: what a time history (no repeating cycle to learn) runs with: no harmonic learning; an integral on the position
+#: error takes over the learned constant (the valve's null offset, the friction's asymmetry)
+HISTORY_MODE = {"learning_gain": 0.0, "integral_per_s": 1.0}
 ADAPTED = (
     Adapted("model_m", "target r", "m", "the reference is the target itself: the feed-forward removes its lag"),
     Adapted("ar_hat", "flow gain ratio g", "-", "the valve's true flow gain over the nominal one (estimated)"),
@@ -163,6 +172,8 @@ def make_servo(rig=None, **options) -> Controller:
     params[P_DZ_ADAPT] = o["dead_zone_adaptive"]
     params[P_DZ_LO] = o["dead_zone_min_share"] * o["dead_zone_v"]
     params[P_DZ_HI] = o["dead_zone_max_share"] * o["dead_zone_v"]
+    params[P_JERK_LEAD] = o["jerk_lead_s2"]
+    params[P_INTEGRAL] = o["integral_per_s"]
     state = np.zeros(N_STATE)
     state[S_GAIN] = 1.0
     state[S_DZ_HAT] = o["dead_zone_v"]
@@ -302,10 +313,16 @@ def servo_step(p, s, meas, dt, report):
                 if szz > 0.0:
                     s[S_GAIN] = min(max((sxy - dz * swy) / szz, p[P_GMIN]), p[P_GMAX])
     gain = s[S_GAIN]
-    # velocity demand: feed-forward with lead, position feedback, learned periodic feed-forward
+    # velocity demand: feed-forward with lead (and, for arbitrary commands, the jerk through the second-order
+    # lag of the valve and the oil column), position feedback, learned periodic feed-forward
     e = r - y
     kp = p[P_KP]
     v = rd + p[P_TAU_V] * rdd + kp * e + s[S_C0]
+    if p[P_JERK_LEAD] > 0.0:
+        v += p[P_JERK_LEAD] * rddd
+    if p[P_INTEGRAL] > 0.0 and not s[S_SAT] > 0.5:  # the constant velocity a null offset asks, integrated
+        c0max = p[P_C0MAX]
+        s[S_C0] = min(max(s[S_C0] + p[P_INTEGRAL] * kp * e * dt, -c0max), c0max)
     theta = 0.0
     if omega > 0.0 and nh >= 1:
         theta = np.arctan2(-rdd / omega, rd_mid) + 0.5 * omega * dt

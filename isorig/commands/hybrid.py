@@ -1,0 +1,145 @@
+"""`isorig hybrid`: real-time hybrid simulation of a base-isolated building (docs/earthquake.md).
+
+The building above the isolator is integrated in the computer, one control period at a time; the isolator
+is the specimen on the rig. On the simulated rig (default) this is a virtual RTHS, run as fast as it goes;
+the full-numerical reference (the same building with the isolator's Bouc-Wen model) is computed offline
+and compared: J4 and J5. Writes timeseries.csv (the record's columns and the building's channels) and
+summary.json (J1-J5, the stability monitor, the reference's peaks).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+from isorig.cli import UsageError
+
+
+def register(sub) -> None:
+    from sim.controllers import CONTROLLER_NAMES, DEFAULT_CONTROLLER
+    from sim.isolator import PRESETS
+
+    p = sub.add_parser("hybrid", help="real-time hybrid simulation: a building in the computer on the isolator "
+                                      "on the rig, under a ground motion")
+    p.add_argument("--structure", required=True, metavar="FILE",
+                   help="the building above the isolator: JSON with base_mass_kg, masses_kg, stiffness_n_per_m, "
+                        "damping_ratio")
+    p.add_argument("--ground-motion", required=True, metavar="FILE|NAME",
+                   help="ground acceleration: CSV time_s, acceleration_m_per_s2, a PEER .AT2 file, or a synthetic "
+                        "preset (near_field_short, far_field_long, soft_site)")
+    p.add_argument("--ground-motion-units", choices=("m/s2", "g", "cm/s2"),
+                   help="units of a CSV ground motion (default: from its header, else m/s2)")
+    p.add_argument("--scale", type=float, default=1.0, help="scale factor of the ground motion (default 1)")
+    p.add_argument("--isolator", default="IUT_a",
+                   help=f"the specimen: a preset ({', '.join(PRESETS)}) or an isolator .json file")
+    p.add_argument("--supply-bar", type=float, default=100.0, help="supply pressure in bar (default 100)")
+    p.add_argument("--vertical-load-n", type=float, default=None,
+                   help="vertical load on the specimen, N (default: the building's weight on the isolator)")
+    p.add_argument("--controller", choices=CONTROLLER_NAMES, default=DEFAULT_CONTROLLER)
+    p.add_argument("--rig", default="simulated",
+                   help="'simulated' (default: virtual RTHS, as fast as it runs) or udp://HOST:PORT (a real-time "
+                        "I/O target or `isorig rig-emulator`, in real time)")
+    p.add_argument("--out", required=True, help="output directory for timeseries.csv and summary.json")
+    p.set_defaults(func=run)
+
+
+def _on_rig(args, building, ag, scenario):
+    """The hybrid test in real time on a rig through its driver (backend.worker.run_here)."""
+    import signal
+
+    from backend.drivers import rig_kind
+    from backend.safety import default_limits
+    from backend.worker import AbortSwitch, run_here
+
+    try:
+        rig_kind(args.rig)
+    except ValueError as exc:
+        raise UsageError(f"isorig hybrid: --rig: {exc}") from None
+    job = {"test_id": None, "rig": args.rig, "speed": 1.0,
+           "link": {"period_s": 1e-3, "timeout_s": 0.05, "arm_timeout_s": 2.0},
+           "scenario": {"isolator": scenario.isolator.to_dict(), "supply_pa": scenario.supply_pa,
+                        "vertical_load_n": scenario.effective_vertical_load_n, "profile": [],
+                        "controller": scenario.controller, "controller_options": scenario.controller_options},
+           "hybrid": {"building": building.to_dict(), "ground_acc_m_per_s2": ag},
+           "limits": default_limits(scenario.rig).to_dict()}
+    switch = AbortSwitch()
+    previous = signal.signal(signal.SIGINT, switch.abort)
+    print(f"running {ag.size / 1000:g} s of hybrid simulation in real time on {args.rig} (Ctrl-C aborts)")
+    try:
+        run, sent, status, reason = run_here(job, switch)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    return run.hybrid, sent.samples(), (None if status == "completed" else f"{status}: {reason}")
+
+
+def run(args) -> int:
+    import numpy as np
+
+    from sim.controllers import make_controller
+    from sim.engine import Scenario
+    from sim.ground_motion import GROUND_MOTIONS, synthetic_ground_motion
+    from sim.history import prepare_history, read_ground_motion
+    from sim.hybrid import HybridSubstructure, compare_with_reference, ground_at_periods, reference, run_virtual
+    from sim.isolator import load_isolator
+    from sim.plant import SimulatedPlant
+    from sim.records import samples_to_csv
+    from sim.structure import load_structure
+
+    building = load_structure(args.structure)
+    if args.ground_motion in GROUND_MOTIONS:
+        t, acc, _info = synthetic_ground_motion(args.ground_motion)
+    else:
+        t, acc = read_ground_motion(args.ground_motion, args.ground_motion_units)
+    if not (0.0 < args.scale <= 10.0):
+        raise UsageError(f"isorig hybrid: --scale {args.scale:g} is outside (0, 10]")
+    ag = ground_at_periods(t, args.scale * acc)
+    isolator = load_isolator(args.isolator)
+    load_n = args.vertical_load_n if args.vertical_load_n is not None else building.total_mass_kg * 9.80665
+    ref = reference(building, isolator, ag)
+    # the rig's envelope, checked on the reference's base displacement before anything moves
+    predicted = prepare_history(np.arange(ag.size) * 1e-3, ref["base_displacement_m"], taper_in_s=0.0,
+                                taper_out_s=0.0, require_rest=False, source="the reference's base displacement")
+    scenario = Scenario(isolator, args.supply_bar * 1e5, [], args.controller, vertical_load_n=load_n,
+                        history=predicted)
+    scenario.validate()
+    out = Path(args.out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(f"isorig hybrid: cannot create --out {out}: {exc.strerror}") from None
+
+    t0 = time.perf_counter()
+    if args.rig == "simulated":
+        sub = HybridSubstructure(building, isolator, ag)
+        controller = make_controller(scenario.controller, rig=scenario.rig,
+                                     **scenario.effective_controller_options())
+        from sim.loop import ClosedLoop
+
+        loop = ClosedLoop([], controller, scenario.rig.command_limit_v, table=sub.target_table())
+        plant = SimulatedPlant(scenario.plant_rig, isolator, scenario.supply_pa)
+        samples, stopped = run_virtual(sub, loop, plant)
+    else:
+        sub, samples, stopped = _on_rig(args, building, ag, scenario)
+    elapsed = time.perf_counter() - t0
+    res = sub.results(samples)
+    j45 = compare_with_reference(res, ref)
+    text = samples_to_csv(samples).splitlines()
+    n = len(samples)
+    header = text[0] + "," + ",".join(sub.names)
+    rows = [line + "," + ",".join(f"{res[name][i]:.9g}" if i < len(res[name]) else "" for name in sub.names)
+            for i, line in enumerate(text[1:n + 1])]
+    (out / "timeseries.csv").write_text("\n".join([header, *rows]).replace("nan", "") + "\n")
+    summary = {"structure": building.to_dict(), "ground_motion": args.ground_motion, "scale": args.scale,
+               "scenario": scenario.describe(), "status": "stopped" if stopped else "completed",
+               "reason": stopped, "criteria": {**res["criteria"], **j45}, "stability": res["stability"],
+               "reference_peaks": {k: float(np.max(np.abs(v))) for k, v in ref.items()
+                                   if k.endswith(("_m", "_n", "_m_per_s2")) and np.ndim(v) == 1},
+               "wall_time_s": elapsed}
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=float))
+    c = summary["criteria"]
+    print(f"wrote {out / 'timeseries.csv'} ({n} samples) and {out / 'summary.json'}")
+    print(f"{summary['status']}" + (f" ({stopped})" if stopped else "")
+          + f"; J1 {c['j1_delay_ms']:.3f} ms, J2 {c['j2_rms_percent']:.2f} %, J3 {c['j3_peak_percent']:.2f} %; "
+          f"against the reference: J4 {c['j4_rms_percent']:.2f} %, J5 {c['j5_peak_percent']:.2f} %")
+    return 0 if not stopped else 1
