@@ -34,6 +34,9 @@ class TestRecord(Base):
     status: Mapped[str] = mapped_column(String(16), default="ready", index=True)
     reason: Mapped[str | None] = mapped_column(Text)
     label: Mapped[str] = mapped_column(String(200), default="")
+    specimen_id: Mapped[str] = mapped_column(String(64), default="")  # the lab's id of the bearing tested
+    operator_name: Mapped[str] = mapped_column(String(64), default="")  # who ran the test
+    notes: Mapped[str] = mapped_column(Text, default="")
     isolator: Mapped[str] = mapped_column(String(64), index=True)
     supply_bar: Mapped[float] = mapped_column(Float)
     vertical_load_n: Mapped[float | None] = mapped_column(Float)  # None: recorded before it was a condition

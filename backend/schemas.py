@@ -62,6 +62,9 @@ class TestCreate(StrictModel):
     profile: ProfileIn
     limits: LimitsIn | None = None
     label: str = Field("", max_length=200, description="free text")
+    specimen_id: str = Field("", max_length=64, description="the lab's identifier of the specimen (bearing) tested")
+    operator_name: str = Field("", max_length=64, description="who runs the test")
+    notes: str = Field("", max_length=2000, description="free notes kept with the test")
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, json_schema_extra={"examples": [{
         "isolator": "IUT_b", "supply_bar": 70, "controller": "mrac", "speed": 1.0,
@@ -123,6 +126,9 @@ class TestOut(BaseModel):
     status: Literal["ready", "running", "completed", "stopped", "aborted", "interrupted", "failed"]
     reason: str | None
     label: str
+    specimen_id: str = ""
+    operator_name: str = ""
+    notes: str = ""
     created_at: str | None
     started_at: str | None
     ended_at: str | None

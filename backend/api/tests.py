@@ -91,7 +91,8 @@ def build_test(session, body: TestCreate, request: Request) -> dict:
                     "profile": [b.to_dict() for b in blocks], "controller": body.controller,
                     "controller_options": options}
     return {
-        "label": body.label, "isolator": isolator.name, "supply_bar": body.supply_bar,
+        "label": body.label, "specimen_id": body.specimen_id.strip(), "operator_name": body.operator_name.strip(),
+        "notes": body.notes, "isolator": isolator.name, "supply_bar": body.supply_bar,
         "vertical_load_n": scenario.effective_vertical_load_n,
         "controller": body.controller, "speed": body.speed, "driver": service.driver,
         "request": {**body.model_dump(mode="json"), "job_scenario": job_scenario},

@@ -213,3 +213,15 @@ def test_controller_options_travel_with_the_test_and_are_checked(client):
     assert check.json()["ok"] is False and check.json()["field"] == "controller_options.x_clip"
     controllers = {c["name"]: c for c in client.get("/api/rig").json()["controllers"]}
     assert controllers["servo"]["default"] and controllers["mrac"]["adapted"][3]["unit"] == "m"
+
+
+def test_who_and_what_travel_with_the_test(client):
+    from conftest import AUTH, sine_test
+
+    r = client.post("/api/tests", json=sine_test(specimen_id="LRB-2026-017", operator_name="M. Rossi",
+                                                 notes="bearing 3 of 4, as delivered"), headers=AUTH)
+    rec = r.json()
+    assert r.status_code == 201 and rec["specimen_id"] == "LRB-2026-017" and rec["operator_name"] == "M. Rossi"
+    assert client.get(f"/api/tests/{rec['id']}").json()["notes"] == "bearing 3 of 4, as delivered"
+    r = client.post("/api/tests", json=sine_test(specimen_id="x" * 65), headers=AUTH)
+    assert r.status_code == 422
