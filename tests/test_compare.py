@@ -78,3 +78,12 @@ def test_cli_rejects_bad_arguments(capsys):
     assert "allowed" in capsys.readouterr().err
     assert main(["compare", "--cycles", "2"]) == 2
     assert main(["compare", "--robust", "--ablation"]) == 2
+
+
+def test_cli_rejects_engine_options_that_do_not_go_together(capsys):
+    assert main(["compare", "--compare-backends", "--scheduler", "tcp://127.0.0.1:8786"]) == 2
+    assert "measures both paths on this machine" in capsys.readouterr().err
+    assert main(["compare", "--processes", "2", "--scheduler", "tcp://127.0.0.1:8786"]) == 2
+    assert main(["compare", "--scheduler-timeout", "3"]) == 2
+    assert main(["compare", "--scheduler", "tcp://127.0.0.1:8786", "--scheduler-timeout", "nan"]) == 2
+    assert "--scheduler-timeout must be between" in capsys.readouterr().err
