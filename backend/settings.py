@@ -43,6 +43,11 @@ class Settings(BaseSettings):
     rig_link_timeout_s: float = Field(default=0.05, gt=0, le=5.0, description="UDP rig: a link silent this long "
                                       "ends the test 'failed' (the rig's watchdog closes its valve by itself)")
     rig_arm_timeout_s: float = Field(default=2.0, gt=0, le=60.0, description="UDP rig: how long arming may take")
+    lab_name: str = Field(default="", max_length=200, description="the lab named at the top of every report")
+    lab_address: str = Field(default="", max_length=500, description="the lab's address under its name in reports "
+                             "(lines separated by newlines or ';')")
+    lab_logo_file: Path | None = Field(default=None, description="an image (PNG, JPEG) printed beside the lab's name "
+                                       "in reports; missing or unreadable: one warning, the report is made without it")
 
     @field_validator("rig")
     @classmethod

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from backend.reports import ReportBundle, bundle_from_csv, render_report_pdf, report_json
+from backend.reports.layout import PAGE_BOTTOM
 from sim.engine import Scenario, Simulation
 from sim.isolator import PRESETS
 from sim.metrics import scenario_cycle_metrics
@@ -39,7 +40,8 @@ def protocol_run(name="quick_check", controller="pid", degrade_cycle=None):
     events = [{"kind": "operator", "actor": "alice", "time_s": 0.0, "message": "test 7 started by alice",
                "values": {"action": "start"}},
               {"kind": "limit_trip", "time_s": 3.2, "message": "force above the limit",
-               "values": {"detector": "force", "value_n": 5.1e4, "limit_n": 5.0e4}}]
+               "values": {"detector": "force", "time_s": 3.2, "displacement_m": 0.0101, "force_n": 5.1e4,
+                          "limit": 5.0e4, "limit_name": "force_n", "flags": 1}}]
     return ReportBundle(record, samples, cycles, events)
 
 
@@ -71,14 +73,14 @@ def test_pdf_pages_render_and_are_not_blank(tmp_path):
     render_report_pdf(bundle, out, meta={"lab": "Lab A", "operator": "alice"}, identify=False)
     assert out.read_bytes()[:5] == b"%PDF-"
     pages = png_pages(out, tmp_path)
-    # header, loops, time histories, per-cycle table, verdicts and events (10 s: no detail page)
-    assert len(pages) == 5
+    # summary, setup, loops, time histories, per-cycle table, verdicts and events (10 s: no detail page)
+    assert len(pages) == 6
     for i, page in enumerate(pages, start=1):
         assert page.shape[0] > page.shape[1]  # A4 portrait
         assert ink(page) > 0.003, f"page {i} looks blank"
-    assert colour(pages[1]) > 0.01  # coloured loops
-    assert colour(pages[2]) > 0.01  # time histories
-    assert colour(pages[1]) > 5 * colour(pages[3])  # the table page is text, the loop page is plots
+    assert colour(pages[2]) > 0.01  # coloured loops
+    assert colour(pages[3]) > 0.01  # time histories
+    assert colour(pages[2]) > 5 * colour(pages[4])  # the table page is text, the loop page is plots
 
 
 def test_report_json_names_the_failing_rule():
@@ -171,7 +173,7 @@ def test_report_of_a_stored_test_via_the_cli(tmp_path, capsys):
     assert main(["analyze", str(tmp_path / "stored.csv"), "--json", "--frequency-hz", "1"]) == 0
     analysed = json.loads(capsys.readouterr().out)["cycles"]
     rep = json.loads((tmp_path / "stored.json").read_text())
-    assert rep["test"]["lab"] == "Lab B" and rep["test"]["status"] == "completed"
+    assert rep["lab"]["name"] == "Lab B" and rep["test"]["status"] == "completed"
     assert len(rep["cycles"]) == 10 and rep["acceptance"]["summary"]["passed"] is True
     # the exported CSV gives the same metrics as the store's (split by the same phase)
     assert [c["edc_j"] for c in analysed] == pytest.approx([c["edc_j"] for c in rep["cycles"]], rel=1e-6)
@@ -211,40 +213,44 @@ def test_report_of_a_test_that_never_ran():
     assert buf.getvalue()[:5] == b"%PDF-"
 
 
-def test_a_crowded_header_continues_on_a_second_page():
-    """Ten levels, six failing rules and a long controller parameter list do not run into the footer."""
+def test_a_crowded_header_continues_on_another_page():
+    """Ten levels, six rules, long notes and a long controller parameter list do not run into the footer: the
+    summary continues on a page of its own, every word kept."""
     from backend.reports import data, header, plot_style
 
     proto = load_protocol("en15129_type_test").to_dict()
     proto["levels"] = [{"fraction": 0.1 * (i + 1), "cycles": 3} for i in range(10)]
     proto["acceptance"] += [{"name": f"r{i}", "quantity": "xi_eff", "reference": "cycle", "tolerance_fraction": 0.1}
                             for i in range(4)]
+    notes = " ".join(f"note{i}" for i in range(300))
     crowded = {"id": 9, "status": "aborted", "isolator": "IUT_b", "controller": "servo", "supply_bar": 70,
-               "profile": {"kind": "protocol", "protocol": proto}}
+               "profile": {"kind": "protocol", "protocol": proto}, "notes": notes}
     plain = {"id": 10, "status": "aborted", "isolator": "IUT_b", "controller": "pid", "supply_bar": 70}
     plt = plot_style()
     counts = []
     for record in (crowded, plain):
         bundle = ReportBundle(record, Samples.empty(), [], [])
         rep = report_json(bundle, identify=False)
-        figs = header.page_header(plt, bundle, rep["controller"], data.isolator_of(record),
-                                  data.protocol_of(record)[0], rep["acceptance"], rep["identification"],
-                                  rep["tracking"], 1)
+        figs = header.page_header(plt, bundle, rep, data.isolator_of(record), data.protocol_of(record)[0], None)
         counts.append(len(figs))
+        words = " ".join(t.get_text() for fig in figs for t in fig.texts).split()
         for fig in figs:  # every text stays above the footer line
-            assert min(t.get_position()[1] for t in fig.texts if t.get_text()) >= 0.015
+            assert min(t.get_position()[1] for t in fig.texts if t.get_text()) >= PAGE_BOTTOM
             plt.close(fig)
-    assert counts == [2, 1]
+        if record is crowded:
+            assert all(f"note{i}" in words for i in range(300))  # wrapped, never cut
+            assert "..." not in " ".join(words).replace("... and", "")
+    assert counts[1] == 2 and counts[0] > counts[1]  # the summary page and the setup page; more when crowded
 
 
 PDFTOTEXT = shutil.which("pdftotext")
 
 
 def pdf_text(pdf, *options) -> list[str]:
-    """The text of each page (pdftotext), without the line that says when the report was generated."""
+    """The text of each page (pdftotext), without the line that says when the report was issued."""
     out = subprocess.run([PDFTOTEXT, *options, str(pdf), "-"], check=True, capture_output=True, text=True,
                          timeout=60).stdout
-    return ["\n".join(line for line in page.splitlines() if "generated" not in line and "CreationDate" not in line)
+    return ["\n".join(line for line in page.splitlines() if "issued" not in line and "CreationDate" not in line)
             for page in out.split("\f")]
 
 
@@ -266,7 +272,7 @@ def test_a_deferred_identification_still_heads_the_report(tmp_path):
     assert asked == [1] and rep["identification"] == fit  # asked once, and the report says what was drawn
     later = pdf_text(tmp_path / "later.pdf")
     assert later == pdf_text(tmp_path / "now.pdf")
-    assert "a fit made elsewhere" in later[0] and "page 1" in later[0] and "page 2" in later[1]
+    assert "a fit made elsewhere" in later[1] and "page 1 of" in later[0] and "page 2 of" in later[1]
 
 
 @pytest.mark.skipif(PDFTOTEXT is None, reason="pdftotext (poppler-utils) is not installed")
@@ -617,3 +623,221 @@ def test_an_unknown_page_tree_means_drawing_again_in_order(tmp_path, monkeypatch
     render_report_pdf(bundle, tmp_path / "later.pdf", report=rep, identification=lambda: asked.append(1) or fit)
     assert asked == [1]
     assert pdf_text(tmp_path / "later.pdf") == pdf_text(tmp_path / "now.pdf")
+
+
+# --- issue 14: honest figures, a report a lab can sign, the bundle ------------------------------------------
+
+def cut_short(bundle, t_end_s: float, status: str, reason: str) -> ReportBundle:
+    """The bundle as if the test had ended at ``t_end_s`` (samples and whole cycles before it only)."""
+    samples = bundle.samples[bundle.samples["time_s"] <= t_end_s]
+    cycles = [c for c in bundle.cycles if c["t_end_s"] <= t_end_s]
+    record = {**bundle.record, "status": status, "reason": reason, "time_s": float(samples["time_s"][-1]),
+              "cycles_total": len(bundle.cycles), "cycles_done": len(cycles), "specimen_id": "LRB-17",
+              "operator_name": "A. Rossi", "notes": "second specimen of three", "vertical_load_n": 150e3}
+    events = [e for e in bundle.events if (e.get("time_s") or 0.0) <= t_end_s]
+    return ReportBundle(record, samples, cycles, events)
+
+
+def test_headline_figures_come_from_the_steady_cycles_only():
+    """sim.metrics.headline_figures over the steady cycles: the tapers (stiffer, at a lower amplitude) are left
+    out of the headline K_eff, which therefore differs from the mean over all cycles."""
+    from sim.metrics import headline_figures
+
+    bundle = protocol_run()
+    rep = report_json(bundle, identify=False)
+    steady = [c["k_eff_n_per_m"] for c in bundle.cycles if c["phase"] == "steady"]
+    every = [c["k_eff_n_per_m"] for c in bundle.cycles]
+    head = rep["headline"]
+    assert head["means"]["k_eff_n_per_m"] == pytest.approx(np.mean(steady), rel=1e-12)
+    assert abs(head["means"]["k_eff_n_per_m"] / np.mean(every) - 1) > 0.02  # the tapers would have moved it
+    assert head["steady_cycles"] == 6 and head["excluded_cycles"] == {"taper_in": 2, "taper_out": 2}
+    assert head["means"] == headline_figures(rep["cycles"])["means"]  # sim's function, not a re-implementation
+    assert [lv["steady_cycles"] for lv in head["levels"]] == [3, 3]
+    assert [c["phase"] for c in rep["cycles"]][:5] == ["taper_in", "steady", "steady", "steady", "taper_out"]
+
+
+def test_the_k_eff_axis_is_scaled_to_the_steady_cycles():
+    """The taper-out cycle's K_eff (3.33 kN/mm against 2.08-2.70 in the steady cycles) no longer stretches the axis:
+    it is drawn at the edge, marked."""
+    from backend.reports import figures, plot_style
+
+    plt = plot_style()
+    bundle = protocol_run()
+    rep = report_json(bundle, identify=False)
+    fig = figures.page_loops(plt, bundle, None, rep)
+    ax = fig.axes[1]  # K_eff per cycle (the colour bar is added after the two plots)
+    lo, hi = ax.get_ylim()
+    steady = [c["k_eff_n_per_m"] * 1e-6 for c in bundle.cycles if c["phase"] == "steady"]
+    tapers = [c["k_eff_n_per_m"] * 1e-6 for c in bundle.cycles if c["phase"] != "steady"]
+    assert lo <= min(steady) and max(steady) <= hi
+    assert max(tapers) > hi  # off the axis ...
+    legend = " ".join(t.get_text() for t in ax.get_legend().get_texts())
+    assert "taper" in legend and "off scale" in legend  # ... and said so
+    plt.close(fig)
+
+
+def test_taper_cycles_are_never_judged():
+    """A planned test cycle that was the ramp-out of an operator's stop is not judged as a steady cycle: its check
+    has no measured cycle, and the verdict of a test that ended early is INCOMPLETE."""
+    bundle = protocol_run()
+    stopped = cut_short(bundle, 9.0, "stopped", "operator stop; ramped out to t = 9.000 s")
+    stopped.cycles[-1] = {**stopped.cycles[-1], "phase": "ramp_out"}  # cycle 9 (L2.3) became the ramp-out
+    rep = report_json(stopped, identify=False)
+    judged = {v["cycle"]: v for v in rep["acceptance"]["verdicts"]}
+    assert judged[9 - 1]["status"] == "missing"  # cycle 8 is judged against cycle 9, the ramp-out: no reference
+    assert rep["acceptance"]["verdict"] == "INCOMPLETE"
+    assert rep["run"]["ended_early"] and rep["run"]["cycles_done"] == 9 and rep["run"]["cycles_planned"] == 10
+    full = report_json(bundle, identify=False)
+    assert full["acceptance"]["verdict"] == "PASSED" and full["run"]["banner"] is None
+    level_1 = [v for v in full["acceptance"]["verdicts"] if v["level"] == 1]
+    assert {(v["cycle"], v["reference_cycle"]) for v in level_1} == {(2, 4), (3, 4)}  # the cycles they came from
+
+
+@pytest.mark.skipif(PDFTOTEXT is None, reason="pdftotext (poppler-utils) is not installed")
+def test_an_aborted_test_says_so_at_the_top_with_its_reason(tmp_path):
+    """The banner (status and reason) heads page 1; the duration and cycles are those run, not those planned;
+    events are in words; every page says "page N of M"; the approval block ends the report."""
+    reason = "force limit tripped at t = 3.200 s: |force_n| = 51000 N > limit 50000 N"
+    bundle = cut_short(protocol_run(), 3.5, "aborted", reason)
+    out = tmp_path / "aborted.pdf"
+    render_report_pdf(bundle, out, identify=False)
+    pages = pdf_text(out)[:-1]  # pdftotext ends with a form feed
+    first = pages[0]
+    assert "TEST ABORTED" in first and reason in first
+    assert first.index("TEST ABORTED") < first.index("Specimen") < first.index("Results")
+    assert "Ran 3.50 s of the 10 s planned; 3 of 10 cycles completed" in first
+    assert "3.50 s run of the 10 s planned" in first and "10.00 s" not in first
+    assert "INCOMPLETE" in first and "LRB-17" in first and "A. Rossi" in first and "150 kN" in first
+    for n, page in enumerate(pages, start=1):
+        assert f"page {n} of {len(pages)}" in page
+    last = " ".join(pages[-1].split())
+    assert "Tested by" in last and "Reviewed by" in last and "Approved by" in last and "A. Rossi" in last
+    # the limit trip in words, not a dict: what the rig read at that sample and the limit
+    assert "force 51 kN" in last and "limit: |force| <= 50 kN" in last and "no ref." in last
+    assert "{" not in "".join(pages)
+    rep = report_json(bundle, identify=False)
+    assert rep["run"]["banner"]["title"] == "TEST ABORTED" and rep["run"]["banner"]["reason"] == reason
+    assert rep["run"]["time_run_s"] == pytest.approx(3.5) and rep["run"]["planned_duration_s"] == 10.0
+
+
+@pytest.mark.parametrize("status, title", [("interrupted", "TEST INTERRUPTED"), ("failed", "TEST FAILED"),
+                                           ("stopped", "TEST STOPPED BEFORE ITS END"), ("completed", None)])
+def test_the_banner_of_each_status(status, title):
+    bundle = cut_short(protocol_run(), 6.0, status, f"why it {status}")
+    run = report_json(bundle, identify=False)["run"]
+    assert (run["banner"] or {}).get("title") == title
+    if title:
+        assert run["banner"]["reason"] == f"why it {status}"
+
+
+@pytest.mark.skipif(PDFTOTEXT is None, reason="pdftotext (poppler-utils) is not installed")
+def test_controller_options_in_full_and_adapted_parameters_by_name(tmp_path):
+    """Every option of the servo controller is printed with its unit (wrapped, never cut with "..."), and what
+    it adapts under the names and units sim.controllers declares."""
+    from sim.controllers import ADAPTED, OPTIONS
+
+    scenario = Scenario.sine("IUT_a", 100.0, 0.02, 1.0, 4, controller="servo", taper_cycles=1)
+    result = Simulation(scenario).run()
+    write_csv(tmp_path / "timeseries.csv", result.samples)
+    (tmp_path / "summary.json").write_text(json.dumps(result.summary()))
+    bundle = bundle_from_csv(tmp_path / "timeseries.csv")
+    assert [c["phase"] for c in bundle.cycles] == ["taper_in", "steady", "steady", "taper_out"]
+    render_report_pdf(bundle, tmp_path / "r.pdf", identify=False)
+    setup = " ".join(pdf_text(tmp_path / "r.pdf")[1].split())  # the setup page, lines joined
+    for name in OPTIONS["servo"]:
+        assert f"{name} =" in setup, name
+    assert "kp_per_s = 30 1/s" in setup and "..." not in setup
+    for a in ADAPTED["servo"]:
+        if a.column != "model_m":
+            assert f"{a.name} =" in setup, a.name
+    assert "ideal (sim.rig's defaults)" in setup  # the sensors
+
+
+def _logo(path):
+    from PIL import Image
+
+    Image.new("RGB", (300, 100), (20, 70, 140)).save(path)
+    return path
+
+
+@pytest.mark.skipif(PDFTOPPM is None, reason="pdftoppm (poppler-utils) is not installed")
+def test_lab_header_with_logo_and_a_logo_that_is_not_there(tmp_path, capsys, monkeypatch):
+    from isorig.cli import main
+
+    scenario = Scenario.sine("IUT_a", 100.0, 0.02, 1.0, 3, controller="pid", taper_cycles=1)
+    write_csv(tmp_path / "timeseries.csv", Simulation(scenario).run().samples)
+    base = ["report", "--csv", str(tmp_path / "timeseries.csv"), "--no-identify", "--serial"]
+    monkeypatch.delenv("ISORIG_LAB_LOGO_FILE", raising=False)
+    assert main(base + ["--out", str(tmp_path / "logo.pdf"), "--json", str(tmp_path / "logo.json"),
+                        "--lab-name", "Prove Lab", "--lab-address", "Via Roma 1; Milano",
+                        "--lab-logo", str(_logo(tmp_path / "logo.png"))]) == 0
+    assert "warning" not in capsys.readouterr().err
+    lab = json.loads((tmp_path / "logo.json").read_text())["lab"]
+    assert lab == {"name": "Prove Lab", "address": "Via Roma 1; Milano", "logo_file": str(tmp_path / "logo.png"),
+                   "logo_shown": True, "logo_warning": None}
+    top_left = png_pages(tmp_path / "logo.pdf", tmp_path)[0][:40, :90]
+    assert colour(top_left) > 0.05  # the blue logo is there
+    # a missing logo: one warning line, a report all the same
+    assert main(base + ["--out", str(tmp_path / "none.pdf"), "--json", str(tmp_path / "none.json"),
+                        "--lab-logo", str(tmp_path / "missing.png")]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "warning" in err[0] and "missing.png" in err[0] and "no such file" in err[0]
+    assert json.loads((tmp_path / "none.json").read_text())["lab"]["logo_shown"] is False
+    assert (tmp_path / "none.pdf").read_bytes()[:5] == b"%PDF-"
+    # an unreadable one, through the settings (ISORIG_LAB_*)
+    (tmp_path / "bad.png").write_bytes(b"not an image")
+    monkeypatch.setenv("ISORIG_LAB_NAME", "Env Lab")
+    monkeypatch.setenv("ISORIG_LAB_LOGO_FILE", str(tmp_path / "bad.png"))
+    assert main(base + ["--out", str(tmp_path / "env.pdf"), "--json", str(tmp_path / "env.json")]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not an image" in err[0]
+    assert json.loads((tmp_path / "env.json").read_text())["lab"]["name"] == "Env Lab"
+
+
+def test_the_bundle_holds_record_report_samples_cycles_and_pdf(tmp_path, capsys):
+    import csv
+    import io
+    import zipfile
+
+    from isorig.cli import main
+    from sim.samples import RECORD_FIELDS
+
+    url = f"sqlite:///{tmp_path / 'store.db'}"
+    test_id = _store_test(url)
+    assert main(["report", str(test_id), "--database-url", url, "--out", str(tmp_path / "r.pdf"), "--no-identify",
+                 "--bundle", str(tmp_path / "b.zip"), "--csv-out", str(tmp_path / "d.csv")]) == 0
+    assert "b.zip" in capsys.readouterr().out
+    with zipfile.ZipFile(tmp_path / "b.zip") as zf:
+        names = zf.namelist()
+        folder = f"test-{test_id}/"
+        assert sorted(names) == sorted(folder + n for n in ("README.txt", "record.json", "report.json",
+                                                            "samples.csv", "cycles.csv", "report.pdf"))
+        record = json.loads(zf.read(folder + "record.json"))
+        report = json.loads(zf.read(folder + "report.json"))
+        samples = zf.read(folder + "samples.csv").decode()
+        cycles = list(csv.DictReader(io.StringIO(zf.read(folder + "cycles.csv").decode())))
+        pdf = zf.read(folder + "report.pdf")
+        readme = zf.read(folder + "README.txt").decode()
+    assert record["id"] == test_id and report["test"]["id"] == test_id
+    assert samples.splitlines()[0].split(",") == list(RECORD_FIELDS)
+    assert len(samples.splitlines()) == 1 + 10_000
+    assert pdf[:5] == b"%PDF-" and pdf == (tmp_path / "r.pdf").read_bytes()
+    assert list(cycles[0])[:6] == ["cycle", "block", "phase", "in_headline", "t_start_s", "t_end_s"]
+    assert "k_eff_n_per_m" in cycles[0] and "level_cycle" in cycles[0]
+    assert [c["phase"] for c in cycles][:5] == ["taper_in", "steady", "steady", "steady", "taper_out"]
+    assert [c["in_headline"] for c in cycles][:5] == ["0", "1", "1", "1", "0"]
+    assert float(cycles[1]["k_eff_n_per_m"]) == pytest.approx(report["cycles"][1]["k_eff_n_per_m"], rel=1e-8)
+    assert "samples.csv" in readme and "sha256" not in readme.lower().replace("sha-256", "")
+
+
+def test_the_decimated_time_histories_keep_every_sample():
+    """The min/max envelope covers the whole record, the remainder of the last bucket too (11 610 samples of an
+    aborted test lost their last 1.6 s, where the limit trip was)."""
+    from backend.reports.figures import _minmax_decimate
+
+    t = np.arange(11_610) * 1e-3
+    y = np.sin(t)
+    y[-3] = 7.0  # a peak in the last, shorter bucket
+    td, yd = _minmax_decimate(t, y)
+    assert td[-1] == t[-1] and yd.max() == 7.0 and np.all(np.diff(td) >= 0)
+    assert td.size < 3 * 2500

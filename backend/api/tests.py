@@ -310,21 +310,37 @@ def _reports():
 
 @router.get("/api/tests/{test_id}/report.pdf", summary="The test report as PDF", response_class=Response,
             responses={**ERROR_RESPONSES, 503: {"description": "reports not available"}})
-def report_pdf(test_id: TestId, session: SessionDep) -> Response:
+def report_pdf(test_id: TestId, request: Request, session: SessionDep) -> Response:
     _test_or_404(session, test_id)
     reports = _reports()
     buf = io.BytesIO()
-    reports.render_report_pdf(store.load_test_bundle(session, test_id), buf)
+    lab = reports.lab_header(settings=request.app.state.settings)
+    reports.render_report_pdf(store.load_test_bundle(session, test_id), buf, lab=lab)
     return Response(buf.getvalue(), media_type="application/pdf",
                     headers={"Content-Disposition": f'inline; filename="test-{test_id}-report.pdf"'})
 
 
 @router.get("/api/tests/{test_id}/report.json", summary="The test report as JSON",
             responses={**ERROR_RESPONSES, 503: {"description": "reports not available"}})
-def report_json(test_id: TestId, session: SessionDep) -> dict:
+def report_json(test_id: TestId, request: Request, session: SessionDep) -> dict:
     _test_or_404(session, test_id)
     reports = _reports()
-    return clean_json(reports.report_json(store.load_test_bundle(session, test_id)))
+    lab = reports.lab_header(settings=request.app.state.settings)
+    return clean_json(reports.report_json(store.load_test_bundle(session, test_id), lab=lab))
+
+
+@router.get("/api/tests/{test_id}/bundle.zip", summary="The whole test as a zip: record.json, report.json, "
+            "samples.csv, cycles.csv, report.pdf", response_class=Response,
+            responses={**ERROR_RESPONSES, 503: {"description": "reports not available"}})
+def bundle_zip(test_id: TestId, request: Request, session: SessionDep) -> Response:
+    """The record as GET /api/tests/{id}, the report (JSON and PDF, with the lab header of the settings), every
+    sample (the columns of data.csv) and every cycle with its phase (CSV, SI units), and a README."""
+    _test_or_404(session, test_id)
+    reports = _reports()
+    lab = reports.lab_header(settings=request.app.state.settings)
+    data = reports.bundle_zip_bytes(store.load_test_bundle(session, test_id), lab=lab)
+    return Response(data, media_type="application/zip",
+                    headers={"Content-Disposition": f'attachment; filename="test-{test_id}-bundle.zip"'})
 
 
 @router.get("/api/events", summary="The audit log: operator actions, limit trips, status changes",

@@ -18,14 +18,18 @@ One job per module:
 - ``figures``: the plotted pages (loops, time histories, detail) and ``plot_style``;
 - ``header``: the header page(s) with the verdict and the identified Bouc-Wen parameters;
 - ``tables``: the per-cycle table and the verdicts and events pages;
-- ``document``: the PDF (``render_report_pdf``, ``report_pdf_bytes``): which pages, in which order.
+- ``document``: the PDF (``render_report_pdf``, ``report_pdf_bytes``): which pages, in which order, "page N of M";
+- ``lab``: the issuing lab's header (``lab_header``: name, address, logo; the settings ``lab_*``);
+- ``export``: the whole test as one zip (``write_bundle_zip``, ``bundle_zip_bytes``): record, report.json, samples
+  and cycles as CSV, the PDF.
 
 Nothing here imports matplotlib until a PDF is drawn.
 """
 
-from .content import acceptance, controller_state, report_json, tracking
-from .data import ESTIMATE_COLUMNS, UNREPORTED_COLUMNS, ReportBundle, bundle_from_csv, clean_json
+from .content import acceptance, controller_state, headline, report_json, tracking
+from .data import ESTIMATE_COLUMNS, UNREPORTED_COLUMNS, ReportBundle, bundle_from_csv, clean_json, event_text, run_of
 from .document import render_report_pdf, report_pdf_bytes
+from .export import bundle_zip_bytes, cycles_csv, samples_csv, write_bundle_zip
 from .figures import DETAIL_WINDOW_S, LOOP_POINTS, MAX_LOOPS, PLOT_POINTS, plot_style
 from .header import MAX_HEADER_LEVELS, MAX_HEADER_RULES
 from .identification import (
@@ -36,6 +40,7 @@ from .identification import (
     identified_bouc_wen,
     run_identification,
 )
+from .lab import LabHeader, lab_header
 from .layout import A4_PORTRAIT_IN
 from .tables import TABLE_HEAD, TABLE_NOTE, TABLE_ROWS, TABLE_UNITS
 
@@ -43,7 +48,8 @@ __all__ = [
     "A4_PORTRAIT_IN", "BOUC_WEN_FIELDS", "DETAIL_WINDOW_S", "ESTIMATE_COLUMNS", "IDENTIFY_FIT_POINTS",
     "IDENTIFY_MAX_SAMPLES", "LOOP_POINTS", "MAX_HEADER_LEVELS", "MAX_HEADER_RULES", "MAX_LOOPS", "PLOT_POINTS",
     "TABLE_HEAD", "TABLE_NOTE", "TABLE_ROWS", "TABLE_UNITS", "UNREPORTED_COLUMNS",
-    "ReportBundle", "acceptance", "bundle_from_csv", "clean_json", "controller_state", "identification_task",
-    "identified_bouc_wen", "plot_style", "render_report_pdf", "report_json", "report_pdf_bytes",
-    "run_identification", "tracking",
+    "LabHeader", "ReportBundle", "acceptance", "bundle_from_csv", "bundle_zip_bytes", "clean_json",
+    "controller_state", "cycles_csv", "event_text", "headline", "identification_task", "identified_bouc_wen",
+    "lab_header", "plot_style", "render_report_pdf", "report_json", "report_pdf_bytes", "run_identification",
+    "run_of", "samples_csv", "tracking", "write_bundle_zip",
 ]

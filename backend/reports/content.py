@@ -1,6 +1,6 @@
-"""What a report says, shared by the PDF and report.json: controller state, tracking, acceptance verdicts and
-the whole JSON (``report_json``). Numerics come from sim/ (metrics, protocols, identification); nothing is
-recomputed here that sim/ provides.
+"""What a report says, shared by the PDF and report.json: controller state, tracking, headline figures (steady
+cycles only), acceptance verdicts and the whole JSON (``report_json``). Numerics come from sim/ (metrics,
+protocols, identification); nothing is recomputed here that sim/ provides.
 """
 
 from __future__ import annotations
@@ -9,8 +9,19 @@ from datetime import UTC, datetime
 
 import numpy as np
 
-from .data import clean_json, isolator_of, limit_trips, num, protocol_of
+from .data import (
+    ESTIMATE_COLUMNS,
+    clean_json,
+    event_text,
+    isolator_of,
+    num,
+    protocol_of,
+    rig_of,
+    run_of,
+)
 from .identification import identified_bouc_wen
+
+STEADY = "steady"  # sim.tracking.STEADY (not imported here: sim.tracking imports the rig model and numba)
 
 
 def _last_finite(column: np.ndarray):
@@ -19,50 +30,115 @@ def _last_finite(column: np.ndarray):
 
 
 def controller_state(bundle) -> dict:
-    """Controller name, options and the final adapted parameters (last finite ar_hat, ay_hat, as_hat)."""
+    """Controller name, the options the test set, every option in force (value, unit, meaning: sim.controllers
+    OPTIONS) and what it adapts under the names and units it declares (sim.controllers ADAPTED) with the final
+    values (the last finite ar_hat, ay_hat, as_hat)."""
     record = bundle.record
     scenario = record.get("scenario") or {}
     s = bundle.samples
     adapted = {}
     if len(s):
-        for name in ("ar_hat", "ay_hat", "as_hat"):
-            value = _last_finite(s[name])
+        for column in ESTIMATE_COLUMNS:
+            value = _last_finite(s[column])
             if value is not None:
-                adapted[name] = value
+                adapted[column] = value
     name = record.get("controller") or scenario.get("controller")
     options = scenario.get("controller_options") or {}
+    in_force = scenario.get("controller_options_in_force") or options
     parameters = {}
+    specs, declared = {}, ()
     if name:
         try:  # the controller's effective parameters: its defaults overridden by the test's options
-            from sim.controllers import make_controller
+            from sim.controllers import ADAPTED, OPTIONS, make_controller
 
-            parameters = {k: v for k, v in make_controller(name, **options).options.items()
+            specs = OPTIONS.get(name, {})
+            declared = ADAPTED.get(name, ())
+            parameters = {k: v for k, v in make_controller(name, **in_force).options.items()
                           if isinstance(v, (int, float, str, bool))}
         except (ImportError, ValueError, TypeError):
             parameters = {}
-    try:
-        from sim.controllers import ADAPTED_LABELS
-
-        labels = ADAPTED_LABELS.get(name, {})
-    except ImportError:
-        labels = {}
-    return {"name": name, "options": options, "parameters": parameters, "final_adapted": adapted,
+    options_in_force = [{"name": k, "value": v, "unit": specs[k].unit if k in specs else None,
+                         "set_for_test": k in options, "meaning": specs[k].meaning if k in specs else ""}
+                        for k, v in parameters.items()]
+    adapted_out = [{"column": a.column, "name": a.name, "unit": a.unit, "meaning": a.meaning,
+                    "final": adapted.get(a.column)} for a in declared if a.column in ESTIMATE_COLUMNS]
+    labels = {a["column"]: f"{a['name']} ({a['unit']})" for a in adapted_out}
+    return {"name": name, "options": options, "parameters": parameters, "options_in_force": options_in_force,
+            "adapted": adapted_out, "final_adapted": adapted,
             "adapted_labels": {k: labels[k] for k in adapted if k in labels}}
 
 
-def acceptance(bundle) -> dict:
-    """Verdicts of the test's protocol (sim.protocols.evaluate_acceptance) and their summary."""
+def steady_cycles(cycles: list[dict]) -> list[dict]:
+    """The cycles at the block's amplitude (sim.tracking's phase ``steady``; a cycle without a phase counts)."""
+    return [c for c in cycles if c.get("phase", STEADY) == STEADY]
+
+
+def headline(bundle, protocol=None) -> dict:
+    """The headline figures (sim.metrics.headline_figures: means over the steady cycles, the cycles left out by
+    phase) and, for a protocol, the same per level."""
+    from sim.metrics import headline_figures
+
+    metrics = [{k: v for k, v in c.items() if k not in ("displacement_m", "force_n")} for c in bundle.cycles]
+    out = headline_figures(metrics)
+    out["cycles"] = len(metrics)
+    out["phases_known"] = any("phase" in c for c in metrics) or not metrics
+    if protocol is not None:
+        level_of = {p["cycle"]: p["level"] for p in protocol.cycle_plan()}
+        out["levels"] = []
+        for i, lv in enumerate(protocol.levels, start=1):
+            of_level = [c for c in metrics if level_of.get(c.get("cycle")) == i]
+            figures = headline_figures(of_level)
+            out["levels"].append({"level": i, "label": lv.label, "amplitude_m": lv.amplitude_m,
+                                  "frequency_hz": lv.frequency_hz, "cycles": len(of_level), **figures})
+    return out
+
+
+def acceptance(bundle, run: dict | None = None) -> dict:
+    """Verdicts of the test's protocol (sim.protocols.evaluate_acceptance) on the steady cycles only (a taper or
+    the ramp-out of a stop is never judged as a test cycle), their summary, and the verdict in one word:
+    PASSED, FAILED, INCOMPLETE (the test ended before its end: checks without a measured cycle) or NO VERDICT."""
     protocol, note = protocol_of(bundle.record)
     if protocol is None:
         return {"protocol": None, "note": note or "no acceptance rules: the test ran a plain sine profile",
-                "summary": {"passed": None, "verdicts": 0, "failed": 0, "failed_rules": []}, "verdicts": []}
+                "summary": {"passed": None, "verdicts": 0, "failed": 0, "failed_rules": []}, "verdicts": [],
+                "verdict": "NO VERDICT"}
     from sim.protocols import acceptance_summary, evaluate_acceptance
 
-    metrics = [{k: v for k, v in c.items() if k not in ("displacement_m", "force_n")} for c in bundle.cycles]
+    metrics = [{k: v for k, v in c.items() if k not in ("displacement_m", "force_n")}
+               for c in steady_cycles(bundle.cycles)]
     verdicts = evaluate_acceptance(protocol, metrics, isolator=isolator_of(bundle.record))
+    plan = protocol.cycle_plan()
+    rules = {r.name: r for r in protocol.rules}
+    for v in verdicts:  # the cycle each reference value came from
+        rule = rules.get(v["rule"])
+        if rule is not None and rule.reference == "cycle":
+            ref = next((p for p in plan if p["level"] == v["level"] and p["level_cycle"] == rule.reference_cycle),
+                       None)
+            v["reference_cycle"] = ref["cycle"] if ref else None
+        else:
+            v["reference_cycle"] = None
+    summary = acceptance_summary(verdicts)
+    missing = sum(1 for v in verdicts if v["status"] == "missing")
+    ended_early = bool(run and run.get("ended_early"))
+    if summary["passed"] is None:
+        word = "NO VERDICT"
+    elif summary["passed"]:
+        word = "PASSED"
+    elif ended_early and missing:
+        word = "INCOMPLETE"
+    else:
+        word = "FAILED"
     return {"protocol": protocol.name, "title": protocol.title, "rules": [r.text() for r in protocol.rules],
-            "rule_names": [r.name for r in protocol.rules], "summary": acceptance_summary(verdicts),
-            "verdicts": verdicts}
+            "rule_names": [r.name for r in protocol.rules],
+            "rule_details": [{"name": r.name, "text": r.text(), "description": r.description,
+                              "quantity": r.quantity, "reference": r.reference,
+                              "reference_cycle": r.reference_cycle if r.reference == "cycle" else None,
+                              "tolerance_fraction": r.tolerance_fraction,
+                              "levels": list(r.levels) if r.levels else None,
+                              "passed": sum(1 for v in verdicts if v["rule"] == r.name and v["passed"]),
+                              "checks": sum(1 for v in verdicts if v["rule"] == r.name)} for r in protocol.rules],
+            "summary": summary, "verdicts": verdicts, "verdict": word,
+            "checks_missing": missing, "judged_on": "steady cycles only"}
 
 
 def tracking(bundle) -> dict:
@@ -78,31 +154,88 @@ def tracking(bundle) -> dict:
             "peak_abs_voltage_v": num(float(np.nanmax(np.abs(u)))) if np.isfinite(u).any() else None}
 
 
-def report_json(bundle, identify: bool = True, meta: dict | None = None, identification: dict | None = None) -> dict:
-    """All metrics of a test: header, per-cycle metrics, acceptance, identification, tracking, events.
+def report_json(bundle, identify: bool = True, meta: dict | None = None, identification: dict | None = None,
+                lab=None) -> dict:
+    """All metrics of a test: header, what it ran, headline figures, per-cycle metrics, acceptance,
+    identification, tracking, events (with their text), the approval block.
 
     ``identify=False`` skips the Bouc-Wen fit (the slowest part: seconds); ``identification`` is one already
-    made (identified_bouc_wen's answer). ``meta`` (lab, rig, operator) fills in what the record does not hold.
+    made (identified_bouc_wen's answer). ``meta`` (rig, operator, source) fills in what the record does not
+    hold; ``lab`` (lab.LabHeader) is the issuing lab (default: lab_header from ``meta`` and the settings).
     """
-    record = {**bundle.record, **{k: v for k, v in (meta or {}).items() if v}}
+    from .lab import lab_header
+
+    meta = meta or {}
+    if lab is None:
+        lab = lab_header(meta.get("lab_name") or meta.get("lab"), meta.get("lab_address"), meta.get("lab_logo_file"))
+    record = {**bundle.record, **{k: v for k, v in meta.items() if v and not k.startswith("lab")}}
+    bundle = _with_record(bundle, record)
     cycles = [{k: v for k, v in c.items() if k not in ("displacement_m", "force_n")} for c in bundle.cycles]
     iso = isolator_of(record)
+    protocol, _note = protocol_of(record)
+    run = run_of(bundle)
+    events = [{**e, "text": event_text(e)} for e in bundle.events]
     out = {
-        "report_version": 1,
+        "report_version": 2,
         "generated_at": datetime.now(UTC).isoformat(timespec="seconds"),
-        "test": {k: record.get(k) for k in ("id", "label", "status", "reason", "created_at", "started_at",
-                                            "ended_at", "isolator", "supply_bar", "controller", "profile",
-                                            "duration_s", "samples_stored", "lab", "rig", "operator", "source")
+        "lab": lab.to_json(),
+        "test": {k: record.get(k) for k in ("id", "label", "status", "reason", "specimen_id", "operator_name",
+                                            "notes", "created_at", "started_at", "ended_at", "isolator",
+                                            "supply_bar", "vertical_load_n", "controller", "speed", "driver",
+                                            "profile", "limits", "duration_s", "time_s", "cycles_total",
+                                            "cycles_done", "samples_stored", "archived", "rig", "operator",
+                                            "source")
                  if k in record},
+        "run": run,
+        "rig": rig_of(record),
         "isolator_nominal": iso.to_dict() if iso else None,
         "controller": controller_state(bundle),
         "tracking": tracking(bundle),
+        "headline": headline(bundle, protocol),
         "cycles": cycles,
-        "acceptance": acceptance(bundle),
+        "acceptance": acceptance(bundle, run),
         "identification": identification if identification is not None else identified_bouc_wen(bundle)
         if identify else {"available": False, "nominal": iso.to_dict() if iso else None,
                           "note": "identification not requested"},
-        "events": bundle.events,
-        "limit_trips": limit_trips(bundle.events),
+        "events": events,
+        "limit_trips": [e for e in events if e.get("kind") == "limit_trip"],
+        "approval": {"tested_by": operator_of(bundle), "reviewed_by": None, "approved_by": None,
+                     "started_by": starter_of(bundle)},
+        "software": {"isorig": _version()},
     }
     return clean_json(out)
+
+
+def _version() -> str | None:
+    try:
+        from importlib.metadata import version
+
+        return version("isorig")
+    except Exception:  # not installed as a package (a source tree on PYTHONPATH)
+        return None
+
+
+def _with_record(bundle, record: dict):
+    if record is bundle.record:
+        return bundle
+    from .data import ReportBundle
+
+    return ReportBundle(record=record, samples=bundle.samples, cycles=bundle.cycles, events=bundle.events)
+
+
+def operator_of(bundle) -> str | None:
+    """Who ran the test, by name: the record's operator_name, else a name given for the report (``operator``).
+    None when neither is there (the actor of the start event is the token's holder, not a person's name)."""
+    r = bundle.record
+    for key in ("operator_name", "operator"):
+        if r.get(key):
+            return str(r[key])
+    return None
+
+
+def starter_of(bundle) -> str | None:
+    """The actor of the test's start event (what the service knows when no operator name was recorded)."""
+    for e in bundle.events:
+        if e.get("kind") == "operator" and (e.get("values") or {}).get("action") == "start" and e.get("actor"):
+            return str(e["actor"])
+    return None

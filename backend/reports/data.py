@@ -96,12 +96,18 @@ def bundle_from_csv(path, summary_path=None, isolator=None, supply_bar: float | 
         blocks = [SineProfile(b["amplitude_m"], b["frequency_hz"], int(b["cycles"]), int(b["taper_cycles"]),
                               b.get("offset_m", 0.0)) for b in scenario["profile"]]
     t, d, f = cols["time_s"], cols["displacement_m"], cols["force_n"]
+    phases = []
     if blocks:
+        from sim.tracking import cycle_phases
+
         starts, end = profile_cycle_starts_s(blocks)
         cycles = cycle_metrics(t, d, f, starts, end)
+        phases = cycle_phases(blocks)
     else:
         cycles = cycle_metrics(t, d, f)
     for c in cycles:
+        if phases:  # the split's own plan says which cycles are tapers (without a plan: unknown, none marked)
+            c["phase"] = phases[c["cycle"] - 1] if c["cycle"] <= len(phases) else "steady"
         j1 = min(c["i_end"] + 1, n)
         c["displacement_m"] = d[c["i_start"]:j1]
         c["force_n"] = f[c["i_start"]:j1]
@@ -124,7 +130,10 @@ def bundle_from_csv(path, summary_path=None, isolator=None, supply_bar: float | 
         "supply_bar": supply_bar if supply_bar is not None else scenario.get("supply_bar"),
         "controller": scenario.get("controller"),
         "profile": profile,
-        "duration_s": float(t[-1] - t[0]) if n else 0.0,
+        "duration_s": num(scenario.get("duration_s")) or (float(t[-1] - t[0]) if n else 0.0),
+        "time_s": float(t[-1]) if n else 0.0,
+        "cycles_total": (sum(int(b.cycles) for b in blocks) if blocks else None),
+        "cycles_done": len(cycles),
         "samples_stored": n,
         "scenario": {**scenario, **({"isolator": iso.to_dict()} if iso else {})},
         "summary": {k: v for k, v in (summary or {}).items() if k not in ("scenario", "cycles")},
@@ -223,3 +232,221 @@ def clean_json(value):
     if isinstance(value, (list, tuple)):
         return [clean_json(v) for v in value]
     return value
+
+
+# --- what the record says about the run, the rig and the events, in words -------------------------------
+
+STATUS_BANNERS = {  # statuses of a test that did not run to its planned end: (banner title, colour)
+    "aborted": ("TEST ABORTED", "#c62828"),
+    "failed": ("TEST FAILED", "#c62828"),
+    "interrupted": ("TEST INTERRUPTED", "#b45309"),
+    "stopped": ("TEST STOPPED BEFORE ITS END", "#b45309"),
+    "running": ("TEST STILL RUNNING: PROVISIONAL FIGURES", "#6b7280"),
+    "ready": ("TEST NOT RUN", "#6b7280"),
+}
+PHASE_WORDS = {"taper_in": "taper in", "steady": "steady", "taper_out": "taper out", "ramp_out": "ramp out"}
+
+
+def run_of(bundle) -> dict:
+    """What the test actually ran, beside what was planned: status and reason, time run (the last stored
+    sample) against the planned duration, cycles done against planned, samples; and the banner a report puts at
+    its top when the test did not run to its end (None when it did)."""
+    r = bundle.record
+    n = len(bundle.samples)
+    time_run = num(r.get("time_s"))
+    if time_run is None and n:
+        time_run = num(float(bundle.samples["time_s"][-1]))
+    planned = num(r.get("duration_s"))
+    cycles_done = r.get("cycles_done")
+    if not isinstance(cycles_done, int):
+        cycles_done = len(bundle.cycles)
+    cycles_total = r.get("cycles_total") if isinstance(r.get("cycles_total"), int) else None
+    status = str(r.get("status") or "unknown")
+    reason = r.get("reason") or None
+    out = {"status": status, "reason": reason, "time_run_s": time_run, "planned_duration_s": planned,
+           "cycles_done": cycles_done, "cycles_planned": cycles_total, "samples": n,
+           "control_period_s": num((r.get("scenario") or {}).get("control_period_s")),
+           "ended_early": status in STATUS_BANNERS, "banner": None}
+    if status in STATUS_BANNERS:
+        title, colour = STATUS_BANNERS[status]
+        ran = run_text(out)
+        out["banner"] = {"title": title, "colour": colour,
+                         "reason": reason or ("no reason was recorded" if status not in ("ready", "running")
+                                              else ""),
+                         "ran": ran}
+    archived = r.get("archived")
+    if isinstance(archived, dict) and archived.get("at"):
+        out["archived"] = archived
+    return out
+
+
+def run_text(run: dict) -> str:
+    """'Ran 11.50 s of the 40 s planned; 5 of 20 cycles' (or what of it is known)."""
+    parts = []
+    t, planned = run["time_run_s"], run["planned_duration_s"]
+    if t is not None:
+        parts.append(f"ran {t:.2f} s" + (f" of the {planned:g} s planned" if planned is not None else ""))
+    elif planned is not None:
+        parts.append(f"planned {planned:g} s, nothing recorded")
+    done, total = run["cycles_done"], run["cycles_planned"]
+    parts.append(f"{done} of {total} cycles completed" if total is not None else f"{done} cycles completed")
+    text = "; ".join(parts)
+    return text[:1].upper() + text[1:]
+
+
+def rig_of(record: dict) -> dict:
+    """The rig the test ran on and its instrumentation: the driver (``simulated`` or ``udp://HOST:PORT``), the
+    speed of a simulated test, the sensors (latency, noise, resolution of the position and load pressure
+    readings: sim.rig's defaults with the scenario's ``rig_changes``; a UDP rig's own transducers are not
+    described over the link) and the link figures of a UDP rig."""
+    scenario = record.get("scenario") or {}
+    driver = record.get("driver")
+    changes = scenario.get("rig_changes") or {}
+    simulated = driver == "simulated" or (driver is None and scenario.get("control_period_s") is not None)
+    out: dict = {"driver": driver or ("simulated" if simulated else None), "name": record.get("rig"),
+                 "simulated": bool(simulated), "speed": num(record.get("speed")),
+                 "control_period_s": num(scenario.get("control_period_s")), "rig_changes": changes, "sensors": []}
+    try:
+        from sim.rig import DEFAULT_RIG, RigParameters
+    except ImportError:  # pragma: no cover - sim is part of the package
+        return out
+    meta = {f["name"]: f for f in RigParameters().describe()}
+    for key in SENSOR_PARAMETERS:
+        value = num(changes.get(key, getattr(DEFAULT_RIG, key)))
+        out["sensors"].append({"name": key, "value": value, "unit": meta[key]["unit"], "meaning": meta[key]["note"],
+                               "changed": key in changes})
+    other = {k: v for k, v in changes.items() if k not in SENSOR_PARAMETERS and k in meta}
+    out["other_changes"] = [{"name": k, "value": v, "unit": meta[k]["unit"], "meaning": meta[k]["note"]}
+                            for k, v in other.items()]
+    link = (record.get("summary") or {}).get("link")
+    if isinstance(link, dict) and link:
+        out["link"] = link
+    lost = (record.get("summary") or {}).get("lost_periods")
+    if isinstance(lost, int):
+        out["lost_periods"] = lost
+    return out
+
+
+SENSOR_PARAMETERS = ("position_latency_s", "position_noise_rms_m", "position_resolution_m", "pressure_latency_s",
+                     "pressure_noise_rms_pa")
+
+
+def rig_text(rig: dict) -> tuple[str, list[str]]:
+    """The rig in one line and its sensors in lines, for the header."""
+    driver = rig.get("driver")
+    if rig.get("name"):
+        name = str(rig["name"])
+    elif rig.get("simulated"):
+        name = "simulated rig (sim.plant: the calibrated fifth-order model of sim.rig)"
+    elif isinstance(driver, str) and driver.startswith("udp://"):
+        name = f"UDP rig at {driver} (docs/rig-protocol.md)"
+    else:
+        name = str(driver or "not recorded")
+    period = rig.get("control_period_s")
+    if period:
+        name += f"; control and acquisition at {1 / period:g} Hz"
+    if rig.get("simulated") and rig.get("speed") not in (None, 1.0):
+        name += f"; simulated at {rig['speed']:g}x real time"
+    sensors = []
+    if rig.get("simulated"):
+        by = {s["name"]: s for s in rig.get("sensors", [])}
+
+        def v(key, scale, unit, fmt="{:.3g}"):
+            s = by.get(key)
+            return "-" if s is None or s["value"] is None else fmt.format(s["value"] * scale) + f" {unit}"
+
+        if by and all(x["value"] == 0 for x in by.values()):
+            sensors.append("ideal (sim.rig's defaults): the true position and load pressure, without latency, noise "
+                           "or rounding; force = A_p x load pressure")
+        elif by:
+            sensors.append(f"position: latency {v('position_latency_s', 1e3, 'ms')}, noise RMS "
+                           f"{v('position_noise_rms_m', 1e6, 'um')}, resolution {v('position_resolution_m', 1e6, 'um')}"
+                           " (0: ideal)")
+            sensors.append(f"load pressure: latency {v('pressure_latency_s', 1e3, 'ms')}, noise RMS "
+                           f"{v('pressure_noise_rms_pa', 1e-5, 'bar')}; force = A_p x load pressure (simulated)")
+    else:
+        sensors.append("the rig's own transducers (position, force, load and supply pressure): not described over "
+                       "the link; see the rig's calibration records")
+    for c in rig.get("other_changes", []):
+        sensors.append(f"rig parameter {c['name']} = {c['value']:.6g} {c['unit']} (changed from sim.rig's default)")
+    link = rig.get("link")
+    if link:
+        sensors.append("link: " + link_text(link))
+    elif rig.get("lost_periods"):
+        sensors.append(f"{rig['lost_periods']} control periods without a fresh measurement (held)")
+    return name, sensors
+
+
+def link_text(link: dict) -> str:
+    parts = []
+    for key, words in (("received", "packets received"), ("lost", "lost"), ("lost_periods", "periods lost"),
+                       ("rejected", "rejected"), ("rig_commands_missed", "commands the rig missed")):
+        if isinstance(link.get(key), (int, float)):
+            parts.append(f"{link[key]:g} {words}")
+    for key, words in (("round_trip_p50_ms", "round trip median"), ("round_trip_p99_ms", "p99"),
+                       ("round_trip_max_ms", "max")):
+        if num(link.get(key)) is not None:
+            parts.append(f"{words} {link[key]:.3g} ms")
+    return ", ".join(parts) or "no link figures"
+
+
+# quantity name suffix -> (unit shown, scale from SI): longest suffix first
+_UNITS = (("_m_per_s", "mm/s", 1e3), ("_pa", "bar", 1e-5), ("_ms", "ms", 1.0), ("_hz", "Hz", 1.0),
+          ("_m", "mm", 1e3), ("_n", "kN", 1e-3), ("_v", "V", 1.0), ("_s", "s", 1.0))
+_WORDS = {"voltage_v": "valve command", "tracking_error_m": "|y - r|", "target_m": "target r",
+          "displacement_m": "displacement y", "force_n": "force", "load_pressure_pa": "load pressure",
+          "supply_pressure_pa": "supply pressure", "time_s": "time"}
+
+
+def scaled_text(key: str, value) -> str:
+    """A value named in SI (``force_n``) in lab units from its name's suffix: 30062.6 -> '30.06 kN'."""
+    for suffix, unit, scale in _UNITS:
+        if key.endswith(suffix) and num(value) is not None:
+            return f"{value * scale:.4g} {unit}"
+    return f"{value:.4g}" if num(value) is not None and isinstance(value, float) else str(value)
+
+
+def quantity_text(key: str, value) -> str:
+    """``force_n``, 30062.6 -> 'force 30.06 kN'."""
+    name = _WORDS.get(key)
+    if name is None:
+        name = key
+        for suffix, _unit, _scale in _UNITS:
+            if key.endswith(suffix):
+                name = key[:-len(suffix)]
+                break
+        name = name.replace("_", " ")
+    return f"{name} {scaled_text(key, value)}"
+
+
+def limit_trip_text(values: dict) -> str:
+    """A limit trip's recorded values in words: what the rig read at the sample that tripped, and the limit."""
+    from sim.measurement import describe_status
+
+    shown = ("displacement_m", "target_m", "tracking_error_m", "force_n", "load_pressure_pa", "supply_pressure_pa",
+             "voltage_v")
+    skip = set(shown) | {"detector", "time_s", "limit", "limit_name", "flags"}
+    parts = [quantity_text(k, values[k]) for k in shown if num(values.get(k)) is not None]
+    parts += [quantity_text(k, v) for k, v in values.items() if k not in skip and isinstance(v, (int, float, str))
+              and not isinstance(v, bool) and (num(v) is not None or isinstance(v, str))]
+    text = "read at that sample: " + ", ".join(parts) if parts else ""
+    name, limit = values.get("limit_name"), num(values.get("limit"))
+    if isinstance(name, str) and limit is not None:
+        word = _WORDS.get(name, name.replace("_", " "))
+        text += f"; limit: {word if word.startswith('|') else '|' + word + '|'} <= {scaled_text(name, limit)}"
+    flags = values.get("flags")
+    if isinstance(flags, (int, float)) and flags:
+        text += f"; rig status: {describe_status(int(flags))}"
+    return text.lstrip("; ")
+
+
+def event_text(event: dict) -> str:
+    """An event in words: its message, and for a limit trip or a rig fault what was recorded with it."""
+    message = str(event.get("message") or event.get("kind") or "")
+    values = event.get("values") or {}
+    if event.get("kind") == "limit_trip" and values:
+        detail = limit_trip_text(values)
+        return f"{message} ({detail})" if detail else message
+    if event.get("kind") == "rig_fault" and isinstance(values.get("link"), dict):
+        return f"{message} (link: {link_text(values['link'])})"
+    return message

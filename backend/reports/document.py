@@ -14,31 +14,41 @@ from .content import report_json
 from .data import ReportBundle, isolator_of, protocol_of
 from .figures import DETAIL_WINDOW_S, page_loops, page_time, page_time_detail, plot_style
 from .header import header_pages, identification_block, page_header
-from .layout import report_title
+from .lab import lab_header
+from .layout import footer, report_title
 from .tables import pages_table, pages_verdicts_events
 
 
 def render_report_pdf(bundle, out, meta: dict | None = None, report: dict | None = None,
-                      identify: bool = True, identification=None) -> None:
+                      identify: bool = True, identification=None, lab=None) -> None:
     """Write the A4 report of a test to ``out`` (a path or a binary file object).
 
-    Pages: header (lab, rig, operator, date, isolator, supply, protocol, controller with its final adapted
-    parameters, overall verdict, identified Bouc-Wen parameters), loops and per-cycle K_eff/EDC, time histories
-    (displacement and target, voltage, tracking error), the per-cycle table, verdicts, events and limit trips.
-    ``meta`` (lab, rig, operator) fills in what the record does not hold; ``report`` (from report_json) saves
-    computing the metrics twice; ``identify=False`` skips the Bouc-Wen fit. ``identification``, a function
-    returning identified_bouc_wen's answer, lets the fit finish elsewhere meanwhile: the header page that shows
-    it is then drawn last and put first (it replaces ``report["identification"]``).
+    Pages: header (the lab, the status banner of a test that did not run to its end, specimen, operator, dates,
+    duration and cycles run, conditions, headline figures from the steady cycles, the acceptance verdict, tracking,
+    limit trips, notes, rig and sensors, controller with every option and its adapted parameters, identified
+    Bouc-Wen parameters), loops and per-cycle K_eff/EDC (scaled to the steady cycles, tapers marked), time
+    histories (displacement and target, voltage, tracking error), the per-cycle table, the protocol with every
+    check, the events and the approval block; "page N of M" on every page.
+    ``meta`` (rig, operator; lab_name, lab_address, lab_logo_file) fills in what the record does not hold;
+    ``lab`` (lab.LabHeader) is the lab already resolved (default: from ``meta`` and the settings); ``report``
+    (from report_json) saves computing the metrics twice; ``identify=False`` skips the Bouc-Wen fit.
+    ``identification``, a function returning identified_bouc_wen's answer, lets the fit finish elsewhere
+    meanwhile: the header page that shows it is then drawn last and put first (it replaces
+    ``report["identification"]``).
     """
     import logging
 
-    if meta:
-        bundle = ReportBundle(record={**bundle.record, **{k: v for k, v in meta.items() if v}},
-                              samples=bundle.samples, cycles=bundle.cycles, events=bundle.events)
-    if report is None and identification is None:
-        report = report_json(bundle, identify=identify)
-    elif report is None:
-        report = report_json(bundle, identify=False)
+    meta = meta or {}
+    if lab is None:
+        lab = lab_header(meta.get("lab_name") or meta.get("lab"), meta.get("lab_address"), meta.get("lab_logo_file"))
+        if lab.warning:
+            logging.getLogger("isorig.reports").warning(lab.warning)
+    extra = {k: v for k, v in meta.items() if v and not k.startswith("lab")}
+    if extra:
+        bundle = ReportBundle(record={**bundle.record, **extra}, samples=bundle.samples, cycles=bundle.cycles,
+                              events=bundle.events)
+    if report is None:
+        report = report_json(bundle, identify=identify and identification is None, lab=lab)
     plt = plot_style()
     # the core-font AFM files say "medium" where matplotlib asks for "normal": harmless, silence it
     font_log = logging.getLogger("matplotlib.font_manager")
@@ -47,14 +57,14 @@ def render_report_pdf(bundle, out, meta: dict | None = None, report: dict | None
     target = out if hasattr(out, "write") else open(out, "wb")
     try:
         if identification is None:
-            _write_pages(target, plt, bundle, report)
+            _write_pages(target, plt, bundle, report, lab)
         else:  # drawn into memory with the header last, then the header pages moved first
             buf = io.BytesIO()
-            moved = _write_pages(buf, plt, bundle, report, identification)
+            moved = _write_pages(buf, plt, bundle, report, lab, identification)
             data = _pages_moved_first(buf.getvalue(), moved)
             if data is None:  # a page tree this code does not know: draw again in order (the fit is there now)
                 buf = io.BytesIO()
-                _write_pages(buf, plt, bundle, report)
+                _write_pages(buf, plt, bundle, report, lab)
                 data = buf.getvalue()
             target.write(data)
     finally:
@@ -63,33 +73,37 @@ def render_report_pdf(bundle, out, meta: dict | None = None, report: dict | None
             target.close()
 
 
-def _write_pages(target, plt, bundle, report: dict, identification=None) -> int:
-    """Every page, in order; with ``identification`` (a callable) the header page(s) are drawn last, when the fit
-    is there, and their number is returned (0 otherwise) for _pages_moved_first."""
+def _write_pages(target, plt, bundle, report: dict, lab, identification=None) -> int:
+    """Every page, numbered "page N of M"; with ``identification`` (a callable) the header page(s) are saved last,
+    when the fit is there, and their number is returned (0 otherwise) for _pages_moved_first."""
     from matplotlib.backends.backend_pdf import PdfPages
 
     record = bundle.record
     iso = isolator_of(record)
     protocol, _note = protocol_of(record)
-    acc, trk, ctrl = report["acceptance"], report["tracking"], report["controller"]
-    with PdfPages(target, metadata={"Title": report_title(record), "Creator": "isorig"}) as pdf:
-        if identification is None:
-            header = page_header(plt, bundle, ctrl, iso, protocol, acc, report["identification"], trk, 1)
-            _save(plt, pdf, header)
-        else:  # all but the Bouc-Wen table now; the table when the fit is there
-            header, y = header_pages(plt, bundle, ctrl, iso, protocol, acc, trk, 1)
-        figs = [page_loops(plt, bundle, protocol, len(header) + 1)]
-        figs.append(page_time(plt, bundle, len(header) + len(figs) + 1))
-        s = bundle.samples
-        if len(s) > 1 and s["time_s"][-1] - s["time_s"][0] > 6 * DETAIL_WINDOW_S:
-            figs.append(page_time_detail(plt, bundle, len(header) + len(figs) + 1))
-        figs += pages_table(plt, bundle, acc, len(header) + len(figs) + 1, protocol)
-        figs += pages_verdicts_events(plt, bundle, acc, len(header) + len(figs) + 1)
-        _save(plt, pdf, figs)
-        if identification is None:
+    if identification is None:
+        flow = None
+        header = page_header(plt, bundle, report, iso, protocol, lab)
+    else:  # all but the Bouc-Wen table now (with room for it); the table when the fit is there
+        flow = header_pages(plt, bundle, report, iso, protocol, lab)
+        header = flow.figs
+    figs = [page_loops(plt, bundle, protocol, report), page_time(plt, bundle)]
+    s = bundle.samples
+    if len(s) > 1 and s["time_s"][-1] - s["time_s"][0] > 6 * DETAIL_WINDOW_S:
+        figs.append(page_time_detail(plt, bundle))
+    figs += pages_table(plt, bundle, report["acceptance"], protocol, report["headline"])
+    figs += pages_verdicts_events(plt, bundle, report, protocol)
+    total = len(header) + len(figs)
+    for page, fig in enumerate(header + figs, start=1):
+        footer(fig, record, page, total, lab.name if lab is not None else "")
+    with PdfPages(target, metadata={"Title": report_title(record), "Creator": "isorig",
+                                    "Author": (lab.name if lab is not None else "") or "isorig"}) as pdf:
+        if flow is None:
+            _save(plt, pdf, header + figs)
             return 0
+        _save(plt, pdf, figs)
         report["identification"] = identification()
-        identification_block(header[-1], y, report["identification"], record, len(header))
+        identification_block(flow, report["identification"])
         _save(plt, pdf, header)
         return len(header)
 
@@ -131,8 +145,9 @@ def _pages_moved_first(pdf: bytes, n: int) -> bytes | None:
     return pdf[:tree.start(1)] + moved + pdf[tree.end(1):]
 
 
-def report_pdf_bytes(bundle, meta: dict | None = None, identify: bool = True) -> bytes:
+def report_pdf_bytes(bundle, meta: dict | None = None, identify: bool = True, report: dict | None = None,
+                     lab=None) -> bytes:
     """The PDF as bytes (for an HTTP response)."""
     buf = io.BytesIO()
-    render_report_pdf(bundle, buf, meta, identify=identify)
+    render_report_pdf(bundle, buf, meta, report=report, identify=identify, lab=lab)
     return buf.getvalue()

@@ -9,7 +9,7 @@ import math
 import numpy as np
 
 from .data import num
-from .layout import A4_PORTRAIT_IN, footer
+from .layout import A4_PORTRAIT_IN
 
 PLOT_POINTS = 2500  # min/max buckets per time history (5000 points: peaks kept, file small)
 MAX_LOOPS = 40  # loops drawn in the overview (evenly chosen; all of them if fewer)
@@ -35,51 +35,127 @@ def plot_style():
 
 
 def _minmax_decimate(t: np.ndarray, *ys: np.ndarray, buckets: int = PLOT_POINTS):
-    """Per bucket, the min and the max of each series in time order: peaks survive, ~2 x buckets points."""
+    """Per bucket, the min and the max of each series in time order: peaks survive, ~2 x buckets points. Every
+    sample is in a bucket (the last, shorter one takes the rest)."""
     n = t.size
     if n <= 4 * buckets:
         return (t, *ys)
     size = n // buckets
-    m = size * buckets
-    t_out = t[:m].reshape(buckets, size)[:, [0, -1]].ravel()
+    edges = np.arange(0, n, size)  # bucket starts; the last bucket may be shorter
+    full = n // size
+    t_out = np.column_stack([t[edges], t[np.minimum(edges + size, n) - 1]]).ravel()
     outs = []
     for y in ys:
-        yy = y[:m].reshape(buckets, size)
-        i_lo = np.argmin(np.where(np.isnan(yy), np.inf, yy), axis=1)
-        i_hi = np.argmax(np.where(np.isnan(yy), -np.inf, yy), axis=1)
-        rows = np.arange(buckets)
-        lo, hi = yy[rows, i_lo], yy[rows, i_hi]
-        pair = np.where((i_lo <= i_hi)[:, None], np.column_stack([lo, hi]), np.column_stack([hi, lo]))
-        outs.append(pair.ravel())
+        pairs = [_bucket_pairs(y[:full * size].reshape(full, size))]
+        if full * size < n:
+            pairs.append(_bucket_pairs(y[full * size:].reshape(1, -1)))
+        outs.append(np.concatenate(pairs).ravel())
     return (t_out, *outs)
 
 
-def page_loops(plt, bundle, protocol, page):
+def _bucket_pairs(yy: np.ndarray) -> np.ndarray:
+    """(first, second) of each row: its min and max in the order they occur (NaN rows stay NaN)."""
+    i_lo = np.argmin(np.where(np.isnan(yy), np.inf, yy), axis=1)
+    i_hi = np.argmax(np.where(np.isnan(yy), -np.inf, yy), axis=1)
+    rows = np.arange(yy.shape[0])
+    lo, hi = yy[rows, i_lo], yy[rows, i_hi]
+    return np.where((i_lo <= i_hi)[:, None], np.column_stack([lo, hi]), np.column_stack([hi, lo]))
+
+
+STEADY_COLOUR_MAP = "viridis"
+TAPER_COLOUR = "0.6"
+
+
+def _is_steady(c: dict) -> bool:
+    return c.get("phase", "steady") == "steady"
+
+
+MIN_SPAN = 0.1  # a per-cycle axis spans at least 10 % of its values' size: 0.1 % scatter is not drawn as a cliff
+
+
+def steady_limits(values, margin: float = 0.08):
+    """Axis limits around the finite ``values`` (those of the steady cycles), at least MIN_SPAN of their largest
+    size wide, or None when there are none."""
+    v = np.asarray([x for x in values if x is not None and np.isfinite(x)], dtype=float)
+    if v.size == 0:
+        return None
+    lo, hi = float(v.min()), float(v.max())
+    lo, hi = lo - margin * (hi - lo), hi + margin * (hi - lo)
+    least = MIN_SPAN * max(abs(lo), abs(hi)) or 1e-12
+    if hi - lo < least:
+        mid = 0.5 * (lo + hi)
+        lo, hi = mid - 0.5 * least, mid + 0.5 * least
+    return lo, hi
+
+
+def _per_cycle(ax, cycles, key, scale, colour, label, mean):
+    """One quantity per cycle: the steady cycles as a line (gaps where a taper is), the tapers as open grey
+    markers, the axis scaled to the steady cycles (a taper beyond it drawn at the edge as a triangle), the
+    headline mean as a dashed line. Returns how many taper values are off the axis."""
+    n = np.array([c["cycle"] for c in cycles], dtype=float)
+    v = np.array([(num(c.get(key)) if num(c.get(key)) is not None else np.nan) * scale for c in cycles])
+    steady = np.array([_is_steady(c) for c in cycles])
+    marker = "o" if len(cycles) <= 80 else None
+    ax.plot(n, np.where(steady, v, np.nan), color=colour, marker=marker, ms=3, label=f"{label}, steady cycles")
+    limits = steady_limits(v[steady]) or steady_limits(v)
+    off = 0
+    if (~steady).any():
+        tn, tv = n[~steady], v[~steady]
+        if limits is not None:
+            lo, hi = limits
+            inside = (tv >= lo) & (tv <= hi)
+            ax.plot(tn[inside], tv[inside], ls="none", marker="o", ms=3.5, mfc="white", mec=colour, alpha=0.75)
+            above, below = tv > hi, tv < lo
+            ax.plot(tn[above], np.full(above.sum(), hi), ls="none", marker="^", ms=4.5, mfc="white", mec=colour,
+                    clip_on=False)
+            ax.plot(tn[below], np.full(below.sum(), lo), ls="none", marker="v", ms=4.5, mfc="white", mec=colour,
+                    clip_on=False)
+            off = int(above.sum() + below.sum())
+    if limits is not None:
+        ax.set_ylim(*limits)
+    if mean is not None:
+        ax.axhline(mean * scale, color=colour, lw=0.7, ls="--", alpha=0.8)
+    return off
+
+
+def page_loops(plt, bundle, protocol, report=None):
     from matplotlib.collections import LineCollection
+    from matplotlib.lines import Line2D
 
     fig, axes = plt.subplots(2, 1, figsize=A4_PORTRAIT_IN, gridspec_kw={"height_ratios": [3, 2]})
-    fig.subplots_adjust(left=0.12, right=0.88, top=0.94, bottom=0.07, hspace=0.28)
+    fig.subplots_adjust(left=0.12, right=0.88, top=0.94, bottom=0.11, hspace=0.3)
     ax = axes[0]
     cycles = [c for c in bundle.cycles if c.get("displacement_m") is not None and len(c["displacement_m"]) > 2]
+    means = ((report or {}).get("headline") or {}).get("means") or {}
     if cycles:
         step = max(1, math.ceil(len(cycles) / MAX_LOOPS))
         shown = cycles[::step]
         if shown[-1] is not cycles[-1]:
             shown.append(cycles[-1])
-        segs = []
+        shown += [c for c in cycles if not _is_steady(c) and not any(c is s for s in shown)]  # every taper
+        shown.sort(key=lambda c: c["cycle"])
+        segs, tapers = [], []
         for c in shown:
             d = np.asarray(c["displacement_m"]) * 1e3
             f = np.asarray(c["force_n"]) * 1e-3
             k = max(1, d.size // LOOP_POINTS)
-            segs.append(np.column_stack([d[::k], f[::k]]))
-        numbers = np.array([c["cycle"] for c in shown], dtype=float)
-        lc = LineCollection(segs, cmap="viridis", linewidths=0.8)
-        lc.set_array(numbers)
-        ax.add_collection(lc)
+            (segs if _is_steady(c) else tapers).append(np.column_stack([d[::k], f[::k]]))
+        if tapers:
+            ax.add_collection(LineCollection(tapers, colors=TAPER_COLOUR, linewidths=0.7, linestyles="--"))
+        if segs:
+            numbers = np.array([c["cycle"] for c in shown if _is_steady(c)], dtype=float)
+            lc = LineCollection(segs, cmap=STEADY_COLOUR_MAP, linewidths=0.8)
+            lc.set_array(numbers)
+            ax.add_collection(lc)
+            cb = fig.colorbar(lc, ax=ax, pad=0.01, fraction=0.04)
+            cb.set_label("cycle (steady)")
         ax.autoscale()
-        cb = fig.colorbar(lc, ax=ax, pad=0.01, fraction=0.04)
-        cb.set_label("cycle")
+        n_taper = sum(1 for c in cycles if not _is_steady(c))
         ax.set_title(f"Force-displacement loops ({len(shown)} of {len(cycles)} cycles shown)")
+        if n_taper:
+            ax.legend(handles=[Line2D([], [], color=TAPER_COLOUR, lw=0.7, ls="--",
+                                      label=f"taper cycles ({n_taper}): not in the headline figures")],
+                      loc="upper left")
     else:
         ax.text(0.5, 0.5, "no complete cycle recorded", ha="center", va="center", transform=ax.transAxes)
         ax.set_title("Force-displacement loops")
@@ -87,19 +163,15 @@ def page_loops(plt, bundle, protocol, page):
     ax.set_ylabel("force [kN]")
     ax.axhline(0, color="0.6", lw=0.5)
     ax.axvline(0, color="0.6", lw=0.5)
-    # per-cycle K_eff and EDC
+    # per-cycle K_eff and EDC, scaled to the steady cycles
     ax2 = axes[1]
     if bundle.cycles:
-        n = [c["cycle"] for c in bundle.cycles]
-        keff = [(num(c.get("k_eff_n_per_m")) or np.nan) * 1e-6 for c in bundle.cycles]
-        edc = [num(c.get("edc_j")) if num(c.get("edc_j")) is not None else np.nan for c in bundle.cycles]
-        marker = "o" if len(n) <= 80 else None
-        ax2.plot(n, keff, color="C0", marker=marker, ms=3, label="K_eff")
         ax2.set_ylabel("K_eff [kN/mm]", color="C0")
         ax3 = ax2.twinx()
-        ax3.plot(n, edc, color="C3", marker=marker, ms=3, label="EDC")
         ax3.set_ylabel("EDC [J]", color="C3")
         ax3.grid(False)
+        off = _per_cycle(ax2, bundle.cycles, "k_eff_n_per_m", 1e-6, "C0", "K_eff", means.get("k_eff_n_per_m"))
+        off += _per_cycle(ax3, bundle.cycles, "edc_j", 1.0, "C3", "EDC", means.get("edc_j"))
         title = "Effective stiffness and energy dissipated per cycle"
         if protocol is not None:
             for p in protocol.cycle_plan():
@@ -107,15 +179,24 @@ def page_loops(plt, bundle, protocol, page):
                     ax2.axvspan(p["cycle"] - 0.5, p["cycle"] + 0.5, color="0.92", lw=0, zorder=0)
             title += " (shaded: judged test cycles)"
         ax2.set_title(title)
+        handles = [Line2D([], [], color="C0", label="K_eff"), Line2D([], [], color="C3", label="EDC"),
+                   Line2D([], [], color="0.3", ls="--", lw=0.7, label="mean of the steady cycles")]
+        if any(not _is_steady(c) for c in bundle.cycles):
+            handles.append(Line2D([], [], ls="none", marker="o", ms=3.5, mfc="white", mec="0.3",
+                                  label="open: taper cycle (excluded)" + (f"; {off} off scale (triangles)" if off
+                                                                          else "")))
+        ax2.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.12), fontsize=7, ncol=4,
+                   frameon=False, handlelength=1.6, columnspacing=1.2)
         from matplotlib.ticker import MaxNLocator
 
         ax2.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax2.set_xlabel("cycle")
-    footer(fig, bundle.record, page)
+    fig.text(0.12, 0.036, "Axes scaled to the steady cycles; taper cycles (lower amplitude, stiffer) are drawn "
+             "grey and left out of the headline figures.", fontsize=7, color="0.35")
     return fig
 
 
-def page_time(plt, bundle, page):
+def page_time(plt, bundle):
     s = bundle.samples
     fig, axes = plt.subplots(3, 1, figsize=A4_PORTRAIT_IN, sharex=True)
     fig.subplots_adjust(left=0.12, right=0.95, top=0.94, bottom=0.07, hspace=0.18)
@@ -136,17 +217,19 @@ def page_time(plt, bundle, page):
             if ev.get("kind") == "limit_trip" and num(ev.get("time_s")) is not None:
                 for ax in axes:
                     ax.axvline(ev["time_s"], color="#c62828", lw=1.0, ls="--")
+                axes[0].annotate("limit trip", (ev["time_s"], 1.0), xycoords=("data", "axes fraction"),
+                                 xytext=(-3, -3), textcoords="offset points", ha="right", va="top", fontsize=7,
+                                 color="#c62828")
     axes[0].set_title("Displacement and target", loc="left")
     axes[0].set_ylabel("displacement [mm]")
     axes[1].set_title("Servo-valve command voltage", loc="left")
     axes[1].set_ylabel("voltage [V]")
     axes[2].set_ylabel("y - r [mm]")
     axes[2].set_xlabel("time [s]")
-    footer(fig, bundle.record, page)
     return fig
 
 
-def page_time_detail(plt, bundle, page):
+def page_time_detail(plt, bundle):
     """First and last DETAIL_WINDOW_S seconds at full resolution (the overview page is an envelope)."""
     s = bundle.samples
     t = s["time_s"]
@@ -168,5 +251,4 @@ def page_time_detail(plt, bundle, page):
     axes[0, 0].set_ylabel("displacement [mm]")
     axes[1, 0].set_ylabel("voltage [V]")
     axes[2, 0].set_ylabel("y - r [mm]")
-    footer(fig, bundle.record, page)
     return fig

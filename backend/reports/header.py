@@ -1,97 +1,84 @@
-"""The header page(s): lab, rig, operator, test conditions, controller, the acceptance verdict, tracking, limit
-trips, and the Bouc-Wen parameters identified beside the nominal ones (a block that can be added last, when a
-fit made elsewhere arrives).
+"""The header page(s): the lab's band (logo, name, address), the test's status banner when it did not run to its
+end, who and what was tested, the conditions, the results from the steady cycles (headline figures, acceptance
+verdict, tracking, limit trips), notes, rig and sensors, controller, and the Bouc-Wen parameters identified
+beside the nominal ones (a block that can be added last, when a fit made elsewhere arrives).
+
+Text flows from the top down (layout.Flow) and continues on a second page when the first is full; nothing is
+cut short. Footers ("page N of M") are drawn by document.py once every page exists.
 """
 
 from __future__ import annotations
 
-import json
 from datetime import UTC, datetime
 
-from .data import limit_trips, num
+from .data import PHASE_WORDS, num, rig_text
 from .identification import BOUC_WEN_FIELDS
-from .layout import A4_PORTRAIT_IN, fmt_num, footer, report_title, wrap_text
+from .layout import PAGE_BOTTOM, Flow, fmt_num, report_title, rule, wrap_items, wrap_pt
 
 MAX_HEADER_LEVELS = 6  # the header page lists at most this many protocol levels ...
-MAX_HEADER_RULES = 4  # ... and rules (all of them are on the verdicts page)
+MAX_HEADER_RULES = 4  # ... and failing rules (all of them are on the verdicts page)
+
+KEY_X, VALUE_X, RIGHT_X = 0.06, 0.25, 0.94
+VALUE_WIDTH_PT = (RIGHT_X - VALUE_X) * 595.0  # A4 width in points: 595
+BODY = 8.5  # pt: body text
+PITCH = 11.0  # pt: body line pitch
+RED, GREEN, GREY = "#c62828", "#1a7f37", "0.35"
+VERDICT_COLOURS = {"PASSED": GREEN, "FAILED": RED, "INCOMPLETE": "#b45309", "NO VERDICT": GREY}
+IDENTIFICATION_PT = 16 + 7 * 10.5 + 12  # the Bouc-Wen block's height: heading, 6 rows, note
 
 
-def page_header(plt, bundle, ctrl, iso, protocol, acc, ident, trk, page):
+def page_header(plt, bundle, report, iso, protocol, lab):
     """The header page(s), with the Bouc-Wen table."""
-    figs, y = header_pages(plt, bundle, ctrl, iso, protocol, acc, trk, page)
-    identification_block(figs[-1], y, ident, bundle.record, page + len(figs) - 1)
-    return figs
+    flow = header_pages(plt, bundle, report, iso, protocol, lab)
+    identification_block(flow, report["identification"])
+    return flow.figs
 
 
-def header_pages(plt, bundle, ctrl, iso, protocol, acc, trk, page):
-    """The header page(s) up to the Bouc-Wen table, and where that table starts (it needs the fit)."""
-    fig = plt.figure(figsize=A4_PORTRAIT_IN)
-    fig.text(0.07, 0.955, report_title(bundle.record), fontsize=14, weight="bold")
-    fig.text(0.07, 0.935, f"generated {datetime.now(UTC).strftime('%Y-%m-%d %H:%M UTC')}", fontsize=8, color="0.4")
-    y = 0.90
-    for key, value in _header_lines(bundle, ctrl, iso, protocol):
-        fig.text(0.07, y, key, fontsize=9, weight="bold" if key and not key.startswith("  ") else "normal")
-        fig.text(0.30, y, value, fontsize=9)
-        y -= 0.021
-    # verdict box
-    y -= 0.015
-    summary = acc["summary"]
-    if summary["passed"] is None:
-        verdict, color = "NO VERDICT", "0.35"
-        detail = [acc.get("note") or "no acceptance rules"]
-    elif summary["passed"]:
-        verdict, color = "PASSED", "#1a7f37"
-        detail = [f"protocol {acc['protocol']}: all {summary['verdicts']} checks passed"]
-    else:
-        verdict, color = "FAILED", "#c62828"
-        detail = [f"protocol {acc['protocol']}: {summary['failed']} of {summary['verdicts']} checks failed"]
-        for r in summary["failed_rules"][:MAX_HEADER_RULES]:
-            detail.append(f"rule {r['rule']}: {r['failures']} failures, e.g. {r['first']}")
-        if len(summary["failed_rules"]) > MAX_HEADER_RULES:
-            detail.append(f"... and {len(summary['failed_rules']) - MAX_HEADER_RULES} more failing rules: see the "
-                          "verdicts page")
-    fig.text(0.07, y, "Acceptance", fontsize=11, weight="bold")
-    fig.text(0.30, y, verdict, fontsize=13, weight="bold", color=color)
-    y -= 0.024
-    for line in detail[:8]:
-        for chunk in wrap_text(line, 105):
-            fig.text(0.09, y, chunk, fontsize=8.5)
-            y -= 0.017
-    if acc.get("rules"):
-        y -= 0.004
-        for n, t in list(zip(acc["rule_names"], acc["rules"], strict=True))[:MAX_HEADER_RULES]:
-            fig.text(0.09, y, f"rule {n}: {t}"[:120], fontsize=8, color="0.3")
-            y -= 0.016
-    # tracking and limit trips
-    y -= 0.01
-    fig.text(0.07, y, "Tracking", fontsize=11, weight="bold")
-    if trk:
-        peak_u = fmt_num(trk.get("peak_abs_voltage_v"), "{:.2f}")
-        fig.text(0.30, y, f"RMS |y - r| = {trk['rms_y_minus_r_m'] * 1e3:.3f} mm, peak |y - r| = "
-                          f"{trk['peak_abs_y_minus_r_m'] * 1e3:.3f} mm, peak |u| = {peak_u} V", fontsize=9)
-    else:
-        fig.text(0.30, y, "no target recorded", fontsize=9)
-    y -= 0.022
-    trips = limit_trips(bundle.events)
-    fig.text(0.07, y, "Limit trips", fontsize=11, weight="bold")
-    fig.text(0.30, y, f"{len(trips)}" + (f": {trips[0].get('message', '')}"[:100] if trips else " (none)"),
-             fontsize=9, color="#c62828" if trips else "black")
-    y -= 0.035
-    # identification table (on a second header page when the first is full)
-    figs = [fig]
-    if y < 0.20:
-        footer(fig, bundle.record, page)
-        fig = plt.figure(figsize=A4_PORTRAIT_IN)
-        figs.append(fig)
-        fig.text(0.07, 0.955, report_title(bundle.record) + " (continued)", fontsize=12, weight="bold")
-        y = 0.91
-    return figs, y
+def header_pages(plt, bundle, report, iso, protocol, lab) -> Flow:
+    """The header page(s) up to the Bouc-Wen table, with room left for it (it needs the fit: ``identification_
+    block`` draws it later on ``flow.fig``, so the number of header pages is known before the fit)."""
+    record = bundle.record
+    flow = Flow(plt, report_title(record))
+    fig = flow.new_page(continued=False)
+    _lab_band(fig, record, lab)
+    flow.y = 0.898
+    flow.text(KEY_X, report_title(record), pitch=15, fontsize=13, weight="bold")
+    run = report["run"]
+    if run.get("banner"):
+        _banner(flow, run["banner"])
+    flow.skip(4)
+
+    _section(flow, "Test")
+    for key, value in _test_lines(bundle, report, iso):
+        _kv(flow, key, value)
+    _section(flow, "Conditions")
+    for key, value in _condition_lines(record, protocol):
+        _kv(flow, key, value)
+    _results(flow, report, protocol)
+    # the setup on a page of its own: page 1 is the summary a reader signs off
+    flow.new_page(title=report_title(record) + ": test setup")
+    _section(flow, "Rig and sensors")
+    rig_name, sensors = rig_text(report["rig"])
+    _kv(flow, "Rig", rig_name)
+    for k, line in enumerate(sensors):
+        _kv(flow, "Sensors" if k == 0 else "", line)
+    _section(flow, "Controller")
+    for key, value in _controller_lines(report["controller"]):
+        _kv(flow, key, value)
+    version = (report.get("software") or {}).get("isorig") or "(version unknown)"
+    _kv(flow, "Software", f"isorig {version}: loop metrics and headline figures sim.metrics, verdicts "
+                          "sim.protocols, identification sim.identify_bouc_wen (report format "
+                          f"{report.get('report_version')})")
+    flow.skip(6)
+    flow.room(IDENTIFICATION_PT)
+    return flow
 
 
-def identification_block(fig, y, ident, record, page):
-    """The Bouc-Wen table (nominal, identified, difference) and the footer of the last header page."""
-    fig.text(0.07, y, "Bouc-Wen parameters: nominal and identified from this test", fontsize=11, weight="bold")
-    y -= 0.024
+def identification_block(flow: Flow, ident: dict) -> None:
+    """The Bouc-Wen table (nominal, identified, difference), where header_pages left room for it."""
+    fig = flow.fig
+    flow.text(KEY_X, "Bouc-Wen parameters: nominal and identified from this test", pitch=16, fontsize=10.5,
+              weight="bold")
     nominal = ident.get("nominal") or {}
     rows = [("parameter", "unit", "nominal", "identified", "difference")]
     units = {"rho_bw_per_m": "1/m", "sigma_bw": "-", "n": "-", "kd_n_per_m": "N/m", "kw_n": "N"}
@@ -101,94 +88,303 @@ def identification_block(fig, y, ident, record, page):
         diff = f"{100 * (iv / nv - 1):+.1f} %" if nv and iv is not None else "-"
         rows.append((k, units[k], fmt_num(nv), fmt_num(iv), diff))
     for row in rows:
-        for x, cell in zip((0.09, 0.27, 0.36, 0.52, 0.68), row, strict=True):
-            fig.text(x, y, cell, fontsize=8.5, family="monospace", weight="bold" if row is rows[0] else "normal")
-        y -= 0.018
+        flow.row([(x, cell) for x, cell in zip((0.08, 0.26, 0.35, 0.51, 0.67), row, strict=True)], pitch=10.5,
+                 fontsize=8.5, family="monospace", weight="bold" if row is rows[0] else "normal")
     if not ident.get("available"):
-        fig.text(0.09, y, ident.get("note", ""), fontsize=8, color="0.4")
+        note = ident.get("note", "")
     else:
         nrms = num((ident.get("fit") or {}).get("nrms_error"))
-        fig.text(0.09, y, f"{ident.get('source', '')}" + (f"; force NRMS error {100 * nrms:.2g} %" if nrms is not None
-                                                            else ""), fontsize=8, color="0.4")
-    footer(fig, record, page)
+        note = f"{ident.get('source', '')}" + (f"; force NRMS error {100 * nrms:.2g} %" if nrms is not None else "")
+    flow.y -= flow.frac(12)
+    fig.text(0.08, max(flow.y, PAGE_BOTTOM), note[:160], fontsize=8, color="0.4")
 
 
-def _header_lines(bundle, ctrl: dict, iso, protocol) -> list[tuple[str, str]]:
-    r = bundle.record
-    scenario = r.get("scenario") or {}
-    date = r.get("started_at") or r.get("created_at") or "-"
-    status = str(r.get("status") or "-") + (f" ({r['reason']})" if r.get("reason") else "")
-    driver = r.get("driver")
-    rig = r.get("rig") or ("simulated rig (sim.rig defaults)" if driver == "simulated" else driver) or \
-        ("simulated rig (sim.rig defaults)" if scenario.get("control_period_s") else "-")
-    lines = [
-        ("Lab", r.get("lab") or "-"),
-        ("Rig", rig),
-        ("Operator", _operator(bundle) or "-"),
-        ("Date", str(date)[:19].replace("T", " ") + (" UTC" if date != "-" else "")),
-        ("Test status", status[:110]),
-    ]
-    if iso is not None:
-        lines.append(("Isolator", f"{iso.name}" + (f" - {iso.description}" if iso.description else "")))
-        lines.append(("  Bouc-Wen (eq. 4)", f"rho_BW = {iso.rho_bw_per_m:g} 1/m, sigma_BW = {iso.sigma_bw:g}, "
-                                            f"n = {iso.n:g}, k_d = {iso.kd_n_per_m:.4g} N/m, k_w = {iso.kw_n:.4g} N"))
+# --- the parts of the page ------------------------------------------------------------------------------
+
+def _lab_band(fig, record, lab) -> None:
+    """Logo, lab name and address at the top left; report, test and issue date at the top right; a rule."""
+    x = KEY_X
+    if lab is not None and lab.logo is not None:
+        h_px, w_px = lab.logo.shape[:2]
+        height = 0.045  # of the page height: 38 pt, 13 mm
+        width = min(0.25, height * 11.69 / 8.27 * w_px / h_px)
+        ax = fig.add_axes((KEY_X, 0.975 - height, width, height))
+        ax.imshow(lab.logo, interpolation="antialiased")
+        ax.set_axis_off()
+        ax.set_anchor("W")
+        x = KEY_X + width + 0.015
+    name = lab.name if lab is not None else ""
+    if name:
+        fig.text(x, 0.958, name, fontsize=12, weight="bold")
+        for k, line in enumerate(lab.address_lines[:3]):
+            fig.text(x, 0.944 - k * 0.0115, line, fontsize=8, color="0.25")
     else:
-        lines.append(("Isolator", str(r.get("isolator") or "not recorded")))
-    sb = num(r.get("supply_bar"))
-    lines.append(("Supply pressure", f"{sb:g} bar" if sb is not None else "not recorded"))
-    load = num(r.get("vertical_load_n", (r.get("scenario") or {}).get("vertical_load_n")))
-    lines.append(("Vertical load", f"{load / 1e3:g} kN" if load is not None else "not recorded (before 2026-11-24: "
-                  "the rig's 125 kN)"))
-    for k, text in enumerate(_profile_text(r, protocol)):
-        lines.append(("Profile" if k == 0 else "", text))
-    lines.append(("Controller", str(ctrl.get("name") or "not recorded")
-                  + (f", options {json.dumps(ctrl['options'])}" if ctrl.get("options") else "")))
-    if ctrl.get("parameters"):
-        text = ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}"
-                         for k, v in ctrl["parameters"].items())
-        lines += _wrapped_lines("  parameters", text)
-    if ctrl.get("final_adapted"):
-        labels = ctrl.get("adapted_labels") or {}
-        lines += _wrapped_lines("  final adapted", ", ".join(f"{labels.get(k, k)} = {v:.5g}"
-                                                             for k, v in ctrl["final_adapted"].items()))
-    dur = num(r.get("duration_s"))
-    lines.append(("Duration, samples", f"{dur:g} s, {bundle.samples.shape[0]} samples" if dur is not None
-                  else f"{bundle.samples.shape[0]} samples"))
+        fig.text(x, 0.958, "laboratory not set", fontsize=10, color="0.55", style="italic")
+        fig.text(x, 0.944, "set ISORIG_LAB_NAME, ISORIG_LAB_ADDRESS, ISORIG_LAB_LOGO_FILE (or isorig report "
+                 "--lab-name, --lab-address, --lab-logo)", fontsize=7, color="0.55")
+    fig.text(RIGHT_X, 0.958, "TEST REPORT", fontsize=12, weight="bold", ha="right")
+    tid = record.get("id")
+    fig.text(RIGHT_X, 0.944, f"test record {tid}" if tid is not None else "CSV record", fontsize=8.5, ha="right")
+    fig.text(RIGHT_X, 0.9325, f"issued {datetime.now(UTC).strftime('%Y-%m-%d %H:%M UTC')}", fontsize=7.5,
+             color="0.4", ha="right")
+    rule(fig, 0.912, color="0.3", lw=0.8)
+
+
+def _banner(flow: Flow, banner: dict) -> None:
+    """A coloured box across the page: what happened (ABORTED ...), why, and what ran."""
+    from matplotlib.patches import Rectangle
+
+    reason = wrap_pt(banner["reason"], (RIGHT_X - KEY_X - 0.03) * 595.0, 9.5) if banner.get("reason") else []
+    lines = [(banner["title"], 13, "bold")] + [(r, 9.5, "bold") for r in reason] + [(banner["ran"], 9, "normal")]
+    height = 8 + 17 + 12.5 * (len(lines) - 1) + 4
+    flow.skip(4)
+    fig, top = flow.fig, flow.y
+    fig.add_artist(Rectangle((KEY_X, top - flow.frac(height)), RIGHT_X - KEY_X, flow.frac(height),
+                             transform=fig.transFigure, facecolor=banner["colour"], edgecolor="none"))
+    y = top - flow.frac(8 + 13)
+    for k, (text, size, weight) in enumerate(lines):
+        fig.text(KEY_X + 0.015, y, text, fontsize=size, weight=weight, color="white")
+        y -= flow.frac(17 if k == 0 else 12.5)
+    flow.y = top - flow.frac(height)
+
+
+def _section(flow: Flow, title: str) -> None:
+    flow.room(16 + 2 * PITCH)  # a heading never ends a page
+    flow.text(KEY_X, title, pitch=16, fontsize=10.5, weight="bold")
+    flow.skip(1)
+
+
+def _kv(flow: Flow, key: str, value, **kw) -> None:
+    """A key and its value wrapped to the value column: every word shown, as many lines as it needs (a list of
+    items is broken between items only)."""
+    lines = wrap_items(value, VALUE_WIDTH_PT, BODY) if isinstance(value, list) else wrap_pt(value, VALUE_WIDTH_PT,
+                                                                                              BODY)
+    for k, line in enumerate(lines):
+        flow.room(PITCH)
+        flow.y -= flow.frac(PITCH)
+        if k == 0 and key:
+            flow.fig.text(KEY_X, flow.y, key, fontsize=BODY, weight="bold" if not key.startswith(" ") else "normal")
+        flow.fig.text(VALUE_X, flow.y, line, fontsize=BODY, **kw)
+
+
+def _date(value) -> str | None:
+    return str(value)[:19].replace("T", " ") + " UTC" if value else None
+
+
+def _test_lines(bundle, report, iso) -> list[tuple[str, str]]:
+    r = bundle.record
+    run = report["run"]
+    lines = [("Specimen", str(r.get("specimen_id") or "not recorded"))]
+    if iso is not None:
+        lines.append(("Isolator model", f"{iso.name}" + (f" - {iso.description}" if iso.description else "")
+                      + f"; nominal Bouc-Wen (eq. 4): rho_BW = {iso.rho_bw_per_m:g} 1/m, sigma_BW = {iso.sigma_bw:g}, "
+                        f"n = {iso.n:g}, k_d = {iso.kd_n_per_m:.4g} N/m, k_w = {iso.kw_n:.4g} N"))
+    else:
+        lines.append(("Isolator model", str(r.get("isolator") or "not recorded")))
+    approval = report["approval"]
+    by = f" (started by {approval['started_by']!r})" if approval.get("started_by") else ""
+    lines.append(("Operator", approval.get("tested_by") or f"not recorded{by}"))
+    started, ended, created = _date(r.get("started_at")), _date(r.get("ended_at")), _date(r.get("created_at"))
+    if started:
+        lines.append(("Date", f"started {started}" + (f", ended {ended}" if ended else "")))
+    else:
+        lines.append(("Date", f"created {created}" if created else "not recorded"))
+    status = run["status"] + (f": {run['reason']}" if run.get("reason") else "")
+    lines.append(("Status", status))
+    t, planned = run["time_run_s"], run["planned_duration_s"]
+    if t is None:
+        lines.append(("Duration", "nothing recorded" + (f" (planned {planned:g} s)" if planned is not None else "")))
+    elif planned is None:
+        lines.append(("Duration", f"{t:.2f} s (the last sample)"))
+    elif run["ended_early"]:
+        lines.append(("Duration", f"{t:.2f} s run of the {planned:g} s planned ({100 * t / planned:.0f} %)"
+                      if planned > 0 else f"{t:.2f} s run"))
+    else:
+        lines.append(("Duration", f"{t:.2f} s (planned {planned:g} s)"))
+    head = report["headline"]
+    parts = [f"{run['cycles_done']} completed" + (f" of {run['cycles_planned']} planned" if run["cycles_planned"]
+                                                 else "")]
+    if head.get("phases_known"):
+        phases = ", ".join(f"{n} {PHASE_WORDS.get(p, p)}" for p, n in head["excluded_cycles"].items())
+        parts.append(f"{head['steady_cycles']} steady" + (f", {phases}" if phases else ""))
+    else:
+        parts.append("phases not known (no profile): every cycle counted as steady")
+    lines.append(("Cycles", "; ".join(parts)))
+    period = run.get("control_period_s")
+    lines.append(("Samples", f"{run['samples']}" + (f" at {1 / period:g} Hz" if period else "")))
+    if run.get("archived"):
+        a = run["archived"]
+        lines.append(("Archived", f"{_date(a.get('at'))} by {a.get('by')}: {a.get('reason')}"))
     if r.get("source"):
-        lines.append(("Source", str(r["source"])[-100:]))
+        lines.append(("Source", str(r["source"])))
+    notes = str(r.get("notes") or "").strip()
+    if notes:
+        lines.append(("Notes", notes))
     return lines
 
 
-def _operator(bundle) -> str | None:
-    if bundle.record.get("operator"):
-        return bundle.record["operator"]
-    for e in bundle.events:
-        if e.get("kind") == "operator" and (e.get("values") or {}).get("action") == "start" and e.get("actor"):
-            return e["actor"]
-    return None
+def _condition_lines(r: dict, protocol) -> list[tuple[str, str]]:
+    lines = []
+    sb = num(r.get("supply_bar"))
+    lines.append(("Supply pressure", f"{sb:g} bar" if sb is not None else "not recorded"))
+    load = num(r.get("vertical_load_n", (r.get("scenario") or {}).get("vertical_load_n")))
+    lines.append(("Vertical load", f"{load / 1e3:g} kN" if load is not None else "not recorded"))
+    for k, text in enumerate(_profile_text(r, protocol)):
+        lines.append(("Profile" if k == 0 else "", text))
+    limits = r.get("limits") or {}
+    if limits:
+        parts = []
+        for key, words, scale, unit in (("displacement_m", "|y|", 1e3, "mm"), ("force_n", "|F|", 1e-3, "kN"),
+                                        ("load_pressure_pa", "|P_L|", 1e-5, "bar"),
+                                        ("tracking_error_m", "|y - r|", 1e3, "mm")):
+            if num(limits.get(key)) is not None:
+                parts.append(f"{words} <= {limits[key] * scale:.4g} {unit}")
+        lines.append(("Limits", ", ".join(parts) + "; supply pressure >= 50 % of its setting; rig faults; a frozen "
+                      "position reading"))
+    return lines
 
 
 def _profile_text(record: dict, protocol) -> list[str]:
     if protocol is not None:
-        lines = wrap_text(f"protocol {protocol.name}: {protocol.title}", 88)
+        lines = [f"protocol {protocol.name}: {protocol.title}"]
         for i, lv in enumerate(protocol.levels[:MAX_HEADER_LEVELS], start=1):
-            lines.append(f"  level {i}: {lv.amplitude_m * 1e3:.2f} mm at {lv.frequency_hz:g} Hz, {lv.cycles} test "
-                         f"cycles + {lv.taper_cycles} ramp cycles each side")
+            lines.append(f"level {i}: {lv.amplitude_m * 1e3:.2f} mm at {lv.frequency_hz:g} Hz, {lv.cycles} test "
+                         f"cycles + {lv.taper_cycles} taper cycles each side")
         if len(protocol.levels) > MAX_HEADER_LEVELS:
-            lines.append(f"  ... and {len(protocol.levels) - MAX_HEADER_LEVELS} more levels")
+            lines.append(f"... and {len(protocol.levels) - MAX_HEADER_LEVELS} more levels (all on the verdicts "
+                         "page)")
         return lines
     prof = record.get("profile") or {}
     blocks = (record.get("scenario") or {}).get("profile") or ([prof] if prof.get("kind") == "sine" else [])
     if not blocks:
         return ["profile not recorded"]
     return [f"sine {b['amplitude_m'] * 1e3:.2f} mm at {b['frequency_hz']:g} Hz, {b['cycles']} cycles "
-            f"(taper {b.get('taper_cycles', 0)}, offset {b.get('offset_m', 0.0) * 1e3:.2f} mm)" for b in blocks[:6]]
+            f"(taper {b.get('taper_cycles', 0)} each side, offset {b.get('offset_m', 0.0) * 1e3:.2f} mm)"
+            for b in blocks[:MAX_HEADER_LEVELS]] + ([f"... and {len(blocks) - MAX_HEADER_LEVELS} more blocks"]
+                                                    if len(blocks) > MAX_HEADER_LEVELS else [])
 
 
-def _wrapped_lines(key: str, text: str, width: int = 85, max_lines: int = 3) -> list[tuple[str, str]]:
-    """Header lines for a long value: wrapped to the page's width, at most ``max_lines`` (then "...")."""
-    chunks = wrap_text(text, width)
-    if len(chunks) > max_lines:
-        chunks = chunks[:max_lines]
-        chunks[-1] += " ..."
-    return [(key if k == 0 else "", chunk) for k, chunk in enumerate(chunks)]
+def _controller_lines(ctrl: dict) -> list[tuple[str, str | list[str]]]:
+    name = ctrl.get("name")
+    if not name:
+        return [("Controller", "not recorded")]
+    asked = ctrl.get("options") or {}
+    lines = [("Controller", f"{name}; " + ("options set for this test (marked *): " + ", ".join(asked)
+                                           if asked else "its default options"))]
+    opts = []
+    for o in ctrl.get("options_in_force") or []:
+        v = o["value"]
+        text = f"{v:.4g}" if isinstance(v, float) else str(v)
+        unit = o.get("unit")
+        opts.append(f"{o['name']}{'*' if o.get('set_for_test') else ''} = {text}"
+                    + (f" {unit}" if unit and unit != "-" else ""))
+    if opts:
+        lines.append(("  options in force", opts))
+    adapted = ctrl.get("adapted") or []
+    if adapted:
+        parts = []
+        for a in adapted:
+            final = num(a.get("final"))
+            unit = "" if a["unit"] == "-" else f" {a['unit']}"
+            parts.append(f"{a['name']} = {final:.5g}{unit}" if final is not None else f"{a['name']}: not recorded")
+        lines.append(("  adapted (final)", parts))
+    else:
+        lines.append(("  adapted", "nothing: a fixed-gain controller"))
+    return lines
+
+
+# --- results: headline figures, acceptance, tracking, limit trips ----------------------------------------
+
+HEADLINE_COLUMNS = (("k_eff_n_per_m", "K_eff", "kN/mm", 1e-6, "{:.4f}"), ("edc_j", "EDC", "J", 1.0, "{:.2f}"),
+                    ("xi_eff", "xi_eff", "%", 100.0, "{:.2f}"), ("qd_n", "Q_d", "kN", 1e-3, "{:.3f}"),
+                    ("kd_n_per_m", "K_d", "kN/mm", 1e-6, "{:.4f}"))
+
+
+def headline_rows(head: dict) -> list[tuple[str, str]]:
+    """The headline table as monospace lines (and their colour)."""
+    def line(label, cells, tail):
+        return f"{label:<27}" + "".join(f"{c:>9}" for c in cells) + f"   {tail}"
+
+    rows = [(line("", [c[1] for c in HEADLINE_COLUMNS], "steady cycles"), "black"),
+            (line("", [c[2] for c in HEADLINE_COLUMNS], ""), "0.4")]
+
+    def values(means):
+        return [fmt_num(means.get(k), fmt, scale) for k, _n, _u, scale, fmt in HEADLINE_COLUMNS]
+
+    levels = head.get("levels") or []
+    rows.append((line("mean, all steady cycles" if levels else "mean of the steady cycles", values(head["means"]),
+                      f"{head['steady_cycles']} of {head['cycles']}"), "black"))
+    for lv in levels:
+        label = f"level {lv['level']}: {lv['amplitude_m'] * 1e3:.2f} mm {lv['frequency_hz']:g} Hz"
+        tail = f"{lv['steady_cycles']} of {lv['cycles']}" if lv["cycles"] else "not reached"
+        rows.append((line(label[:27], values(lv["means"]), tail), "black" if lv["cycles"] else "0.45"))
+    return rows
+
+
+def _results(flow: Flow, report: dict, protocol) -> None:
+    head = report["headline"]
+    _section(flow, "Results (from the steady cycles)")
+    if head["steady_cycles"]:
+        for text, colour in headline_rows(head):
+            flow.text(VALUE_X - 0.19 + 0.02, text, pitch=10.5, fontsize=8.3, family="monospace", color=colour)
+        left_out = ", ".join(f"{n} {PHASE_WORDS.get(p, p)}" for p, n in head["excluded_cycles"].items())
+        note = ("Means over the steady cycles (sim.metrics.headline_figures)"
+                + (f"; left out: {left_out} (lower amplitude)" if left_out else "")
+                + ". Every cycle is in the table and the plots; the tapers are marked.")
+        for line in wrap_pt(note, (RIGHT_X - KEY_X) * 595.0, 7.8):
+            flow.text(KEY_X + 0.02, line, pitch=10, fontsize=7.8, color="0.35")
+    else:
+        flow.text(KEY_X + 0.02, f"no steady cycle completed ({head['cycles']} cycles in all): no headline figures",
+                  pitch=PITCH, fontsize=BODY, color=RED)
+    flow.skip(4)
+
+    acc = report["acceptance"]
+    word = acc["verdict"]
+    flow.room(14 + 3 * PITCH)
+    flow.row([(KEY_X, "Acceptance", {"fontsize": 10, "weight": "bold"}),
+              (VALUE_X, word, {"fontsize": 12, "weight": "bold", "color": VERDICT_COLOURS[word]})], pitch=15)
+    summary = acc["summary"]
+    detail: list[tuple[str, str]] = []
+    if acc["protocol"] is None:
+        detail.append((acc.get("note") or "no acceptance rules", "black"))
+    else:
+        made = summary["verdicts"] - acc.get("checks_missing", 0)
+        if word == "INCOMPLETE":
+            detail.append((f"protocol {acc['protocol']}: the test ended before its end; {acc['checks_missing']} of "
+                           f"{summary['verdicts']} checks have no measured steady cycle. Of the {made} checks made, "
+                           f"{made - (summary['failed'] - acc['checks_missing'])} passed and "
+                           f"{summary['failed'] - acc['checks_missing']} failed. Not a complete test.", "black"))
+        elif word == "PASSED":
+            detail.append((f"protocol {acc['protocol']}: all {summary['verdicts']} checks passed (steady cycles "
+                           "only)", "black"))
+        else:
+            detail.append((f"protocol {acc['protocol']}: {summary['failed']} of {summary['verdicts']} checks "
+                           "failed (steady cycles only)", "black"))
+        for r in acc.get("rule_details", []):
+            ok = r["passed"] == r["checks"]
+            detail.append((f"rule {r['name']}: {r['text']} - {r['passed']} of {r['checks']} passed",
+                           "black" if ok else RED))
+        for r in summary["failed_rules"][:MAX_HEADER_RULES]:
+            if word != "INCOMPLETE" or any(v["rule"] == r["rule"] and v["status"] == "fail"
+                                           for v in acc["verdicts"]):
+                first = next((v["message"] for v in acc["verdicts"] if v["rule"] == r["rule"] and
+                              v["status"] == "fail"), r["first"])
+                detail.append((f"first failure: {first}", RED))
+        detail.append(("each check and the cycle it came from: see the verdicts page", "0.35"))
+    for text, colour in detail:
+        for line in wrap_pt(text, VALUE_WIDTH_PT, BODY):
+            flow.text(VALUE_X, line, pitch=PITCH, fontsize=BODY, color=colour)
+    flow.skip(3)
+
+    trk = report["tracking"]
+    if trk:
+        peak_u = fmt_num(trk.get("peak_abs_voltage_v"), "{:.2f}")
+        _kv(flow, "Tracking", f"RMS |y - r| = {trk['rms_y_minus_r_m'] * 1e3:.3f} mm, peak |y - r| = "
+                              f"{trk['peak_abs_y_minus_r_m'] * 1e3:.3f} mm, peak |u| = {peak_u} V (whole test)")
+    else:
+        _kv(flow, "Tracking", "no target recorded")
+    trips = report["limit_trips"]
+    if trips:
+        _kv(flow, "Limit trips", f"{len(trips)}: " + trips[0]["text"], color=RED)
+    else:
+        _kv(flow, "Limit trips", "none")

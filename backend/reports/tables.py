@@ -1,34 +1,52 @@
-"""The text pages in fixed-pitch monospace lines: the per-cycle metrics table, and the acceptance verdicts with
-the event log and limit trips.
+"""The text pages in fixed-pitch monospace lines: the per-cycle metrics table (taper cycles marked and greyed, the
+steady cycles' means at its end), the protocol with its rules and every check with the cycle it came from, the
+events in words, and the approval block (tested, reviewed, approved by) that ends the report.
 """
 
 from __future__ import annotations
 
-import json
+from .data import PHASE_WORDS, num
+from .header import VERDICT_COLOURS
+from .layout import A4_PORTRAIT_IN, PAGE_BOTTOM, Flow, draw_lines, fmt_num, rule, wrap_text
 
-from .data import clean_json, limit_trips, num
-from .layout import A4_PORTRAIT_IN, draw_lines, fmt_num, footer, wrap_text
-
-TABLE_ROWS = 61  # per-cycle table rows per page
-TABLE_HEAD = ("cycle", "t_start", "d+", "d-", "F+", "F-", "K_eff", "EDC", "xi_eff", "Q_d", "K_d", "check")
-TABLE_UNITS = ("", "s", "mm", "mm", "kN", "kN", "kN/mm", "J", "%", "kN", "kN/mm", "(L.cycle)")
+TABLE_ROWS = 59  # per-cycle table rows per page
+TABLE_HEAD = ("cycle", "t_start", "d+", "d-", "F+", "F-", "K_eff", "EDC", "xi_eff", "Q_d", "K_d", "phase/check")
+TABLE_UNITS = ("", "s", "mm", "mm", "kN", "kN", "kN/mm", "J", "%", "kN", "kN/mm", "")
 TABLE_NOTE = ("F+ and F- are the forces at d+ and d-.  K_eff = (F+ - F-) / (d+ - d-).  EDC = loop area.\n"
               "xi_eff = 2 EDC / (pi K_eff (d+ - d-)^2).  Q_d = force intercept at the loop centre (mean of both "
-              "branches).\nK_d = slope on both loading legs beyond half the amplitude.  Details: docs/metrics.md.")
+              "branches).\nK_d = slope on both loading legs beyond half the amplitude.  Details: docs/metrics.md.\n"
+              "Grey rows: taper cycles (lower amplitude; ramp out: the taper of an operator's stop), left out of the\n"
+              "headline figures and of the verdicts.  Last row: the mean of the steady cycles (the headline figures).")
+TAPER_GREY = "0.5"
+RED = "#c62828"
+WIDTHS = (5, 8, 8, 8, 8, 8, 8, 8, 7, 8, 8, 1)
+
+# how a protocol's quantities are shown: quantity -> (unit, scale from SI, format)
+QUANTITY_UNITS = {"k_eff_n_per_m": ("kN/mm", 1e-6, "{:.4f}"), "kd_n_per_m": ("kN/mm", 1e-6, "{:.4f}"),
+                  "edc_j": ("J", 1.0, "{:.3f}"), "xi_eff": ("%", 100.0, "{:.2f}"), "qd_n": ("kN", 1e-3, "{:.3f}"),
+                  "d_max_m": ("mm", 1e3, "{:.3f}"), "d_min_m": ("mm", 1e3, "{:.3f}"),
+                  "f_max_n": ("kN", 1e-3, "{:.3f}"), "f_min_n": ("kN", 1e-3, "{:.3f}"),
+                  "f_peak_max_n": ("kN", 1e-3, "{:.3f}"), "f_peak_min_n": ("kN", 1e-3, "{:.3f}")}
+EVENT_KINDS = {"limit_trip": "limit trip", "rig_fault": "rig fault", "operator": "operator", "status": "status"}
 
 
 def _table_rows(bundle, acc, protocol=None) -> list[tuple]:
     failed, judged = {}, set()
     for v in acc["verdicts"]:
         judged.add(v["cycle"])
-        if not v["passed"]:
+        if not v["passed"] and v["status"] != "missing":
             failed.setdefault(v["cycle"], []).append(v["rule"])
     plan = {p["cycle"]: p for p in protocol.cycle_plan()} if protocol is not None else {}
     rows = []
     for c in bundle.cycles:
-        p = plan.get(c["cycle"])
-        role = "" if p is None else (f"L{p['level']}.{p['level_cycle']}" if p["test"] else f"L{p['level']} ramp")
-        check = "FAIL" if c["cycle"] in failed else ("pass" if c["cycle"] in judged else "")
+        phase = c.get("phase", "steady")
+        if phase != "steady":
+            mark = PHASE_WORDS.get(phase, phase)
+        else:
+            p = plan.get(c["cycle"])
+            role = "" if p is None else (f"L{p['level']}.{p['level_cycle']}" if p["test"] else f"L{p['level']} taper")
+            check = "FAIL" if c["cycle"] in failed else ("pass" if c["cycle"] in judged else "")
+            mark = (role + " " + check).strip()
         rows.append((
             str(c["cycle"]), fmt_num(c.get("t_start_s"), "{:.2f}"),
             fmt_num(c.get("d_max_m"), "{:.3f}", 1e3), fmt_num(c.get("d_min_m"), "{:.3f}", 1e3),
@@ -36,77 +54,183 @@ def _table_rows(bundle, acc, protocol=None) -> list[tuple]:
             fmt_num(c.get("k_eff_n_per_m"), "{:.4f}", 1e-6), fmt_num(c.get("edc_j"), "{:.2f}"),
             fmt_num(c.get("xi_eff"), "{:.2f}", 100), fmt_num(c.get("qd_n"), "{:.3f}", 1e-3),
             fmt_num(c.get("kd_n_per_m"), "{:.4f}", 1e-6),
-            (role + " " + check).strip(),
+            mark,
         ))
     return rows
 
 
-def _table_line(cells, widths) -> str:
+def _table_line(cells, widths=WIDTHS) -> str:
     return " ".join(str(x).rjust(w) if i < len(widths) - 1 else " " + str(x)
                     for i, (x, w) in enumerate(zip(cells, widths, strict=True)))
 
 
-def pages_table(plt, bundle, acc, first_page, protocol=None):
+def _row_colour(bundle_cycle: dict, row: tuple) -> str:
+    if row[-1].endswith("FAIL"):
+        return RED
+    return TAPER_GREY if bundle_cycle.get("phase", "steady") != "steady" else "black"
+
+
+def pages_table(plt, bundle, acc, protocol=None, head: dict | None = None):
     rows = _table_rows(bundle, acc, protocol)
-    widths = (5, 9, 8, 8, 8, 8, 8, 9, 7, 8, 8, 1)
+    colours = [_row_colour(c, r) for c, r in zip(bundle.cycles, rows, strict=True)]
+    lines = [(_table_line(r), col) for r, col in zip(rows, colours, strict=True)]
+    if head and rows:
+        means = head.get("means") or {}
+        lines.append("-" * (sum(WIDTHS) + len(WIDTHS)))
+        lines.append(_table_line(("mean", "", "", "", "", "",
+                                  fmt_num(means.get("k_eff_n_per_m"), "{:.4f}", 1e-6),
+                                  fmt_num(means.get("edc_j"), "{:.2f}"), fmt_num(means.get("xi_eff"), "{:.2f}", 100),
+                                  fmt_num(means.get("qd_n"), "{:.3f}", 1e-3),
+                                  fmt_num(means.get("kd_n_per_m"), "{:.4f}", 1e-6),
+                                  f"{head.get('steady_cycles', 0)} steady")))
     figs = []
-    chunks = [rows[i:i + TABLE_ROWS] for i in range(0, len(rows), TABLE_ROWS)] or [[]]
+    chunks = [lines[i:i + TABLE_ROWS] for i in range(0, len(lines), TABLE_ROWS)] or [[]]
+    if len(chunks) > 1 and len(chunks[-1]) <= 2 and head and rows:  # the means never alone on a page
+        chunks[-2:] = [chunks[-2][:-2], chunks[-2][-2:] + chunks[-1]]
     for k, chunk in enumerate(chunks):
         fig = plt.figure(figsize=A4_PORTRAIT_IN)
         fig.text(0.06, 0.955, "Per-cycle metrics" + (f" ({k + 1}/{len(chunks)})" if len(chunks) > 1 else ""),
                  fontsize=12, weight="bold")
         draw_lines(fig, [(line, "0.3") for line in TABLE_NOTE.splitlines()], 0.06, 0.935, 7.5, 9.5)
-        lines = [_table_line(TABLE_HEAD, widths), _table_line(TABLE_UNITS, widths),
-                 "-" * (sum(widths) + len(widths))]
-        lines += [(_table_line(r, widths), "#c62828" if r[-1].endswith("FAIL") else "black") for r in chunk]
-        draw_lines(fig, lines if chunk else ["no complete cycle recorded"], 0.05, 0.885, 8.5, 11.0)
-        footer(fig, bundle.record, first_page + k)
+        head_lines = [_table_line(TABLE_HEAD), _table_line(TABLE_UNITS), "-" * (sum(WIDTHS) + len(WIDTHS))]
+        draw_lines(fig, head_lines + chunk if chunk else ["no complete cycle recorded"], 0.05, 0.868, 8.5, 11.0)
         figs.append(fig)
     return figs
 
 
-def pages_verdicts_events(plt, bundle, acc, first_page):
-    red = "#c62828"
+# --- protocol, verdicts, events, approval -----------------------------------------------------------------
+
+def _value(quantity: str, value) -> str:
+    unit, scale, fmt = QUANTITY_UNITS.get(quantity, ("", 1.0, "{:.4g}"))
+    v = num(value)
+    return "-" if v is None else fmt.format(v * scale)
+
+
+def verdict_lines(acc: dict, protocol) -> list:
+    """The protocol, its rules (with pass counts) and one line per check: rule, level and test cycle, the cycle
+    it came from, value, reference and the cycle the reference came from, deviation, tolerance, result."""
     lines: list = []
-    summary = acc["summary"]
     if acc["protocol"] is None:
         lines.append(acc.get("note") or "no acceptance rules")
-    else:
-        lines.extend(wrap_text(f"Protocol {acc['protocol']}: {acc.get('title', '')}", 105))
-        for n, t in zip(acc["rule_names"], acc["rules"], strict=True):
-            ok = sum(1 for v in acc["verdicts"] if v["rule"] == n and v["passed"])
-            total = sum(1 for v in acc["verdicts"] if v["rule"] == n)
-            lines.append((f"  {n}: {t} - {ok}/{total} passed"[:110], "black" if ok == total else red))
-        lines.append("")
-        failed = [v for v in acc["verdicts"] if not v["passed"]]
-        lines.append((f"Failed checks ({len(failed)}):", red) if failed else "All checks passed.")
-        for v in failed:
-            lines.extend(("  " + w, red) for w in wrap_text(v["message"], 103))
+        return lines
+    lines.extend(wrap_text(f"Protocol {acc['protocol']}: {acc.get('title', '')}", 100))
+    if protocol is not None:
+        plan = protocol.cycle_plan()
+        for i, lv in enumerate(protocol.levels, start=1):
+            judged = [p["cycle"] for p in plan if p["level"] == i and p["test"]]
+            tapers = [p["cycle"] for p in plan if p["level"] == i and not p["test"]]
+            text = (f"  level {i}{' (' + lv.label + ')' if lv.label else ''}: {lv.amplitude_m * 1e3:.2f} mm at "
+                    f"{lv.frequency_hz:g} Hz, test cycles {_span(judged)}"
+                    + (f", taper cycles {', '.join(map(str, tapers))}" if tapers else ""))
+            lines.extend(wrap_text(text, 100))
     lines.append("")
-    lines.append(f"Events ({len(bundle.events)}; limit trips: {len(limit_trips(bundle.events))})")
-    for e in bundle.events:
+    lines.append("Rules (judged on the steady cycles only; a cycle not measured is a failed check):")
+    for r in acc.get("rule_details", []):
+        ok = r["passed"] == r["checks"]
+        lines.append((f"  {r['name']}: {r['text']} - {r['passed']} of {r['checks']} passed", "black" if ok else RED))
+        if r.get("description"):
+            lines.extend(("      " + w, "0.35") for w in wrap_text(r["description"], 94))
+    lines.append("")
+    head = (f"  {'rule':<20}{'L.n':>6}{'cycle':>6}{'value':>11}  {'reference':>10}{'(cycle)':>8}"
+            f"{'deviation':>10}{'tol.':>8}  {'unit':<7}{'result':<8}")
+    lines.extend(wrap_text(f"Checks ({len(acc['verdicts'])}; {acc['summary']['failed']} failed). L.n: level L, its "
+                           "test cycle n; cycle: the cycle of the test it judged; (cycle): the cycle the reference "
+                           "value came from.", 100))
+    lines.append(head)
+    lines.append("  " + "-" * (len(head) - 2))
+    for v in acc["verdicts"]:
+        unit = QUANTITY_UNITS.get(v["quantity"], ("",))[0]
+        dev = num(v.get("deviation_fraction"))
+        ref_cycle = v.get("reference_cycle")
+        result = {"pass": "pass", "fail": "FAIL", "not_evaluated": "not evaluated"}.get(v["status"], v["status"])
+        if v["status"] == "missing":
+            message = str(v.get("message"))
+            result = "no cycle" if "no measured cycle" in message else ("no ref." if "no reference" in message
+                                                                        else "no value")
+        check = f"L{v['level']}.{v['level_cycle']}"
+        dev_text = f"{100 * dev:+.1f} %" if dev is not None else "-"
+        tol_text = f"+-{100 * v['tolerance_fraction']:g} %"
+        ref_text = f"({ref_cycle})" if ref_cycle else ""
+        lines.append((f"  {v['rule'][:19]:<20}{check:>6}{v['cycle']:>6}{_value(v['quantity'], v.get('value')):>11}  "
+                      f"{_value(v['quantity'], v.get('reference_value')):>10}{ref_text:>8}{dev_text:>10}"
+                      f"{tol_text:>8}  {unit:<7}{result:<8}", "black" if v["passed"] else RED))
+    return lines
+
+
+def _span(numbers: list[int]) -> str:
+    if not numbers:
+        return "-"
+    if numbers == list(range(numbers[0], numbers[-1] + 1)) and len(numbers) > 2:
+        return f"{numbers[0]}-{numbers[-1]}"
+    return ", ".join(map(str, numbers))
+
+
+def event_lines(events: list[dict]) -> list:
+    """Every event in words: test time (or the wall-clock time of the service), what, the message."""
+    trips = sum(1 for e in events if e.get("kind") == "limit_trip")
+    lines: list = [f"Events ({len(events)}; limit trips: {trips})"]
+    for e in events:
         t = num(e.get("time_s"))
-        head = f"  {'t = ' + format(t, '8.3f') + ' s' if t is not None else ' ' * 14}  {e.get('kind', ''):<10} "
-        msg = str(e.get("message", ""))
-        if e.get("kind") == "limit_trip" and e.get("values"):
-            msg += "  " + json.dumps(clean_json(e["values"]))[:150]
-        color = red if e.get("kind") == "limit_trip" else "black"
-        wrapped = wrap_text(msg, 105 - len(head))
+        when = f"t = {t:8.3f} s" if t is not None else (str(e.get("created_at") or "")[11:19] + " UTC").rjust(14)
+        kind = EVENT_KINDS.get(e.get("kind"), str(e.get("kind", "")))
+        head = f"  {when}  {kind:<10} "
+        color = RED if e.get("kind") in ("limit_trip", "rig_fault") else "black"
+        wrapped = wrap_text(e.get("text") or str(e.get("message", "")), 103 - len(head))
         lines.append((head + wrapped[0], color))
         lines.extend((" " * len(head) + w, color) for w in wrapped[1:])
-    if not bundle.events:
+    if not events:
         lines.append("  none recorded")
-    per_page = 66
-    figs = []
-    chunks = [lines[i:i + per_page] for i in range(0, len(lines), per_page)]
-    for k, chunk in enumerate(chunks):
-        fig = plt.figure(figsize=A4_PORTRAIT_IN)
-        fig.text(0.06, 0.955, "Acceptance verdicts, events and limit trips"
-                 + (f" ({k + 1}/{len(chunks)})" if len(chunks) > 1 else ""), fontsize=12, weight="bold")
-        verdict = {None: ("NO VERDICT", "0.35"), True: ("PASSED", "#1a7f37"), False: ("FAILED", red)}[
-            summary["passed"]]
-        fig.text(0.94, 0.955, verdict[0], fontsize=12, weight="bold", color=verdict[1], ha="right")
-        draw_lines(fig, chunk, 0.05, 0.925, 8.0, 10.5)
-        footer(fig, bundle.record, first_page + k)
-        figs.append(fig)
-    return figs
+    return lines
+
+
+LINE_PITCH = 10.5
+APPROVAL_PT = 18 + 3 * 11 + 14 + 3 * 36 + 10  # heading, statement, column captions, three rows
+
+
+def pages_verdicts_events(plt, bundle, report, protocol=None):
+    """The protocol, rules and checks, the events, and the approval block at the end: one Flow of pages."""
+    acc = report["acceptance"]
+    flow = Flow(plt, "Acceptance verdicts, events and approval", top=0.93)
+    fig = flow.new_page(continued=False)
+    fig.text(0.06, 0.955, "Acceptance verdicts, events and approval", fontsize=12, weight="bold")
+    fig.text(0.94, 0.955, acc["verdict"], fontsize=12, weight="bold", color=VERDICT_COLOURS[acc["verdict"]],
+             ha="right")
+    lines = verdict_lines(acc, protocol)
+    lines.append("")
+    lines += event_lines(report["events"])
+    for item in lines:
+        text, color = item if isinstance(item, tuple) else (item, "black")
+        if text:
+            flow.text(0.05, text, pitch=LINE_PITCH, fontsize=8.0, family="monospace", color=color)
+        else:
+            flow.skip(LINE_PITCH)
+    approval_block(flow, bundle.record, report)
+    return flow.figs
+
+
+def approval_block(flow: Flow, record: dict, report: dict) -> None:
+    """Tested by, reviewed by, approved by: name, date and signature lines (the operator's name filled in)."""
+    flow.skip(14)
+    flow.room(APPROVAL_PT)
+    fig = flow.fig
+    flow.text(0.06, "Approval", pitch=18, fontsize=11, weight="bold")
+    tid = record.get("id")
+    statement = (f"This report covers test record {tid} only" if tid is not None else "This report covers this "
+                 "record only") + ("; its results relate only to the specimen tested. Every number in it is in "
+                                   "report.json" + (f" (GET /api/tests/{tid}/report.json; the whole record: "
+                                                    f"/api/tests/{tid}/bundle.zip)." if tid is not None else "."))
+    for line in wrap_text(statement, 125):
+        flow.text(0.06, line, pitch=11, fontsize=8, color="0.3")
+    flow.text(0.20, "name", pitch=14, fontsize=7.5, color="0.45")
+    fig.text(0.52, flow.y, "date", fontsize=7.5, color="0.45")
+    fig.text(0.68, flow.y, "signature", fontsize=7.5, color="0.45")
+    names = report.get("approval") or {}
+    for role, key in (("Tested by", "tested_by"), ("Reviewed by", "reviewed_by"), ("Approved by", "approved_by")):
+        flow.skip(36)
+        y = flow.y
+        fig.text(0.06, y + flow.frac(2), role, fontsize=9, weight="bold")
+        if names.get(key):
+            fig.text(0.20, y + flow.frac(3), str(names[key]), fontsize=9)
+        for x0, x1 in ((0.20, 0.49), (0.52, 0.65), (0.68, 0.94)):
+            rule(fig, y, x0, x1, color="0.2", lw=0.6)
+    flow.y = max(flow.y, PAGE_BOTTOM)

@@ -29,9 +29,16 @@ def register(sub) -> None:
     p.add_argument("--isolator", help="with --csv: the isolator's preset name or .json (nominal parameters)")
     p.add_argument("--supply-bar", type=float, help="with --csv: supply pressure in bar, for the header")
     p.add_argument("--protocol", help="with --csv: judge the record against this protocol (shipped name or file)")
-    p.add_argument("--lab", help="lab name for the header")
-    p.add_argument("--rig", help="rig name for the header")
-    p.add_argument("--operator", help="operator name for the header")
+    p.add_argument("--lab-name", "--lab", dest="lab_name",
+                   help="the lab named at the top of the report (default: the setting lab_name, ISORIG_LAB_NAME)")
+    p.add_argument("--lab-address", help="the lab's address under its name; ';' or a newline separates lines "
+                                         "(default: ISORIG_LAB_ADDRESS)")
+    p.add_argument("--lab-logo", metavar="FILE", help="an image (PNG, JPEG) beside the lab's name (default: "
+                                                      "ISORIG_LAB_LOGO_FILE); missing or unreadable: a warning")
+    p.add_argument("--bundle", metavar="FILE.zip", help="also write the whole test as a zip: record.json, "
+                                                        "report.json, samples.csv, cycles.csv, report.pdf")
+    p.add_argument("--rig", help="rig name for the header (a CSV record does not say)")
+    p.add_argument("--operator", help="operator name for the header (when the record has none)")
     p.add_argument("--no-identify", action="store_true", help="skip the Bouc-Wen identification (faster)")
     p.add_argument("--serial", action="store_true",
                    help="work in this one process (by default, with 2 or more cores, one process loads the test "
@@ -78,7 +85,8 @@ def _load(args):
 
     if args.csv is not None:
         return bundle_from_csv(args.csv, summary_path=args.summary, isolator=args.isolator,
-                               supply_bar=args.supply_bar, protocol=args.protocol, all_columns=bool(args.csv_out))
+                               supply_bar=args.supply_bar, protocol=args.protocol,
+                               all_columns=bool(args.csv_out or args.bundle))
     return _load_stored(args.test_id, args.database_url)
 
 
@@ -98,20 +106,29 @@ def run(args) -> int:
     if args.supply_bar is not None and not (math.isfinite(args.supply_bar) and args.supply_bar > 0):
         raise UsageError(f"{PROG}: --supply-bar = {args.supply_bar:g} must be a positive number of bar")
     out = Path(args.out)
-    if not out.parent.exists():
-        raise UsageError(f"{PROG}: the folder of --out {out} does not exist")
+    for flag, path in (("--out", out), ("--json", args.json_out), ("--csv-out", args.csv_out),
+                       ("--bundle", args.bundle)):
+        if path is not None and not Path(path).parent.exists():
+            raise UsageError(f"{PROG}: the folder of {flag} {path} does not exist")
 
     source = args.csv if args.csv is not None else f"test {args.test_id}"
-    meta = {"lab": args.lab, "rig": args.rig, "operator": args.operator}
+    meta = {"rig": args.rig, "operator": args.operator}
+    from backend.reports.lab import lab_header
+
+    lab = lab_header(args.lab_name, args.lab_address, args.lab_logo)
+    if lab.warning:  # one line, and the report is made without the logo
+        import sys
+
+        print(f"{PROG}: warning: {lab.warning}", file=sys.stderr)
     t0, cpu0 = time.perf_counter(), _cpu_s()
     # A one-off command: reference counting frees nearly everything, and the cycle collector's passes over
     # matplotlib's many objects cost 0.2-0.3 s of drawing. Back on afterwards (tests call this in-process).
     collecting = gc.isenabled()
     gc.disable()
     try:
-        made = None if args.serial or not _parallel() else _make_parallel(args, meta, out)
+        made = None if args.serial or not _parallel() else _make_parallel(args, meta, out, lab)
         if made is None:  # one process asked for, or no second core, fork or shared memory here
-            bundle, report, times = _make_serial(args, meta, out)
+            bundle, report, times = _make_serial(args, meta, out, lab)
             how = "1 process"
         else:
             bundle, report, times = made
@@ -132,11 +149,21 @@ def run(args) -> int:
             write_csv(args.csv_out, bundle.samples)
         except OSError as exc:
             raise UsageError(f"{PROG}: cannot write {args.csv_out}: {exc.strerror}") from None
+    if args.bundle:
+        from backend.reports import write_bundle_zip
+        from backend.reports.data import protocol_of
+
+        try:
+            write_bundle_zip(args.bundle, _with_meta(bundle, meta), report, out.read_bytes(),
+                             protocol_of(bundle.record)[0])
+        except OSError as exc:
+            raise UsageError(f"{PROG}: cannot write {args.bundle}: {exc.strerror}") from None
     ident = report["identification"]
-    verdict = report["acceptance"]["summary"]["passed"]
-    print(f"wrote {out}" + "".join(f", {f}" for f in (args.json_out, args.csv_out) if f)
-          + f": {source}, {bundle.samples.shape[0]} samples, {len(bundle.cycles)} cycles, acceptance "
-          + {None: "none (no protocol)", True: "PASSED", False: "FAILED"}[verdict])
+    verdict = report["acceptance"]["verdict"]
+    status = report["run"]["status"]
+    print(f"wrote {out}" + "".join(f", {f}" for f in (args.json_out, args.csv_out, args.bundle) if f)
+          + f": {source} ({status}), {bundle.samples.shape[0]} samples, {len(bundle.cycles)} cycles, acceptance "
+          + ("none (no protocol)" if verdict == "NO VERDICT" else verdict))
     t_ident = ident.get("time_s") or 0.0
     print(f"time {wall:.2f} s (CPU {_cpu_s() - cpu0:.2f} s in {how}): load {times['load_s']:.2f} s, metrics and "
           f"verdicts {times['metrics_s']:.2f} s, Bouc-Wen identification {t_ident:.2f} s, PDF {times['pdf_s']:.2f} s"
@@ -152,26 +179,37 @@ def _cpu_s() -> float:
                                      for k in ("ru_utime", "ru_stime"))
 
 
-def _make_serial(args, meta, out):
+def _with_meta(bundle, meta: dict):
+    """The bundle with what the command's options add to its record (rig, operator)."""
+    extra = {k: v for k, v in meta.items() if v}
+    if not extra:
+        return bundle
+    from backend.reports import ReportBundle
+
+    return ReportBundle(record={**bundle.record, **extra}, samples=bundle.samples, cycles=bundle.cycles,
+                        events=bundle.events)
+
+
+def _make_serial(args, meta, out, lab):
     """Load, compute and draw one after the other in this process (as the service does)."""
     from backend.reports import report_json
 
     t0 = time.perf_counter()
     bundle = _load(args)
     t1 = time.perf_counter()
-    report = report_json(bundle, identify=not args.no_identify, meta=meta)
+    report = report_json(bundle, identify=not args.no_identify, meta=meta, lab=lab)
     t2 = time.perf_counter()
-    _render(bundle, out, meta, report)
+    _render(bundle, out, meta, report, lab)
     t3 = time.perf_counter()
     t_ident = report["identification"].get("time_s") or 0.0
     return bundle, report, {"load_s": t1 - t0, "metrics_s": t2 - t1 - t_ident, "pdf_s": t3 - t2}
 
 
-def _render(bundle, out, meta, report, identification=None) -> None:
+def _render(bundle, out, meta, report, lab, identification=None) -> None:
     from backend.reports import render_report_pdf
 
     try:
-        render_report_pdf(bundle, out, meta=meta, report=report, identification=identification)
+        render_report_pdf(bundle, out, meta=meta, report=report, identification=identification, lab=lab)
     except OSError as exc:
         raise UsageError(f"{PROG}: cannot write {out}: {exc.strerror}") from None
 
@@ -184,7 +222,7 @@ def _render(bundle, out, meta, report, identification=None) -> None:
 # as soon as the loader hands it the first minute of the record, and this process draws every page but the
 # header meanwhile, then the header with the fit (docs/reports.md, Speed).
 
-def _make_parallel(args, meta, out):
+def _make_parallel(args, meta, out, lab):
     """(bundle, report, times) made by three processes, or None when they cannot be started."""
     import multiprocessing
     import sys
@@ -212,7 +250,7 @@ def _make_parallel(args, meta, out):
     # to fit); fit: identifier -> this process (the identification)
     identify = not args.no_identify
     parent = os.getpid()
-    children = [ctx.Process(target=_loader, args=(args, meta, data_w, task_w if identify else None, shared,
+    children = [ctx.Process(target=_loader, args=(args, meta, lab, data_w, task_w if identify else None, shared,
                                                   (data_r, task_r, fit_r, fit_w) + (() if identify else (task_w,)),
                                                   parent),
                             daemon=True, name="isorig-report-loader")]
@@ -266,7 +304,7 @@ def _make_parallel(args, meta, out):
                 return {**report["identification"], "available": False,
                         "note": "identification failed: its process ended without an answer"}
 
-        _render(bundle, out, meta, report, identification if identify else None)
+        _render(bundle, out, meta, report, lab, identification if identify else None)
         times["pdf_s"] = time.perf_counter() - t_data
         failed = False
         return bundle, report, times
@@ -404,7 +442,7 @@ def _send(conn, message) -> None:
         os._exit(1)
 
 
-def _loader(args, meta, conn, task_conn, shared, unused, parent) -> None:
+def _loader(args, meta, lab, conn, task_conn, shared, unused, parent) -> None:
     """Child: load the test, hand the first minute to the identifier, compute the metrics, send all here."""
     _child_setup(unused, parent)
     import traceback
@@ -423,7 +461,7 @@ def _loader(args, meta, conn, task_conn, shared, unused, parent) -> None:
             except OSError:
                 pass  # the identifier died early: the report goes on without the fit, and says so
             task_conn.close()
-        report = report_json(bundle, identify=False, meta=meta, identification=answer)
+        report = report_json(bundle, identify=False, meta=meta, identification=answer, lab=lab)
         times = {"load_s": t1 - t0, "metrics_s": time.perf_counter() - t1}
         try:
             layout = _pack(shared, bundle.samples.array, bundle.cycles)
