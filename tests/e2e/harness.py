@@ -216,3 +216,41 @@ class PageWatch:
             if host not in LOCAL_HOSTS:
                 out.append(url)
         return out
+
+
+# --- the console's forms ------------------------------------------------------------------------------------
+VIEWPORTS = [(1366, 768), (1920, 1080)]
+
+
+def fill_identity(page, specimen: str = "E2E-SPEC-1", operator: str = "e2e operator") -> None:
+    """Who and what: the console's Start needs a specimen id and the operator's name."""
+    page.fill("#f-specimen_id", specimen)
+    page.fill("#f-operator_name", operator)
+
+
+def wait_start_enabled(page, timeout_ms: int = 10000) -> None:
+    page.wait_for_selector("#start:not([disabled])", timeout=timeout_ms)
+
+
+def start_from_form(page, token: str | None = None) -> str:
+    """Start, read the confirmation (returned as text), confirm; give the token if the console asks for it."""
+    wait_start_enabled(page)
+    page.click("#start")
+    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    summary = page.inner_text("#confirm-body")
+    for tick in page.query_selector_all("#confirm-body .warning-tick"):
+        tick.check()
+    page.click("#confirm-ok")
+    if token is not None:
+        page.wait_for_selector("#token-dialog[open]", timeout=5000)
+        page.fill("#token-input", token)
+        page.click("#token-ok")
+    return summary
+
+
+def shots(page, artifacts: Path, name: str, full_page: bool = False) -> None:
+    """Screenshots at both viewports, the larger first (the page ends at 1366x768)."""
+    for width, height in reversed(VIEWPORTS):
+        page.set_viewport_size({"width": width, "height": height})
+        time.sleep(0.3)
+        page.screenshot(path=str(artifacts / f"{name}_{width}x{height}.png"), full_page=full_page)

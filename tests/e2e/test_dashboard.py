@@ -9,7 +9,7 @@ import csv
 import io
 import time
 
-from .harness import TOKEN, sine_test
+from .harness import TOKEN, fill_identity, sine_test, start_from_form, wait_start_enabled
 
 
 def _metrics(page) -> dict:
@@ -28,27 +28,41 @@ def _wait(predicate, timeout_s: float, what: str, interval_s: float = 0.1):
 
 
 def test_operator_flow(server, open_page, artifacts):
-    """Choose IUT_b, 30 mm at 0.5 Hz, start with the token, see the loop grow, finish, find it in history, CSV."""
+    """Choose IUT_b, 30 mm at 0.5 Hz, start after the confirmation with the token, see the loop grow, finish,
+    find it in history with who and what, CSV."""
     page, _ = open_page(server.url + "/")
     page.select_option("#f-isolator", "IUT_b")
-    assert "680000" in page.inner_text("#isolator-params")  # k_d of IUT_b (paper Table II), shown
-    page.fill("#f-supply_bar", "70")
-    page.fill("#f-amplitude_mm", "30")
-    page.fill("#f-frequency_hz", "0.5")
+    assert "0.68" in page.inner_text("#isolator-params")  # k_d of IUT_b (paper Table II), in kN/mm
+    fill_identity(page, "E2E-FLOW", "flow operator")
+    page.fill("#f-notes", "operator flow")
+    page.fill("#f-supply", "70")
+    page.fill("#f-amplitude", "30")
+    page.fill("#f-frequency", "0.5")
     page.fill("#f-cycles", "4")
     page.fill("#f-taper_cycles", "1")
     page.fill("#f-speed", "2")
-    page.wait_for_function("document.getElementById('envelope').dataset.state !== undefined")
-    assert page.get_attribute("#envelope", "data-state") != "refused", page.inner_text("#envelope")
+    wait_start_enabled(page)
+    assert page.get_attribute("#envelope", "data-state") == "ok", page.inner_text("#envelope")
+    _, before = server.call("GET", "/api/tests")
 
-    page.click("#start")  # no token in this browser yet: the dialog asks once
-    page.wait_for_selector("#token-dialog[open]", timeout=5000)
-    page.fill("#token-input", TOKEN)
-    page.click("#token-ok")
+    # the confirmation summarises the motion before the valve opens; cancel sends nothing
+    page.click("#start")
+    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    summary = page.inner_text("#confirm-body")
+    assert "±30.00 mm" in summary, summary  # peak displacement
+    assert "94.2 mm/s" in summary, summary  # 2 pi f A = 2 pi 0.5 Hz 30 mm
+    assert "peak force" in summary and "kN" in summary and "0:08" in summary, summary  # 4 cycles at 0.5 Hz
+    page.click("#confirm-cancel")
+    assert "cancelled" in page.inner_text("#setup-message")
+    assert len(server.call("GET", "/api/tests")[1]) == len(before)
+
+    start_from_form(page, token=TOKEN)  # no token in this browser yet: asked once, after the confirmation
     assert page.evaluate("localStorage.getItem('isorig.operator_token')") == TOKEN
 
-    _wait(lambda: _metrics(page).get("testId"), 15, "the live view to pick up the new test")
-    test_id = _metrics(page)["testId"]
+    known = {t["id"] for t in before}
+    new = _wait(lambda: {t["id"] for t in server.call("GET", "/api/tests")[1]} - known, 15, "the new test")
+    test_id = max(new)
+    _wait(lambda: _metrics(page).get("testId") == test_id, 15, "the live view to pick up the new test")
     page.wait_for_selector("#rig-status[data-status='running']", timeout=15000)
     points = []
     for _ in range(6):  # the loop grows: more points in the current cycle or more finished cycles
@@ -68,8 +82,9 @@ def test_operator_flow(server, open_page, artifacts):
 
     page.click("nav a[data-view='history']")
     row = page.wait_for_selector(f"#history-table tr[data-id='{test_id}']", timeout=10000)
-    assert "completed" in row.inner_text()
-    assert "IUT_b" in row.inner_text()
+    text = row.inner_text()
+    for what in ("completed", "IUT_b", "E2E-FLOW", "flow operator", "125 kN"):  # status, who, what
+        assert what in text, text
     # filters: status, isolator and today's date keep it; another status hides it
     page.select_option("#h-status", "aborted")
     page.click("#history-filter button[type='submit']")
@@ -85,7 +100,9 @@ def test_operator_flow(server, open_page, artifacts):
     row.click()
     page.wait_for_selector("#t-cycles tbody tr", timeout=10000)
     assert page.locator("#t-cycles tbody tr").count() >= 3
-    assert "completed" in page.inner_text("#t-summary")
+    summary = page.inner_text("#t-summary")
+    for what in ("completed", "E2E-FLOW", "flow operator", "operator flow", "|d| 150 mm"):
+        assert what in summary, summary
     page.screenshot(path=str(artifacts / "dashboard_test_page.png"), full_page=True)
 
     with page.expect_download(timeout=30000) as info:
@@ -97,33 +114,35 @@ def test_operator_flow(server, open_page, artifacts):
 
 
 def test_refused_profile_shows_reason(server, open_page, artifacts):
-    """A profile outside the envelope is explained before Start and refused with field, value and limit."""
-    page, watch = open_page(server.url + "/", token=TOKEN)
-    watch.allowed_status.add(422)  # the refusal this test provokes
+    """A profile outside the envelope is explained before Start, with field, value and limit; Start stays
+    disabled and says why; nothing is created."""
+    page, _ = open_page(server.url + "/", token=TOKEN)
     _, before = server.call("GET", "/api/tests")
+    fill_identity(page)
     page.select_option("#f-isolator", "IUT_b")
-    page.fill("#f-amplitude_mm", "200")  # beyond the +-150 mm stroke
+    page.fill("#f-amplitude", "200")  # beyond the +-150 mm stroke: the field's own range says so
     page.wait_for_selector("#envelope[data-state='refused']", timeout=5000)
-    text = page.inner_text("#envelope")
-    assert "stroke" in text and "150" in text, text
-    assert "invalid" in (page.get_attribute("#f-amplitude_mm", "class") or "")
+    assert "up to 150 mm" in page.inner_text("[data-field='amplitude'] .msg")
+    assert "invalid" in (page.get_attribute("#f-amplitude", "class") or "")
+    assert page.is_disabled("#start")
+    assert "valid values (amplitude)" in page.inner_text("#start-why")
 
-    # inside the stroke but more flow than the pump gives: explained before Start (POST /api/tests/check) ...
-    page.fill("#f-amplitude_mm", "100")
-    page.fill("#f-frequency_hz", "2")
+    # inside the stroke but more flow than the pump gives: explained by the service before Start
+    page.fill("#f-amplitude", "100")
+    page.fill("#f-frequency", "2")
     page.wait_for_function("document.getElementById('envelope').textContent.includes('peak flow demand')", timeout=5000)
     early = page.inner_text("#envelope")
-    assert "frequency_hz" in early and "313" in early, early
+    assert "frequency_hz" in early and "313" in early and "l/min" in early, early
     assert page.get_attribute("#envelope", "data-state") == "refused"
-    # ... and refused by the service at Start with the limit
-    page.click("#start")
-    page.wait_for_function("document.getElementById('setup-message').textContent.startsWith('Refused')",
-                           timeout=10000)
-    message = page.inner_text("#envelope")
-    assert "frequency_hz" in message and "l/min" in message, message
-    assert page.get_attribute("#envelope", "data-state") == "refused"
-    assert "invalid" in (page.get_attribute("#f-frequency_hz", "class") or "")
+    assert "invalid" in (page.get_attribute("#f-frequency", "class") or "")
+    assert page.is_disabled("#start")
+    assert "within the rig envelope" in page.inner_text("#start-why")
     page.screenshot(path=str(artifacts / "dashboard_refused.png"))
+    # back inside: the refusal goes, Start comes back
+    page.fill("#f-frequency", "0.5")
+    wait_start_enabled(page)
+    assert page.get_attribute("#envelope", "data-state") == "ok"
+    assert "invalid" not in (page.get_attribute("#f-frequency", "class") or "")
     _, after = server.call("GET", "/api/tests")
     assert len(after) == len(before)  # nothing was created
 
@@ -198,26 +217,55 @@ def test_stop_button_ramps_out(server, open_page):
     page.wait_for_selector("#rig-status[data-status='stopped']", timeout=10000)
 
 
-def test_add_isolator_validated_by_the_api(server, open_page):
-    """The add-isolator form shows the API's refusal (field and range), then saves a valid isolator."""
-    page, watch = open_page(server.url + "/", token=TOKEN)
+def test_add_isolator_plausibility_api_refusal_and_delete(server, open_page, artifacts):
+    """Values a thousand times off ask for a confirmation; the API's refusal (field and range) is shown; a valid
+    isolator is saved in the console's units; a user isolator can be deleted after a confirmation, a preset not."""
+    page, watch = open_page(server.url + "/", width=1366, height=768, token=TOKEN)
     watch.allowed_status.add(422)
+    assert page.is_disabled("#iso-delete")  # IUT_b is a preset
     page.click("#add-isolator summary")
-    values = {"name": "e2e_LRB", "rho_bw_per_m": "200", "sigma_bw": "0.5", "n": "1", "kd_n_per_m": "5e5",
-              "kw_n": "5e8"}  # k_w far beyond the allowed range (a unit mistake)
+    assert "(kN/mm)" in page.inner_text("[data-field='iso-kd_n_per_m']")  # units of the console
+    values = {"name": "e2e_LRB", "rho_bw_per_m": "0,2", "sigma_bw": "0.5", "n": "1", "kd_n_per_m": "500",
+              "kw_n": "20"}  # k_d typed as N/mm in a kN/mm field: 1000 times too stiff
     for key, value in values.items():
         page.fill(f"#iso-{key}", value)
+    assert "read as 0.2 1/mm" in page.inner_text("[data-field='iso-rho_bw_per_m'] .msg")
+    assert "wrong unit" in page.inner_text("[data-field='iso-kd_n_per_m'] .msg")
     page.click("#iso-save")
+    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    assert "post-yield stiffness 500 kN/mm" in page.inner_text("#confirm-body"), page.inner_text("#confirm-body")
+    assert page.is_disabled("#confirm-ok")  # the warning must be ticked
+    page.click("#confirm-cancel")
+    assert page.locator("#f-isolator option[value='e2e_LRB']").count() == 0  # nothing saved
+
+    page.fill("#iso-kd_n_per_m", "0.5")
+    page.fill("#iso-kw_n", "5e5")  # 5e8 N: beyond the API's range; ticked through, the API refuses it
+    page.click("#iso-save")
+    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    page.check("#confirm-body .warning-tick")
+    page.click("#confirm-ok")
     page.wait_for_function("document.getElementById('iso-error').textContent.length > 0", timeout=5000)
-    error = page.inner_text("#iso-error")
-    assert "kw_n" in error, error
-    page.fill("#iso-kw_n", "2e4")
+    assert "kw_n" in page.inner_text("#iso-error"), page.inner_text("#iso-error")
+
+    page.fill("#iso-kw_n", "20")
     page.click("#iso-save")
     page.wait_for_function("document.getElementById('f-isolator').value === 'e2e_LRB'", timeout=5000)
     assert page.inner_text("#iso-error") == ""
     params = page.inner_text("#isolator-params")
-    assert "200" in params and "20000" in params, params
+    assert "0.5" in params and "20" in params and "user-defined" in params, params
+    _, iso = server.call("GET", "/api/isolators/e2e_LRB")
+    assert iso["kd_n_per_m"] == 5e5 and iso["kw_n"] == 2e4 and abs(iso["rho_bw_per_m"] - 200) < 1e-9, iso
     assert page.locator("#f-isolator optgroup[label='user-defined'] option[value='e2e_LRB']").count() == 1
+
+    assert page.is_enabled("#iso-delete")
+    page.click("#iso-delete")
+    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    page.screenshot(path=str(artifacts / "dashboard_delete_isolator.png"))
+    page.click("#confirm-ok")
+    page.wait_for_function("document.getElementById('setup-message').textContent.includes('deleted')", timeout=5000)
+    assert page.locator("#f-isolator option[value='e2e_LRB']").count() == 0
+    assert server.call("GET", "/api/isolators/e2e_LRB")[0] == 404
+    assert server.call("DELETE", "/api/isolators/IUT_a", token=True)[0] == 409  # presets stay
 
 
 def test_limit_trip_is_shown_prominently(server, open_page, artifacts):
@@ -234,37 +282,39 @@ def test_limit_trip_is_shown_prominently(server, open_page, artifacts):
                            timeout=10000)
     assert page.get_attribute("#alert", "data-kind") == "bad"
     assert page.locator("#live-events li.limit_trip").count() >= 1
-    assert "tracking_error_m" in page.inner_text("#live-events")
+    events = page.inner_text("#live-events")
+    assert "LIMIT TRIP: tracking error" in events and "beyond the limit of 0.5 mm" in events, events
+    assert "pid" not in events and "worker" not in events, events  # no internals
     page.screenshot(path=str(artifacts / "dashboard_limit_trip.png"))
 
 
 def test_vertical_load_is_entered_in_kn_within_the_jacks_range(server, open_page, artifacts):
     """The field shows its range and default; 900 kN is refused before Start; 300 kN travels with the test."""
-    page, _ = open_page(server.url + "/")
-    page.evaluate(f"localStorage.setItem('isorig.operator_token', '{TOKEN}')")
-    page.reload()
+    page, _ = open_page(server.url + "/", token=TOKEN)
     page.select_option("#f-isolator", "IUT_a")
     assert page.inner_text("#vertical-load-note") == "0 to 850 kN; empty: 125 kN"
-    page.fill("#f-supply_bar", "100")
-    page.fill("#f-amplitude_mm", "10")
-    page.fill("#f-frequency_hz", "2")
+    fill_identity(page)
+    page.fill("#f-supply", "100")
+    page.fill("#f-amplitude", "10")
+    page.fill("#f-frequency", "2")
     page.fill("#f-cycles", "4")
     page.fill("#f-speed", "4")
-    page.fill("#f-vertical_load_kn", "900")
+    page.fill("#f-vertical_load", "900")
     page.wait_for_function("document.getElementById('envelope').dataset.state === 'refused'", timeout=10000)
-    assert "vertical" in page.inner_text("#envelope").lower() and "850" in page.inner_text("#envelope")
-    assert "invalid" in (page.get_attribute("#f-vertical_load_kn", "class") or "")
-    page.fill("#f-vertical_load_kn", "300")
-    page.wait_for_function("document.getElementById('envelope').dataset.state !== 'refused'", timeout=10000)
+    assert "850 kN" in page.inner_text("[data-field='vertical_load'] .msg")
+    assert "invalid" in (page.get_attribute("#f-vertical_load", "class") or "")
+    page.fill("#f-vertical_load", "300")
+    page.wait_for_function("document.getElementById('envelope').dataset.state === 'ok'", timeout=10000)
     before = {t["id"] for t in server.call("GET", "/api/tests")[1]}
-    page.click("#start")
+    summary = start_from_form(page)
+    assert "300 kN" in summary, summary
     _wait(lambda: {t["id"] for t in server.call("GET", "/api/tests")[1]} - before, 15, "the new test")
     test_id = max({t["id"] for t in server.call("GET", "/api/tests")[1]} - before)
     assert server.call("GET", f"/api/tests/{test_id}")[1]["vertical_load_n"] == 300e3
     _wait(lambda: page.inner_text("#l-vertical-load") == "300 kN", 15, "the load in the live header")
-    # the adapted parameters under the names and units the servo declares (GET /api/rig)
+    # the adapted parameters under the names and units the servo declares (GET /api/rig), one axis each
     _wait(lambda: "flow gain ratio g (-)" in page.inner_text("#plot-adapt"), 10, "the servo's adapted names")
-    assert "learned frequency (Hz, right)" in page.inner_text("#plot-adapt")
-    assert "valve's true flow gain" in page.inner_text("#adapt-note")
+    assert "learned frequency (Hz)" in page.inner_text("#plot-adapt")
+    assert "valve's true flow gain" in page.inner_text("#plot-adapt")
     page.screenshot(path=str(artifacts / "dashboard_vertical_load.png"))
     server.wait_status(test_id, {"completed"}, timeout_s=60)

@@ -8,7 +8,7 @@ from __future__ import annotations
 import re
 import time
 
-from .harness import TOKEN, RigEmulator, Server
+from .harness import TOKEN, RigEmulator, Server, fill_identity, start_from_form
 
 VIEWPORTS = [(1366, 768), (1920, 1080)]
 MS = r"\d+(\.\d{1,2})? ms"  # a latency: at most 2 decimals
@@ -82,12 +82,13 @@ def test_udp_rig_link_health(open_page, artifacts, tmp_path):
 
         # a short test at speed 1 from the form: the link figures of the running test update
         page.select_option("#f-isolator", "IUT_a")
-        page.fill("#f-supply_bar", "100")
-        page.fill("#f-amplitude_mm", "10")
-        page.fill("#f-frequency_hz", "1")
-        page.fill("#f-cycles", "5")
+        fill_identity(page)
+        page.fill("#f-supply", "100")
+        page.fill("#f-amplitude", "10")
+        page.fill("#f-frequency", "1")
+        page.fill("#f-cycles", "8")  # 8 s in real time: long enough to read its details under load
         page.fill("#f-taper_cycles", "1")
-        page.click("#start")
+        start_from_form(page)
         page.wait_for_selector("#rig-link[data-source='test'][data-last-sequence]", timeout=15000)
         first = _link(page)
         time.sleep(1.0)
@@ -118,8 +119,10 @@ def test_udp_rig_link_health(open_page, artifacts, tmp_path):
         page.wait_for_selector("#rig-link[data-connected='false']", timeout=10000)
         assert page.inner_text("#rig-state") == "NOT CONNECTED"
         assert page.is_visible("#rig-warning")
-        assert "Start would fail" in page.inner_text("#rig-warning")
-        assert page.is_enabled("#start")  # the operator may still try
+        assert "Start is disabled" in page.inner_text("#rig-warning")
+        page.wait_for_selector("#start[disabled]", timeout=5000)  # a start cannot succeed: disabled, saying why
+        assert "the rig is not connected" in page.inner_text("#start-why")
+        page.wait_for_selector("#s-rig-cell[data-state='not-connected']", timeout=5000)
         _fits_top_bar(page)
         _shots(page, artifacts, "dashboard_udp_not_connected")
     finally:

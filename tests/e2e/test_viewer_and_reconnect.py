@@ -24,7 +24,7 @@ def test_3d_view_is_relayed_and_follows_the_rig(server, open_page, artifacts):
     frame.get_by_text(f"test #{test_id}", exact=False).first.wait_for(timeout=20000)
     time.sleep(1.0)
     assert frame.locator("[aria-label*='share' i], [title*='share' i]").count() == 0  # share button hidden
-    page.screenshot(path=str(artifacts / "dashboard_3d.png"), clip=page.locator("#viewer-box").bounding_box())
+    page.locator("#viewer-box").screenshot(path=str(artifacts / "dashboard_3d.png"))  # scrolled into view
     page.screenshot(path=str(artifacts / "dashboard_with_3d.png"))
     page.click("#viewer-toggle")  # the operator can hide it (kept per browser)
     assert page.locator("#viewer-box iframe").count() == 0
@@ -47,6 +47,8 @@ def test_reconnects_after_service_restart(server, browser, artifacts):
         watch = PageWatch(page)
         # while the service is down the browser logs failed websocket connections and nothing else
         watch.allowed_patterns.append(r"WebSocket connection to 'ws://127\.0\.0\.1:\d+/ws/live' failed")
+        # ... and the running test's record it asks for every second, refused while the service is down
+        watch.allowed_patterns.append(r"^Failed to load resource: net::ERR_CONNECTION_REFUSED$")
         page.goto(srv.url + "/?viewer=off")
         page.wait_for_selector("body[data-ready='1']", timeout=15000)
         page.wait_for_selector("#conn.conn-up", timeout=10000)
@@ -55,6 +57,9 @@ def test_reconnects_after_service_restart(server, browser, artifacts):
                                timeout=15000)
         srv.stop()  # the service goes away in the middle of a test
         page.wait_for_selector("#conn.conn-down", timeout=10000)
+        # the strip says so, and nothing can be started meanwhile
+        page.wait_for_selector("#s-rig-cell[data-state='no-connection']", timeout=5000)
+        assert page.is_disabled("#start") and "no connection" in page.inner_text("#start-why")
         time.sleep(0.5)  # at least one failed attempt
         srv.start()
         page.wait_for_selector("#conn.conn-up", timeout=15000)

@@ -1,11 +1,17 @@
-// History: the list of past tests (filter by isolator, status, date) and one test's page
-// (loops, per-cycle metrics, events, downloads).
+// History: the list of past tests (filter by isolator, status, date; the archived ones on their own), one
+// test's page (who and what, loops, per-cycle metrics, events, downloads), and the record actions: delete a
+// test that never ran, archive a test that ran (who and why), restore an archived one. Each asks first and
+// says what happened.
 
-import { api } from "./api.js";
+import { api, askToken, getToken } from "./api.js";
+import { confirmDialog, summaryTable } from "./dialogs.js";
 import { LoopPlot } from "./plots.js";
-import { el, eventLine, fmtMetric, fmtTime } from "./ui.js";
+import { limitsText } from "./strip.js";
+import { el, eventLine, fmtTime, profileText } from "./ui.js";
+import { factorIn, fmt, fmtU, onUnits, system, unit } from "./units.js";
 
 const $ = (id) => document.getElementById(id);
+const num = (v) => typeof v === "number" && Number.isFinite(v);
 
 function listOf(data, key) {
   if (Array.isArray(data)) return data;
@@ -18,17 +24,6 @@ export function isolatorName(t) {
   const iso = t.isolator !== undefined ? t.isolator : t.scenario && t.scenario.isolator;
   if (!iso) return "-";
   return typeof iso === "string" ? iso : iso.name || "-";
-}
-
-export function profileText(t) {
-  let p = t.profile || (t.scenario && t.scenario.profile) || (t.request && t.request.profile);
-  if (Array.isArray(p)) p = p.length === 1 ? p[0] : { kind: `${p.length} sine blocks` };
-  if (!p) return "-";
-  if (p.kind === "sine" || p.amplitude_m !== undefined) {
-    return `${(p.amplitude_m * 1000).toPrecision(3)} mm, ${p.frequency_hz} Hz x ${p.cycles}`;
-  }
-  if (p.kind === "protocol") return `protocol ${p.name || "(inline)"}`;
-  return p.kind || "-";
 }
 
 function controllerName(t) {
@@ -56,13 +51,34 @@ function statusPill(status) {
   return el("span", { class: `pill status-${status}`, text: status });
 }
 
+/** What an operator may do with a record: delete (never ran), archive (ran), restore (archived), nothing (running). */
+export function recordAction(t) {
+  if (t.archived) return "restore";
+  if (t.status === "ready") return "delete";
+  if (t.status === "running") return "";
+  return "archive";
+}
+
 export class History {
   constructor() {
     this.loopPlot = null;
+    this.current = null; // the test page's record
     $("history-filter").addEventListener("submit", (ev) => {
       ev.preventDefault();
       this.showList();
     });
+    $("h-archived").addEventListener("change", () => this.showList());
+    onUnits(() => this.refresh());
+  }
+
+  refresh() {
+    if (!$("view-history").classList.contains("hidden")) this.showList();
+    if (!$("view-test").classList.contains("hidden") && this.current) this.showTest(this.current.id, true);
+  }
+
+  message(id, text, kind = "") {
+    $(id).textContent = text;
+    $(id).className = `message ${kind}`;
   }
 
   async showList() {
@@ -72,66 +88,165 @@ export class History {
     // the dates are the operator's local days; the service keeps UTC
     if ($("h-since").value) q.set("since", new Date(`${$("h-since").value}T00:00:00`).toISOString());
     if ($("h-until").value) q.set("until", new Date(`${$("h-until").value}T23:59:59.999`).toISOString());
-    const tbody = $("history-table").querySelector("tbody");
+    const archived = $("h-archived").checked;
+    if (archived) q.set("archived", "true");
+    const table = $("history-table");
+    table.dataset.archived = archived ? "1" : "0";
+    const tbody = table.querySelector("tbody");
     let tests = [];
     try {
       tests = listOf(await api.get(`/api/tests?${q}`), "tests");
     } catch (e) {
       tbody.innerHTML = "";
-      tbody.append(el("tr", {}, el("td", { text: `could not load: ${e.message}`, colspan: "8" })));
+      tbody.append(el("tr", {}, el("td", { text: `could not load: ${e.message}`, colspan: "12" })));
       return;
     }
     tbody.innerHTML = "";
     for (const t of tests) {
       const s = summaryOf(t);
-      const tr = el("tr", { class: "link", "data-id": String(t.id) },
+      const action = recordAction(t);
+      const actions = el("td", { class: "actions" });
+      if (action) {
+        const b = el("button", { type: "button", class: `ghost small act-${action}`, "data-action": action,
+          text: { delete: "delete", archive: "archive", restore: "restore" }[action] });
+        b.title = { delete: "this test never ran: delete it", archive: "hide it from the list, kept and restorable",
+          restore: "bring it back into the list" }[action];
+        b.addEventListener("click", (ev) => {
+          ev.stopPropagation();
+          this.act(t, action, "history-message");
+        });
+        actions.append(b);
+      }
+      const tr = el("tr", { class: "link", "data-id": String(t.id), "data-status": t.status },
         el("td", { text: `#${t.id}` }),
         el("td", { text: fmtTime(t.created_at || t.started_at) }),
+        el("td", { class: "who", text: t.specimen_id || "-" }),
+        el("td", { class: "who", text: t.operator_name || "-" }),
         el("td", { text: isolatorName(t) }),
         el("td", { text: profileText(t) }),
         el("td", { text: controllerName(t) }),
-        el("td", {}, statusPill(t.status)),
-        el("td", { text: fmtMetric(s.k_eff_n_per_m, 1e-3, "kN/m", 4) }),
-        el("td", { text: fmtMetric(s.edc_j, 1, "J", 4) }));
+        el("td", { text: num(t.vertical_load_n) ? fmtU("force", t.vertical_load_n, { sig: 4 }) : "-" }),
+        el("td", {}, statusPill(t.status), ...(t.archived ? [el("small", { class: "muted", text: ` archived by ${t.archived.by}: ${t.archived.reason}` })] : [])),
+        el("td", { text: fmtU("stiffness", s.k_eff_n_per_m) }),
+        el("td", { text: fmtU("energy", s.edc_j) }),
+        actions);
       tr.addEventListener("click", () => { location.hash = `#/tests/${t.id}`; });
       tbody.append(tr);
     }
+    $("history-empty").textContent = archived ? "No archived test matches." : "No test matches.";
     $("history-empty").classList.toggle("hidden", tests.length > 0);
   }
 
-  async showTest(id) {
+  /** Delete, archive or restore a record: ask (with who and why where the record keeps them), then say. */
+  async act(t, action, messageId) {
+    const rows = summaryTable([
+      ["test", `#${t.id}`, `${t.status}, created ${fmtTime(t.created_at)}`],
+      ["specimen / operator", `${t.specimen_id || "-"} / ${t.operator_name || "-"}`],
+      ["isolator / motion", `${isolatorName(t)} / ${profileText(t)}`],
+    ]);
+    const me = (() => { try { return localStorage.getItem("isorig.operator_name") || ""; } catch { return ""; } })();
+    let answer;
+    if (action === "delete") {
+      answer = await confirmDialog({ title: `Delete test #${t.id}? It never ran.`, body: rows, ok: "Delete test", danger: true });
+    } else if (action === "archive") {
+      const note = el("div", {}, rows, el("p", { text: "An archived test is hidden from the list, kept with its " +
+        "samples, and can be restored. The service logs who archived it and why." }));
+      answer = await confirmDialog({ title: `Archive test #${t.id}?`, body: note, ok: "Archive test",
+        fields: [{ name: "by", label: "your name", value: me, minLength: 1, maxLength: 64 },
+          { name: "reason", label: "why (at least 3 characters)", minLength: 3, maxLength: 400, multiline: true }] });
+    } else {
+      answer = await confirmDialog({ title: `Restore test #${t.id} into the list?`, body: rows, ok: "Restore test",
+        fields: [{ name: "by", label: "your name", value: me, minLength: 1, maxLength: 64 },
+          { name: "reason", label: "why (at least 3 characters)", minLength: 3, maxLength: 400, multiline: true }] });
+    }
+    if (!answer) {
+      this.message(messageId, `Test #${t.id}: nothing changed.`);
+      return false;
+    }
+    if (!getToken()) {
+      if (!(await askToken(""))) {
+        this.message(messageId, `Test #${t.id}: nothing changed (no operator token).`, "error");
+        return false;
+      }
+    }
+    try {
+      if (action === "delete") {
+        await api.del(`/api/tests/${t.id}`);
+        this.message(messageId, `Test #${t.id} deleted.`, "ok");
+      } else {
+        const body = { by: answer.values.by, reason: answer.values.reason };
+        await api.post(`/api/tests/${t.id}/${action}`, body);
+        try { localStorage.setItem("isorig.operator_name", body.by); } catch { /* fine */ }
+        this.message(messageId, `Test #${t.id} ${action === "archive" ? "archived" : "restored"} by ${body.by}: ${body.reason}`, "ok");
+      }
+    } catch (e) {
+      this.message(messageId, `Test #${t.id} not ${action === "delete" ? "deleted" : action + "d"}: ${e.message}`, "error");
+      return false;
+    }
+    if (messageId === "history-message") await this.showList();
+    return true;
+  }
+
+  async showTest(id, keepMessage = false) {
     $("t-title").textContent = `Test #${id}`;
     const summary = $("t-summary");
     summary.innerHTML = "";
+    if (!keepMessage) this.message("t-message", "");
     let t;
     try {
       t = await api.get(`/api/tests/${id}`);
     } catch (e) {
       summary.append(el("div", { class: "field-error", text: `could not load test ${id}: ${e.message}` }));
+      $("t-action").classList.add("hidden");
       return;
     }
+    this.current = t;
     const s = summaryOf(t);
-    const kv = (k, v) => el("div", { class: "kv" }, el("span", { text: k }), el("b", { text: v }));
+    const kv = (k, v, cls = "") => el("div", { class: `kv ${cls}` }, el("span", { text: k }), el("b", { text: v }));
     summary.append(
-      kv("status", t.status + (t.reason ? ` (${t.reason})` : "")),
+      kv("status", t.status + (t.reason ? ` (${t.reason})` : ""), "wide"),
+      kv("specimen", t.specimen_id || "-"),
+      kv("operator", t.operator_name || "-"),
       kv("isolator", isolatorName(t)),
       kv("profile", profileText(t)),
       kv("controller", controllerName(t)),
       kv("created", fmtTime(t.created_at)),
-      kv("supply", typeof t.supply_bar === "number" ? `${t.supply_bar} bar` : "-"),
-      kv("vertical load", typeof t.vertical_load_n === "number" ? `${+(t.vertical_load_n / 1e3).toPrecision(4)} kN`
-        : "- (recorded before it was a condition: 125 kN)"),
-      kv("speed", typeof t.speed === "number" ? `${t.speed}x` : "-"),
+      kv("supply", num(t.supply_bar) ? fmtU("pressure", t.supply_bar * 1e5) : "-"),
+      kv("vertical load", num(t.vertical_load_n) ? fmtU("force", t.vertical_load_n, { sig: 4 })
+        : `- (recorded before it was a condition: ${fmtU("force", 125e3)})`),
+      kv("speed", num(t.speed) ? `${t.speed}x` : "-"),
+      kv("limits", limitsText(t.limits), "wide"),
     );
-    for (const [key, label, scale, unit] of [
-      ["k_eff_n_per_m", "mean K_eff", 1e-3, "kN/m"], ["edc_j", "mean EDC", 1, "J"],
-      ["xi_eff", "mean xi_eff", 100, "%"], ["qd_n", "mean Q_d", 1e-3, "kN"],
-      ["rms_y_minus_r_m", "RMS y-r (test)", 1000, "mm"], ["last_rms_y_minus_r_m", "RMS y-r (last 2 cycles)", 1000, "mm"],
-      ["amplitude_error", "amplitude error", 100, "%"], ["phase_error_deg", "phase error", 1, "deg"],
-      ["saturated_share", "command saturated", 100, "%"], ["peak_flow_l_per_min", "peak flow", 1, "l/min"],
+    if (t.label) summary.append(kv("label", t.label));
+    if (t.notes) summary.append(kv("notes", t.notes, "wide notes"));
+    for (const [key, label, quantity, opts] of [
+      ["k_eff_n_per_m", "mean K_eff", "stiffness"], ["edc_j", "mean EDC", "energy"],
+      ["xi_eff", "mean xi_eff", "percent"], ["qd_n", "mean Q_d", "force", { sig: 4 }],
+      ["rms_y_minus_r_m", "RMS y - r (test)", "length"], ["last_rms_y_minus_r_m", "RMS y - r (last 2 cycles)", "length"],
+      ["amplitude_error", "amplitude error", "percent"], ["phase_error_deg", "phase error", "angle"],
+      ["saturated_share", "command saturated", "percent"], ["peak_flow_l_per_min", "peak flow", null],
     ]) {
-      if (typeof s[key] === "number") summary.append(kv(label, fmtMetric(s[key], scale, unit, 4)));
+      if (!num(s[key])) continue;
+      const text = quantity === null ? fmtU("flow", s[key] / 6e4, { sig: 3 }) : fmtU(quantity, s[key], opts || {});
+      summary.append(kv(label, text));
     }
+    const arch = $("t-archived");
+    arch.classList.toggle("hidden", !t.archived);
+    arch.textContent = t.archived ? `Archived by ${t.archived.by} on ${fmtTime(t.archived.at)}: ${t.archived.reason}` : "";
+    const action = recordAction(t);
+    const button = $("t-action");
+    button.classList.toggle("hidden", !action);
+    button.dataset.action = action;
+    button.textContent = { delete: "Delete this test (never ran)", archive: "Archive this test...", restore: "Restore this test..." }[action] || "";
+    button.onclick = async () => {
+      const done = await this.act(t, action, "t-message");
+      if (done && action === "delete") {
+        location.hash = "#/history";
+      } else if (done) {
+        this.showTest(id, true);
+      }
+    };
+    this.showBundle(id);
     const csv = $("t-csv");
     csv.href = `/api/tests/${id}/data.csv`;
     csv.setAttribute("download", `isorig-test-${id}.csv`);
@@ -143,6 +258,25 @@ export class History {
     } catch { /* no cycles yet */ }
     this.renderCycles(cycles);
     this.renderLoops(cycles);
+  }
+
+  /** The whole test as one zip, where the service offers it (GET /api/tests/{id}/bundle.zip). */
+  async showBundle(id) {
+    if (this.paths === undefined) {
+      try {
+        const spec = await api.get("/openapi.json");
+        this.paths = (spec && spec.paths) || {};
+      } catch {
+        this.paths = {};
+      }
+    }
+    const a = $("t-bundle");
+    const has = Boolean(this.paths["/api/tests/{test_id}/bundle.zip"]);
+    a.classList.toggle("hidden", !has);
+    if (has) {
+      a.href = `/api/tests/${id}/bundle.zip`;
+      a.setAttribute("download", `isorig-test-${id}-bundle.zip`);
+    }
   }
 
   /** The PDF is made on request: fetch it on click, save it, or say why there is none. */
@@ -186,11 +320,13 @@ export class History {
 
   renderCycles(cycles) {
     const table = $("t-cycles");
+    const L = unit("length");
+    const F = unit("force");
     const cols = [
-      ["cycle", "cycle", null, ""], ["d_max_m", "d+ (mm)", 1000], ["d_min_m", "d- (mm)", 1000],
-      ["f_max_n", "F+ (kN)", 1e-3], ["f_min_n", "F- (kN)", 1e-3], ["k_eff_n_per_m", "K_eff (kN/m)", 1e-3],
-      ["edc_j", "EDC (J)", 1], ["xi_eff", "xi_eff (%)", 100], ["qd_n", "Q_d (kN)", 1e-3],
-      ["kd_n_per_m", "K_d (kN/m)", 1e-3],
+      ["cycle", "cycle", null], ["d_max_m", `d+ (${L})`, "length"], ["d_min_m", `d- (${L})`, "length"],
+      ["f_max_n", `F+ (${F})`, "force"], ["f_min_n", `F- (${F})`, "force"],
+      ["k_eff_n_per_m", `K_eff (${unit("stiffness")})`, "stiffness"], ["edc_j", "EDC (J)", "energy"],
+      ["xi_eff", "xi_eff (%)", "percent"], ["qd_n", `Q_d (${F})`, "force"], ["kd_n_per_m", `K_d (${unit("stiffness")})`, "stiffness"],
     ];
     table.querySelector("thead").innerHTML = "";
     table.querySelector("thead").append(el("tr", {}, ...cols.map(([, label]) => el("th", { text: label }))));
@@ -198,9 +334,9 @@ export class History {
     tbody.innerHTML = "";
     for (const c of cycles) {
       const m = c.metrics ? { ...c.metrics, cycle: c.cycle } : c;
-      tbody.append(el("tr", {}, ...cols.map(([key, , scale]) => {
+      tbody.append(el("tr", {}, ...cols.map(([key, , quantity]) => {
         const v = m[key];
-        const text = typeof v !== "number" ? "-" : scale === null ? String(v) : (v * scale).toPrecision(4);
+        const text = !num(v) ? "-" : quantity === null ? String(v) : fmt(quantity, v);
         return el("td", { text });
       })));
     }
@@ -210,12 +346,15 @@ export class History {
     if (!this.loopPlot) this.loopPlot = new LoopPlot($("t-loops"));
     const plot = this.loopPlot;
     plot.reset();
+    plot.setLabels(`displacement y (${unit("length")})`, `force F (${unit("force")})`);
+    const fx = factorIn("length", system());
+    const ff = factorIn("force", system());
     const loops = cycles
       .map((c) => c.loop || c)
       .filter((l) => Array.isArray(l.displacement_m) && Array.isArray(l.force_n));
     loops.forEach((l, k) => {
-      const x = Float64Array.from(l.displacement_m, (v) => (v === null ? NaN : v * 1000));
-      const y = Float64Array.from(l.force_n, (v) => (v === null ? NaN : v / 1000));
+      const x = Float64Array.from(l.displacement_m, (v) => (v === null ? NaN : v * fx));
+      const y = Float64Array.from(l.force_n, (v) => (v === null ? NaN : v * ff));
       if (k < loops.length - 1) plot.addPast(x, y);
       else plot.setCurrent(x, y, 0, x.length);
     });

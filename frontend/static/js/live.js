@@ -1,19 +1,27 @@
 // Live view: follows /ws/live (websocket schema v1: hello, samples, status, cycle, event), keeps the recent
-// samples in typed-array buffers and redraws the plots on requestAnimationFrame with a smoothly advancing clock.
+// samples in typed-array buffers (display units) and redraws the plots on requestAnimationFrame with a smoothly
+// advancing clock. Also: large readouts with the current cycle's peak and valley, the margin left to each
+// limit, the events in words, and what the console knows of the test (js/state.js) for the strip and the form.
 
-import { LoopPlot, TimePlot } from "./plots.js";
-import { fmtDuration, fmtMetric, setStatusBadge, showAlert, eventLine } from "./ui.js";
+import { LoopPlot, PlotStack, TimePlot } from "./plots.js";
+import { changed, state } from "./state.js";
+import { eventLine, eventWords, fmtDuration, profileText, setStatusBadge, showAlert } from "./ui.js";
+import { factorIn, fmt, fmtU, onUnits, system, toDisplay, unit } from "./units.js";
 
 const CAP = 131072; // samples kept before the buffer is compacted
 const KEEP = 65536; // samples kept on compaction
 const WINDOW_S = 10; // time plots show the last 10 s of test time
 const PREFILL_MAX_CYCLES = 60; // a late page fetches the stored loops of tests up to this many cycles
+const READOUT_MS = 100; // readouts change at most 10 times a second (readable)
+const POLL_MS = 1000; // a running test's record (events: a stop requested elsewhere) is asked this often
 const FINAL = new Set(["completed", "stopped", "aborted", "interrupted", "failed"]);
 const BAD = new Set(["aborted", "interrupted", "failed"]);
 
-// Buffer channels (display units): time, target/model/displacement in mm, voltage, force in kN,
-// adapted parameters, errors in mm.
-const CH = ["t", "r", "ym", "y", "v", "f", "ar", "ay", "as", "e_ym", "e_r"];
+// Buffer channels, in display units: time (s), target/model/displacement and errors (length), voltage (V),
+// force, load pressure, adapted parameters (their declared unit; a length in the length unit).
+const CH = ["t", "r", "ym", "y", "v", "f", "pl", "ar", "ay", "as", "e_ym", "e_r"];
+const QUANTITY = { r: "length", ym: "length", y: "length", e_ym: "length", e_r: "length", f: "force", pl: "pressure" };
+const ADAPT_COLUMNS = [["ar_hat", "ar", "#2fbf71"], ["ay_hat", "ay", "#ff7a45"], ["as_hat", "as", "#c084fc"]];
 
 export const metrics = {
   frames: 0, // requestAnimationFrame callbacks
@@ -28,6 +36,9 @@ export const metrics = {
   lastMessageMs: null,
 };
 window.__isorig = metrics;
+
+const $ = (id) => document.getElementById(id);
+const num = (v) => typeof v === "number" && Number.isFinite(v);
 
 class Buffer {
   constructor() {
@@ -48,6 +59,11 @@ class Buffer {
     return drop;
   }
 
+  scale(channel, factor) {
+    const x = this.a[channel];
+    for (let i = 0; i < this.len; i++) x[i] *= factor;
+  }
+
   /** Index of the first sample with t >= time (binary search). */
   lowerBound(time) {
     const t = this.a.t;
@@ -62,6 +78,11 @@ class Buffer {
   }
 }
 
+function emptyExtremes(start) {
+  return { start, scanned: start, yMax: -Infinity, yMin: Infinity, fMax: -Infinity, fMin: Infinity,
+    vMax: -Infinity, vMin: Infinity, eAbs: 0, plAbs: 0, yAbs: 0, fAbs: 0 };
+}
+
 export class LiveView {
   constructor({ onTest, onLink } = {}) {
     this.onTest = onTest || (() => {});
@@ -74,7 +95,7 @@ export class LiveView {
     this.cycleStart = 0; // buffer index where the current loop cycle began
     this.crossings = []; // buffer indices of upward zero crossings of the target not yet shown
     this.prevTarget = NaN;
-    this.offsetMm = 0;
+    this.offset = 0; // the profile's offset, display units
     this.tDisp = 0; // displayed test time
     this.rate = 1; // test seconds per wall second (the speed factor)
     this.arrivals = []; // [wall ms, test time] of recent sample batches
@@ -86,45 +107,111 @@ export class LiveView {
     this.retryAt = 0;
     this.backoffMs = 250;
     this.plots = null;
-    this.asScale = 1000;
+    this.sys = system();
+    this.adaptScale = { ar: 1, ay: 1, as: 1 };
+    this.adaptQuantity = { ar: null, ay: null, as: null };
+    this.adaptChannels = [];
+    this.modelIsTarget = false;
     this.storedUntil = -Infinity;
     this.localLoops = [];
+    this.cyc = emptyExtremes(0);
+    this.readoutAt = 0;
+    this.events = []; // [{key, e}] in order
+    this.polledAt = 0;
+    onUnits(() => this.onUnitsChanged());
   }
 
   // ---------------------------------------------------------------- plots
 
   createPlots() {
-    const mm = { y: 0.5, y2: 0.5 };
-    this.plots = {
-      loop: new LoopPlot(document.getElementById("plot-loop")),
-      disp: new TimePlot(document.getElementById("plot-disp"), {
-        minSpan: mm,
-        series: [
-          { label: "target r", stroke: "#8d99a6", width: 1.5 },
-          { label: "model y_m", stroke: "#f0b429", width: 1.5 },
-          { label: "displacement y", stroke: "#4aa3ff", width: 2 },
-        ],
-      }),
-      volt: new TimePlot(document.getElementById("plot-volt"), {
-        minSpan: { y: 0.5 },
-        series: [{ label: "voltage u (V)", stroke: "#c084fc", width: 1.5 }],
-      }),
-      adapt: new TimePlot(document.getElementById("plot-adapt"), {
-        y2: true, y2Label: "", minSpan: { y: 0.1, y2: 0.1 },
-        series: [
-          { label: "a_r_hat", stroke: "#2fbf71" },
-          { label: "a_y_hat", stroke: "#ff7a45" },
-          { label: "a_s_hat (mm, right)", stroke: "#4aa3ff", scale: "y2" },
-        ],
-      }),
-      err: new TimePlot(document.getElementById("plot-err"), {
-        minSpan: { y: 0.2 },
-        series: [
-          { label: "y - y_m", stroke: "#f0b429" },
-          { label: "y - r", stroke: "#ff4d4f" },
-        ],
-      }),
-    };
+    const L = unit("length");
+    if (!this.plots) {
+      this.plots = { loop: new LoopPlot($("plot-loop")), adapt: new PlotStack($("plot-adapt")) };
+    } else {
+      for (const k of ["disp", "volt", "err"]) this.plots[k].destroy();
+    }
+    const p = this.plots;
+    p.loop.setLabels(`displacement y (${L})`, `force F (${unit("force")})`, 1, 1,
+      [toDisplay("length", 1e-3), toDisplay("force", 1e3)]);
+    p.disp = new TimePlot($("plot-disp"), {
+      yLabel: `displacement (${L})`,
+      minSpan: toDisplay("length", 5e-4),
+      series: [
+        { label: "measured y", stroke: "#4aa3ff", width: 2.5 },
+        ...(this.modelIsTarget ? [] : [{ label: "reference model y_m", stroke: "#f0b429", width: 1.5, dash: [7, 4] }]),
+        { label: this.modelIsTarget ? "target r = reference (on top)" : "target r (on top)", stroke: "#f4f6f8",
+          width: 1, dash: [2, 3] },
+      ],
+    });
+    $("disp-note").textContent = this.modelIsTarget
+      ? "measured y thick solid, target r thin dotted on top (this controller's reference is the target)"
+      : "measured y thick solid, reference model y_m dashed, target r thin dotted on top";
+    p.volt = new TimePlot($("plot-volt"), {
+      yLabel: "command u (V)", minSpan: 0.5,
+      series: [{ label: "valve command u", stroke: "#c084fc", width: 1.5 }],
+    });
+    p.err = new TimePlot($("plot-err"), {
+      yLabel: `error (${L})`, minSpan: toDisplay("length", 2e-4),
+      series: [
+        ...(this.modelIsTarget ? [] : [{ label: "y - y_m (to the reference model)", stroke: "#f0b429", width: 1.5, dash: [7, 4] }]),
+        { label: "y - r (to the target)", stroke: "#ff4d4f", width: 1.5 },
+      ],
+    });
+    this.setController(this.controllerName);
+    this.drawEmpty();
+    this.renderMargins(true);
+    window.__isorigPlots = () => ({
+      disp: p.disp.describe(), volt: p.volt.describe(), err: p.err.describe(), adapt: p.adapt.describe(),
+      adaptNote: $("adapt-note").textContent, loop: { x: p.loop.xLabel, y: p.loop.yLabel },
+    });
+    this.dirty = true;
+  }
+
+  /** Axes (labelled, 0 to 10 s) before any sample came: an empty plot still says what it will show. */
+  drawEmpty() {
+    if (this.buf.len) return;
+    const t = Float64Array.of(0);
+    const nan = Float64Array.of(NaN);
+    const p = this.plots;
+    p.disp.update(t, p.disp.series.map(() => nan), 0, 1, 0, WINDOW_S);
+    p.volt.update(t, [nan], 0, 1, 0, WINDOW_S);
+    p.err.update(t, p.err.series.map(() => nan), 0, 1, 0, WINDOW_S);
+    p.adapt.update(t, this.adaptChannels.map(() => nan), 0, 1, 0, WINDOW_S);
+  }
+
+  /** The unit choice changed: rescale the buffers and loops, relabel every axis, redraw the readouts. */
+  onUnitsChanged() {
+    const from = this.sys;
+    const to = system();
+    if (from === to) return;
+    this.sys = to;
+    const fx = factorIn("length", to) / factorIn("length", from);
+    const ff = factorIn("force", to) / factorIn("force", from);
+    for (const [ch, quantity] of Object.entries(QUANTITY)) {
+      const f = factorIn(quantity, to) / factorIn(quantity, from);
+      if (f !== 1) this.buf.scale(ch, f);
+    }
+    for (const ch of ["ar", "ay", "as"]) {
+      const quantity = this.adaptQuantity[ch];
+      if (quantity) {
+        const f = factorIn(quantity, to) / factorIn(quantity, from);
+        this.buf.scale(ch, f);
+        this.adaptScale[ch] *= f;
+      }
+    }
+    this.offset *= fx;
+    for (const l of this.localLoops) {
+      l.x = l.x.map((v) => v * fx);
+      l.y = l.y.map((v) => v * ff);
+    }
+    this.plots.loop.setLabels(this.plots.loop.xLabel, this.plots.loop.yLabel, fx, ff,
+      [toDisplay("length", 1e-3), toDisplay("force", 1e3)]);
+    this.cyc = emptyExtremes(this.cycleStart);
+    this.createPlots();
+    this.renderHead();
+    this.renderMargins(true);
+    this.renderEvents();
+    this.readoutAt = 0;
   }
 
   startRenderLoop() {
@@ -149,7 +236,10 @@ export class LiveView {
     if (this.tDisp > latest || FINAL.has(this.status)) this.tDisp = latest;
     if (this.tDisp < latest - 3 * lag) this.tDisp = latest - lag;
     if (this.tDisp === before && !this.dirty) return;
-    if (!this.visible) return;
+    if (!this.visible) {
+      this.readouts(b.len, now);
+      return;
+    }
     this.dirty = false;
     const t0 = performance.now();
     const i1 = Math.min(b.len, b.lowerBound(this.tDisp + 1e-9));
@@ -163,12 +253,13 @@ export class LiveView {
     const p = this.plots;
     const xMin = Math.max(0, this.tDisp - WINDOW_S);
     const xMax = Math.max(this.tDisp, WINDOW_S);
-    p.disp.update(a.t, [a.r, a.ym, a.y], i0, i1, xMin, xMax);
+    p.disp.update(a.t, this.modelIsTarget ? [a.y, a.r] : [a.y, a.ym, a.r], i0, i1, xMin, xMax);
     p.volt.update(a.t, [a.v], i0, i1, xMin, xMax);
-    p.adapt.update(a.t, [a.ar, a.ay, a.as], i0, i1, xMin, xMax);
-    p.err.update(a.t, [a.e_ym, a.e_r], i0, i1, xMin, xMax);
+    p.adapt.update(a.t, this.adaptChannels.map((c) => a[c]), i0, i1, xMin, xMax);
+    p.err.update(a.t, this.modelIsTarget ? [a.e_r] : [a.e_ym, a.e_r], i0, i1, xMin, xMax);
     p.loop.setCurrent(a.y, a.f, Math.min(this.cycleStart, i1), i1);
     p.loop.draw();
+    this.readouts(i1, now);
     metrics.loopCycles = p.loop.past.length;
     metrics.loopPoints = Math.max(0, i1 - Math.min(this.cycleStart, i1));
     metrics.testId = this.testId;
@@ -177,6 +268,97 @@ export class LiveView {
     metrics.drawMsTotal += ms;
     metrics.drawMsMax = Math.max(metrics.drawMsMax, ms);
     if (metrics.firstLiveFrameMs === null && i1 > 0) metrics.firstLiveFrameMs = performance.now();
+  }
+
+  /** Peak and valley of the current cycle (incremental), the readouts and the margins to the limits. */
+  readouts(i1, now) {
+    const a = this.buf.a;
+    const start = Math.min(this.cycleStart, i1);
+    if (this.cyc.start !== start || this.cyc.scanned > i1) this.cyc = emptyExtremes(start);
+    const c = this.cyc;
+    for (let i = Math.max(c.scanned, start); i < i1; i++) {
+      const y = a.y[i];
+      const f = a.f[i];
+      const v = a.v[i];
+      if (y > c.yMax) c.yMax = y;
+      if (y < c.yMin) c.yMin = y;
+      if (f > c.fMax) c.fMax = f;
+      if (f < c.fMin) c.fMin = f;
+      if (v > c.vMax) c.vMax = v;
+      if (v < c.vMin) c.vMin = v;
+      const e = Math.abs(a.e_r[i]);
+      if (e > c.eAbs) c.eAbs = e;
+      const pl = Math.abs(a.pl[i]);
+      if (pl > c.plAbs) c.plAbs = pl;
+    }
+    c.scanned = i1;
+    c.yAbs = Math.max(Math.abs(c.yMax), Math.abs(c.yMin));
+    c.fAbs = Math.max(Math.abs(c.fMax), Math.abs(c.fMin));
+    if (now - this.readoutAt < READOUT_MS || i1 === 0) return;
+    this.readoutAt = now;
+    const k = i1 - 1;
+    const L = "length";
+    const si = (quantity, shown) => shown / factorIn(quantity, this.sys);
+    const put = (id, quantity, shown) => {
+      $(id).textContent = num(shown) ? fmtU(quantity, si(quantity, shown), { sign: true }) : "-";
+    };
+    put("r-y", L, a.y[k]);
+    put("r-y-max", L, c.yMax);
+    put("r-y-min", L, c.yMin);
+    put("r-f", "force", a.f[k]);
+    put("r-f-max", "force", c.fMax);
+    put("r-f-min", "force", c.fMin);
+    put("r-v", "voltage", a.v[k]);
+    put("r-v-max", "voltage", c.vMax);
+    put("r-v-min", "voltage", c.vMin);
+    const live = this.status === "running";
+    state.position = { m: si(L, a.y[k]), testId: this.testId, t: a.t[k], live };
+    changed("position");
+    this.renderMargins(false);
+  }
+
+  /** Each limit of the test: the largest value of the current cycle against it, and the margin left. */
+  renderMargins(force) {
+    const box = $("margins");
+    const lim = (this.test && this.test.limits) || null;
+    if (!lim) {
+      if (force || box.dataset.empty !== "1") {
+        box.innerHTML = "<p class=\"muted\">no test in view</p>";
+        box.dataset.empty = "1";
+      }
+      return;
+    }
+    box.dataset.empty = "0";
+    const c = this.cyc;
+    const si = (quantity, shown) => shown / factorIn(quantity, this.sys);
+    const rows = [
+      ["displacement", "|d|", "length", lim.displacement_m, c.yAbs],
+      ["force", "|F|", "force", lim.force_n, c.fAbs],
+      ["tracking", "|y-r|", "length", lim.tracking_error_m, c.eAbs],
+      ["pressure", "|P_L|", "pressure", lim.load_pressure_pa, c.plAbs],
+    ];
+    if (!box.querySelector(".margin") || force) {
+      box.innerHTML = "";
+      for (const [key, label] of rows) {
+        box.insertAdjacentHTML("beforeend", `<div class="margin" data-limit="${key}"><span class="ml">${label}</span>` +
+          "<span class=\"bar\"><i></i></span><span class=\"mv\"></span></div>");
+      }
+      box.insertAdjacentHTML("beforeend", "<div class=\"margin pending\" data-limit=\"velocity\"><span class=\"ml\">|v|</span>" +
+        "<span class=\"mv muted\" title=\"the service has no velocity limit yet\">no limit in the service yet</span></div>");
+    }
+    for (const [key, , quantity, limitSI, peakShown] of rows) {
+      const row = box.querySelector(`.margin[data-limit="${key}"]`);
+      if (!row) continue;
+      const peak = num(peakShown) && peakShown > 0 ? si(quantity, peakShown) : 0;
+      const used = num(limitSI) && limitSI > 0 ? Math.min(1, peak / limitSI) : 0;
+      row.querySelector(".bar i").style.width = `${(used * 100).toFixed(1)}%`;
+      row.dataset.level = used > 0.95 ? "bad" : used > 0.8 ? "warn" : "ok";
+      row.querySelector(".mv").textContent = num(limitSI) ? `${fmtU(quantity, Math.max(0, limitSI - peak))} left` : "-";
+      row.title = num(limitSI) ? `largest ${key} this cycle ${fmtU(quantity, peak)} of the limit ` +
+        `${fmtU(quantity, limitSI, { sig: 4 })} (${(used * 100).toFixed(0)} %); a trip aborts the test` : "";
+      row.dataset.peak = fmt(quantity, peak);
+      row.dataset.max = fmt(quantity, limitSI, { sig: 4 });
+    }
   }
 
   closeCycle(j) {
@@ -209,10 +391,12 @@ export class LiveView {
       loop.past = [];
       loop.cacheDirty = true;
       let until = -Infinity;
+      const fx = factorIn("length", this.sys);
+      const ff = factorIn("force", this.sys);
       for (const c of cycles.slice(-loop.maxPast)) {
         if (!Array.isArray(c.displacement_m) || !Array.isArray(c.force_n)) continue;
-        loop.addPast(Float64Array.from(c.displacement_m, (v) => (v === null ? NaN : v * 1000)),
-          Float64Array.from(c.force_n, (v) => (v === null ? NaN : v / 1000)));
+        loop.addPast(Float64Array.from(c.displacement_m, (v) => (v === null ? NaN : v * fx)),
+          Float64Array.from(c.force_n, (v) => (v === null ? NaN : v * ff)));
         if (typeof c.t_end_s === "number") until = Math.max(until, c.t_end_s);
       }
       this.storedUntil = until;
@@ -232,57 +416,75 @@ export class LiveView {
     this.storedUntil = -Infinity;
     this.localLoops = [];
     this.cycleStart = 0;
+    this.cyc = emptyExtremes(0);
     this.crossings = [];
     this.prevTarget = NaN;
     this.tDisp = 0;
     this.arrivals = [];
+    this.events = [];
+    this.lastCycleMetrics = null;
     const speed = test && (test.speed || (test.scenario && test.scenario.speed));
     this.rate = speed > 0 ? speed : 1;
-    let profile = test && (test.profile || (test.scenario && test.scenario.profile));
-    if (Array.isArray(profile)) profile = profile[0];
-    this.offsetMm = profile && profile.offset_m ? profile.offset_m * 1000 : 0;
+    this.setProfile(test);
     this.setController(test && test.controller);
     if (this.plots) this.plots.loop.reset();
-    document.getElementById("live-events").innerHTML = "";
-    ["l-keff", "l-edc", "l-xi", "l-cycle", "l-progress", "l-left"].forEach((id) => {
-      document.getElementById(id).textContent = "-";
-    });
-    document.getElementById("l-progress-bar").style.width = "0";
+    this.renderEvents();
+    ["l-keff", "l-edc", "l-xi", "l-cycle", "l-progress", "l-left", "r-y", "r-y-max", "r-y-min", "r-f", "r-f-max",
+      "r-f-min", "r-v", "r-v-max", "r-v-min"].forEach((id) => { $(id).textContent = "-"; });
+    $("l-progress-bar").style.width = "0";
+    state.testId = testId;
+    state.test = test;
+    state.stopping = false;
+    state.faulted = "";
+    this.renderMargins(true);
     this.dirty = true;
+  }
+
+  setProfile(test) {
+    let profile = test && (test.profile || (test.scenario && test.scenario.profile));
+    if (Array.isArray(profile)) profile = profile[0];
+    this.offset = profile && profile.offset_m ? toDisplay("length", profile.offset_m) : 0;
   }
 
   onSamples(msg) {
     const cols = msg.columns;
     const ix = (name) => cols.indexOf(name);
     const it = ix("time_s"), ir = ix("target_m"), im = ix("model_m"), iy = ix("displacement_m");
-    const iv = ix("voltage_v"), iF = ix("force_n"), iar = ix("ar_hat"), iay = ix("ay_hat"), ias = ix("as_hat");
-    const num = (v) => (v === null || v === undefined ? NaN : v);
+    const iv = ix("voltage_v"), iF = ix("force_n"), ipl = ix("load_pressure_pa");
+    const iar = ix("ar_hat"), iay = ix("ay_hat"), ias = ix("as_hat");
+    const val = (v) => (v === null || v === undefined ? NaN : v);
     const b = this.buf;
     const a = b.a;
+    const fx = factorIn("length", this.sys);
+    const ff = factorIn("force", this.sys);
+    const fp = factorIn("pressure", this.sys);
+    const sc = this.adaptScale;
     for (const row of msg.rows) {
       const t = row[it];
       if (!(t > this.lastT)) continue; // history replay after a reconnect: skip what we have
       if (b.len >= CAP) {
         const drop = b.compact();
         this.cycleStart = Math.max(0, this.cycleStart - drop);
+        this.cyc = emptyExtremes(this.cycleStart);
         this.crossings = this.crossings.map((j) => j - drop).filter((j) => j > 0);
       }
       const k = b.len++;
-      const r = num(row[ir]) * 1000;
-      const ym = num(row[im]) * 1000;
-      const y = num(row[iy]) * 1000;
+      const r = val(row[ir]) * fx;
+      const ym = val(row[im]) * fx;
+      const y = val(row[iy]) * fx;
       a.t[k] = t;
       a.r[k] = r;
       a.ym[k] = ym;
       a.y[k] = y;
-      a.v[k] = num(row[iv]);
-      a.f[k] = num(row[iF]) / 1000;
-      a.ar[k] = num(row[iar]);
-      a.ay[k] = num(row[iay]);
-      a.as[k] = num(row[ias]) * this.asScale;
+      a.v[k] = val(row[iv]);
+      a.f[k] = val(row[iF]) * ff;
+      a.pl[k] = ipl >= 0 ? val(row[ipl]) * fp : NaN;
+      a.ar[k] = val(row[iar]) * sc.ar;
+      a.ay[k] = val(row[iay]) * sc.ay;
+      a.as[k] = val(row[ias]) * sc.as;
       a.e_ym[k] = y - ym;
       a.e_r[k] = y - r;
-      const rr = r - this.offsetMm;
+      const rr = r - this.offset;
       if (this.prevTarget <= 0 && rr > 0 && k > 0) this.crossings.push(k);
       this.prevTarget = rr;
       this.lastT = t;
@@ -302,83 +504,162 @@ export class LiveView {
   }
 
   onStatus(msg) {
-    const changed = msg.status !== this.status;
+    const changedStatus = msg.status !== this.status;
     this.status = msg.status;
-    setStatusBadge(msg.status);
+    state.status = msg.status;
+    state.reason = msg.reason || "";
+    if (msg.status === "running") state.faulted = "";
+    if (FINAL.has(msg.status)) state.stopping = false;
+    if (msg.status === "failed") state.faulted = msg.reason || "the test failed";
+    setStatusBadge(state.stopping && msg.status === "running" ? "stopping" : msg.status);
     if (msg.cycle !== undefined && msg.cycle !== null) {
-      document.getElementById("l-cycle").textContent =
-        msg.cycles_total ? `${msg.cycle} / ${msg.cycles_total}` : String(msg.cycle);
+      $("l-cycle").textContent = msg.cycles_total ? `${msg.cycle} / ${msg.cycles_total}` : String(msg.cycle);
     }
     if (typeof msg.progress === "number") {
       const pct = Math.max(0, Math.min(1, msg.progress)) * 100;
-      document.getElementById("l-progress").textContent = `${pct.toFixed(0)} %`;
-      document.getElementById("l-progress-bar").style.width = `${pct}%`;
+      $("l-progress").textContent = `${pct.toFixed(0)} %`;
+      $("l-progress-bar").style.width = `${pct}%`;
     }
-    if (typeof msg.time_left_s === "number") {
-      document.getElementById("l-left").textContent = fmtDuration(msg.time_left_s);
+    if (typeof msg.time_left_s === "number" && !FINAL.has(msg.status)) {
+      $("l-left").textContent = fmtDuration(msg.time_left_s);
     } else if (FINAL.has(msg.status)) {
-      document.getElementById("l-left").textContent = "-";
+      $("l-left").textContent = "-";
     }
-    if (changed && this.testId !== null) {
+    if (changedStatus && this.testId !== null) {
       if (BAD.has(msg.status)) {
-        const reason = msg.reason || this.tripMessage || "";
+        const reason = this.tripMessage || msg.reason || ""; // the trip in words, not the detector's internals
         showAlert(`${this.tripMessage ? "LIMIT TRIP - " : ""}Test ${this.testId} ${msg.status.toUpperCase()}` +
           `${reason ? ": " + reason : ""}`, "bad");
       } else if (FINAL.has(msg.status)) {
         showAlert(`Test ${this.testId} ${msg.status}`, "info");
-      } else if (msg.status === "running") {
-        showAlert(`Test ${this.testId} running`, "info");
       }
       this.onTest(this.testId, msg.status);
+      if (FINAL.has(msg.status)) this.refreshEvents(this.testId);
     }
+    changed("status");
   }
 
   onCycle(msg) {
     const m = msg.metrics || {};
-    document.getElementById("l-keff").textContent = fmtMetric(m.k_eff_n_per_m, 1e-3, "kN/m", 4);
-    document.getElementById("l-edc").textContent = fmtMetric(m.edc_j, 1, "J", 4);
-    document.getElementById("l-xi").textContent = fmtMetric(m.xi_eff, 100, "%", 3);
+    $("l-keff").textContent = fmtU("stiffness", m.k_eff_n_per_m);
+    $("l-edc").textContent = fmtU("energy", m.edc_j);
+    $("l-xi").textContent = fmtU("percent", m.xi_eff);
+    this.lastCycleMetrics = m;
   }
 
+  // ---------------------------------------------------------------- events
+
+  static eventKey(e) {
+    const t = typeof e.time_s === "number" ? e.time_s.toFixed(3) : "";
+    return `${e.kind}|${e.message}|${t}`;
+  }
+
+  /** An event of the stream (live, no id) or of the record; shown once, in the order they happened. */
   onEvent(msg, alert = true) {
-    const li = document.createElement("li");
-    li.className = msg.kind || "";
-    li.textContent = eventLine(msg);
-    const list = document.getElementById("live-events");
-    list.prepend(li);
-    while (list.children.length > 200) list.lastChild.remove();
+    const e = { ...msg };
+    if (!e.created_at && !e.receivedAt) e.receivedAt = Date.now();
+    const key = LiveView.eventKey(e);
+    if (this.events.some((x) => x.key === key)) return;
+    this.events.push({ key, e });
+    if (this.events.length > 300) this.events.shift();
+    if (e.kind === "operator" && e.values && e.values.action === "stop" && this.status === "running") {
+      state.stopping = true;
+      setStatusBadge("stopping");
+      changed("stopping");
+    }
+    if (e.kind === "rig_fault") state.faulted = e.message || "rig fault";
+    this.renderEvents();
     if (msg.kind === "limit_trip") {
-      this.tripMessage = msg.message || "limit trip";
-      if (alert) showAlert(`LIMIT TRIP (test ${msg.test_id}): ${msg.message}`, "bad");
+      this.tripMessage = eventWords(msg).text.replace(/^LIMIT TRIP: /, "");
+      if (alert) showAlert(`LIMIT TRIP (test ${msg.test_id}): ${this.tripMessage}`, "bad");
     }
   }
 
+  /** The record's events (ordered by the service): they replace what the stream gave, the rest follows. */
+  mergeEvents(list) {
+    const fromRecord = (list || []).map((e) => ({ key: LiveView.eventKey(e), e }));
+    const keys = new Set(fromRecord.map((x) => x.key));
+    const live = this.events.filter((x) => !keys.has(x.key));
+    this.events = [...fromRecord, ...live].slice(-300);
+    const stop = fromRecord.some((x) => x.e.kind === "operator" && x.e.values && x.e.values.action === "stop");
+    if (stop && this.status === "running" && !state.stopping) {
+      state.stopping = true;
+      setStatusBadge("stopping");
+      changed("stopping");
+    }
+    this.renderEvents();
+  }
+
+  renderEvents() {
+    const list = $("live-events");
+    const atEnd = list.scrollTop + list.clientHeight >= list.scrollHeight - 4;
+    list.innerHTML = "";
+    for (const { e } of this.events) {
+      const li = document.createElement("li");
+      li.className = e.kind || "";
+      li.textContent = eventLine(e);
+      list.append(li);
+    }
+    if (!this.events.length) list.append(Object.assign(document.createElement("li"), { className: "muted", textContent: "no events yet" }));
+    if (atEnd || this.events.length < 8) list.scrollTop = list.scrollHeight;
+    const last = this.events.length ? this.events[this.events.length - 1].e : null;
+    const lastText = last ? eventLine(last) : "";
+    if (!state.lastEvent || state.lastEvent.text !== lastText) {
+      state.lastEvent = last ? { text: lastText, kind: last.kind } : null;
+      changed("event");
+    }
+  }
+
+  /** Fetch the test's record: its events (a stop asked elsewhere is not streamed) and its figures. */
+  refreshEvents(testId) {
+    this.polledAt = performance.now();
+    return fetch(`/api/tests/${testId}`).then((r) => (r.ok ? r.json() : null)).then((rec) => {
+      if (!rec || this.testId !== testId) return;
+      this.test = { ...this.test, ...rec };
+      state.test = this.test;
+      this.mergeEvents(rec.events);
+      this.renderHead();
+      changed("test");
+    }).catch(() => {});
+  }
+
+  // ---------------------------------------------------------------- the test
+
   onHello(msg) {
+    state.helloSeen = true;
     const test = msg.test || null;
     const id = msg.test_id === undefined ? (test ? test.id : null) : msg.test_id;
     if (id === null) {
       // nothing runs (e.g. after a service restart): keep the last test on screen and show how it ended
       if (this.testId !== null) this.refreshEnded(this.testId);
-      else setStatusBadge("idle");
+      else {
+        setStatusBadge("idle");
+        state.status = null;
+        changed("status");
+      }
       return;
     }
     const fresh = id !== this.testId;
     if (fresh) this.resetTest(id, test);
     else this.test = test || this.test;
+    state.test = this.test;
     this.renderHead();
     if (test && test.status) this.onStatus({ status: test.status, test_id: id, reason: test.reason });
     this.loadLastCycle(id);
     if (test) this.loadStoredLoops(id, test.cycles_done);
-    if (fresh) {
-      for (const e of ((test && test.events) || []).slice(-50)) this.onEvent(e, false);
-    }
+    if (test) this.mergeEvents(test.events);
+    changed("test");
   }
 
   /** The stream has no test any more: ask for the last one's record (it may have ended interrupted). */
   refreshEnded(testId) {
     fetch(`/api/tests/${testId}`).then((r) => (r.ok ? r.json() : null)).then((rec) => {
       if (!rec || this.testId !== testId) return;
+      this.test = rec;
+      state.test = rec;
+      this.mergeEvents(rec.events);
       this.onStatus({ status: rec.status, test_id: testId, reason: rec.reason, progress: rec.progress });
+      changed("test");
     }).catch(() => {});
   }
 
@@ -386,20 +667,26 @@ export class LiveView {
   loadLastCycle(testId) {
     fetch(`/api/tests/${testId}/cycles`).then((r) => (r.ok ? r.json() : [])).then((cycles) => {
       if (this.testId !== testId || !Array.isArray(cycles) || !cycles.length) return;
-      if (document.getElementById("l-keff").textContent !== "-") return; // a live cycle came first
+      if ($("l-keff").textContent !== "-") return; // a live cycle came first
       this.onCycle({ metrics: cycles[cycles.length - 1] });
     }).catch(() => {});
   }
 
   renderHead() {
     const t = this.test;
-    document.getElementById("l-test").textContent = this.testId === null ? "none" : `#${this.testId}`;
+    $("l-test").textContent = this.testId === null ? "none" : `#${this.testId}`;
     const iso = t && (t.isolator || (t.scenario && t.scenario.isolator && t.scenario.isolator.name));
-    document.getElementById("l-isolator").textContent =
-      typeof iso === "string" ? iso : iso && iso.name ? iso.name : "-";
-    const load = t && (typeof t.vertical_load_n === "number" ? t.vertical_load_n
-      : t.scenario && typeof t.scenario.vertical_load_n === "number" ? t.scenario.vertical_load_n : null);
-    document.getElementById("l-vertical-load").textContent = load === null ? "-" : `${+(load / 1e3).toPrecision(4)} kN`;
+    $("l-isolator").textContent = typeof iso === "string" ? iso : iso && iso.name ? iso.name : "-";
+    const load = t && (num(t.vertical_load_n) ? t.vertical_load_n
+      : t.scenario && num(t.scenario.vertical_load_n) ? t.scenario.vertical_load_n : null);
+    $("l-vertical-load").textContent = load === null ? "-" : fmtU("force", load, { sig: 4 });
+    $("l-specimen").textContent = (t && t.specimen_id) || "-";
+    $("l-operator").textContent = (t && t.operator_name) || "-";
+    $("l-profile").textContent = t ? profileText(t) : "-";
+    const notes = (t && t.notes) || "";
+    $("l-notes").textContent = notes || "-";
+    $("l-notes").title = notes;
+    if (this.lastCycleMetrics) this.onCycle({ metrics: this.lastCycleMetrics });
   }
 
   /** What each controller declares it adapts (GET /api/rig: controllers[].adapted): name, unit, meaning. */
@@ -412,47 +699,71 @@ export class LiveView {
   /**
    * The columns ar_hat, ay_hat, as_hat hold what the running controller adapts, under the names and units it
    * declares (the MRAC: a_r_hat, a_y_hat, a_s_hat of eqs. 18-20; the servo: flow gain ratio, dead zone, learned
-   * frequency; PID: nothing). A length in m is shown in mm.
+   * frequency; PID: nothing). One small plot each, its own axis; a length in the console's length unit.
    */
   setController(name) {
     this.controllerName = name;
-    const adapted = ((this.declared || {})[name] || []).filter((a) => a.column !== "model_m");
+    const declared = (this.declared || {})[name] || [];
+    const model = declared.find((a) => a.column === "model_m");
+    const modelIsTarget = Boolean(model && /target/i.test(model.name));
+    const adapted = declared.filter((a) => a.column !== "model_m");
     const byColumn = Object.fromEntries(adapted.map((a) => [a.column, a]));
-    const asInfo = byColumn.as_hat;
-    const scale = (asInfo ? asInfo.unit === "m" : !name || name === "mrac") ? 1000 : 1;
-    if (scale !== this.asScale) { // samples that came before the record: rescale them
-      const as = this.buf.a.as;
-      for (let i = 0; i < this.buf.len; i++) as[i] *= scale / this.asScale;
-      this.asScale = scale;
+    // samples that came before the record: rescale them to the declared unit
+    for (const [column, ch] of ADAPT_COLUMNS) {
+      const a = byColumn[column];
+      const quantity = a && a.unit === "m" ? "length" : null;
+      const scale = quantity ? factorIn("length", this.sys) : 1;
+      if (scale !== this.adaptScale[ch]) this.buf.scale(ch, scale / this.adaptScale[ch]);
+      this.adaptScale[ch] = scale;
+      this.adaptQuantity[ch] = quantity;
     }
-    const label = (col, right) => {
-      const a = byColumn[col];
-      if (!a) return `${col} (not used)`;
-      const unit = a.unit === "m" ? "mm" : a.unit;
-      return `${a.name} (${unit}${right ? ", right" : ""})`;
-    };
-    const note = document.getElementById("adapt-note");
+    const note = $("adapt-note");
     if (note) {
-      note.textContent = !name ? "" : adapted.length ? `${name}: ${adapted.map((a) => a.meaning).join("; ")}`
+      note.textContent = !name ? "" : adapted.length ? `what ${name} adapts, one axis each`
         : `${name} adapts nothing (fixed gains)`;
     }
-    if (this.plots) this.plots.adapt.setLabels([label("ar_hat"), label("ay_hat"), label("as_hat", true)]);
+    if (!this.plots) return;
+    if (modelIsTarget !== this.modelIsTarget) {
+      this.modelIsTarget = modelIsTarget;
+      this.createPlots();
+      return;
+    }
+    const items = [];
+    this.adaptChannels = [];
+    for (const [column, ch, stroke] of ADAPT_COLUMNS) {
+      const a = byColumn[column];
+      if (!a) continue;
+      const u = a.unit === "m" ? unit("length") : a.unit;
+      const shown = u && u !== "-" ? `${a.name} (${u})` : `${a.name} (-)`;
+      items.push({ label: `${shown}: ${a.meaning}`, axis: `(${u || "-"})`, stroke,
+        minSpan: a.unit === "m" ? toDisplay("length", 1e-4) : 1e-3 });
+      this.adaptChannels.push(ch);
+    }
+    const key = `${name}|${this.sys}|${items.map((i) => i.label).join(",")}`;
+    if (key !== this.adaptKey) {
+      this.adaptKey = key;
+      this.plots.adapt.set(items, name ? `${name} adapts nothing: fixed gains, no adapted parameter to plot` : "no test in view");
+    }
+    this.dirty = true;
   }
 
   /** A message of a test we have no record of (started after hello): fetch its record for the header. */
   followNew(testId) {
     this.resetTest(testId, null);
     this.renderHead();
+    changed("test");
     fetch(`/api/tests/${testId}`).then((r) => (r.ok ? r.json() : null)).then((rec) => {
       if (!rec || this.testId !== testId) return;
       this.test = rec;
+      state.test = rec;
       if (rec.speed > 0 && this.arrivals.length < 3) this.rate = rec.speed;
-      let profile = rec.profile;
-      if (Array.isArray(profile)) profile = profile[0];
-      this.offsetMm = profile && profile.offset_m ? profile.offset_m * 1000 : 0;
+      this.setProfile(rec);
       this.setController(rec.controller);
       this.loadStoredLoops(testId, rec.cycles_done);
+      this.mergeEvents(rec.events);
       this.renderHead();
+      this.renderMargins(true);
+      changed("test");
     }).catch(() => {});
   }
 
@@ -513,10 +824,14 @@ export class LiveView {
     this.backoffMs = Math.min(2000, this.backoffMs * 2);
   }
 
-  /** Called by the worker tick (and on focus/visibility/online): reconnect when due. */
+  /** Called by the worker tick (and on focus/visibility/online): reconnect when due; poll a running test. */
   tick() {
     if (!this.wsWanted) return;
     if (!this.ws && Date.now() >= this.retryAt) this.connect();
+    if (this.status === "running" && this.testId !== null && state.conn && !document.hidden &&
+        performance.now() - this.polledAt > POLL_MS) {
+      this.refreshEvents(this.testId);
+    }
   }
 
   reconnectNow() {
@@ -526,11 +841,15 @@ export class LiveView {
 }
 
 function setConn(up) {
-  const el = document.getElementById("conn");
+  const el = $("conn");
   el.className = `conn ${up ? "conn-up" : "conn-down"}`;
   el.textContent = up ? "live" : "CONNECTION LOST - reconnecting";
   // the rig status shown is the last one known: mark it as such while the stream is down
-  const badge = document.getElementById("rig-status");
+  const badge = $("rig-status");
   badge.classList.toggle("stale", !up);
   badge.title = up ? "what the rig does now" : "last known status: no connection to the service";
+  state.conn = up;
+  if (up) state.everConnected = true;
+  else state.helloSeen = false;
+  changed("conn");
 }

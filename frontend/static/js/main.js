@@ -1,11 +1,15 @@
-// Dashboard entry point: views (live, history, one test), the always-visible Abort, the token, the 3D view.
+// Dashboard entry point: views (live, history, one test), the status strip, the always-visible Abort, the
+// token, the unit choice, the 3D view.
 
 import { api, askToken, getToken, operatorPost } from "./api.js";
 import { History } from "./history.js";
 import { LiveView } from "./live.js";
 import { RigLink } from "./rig.js";
 import { runningTestId, SetupPanel } from "./setup.js";
+import { changed, state } from "./state.js";
+import { StatusStrip } from "./strip.js";
 import { hideAlert, showAlert } from "./ui.js";
+import { onUnits, setSystem, system } from "./units.js";
 
 const $ = (id) => document.getElementById(id);
 // The embedded 3D view shares the page's renderer (same origin); its frame rate is capped so the plots stay
@@ -16,12 +20,16 @@ const rigLink = new RigLink({ onChange: (link) => setup.showRigLink(link) });
 const live = new LiveView({
   onTest: (id, status) => {
     if (currentView === "history") historyView.showList();
-    if (status === "completed" || status === "stopped" || status === "aborted") setup.message("", "");
+    if (setup.refusal === null && (status === "completed" || status === "stopped" || status === "aborted")) {
+      setup.message("", "");
+    }
   },
   onLink: (msg) => rigLink.fromStatus(msg),
 });
 const setup = new SetupPanel({ live });
 const historyView = new History();
+const strip = new StatusStrip();
+strip.nextLimits = () => setup.nextLimits();
 let currentView = "";
 
 function route() {
@@ -147,7 +155,38 @@ function updateTokenButton() {
   $("token-button").textContent = getToken() ? "token set" : "set token";
 }
 
+/** The sticky block (top bar, strip, banner) has a height the panels below must leave free. */
+function trackChromeHeight() {
+  const chrome = $("chrome");
+  const set = () => document.documentElement.style.setProperty("--chrome-h", `${Math.ceil(chrome.getBoundingClientRect().height)}px`);
+  new ResizeObserver(set).observe(chrome);
+  set();
+}
+
+/** The rig's own state (table position, supply pressure when idle), if the service offers it. */
+async function pollRigState() {
+  let has = false;
+  try {
+    const spec = await api.get("/openapi.json");
+    has = Boolean(spec && spec.paths && spec.paths["/api/rig/state"]);
+  } catch { has = false; }
+  if (!has) return;
+  const poll = async () => {
+    try {
+      state.rigState = await api.get("/api/rig/state");
+      changed("rigState");
+    } catch { /* the strip keeps the last answer */ }
+  };
+  await poll();
+  setInterval(poll, 2000);
+}
+
 async function main() {
+  trackChromeHeight();
+  const units = $("units");
+  units.value = system();
+  units.addEventListener("change", () => setSystem(units.value));
+  onUnits((sys) => { units.value = sys; });
   window.addEventListener("hashchange", route);
   $("abort").addEventListener("click", abort);
   $("alert-close").addEventListener("click", hideAlert);
@@ -176,9 +215,12 @@ async function main() {
   window.addEventListener("online", () => live.reconnectNow());
 
   route();
+  strip.render();
   await setup.init();
   rigLink.setInfo(setup.rig);
   rigLink.start();
+  strip.render();
+  pollRigState();
   await setupViewer();
   document.body.dataset.ready = "1";
 }

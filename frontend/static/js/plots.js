@@ -38,77 +38,131 @@ function padRange(r, minSpan) {
   return [lo, hi];
 }
 
+const LABEL_FONT = "12px system-ui, sans-serif";
+
 /**
- * A scrolling time plot. series: [{label, stroke, scale ("y" or "y2"), scaleBy}], the data are typed
- * arrays (NaN = no value) shared with the live buffer; scaleBy converts SI to the displayed unit.
+ * A scrolling time plot with labelled axes. series: [{label, stroke, width, dash, show}]; the data are typed
+ * arrays (NaN = no value) shared with the live buffer, already in display units. Later series are drawn on
+ * top (the target, thin and dashed, goes last so it is never hidden under the measured trace).
  */
 export class TimePlot {
-  constructor(el, { series, minSpan = { y: 1e-3, y2: 1e-3 }, y2 = false, y2Label = "" }) {
+  constructor(el, { series, minSpan = 1e-3, yLabel = "", xLabel = "test time (s)", xAxis = true, height = null }) {
     this.el = el;
     this.series = series;
     this.minSpan = minSpan;
-    this.hasY2 = y2;
+    this.fixedHeight = height;
     const axes = [
-      { stroke: AXIS, grid: { stroke: GRID, width: 1 }, ticks: { stroke: GRID }, size: 36 },
-      { scale: "y", stroke: AXIS, grid: { stroke: GRID, width: 1 }, ticks: { stroke: GRID }, size: 56 },
+      { stroke: AXIS, grid: { stroke: GRID, width: 1 }, ticks: { stroke: GRID }, size: xAxis ? 30 : 6,
+        show: xAxis, label: xAxis ? xLabel : undefined, labelSize: 16, labelFont: LABEL_FONT, labelGap: 0 },
+      { scale: "y", stroke: AXIS, grid: { stroke: GRID, width: 1 }, ticks: { stroke: GRID }, size: 52,
+        label: yLabel, labelSize: 18, labelFont: LABEL_FONT, labelGap: 0 },
     ];
-    if (y2) {
-      axes.push({ scale: "y2", side: 1, stroke: AXIS, grid: { show: false }, ticks: { stroke: GRID }, size: 60,
-        label: y2Label, labelSize: 14 });
-    }
-    const scales = { x: { time: false, auto: false }, y: { auto: false } };
-    if (y2) scales.y2 = { auto: false };
     const rect = el.getBoundingClientRect();
     this.u = new uPlot({
       width: Math.max(200, rect.width),
-      height: Math.max(120, rect.height - 30),
+      height: this.height(rect),
       pxAlign: 0,
-      scales,
+      scales: { x: { time: false, auto: false }, y: { auto: false } },
       axes,
-      legend: { show: true, live: false },
+      legend: { show: series.length > 1 || Boolean(series[0] && series[0].legend), live: false,
+        markers: { width: 2, dash: (u, i) => (u.series[i].dash ? "dashed" : "solid") } },
       cursor: { show: false },
       series: [{ label: "t (s)" }, ...series.map((s) => ({
-        label: s.label, stroke: s.stroke, width: s.width || 1.5, scale: s.scale || "y", points: { show: false },
+        label: s.label, stroke: s.stroke, width: s.width || 1.5, dash: s.dash, scale: "y", points: { show: false },
       }))],
     }, [new Float64Array(0), ...series.map(() => new Float64Array(0))], el);
     this.ro = new ResizeObserver(() => {
       const r = el.getBoundingClientRect();
-      if (r.width > 0) this.u.setSize({ width: r.width, height: Math.max(120, r.height - 30) });
+      if (r.width > 0) this.u.setSize({ width: r.width, height: this.height(r) });
     });
     this.ro.observe(el);
   }
 
-  /** Rename the series in the legend (index 0 = first y series). */
-  setLabels(labels) {
-    const nodes = this.u.root.querySelectorAll(".u-legend .u-series .u-label");
-    const skip = nodes.length > labels.length ? 1 : 0; // the x series when the legend lists it
-    labels.forEach((text, k) => {
-      if (nodes[k + skip]) nodes[k + skip].textContent = text;
-    });
+  height(rect) {
+    if (this.fixedHeight) return this.fixedHeight;
+    return Math.max(120, rect.height - 30);
+  }
+
+  /** The axis labels and series names, for tests and scripts. */
+  describe() {
+    return {
+      x: this.u.axes[0].show === false ? "" : this.u.axes[0].label,
+      y: this.u.axes[1].label,
+      series: this.u.series.slice(1).map((s) => ({ label: s.label, dash: s.dash || null, width: s.width })),
+    };
+  }
+
+  destroy() {
+    this.ro.disconnect();
+    this.u.destroy();
   }
 
   /** Show columns xs/ys in [i0, i1) between xMin and xMax (seconds). */
   update(xs, ys, i0, i1, xMin, xMax) {
     const data = [xs.subarray(i0, i1)];
-    const ranges = {};
-    ys.forEach((y, k) => {
+    let range = null;
+    ys.forEach((y) => {
       data.push(y.subarray(i0, i1));
-      const scale = this.series[k].scale || "y";
       const r = finiteRange(y, i0, i1);
-      if (r) {
-        const cur = ranges[scale];
-        ranges[scale] = cur ? [Math.min(cur[0], r[0]), Math.max(cur[1], r[1])] : r;
-      }
+      if (r) range = range ? [Math.min(range[0], r[0]), Math.max(range[1], r[1])] : r;
     });
     const u = this.u;
     u.batch(() => {
       u.setData(data, false);
       u.setScale("x", { min: xMin, max: xMax });
-      for (const scale of this.hasY2 ? ["y", "y2"] : ["y"]) {
-        const r = padRange(ranges[scale] || [-1, 1], this.minSpan[scale] || 1e-3);
-        u.setScale(scale, { min: r[0], max: r[1] });
-      }
+      const r = padRange(range || [-1, 1], this.minSpan);
+      u.setScale("y", { min: r[0], max: r[1] });
     });
+  }
+}
+
+/**
+ * The adapted parameters a controller declares, one small plot each (its own labelled axis), stacked over
+ * one time axis. items: [{label, unit, stroke}]; an empty list shows a note instead.
+ */
+export class PlotStack {
+  constructor(el) {
+    this.el = el;
+    this.plots = [];
+  }
+
+  set(items, note) {
+    for (const p of this.plots) p.destroy();
+    this.plots = [];
+    this.el.innerHTML = "";
+    this.items = items;
+    if (!items.length) {
+      const p = document.createElement("p");
+      p.className = "muted plot-note";
+      p.textContent = note || "nothing to show";
+      this.el.append(p);
+      return;
+    }
+    const each = items.length > 2 ? 78 : 100;
+    items.forEach((item, k) => {
+      const last = k === items.length - 1;
+      const title = document.createElement("div");
+      title.className = "stack-title";
+      title.style.color = item.stroke;
+      title.textContent = item.label;
+      const box = document.createElement("div");
+      box.className = "stack-item";
+      this.el.append(title, box);
+      const h = each + (last ? 34 : 0);
+      box.style.height = `${h}px`;
+      this.plots.push(new TimePlot(box, {
+        series: [{ label: item.label, stroke: item.stroke, width: 1.5 }],
+        yLabel: item.axis, xAxis: last, height: h, minSpan: item.minSpan || 1e-3,
+      }));
+    });
+  }
+
+  update(xs, ys, i0, i1, xMin, xMax) {
+    this.plots.forEach((p, k) => p.update(xs, [ys[k]], i0, i1, xMin, xMax));
+  }
+
+  describe() {
+    return this.plots.map((p) => p.describe());
   }
 }
 
@@ -133,9 +187,27 @@ export class LoopPlot {
     this.resize();
   }
 
+  /** Axis labels (units changed): the loops already drawn are rescaled by fx, fy. */
+  setLabels(xLabel, yLabel, fx = 1, fy = 1, minRange = null) {
+    this.xLabel = xLabel;
+    this.yLabel = yLabel;
+    if (minRange) this.minRange = minRange; // smallest half-span of the axes (display units)
+    if (fx !== 1 || fy !== 1) {
+      for (const p of this.past) {
+        p.x = p.x.map((v) => v * fx);
+        p.y = p.y.map((v) => v * fy);
+      }
+      const [a, b, c, d] = this.range;
+      this.range = [a * fx, b * fx, c * fy, d * fy];
+    }
+    this.cacheDirty = true;
+    this.draw();
+  }
+
   reset() {
     this.past = [];
     this.range = [-1, 1, -1, 1];
+    this.empty = true; // the axes follow the first data, then only grow
     this.cur = null;
     this.cacheDirty = true;
   }
@@ -156,17 +228,19 @@ export class LoopPlot {
 
   /** Grow the axes to include [x0,x1] x [y0,y1] (with margin and nice rounding). */
   include(x0, x1, y0, y1) {
-    const [a, b, c, d] = this.range;
-    if (x0 >= a && x1 <= b && y0 >= c && y1 <= d) return;
+    const [a, b, c, d] = this.empty ? [0, 0, 0, 0] : this.range;
+    if (!this.empty && x0 >= a && x1 <= b && y0 >= c && y1 <= d) return;
+    this.empty = false;
     const grow = (lo, hi, curLo, curHi) => {
-      const m = Math.max(Math.abs(lo), Math.abs(hi), Math.abs(curLo), Math.abs(curHi)) * 1.15;
+      const m = Math.max(Math.abs(lo), Math.abs(hi), Math.abs(curLo), Math.abs(curHi)) * 1.15 || 1;
       const t = niceTicks(0, m, 4);
       const step = t.length > 1 ? t[1] - t[0] : m;
       const top = Math.ceil(m / step) * step;
       return [-top, top];
     };
-    const xr = grow(x0, x1, a, b);
-    const yr = grow(y0, y1, c, d);
+    const [mx, my] = this.minRange || [0, 0];
+    const xr = grow(x0, x1, Math.min(a, -mx), Math.max(b, mx));
+    const yr = grow(y0, y1, Math.min(c, -my), Math.max(d, my));
     this.range = [xr[0], xr[1], yr[0], yr[1]];
     this.cacheDirty = true;
   }

@@ -1,31 +1,39 @@
-// Set-up panel: isolator (with its Bouc-Wen parameters, and a form to add one), supply pressure, sine profile,
-// controller, the rig envelope for the current choice (asked from the API before Start), Start and Stop.
+// Set-up panel: who and what (specimen, operator, notes), the isolator (its parameters, add one, delete a user
+// one), conditions, the motion (sine or a shipped protocol), the controller and its options, the limits, and the
+// rig envelope for the current choice (asked from the API at every change). Numbers are typed as text and
+// parsed explicitly (js/parse.js) in the console's units (js/units.js); every field shows its unit and range.
+// Start is enabled only when a start can succeed and asks for a confirmation that summarises the motion.
+// While a test runs the form shows that test (locked), also after a reload or in a second browser.
 
 import { api, ApiError, errorField, operatorPost } from "./api.js";
+import { confirmDialog, summaryTable } from "./dialogs.js";
+import { parseNumber } from "./parse.js";
 import { fmtPeriod, rigKind } from "./rig.js";
-import { el, showAlert } from "./ui.js";
-
-const PARAMS = [
-  ["rho_bw_per_m", "rho_BW", "1/m"],
-  ["sigma_bw", "sigma_BW", "-"],
-  ["n", "n", "-"],
-  ["kd_n_per_m", "k_d", "N/m"],
-  ["kw_n", "k_w", "N"],
-];
-// API field -> input id (amplitude is shown in mm)
-const FIELD_INPUT = {
-  isolator: "f-isolator",
-  supply_bar: "f-supply_bar",
-  vertical_load_n: "f-vertical_load_kn",
-  amplitude_m: "f-amplitude_mm",
-  frequency_hz: "f-frequency_hz",
-  cycles: "f-cycles",
-  taper_cycles: "f-taper_cycles",
-  controller: "f-controller",
-  speed: "f-speed",
-};
+import { changed, onState, state, testRunning } from "./state.js";
+import { el, fmtDuration, showAlert } from "./ui.js";
+import { fmt, fmtU, inputText, onUnits, sigDigits, toSI, unit } from "./units.js";
 
 const $ = (id) => document.getElementById(id);
+const num = (v) => typeof v === "number" && Number.isFinite(v);
+const DRAFT_KEY = "isorig.setup_draft";
+const BAR = 1e5;
+
+// Isolator parameters: key, label, quantity
+const ISO_PARAMS = [
+  ["rho_bw_per_m", "rho_BW", "inverse_length"],
+  ["sigma_bw", "sigma_BW", "ratio"],
+  ["n", "n", "ratio"],
+  ["kd_n_per_m", "k_d", "stiffness"],
+  ["kw_n", "k_w", "force"],
+];
+// What isolators usually are (SI): a value ten times outside this asks for a confirmation (a unit mistake
+// such as kN entered where N is asked is a factor of a thousand).
+const USUAL = {
+  kd_n_per_m: [1e5, 2e7, "post-yield stiffness"],
+  kw_n: [1e3, 5e5, "hysteretic force"],
+  rho_bw_per_m: [10, 1e3, "rho_BW"],
+  vertical_load: [1e4, 2e6, "vertical load"],
+};
 
 function listOf(data, key) {
   if (Array.isArray(data)) return data;
@@ -33,27 +41,227 @@ function listOf(data, key) {
   return [];
 }
 
+/** "10 to 210 bar", "up to 150 mm": a range in display units. */
+function rangeText(quantity, lo, hi, { openLow = false, integer = false } = {}) {
+  const f = (v) => (integer ? String(v) : quantity ? fmt(quantity, v, { sig: 6 }) : String(+v.toPrecision(6)));
+  const u = quantity && unit(quantity) !== "-" ? ` ${unit(quantity)}` : "";
+  if (openLow && lo === 0) return `above 0, up to ${f(hi)}${u}`;
+  return `${f(lo)} to ${f(hi)}${u}`;
+}
+
+/** A value ten times or more outside the usual range: the warning text, else "". */
+function implausible(key, si) {
+  const u = USUAL[key];
+  if (!u || !num(si) || si === 0) return "";
+  const [lo, hi, name] = u;
+  const q = key === "vertical_load" || key === "kw_n" ? "force" : key === "kd_n_per_m" ? "stiffness" : "inverse_length";
+  const usual = `${fmt(q, lo, { sig: 3 })} to ${fmtU(q, hi, { sig: 3 })}`;
+  if (si < lo / 10) {
+    return `${name} ${fmtU(q, si, { sig: 4 })} is ${sigDigits(lo / si, 2)} times below the usual ${usual}: ` +
+      "entered in the wrong unit?";
+  }
+  if (si > hi * 10) {
+    return `${name} ${fmtU(q, si, { sig: 4 })} is ${sigDigits(si / hi, 2)} times above the usual ${usual}: ` +
+      "entered in the wrong unit?";
+  }
+  return "";
+}
+
 export class SetupPanel {
   constructor({ live }) {
     this.live = live;
     this.isolators = [];
     this.rig = null;
+    this.protocols = []; // [{name, title?, description?, levels?}]
     this.checkSeq = 0;
     this.checkTimer = null;
-    this.lastCheck = { ok: false, message: "" };
+    this.lastCheck = { ok: null, key: "", data: null };
+    this.values = {}; // field key -> SI value (null: empty, undefined: not a valid number)
+    this.refusal = null; // {cause, text}: a refused action, cleared when its cause is gone
+    this.locked = false;
+    this.lockedTestId = null;
+    this.fields = this.fieldSpecs();
   }
 
+  // ------------------------------------------------------------------------------------------ fields
+
+  /** Every numeric field: input id, quantity (display unit), range in SI, required or default. */
+  fieldSpecs() {
+    const env = () => (this.rig && this.rig.envelope) || {};
+    const max = () => (this.rig && this.rig.limits_max) || {};
+    const def = () => (this.rig && this.rig.limits_default) || {};
+    return {
+      supply: { id: "f-supply", quantity: "pressure", required: true,
+        range: () => [(env().supply_bar_min ?? 10) * BAR, (env().supply_bar_max ?? 210) * BAR] },
+      speed: { id: "f-speed", quantity: null, required: true, openLow: true, range: () => [0, env().max_speed ?? 100] },
+      vertical_load: { id: "f-vertical_load", quantity: "force", required: false,
+        range: () => [0, env().max_vertical_load_n ?? 850e3], usual: "vertical_load" },
+      amplitude: { id: "f-amplitude", quantity: "length", required: true, sine: true, openLow: true,
+        range: () => [0, env().stroke_m ?? 0.15] },
+      frequency: { id: "f-frequency", quantity: "frequency", required: true, sine: true, openLow: true,
+        range: () => [0, env().max_frequency_hz ?? 10] },
+      cycles: { id: "f-cycles", quantity: null, integer: true, required: true, sine: true,
+        range: () => [1, env().max_cycles ?? 100000] },
+      taper_cycles: { id: "f-taper_cycles", quantity: null, integer: true, required: true, sine: true,
+        range: () => [0, num(this.values.cycles) ? Math.floor(this.values.cycles / 2) : 0] },
+      lim_displacement: { id: "f-lim_displacement", quantity: "length", required: false, openLow: true, limit: "displacement_m",
+        range: () => [0, max().displacement_m ?? 0.15], placeholder: () => def().displacement_m },
+      lim_force: { id: "f-lim_force", quantity: "force", required: false, openLow: true, limit: "force_n",
+        range: () => [0, max().force_n ?? 280e3], placeholder: () => def().force_n },
+      lim_tracking: { id: "f-lim_tracking", quantity: "length", required: false, openLow: true, limit: "tracking_error_m",
+        range: () => [0, max().tracking_error_m ?? 0.3], placeholder: () => def().tracking_error_m },
+      lim_pressure: { id: "f-lim_pressure", quantity: "pressure", required: false, openLow: true, limit: "load_pressure_pa",
+        range: () => [0, max().load_pressure_pa ?? 210e5], placeholder: () => def().load_pressure_pa },
+    };
+  }
+
+  isSine() {
+    return $("f-profile").value === "sine";
+  }
+
+  /** Parse one field: updates this.values[key] and its message; returns the problem text or "". */
+  readField(key) {
+    const spec = this.fields[key];
+    const input = $(spec.id);
+    const label = input.closest(".field");
+    const msg = label && label.querySelector(".msg");
+    const r = parseNumber(input.value, { integer: spec.integer });
+    let problem = "";
+    let note = "";
+    let si;
+    if (r.empty) {
+      si = null;
+      if (spec.required && !(spec.sine && !this.isSine())) problem = "required";
+    } else if (!r.ok) {
+      si = undefined;
+      problem = r.error;
+    } else {
+      si = spec.quantity ? toSI(spec.quantity, r.value) : r.value;
+      const [lo, hi] = spec.range();
+      const tooLow = spec.openLow ? si <= lo : si < lo - 1e-12 * Math.abs(lo);
+      if (tooLow || si > hi * (1 + 1e-12)) {
+        problem = `outside the allowed range: ${rangeText(spec.quantity, lo, hi, spec)}`;
+      } else if (r.comma) {
+        note = `read as ${spec.quantity ? fmtU(spec.quantity, si, { sig: 8 }) : String(r.value)}`;
+      }
+      if (!problem && spec.usual) note = implausible(spec.usual, si) || note;
+    }
+    this.values[key] = problem && si !== null ? undefined : si;
+    if (msg) {
+      msg.textContent = problem && problem !== "required" ? problem : problem === "required" ? "required" : note;
+      msg.className = `msg${problem ? " bad" : note && !note.startsWith("read as") ? " warn" : note ? " info" : ""}`;
+    }
+    input.classList.toggle("invalid", (Boolean(problem) && !(problem === "required" && r.empty && !input.dataset.touched)) ||
+      input.classList.contains("service-invalid"));
+    return problem;
+  }
+
+  /** Units and ranges of every field (at start, when the units or the rig answer change). */
+  renderFieldMeta() {
+    for (const [key, spec] of Object.entries(this.fields)) {
+      const input = $(spec.id);
+      const label = input.closest(".field");
+      if (!label) continue;
+      const u = label.querySelector(".unit");
+      if (u && spec.quantity) u.textContent = `(${unit(spec.quantity)})`;
+      const range = label.querySelector(".range");
+      const [lo, hi] = spec.range();
+      let text = rangeText(spec.quantity, lo, hi, spec);
+      if (key === "amplitude" && this.lastCheck.data && num(this.lastCheck.data.max_amplitude_m)) {
+        text = `up to ${fmtU("length", hi, { sig: 4 })} (stroke); at this frequency up to ${fmtU("length", this.lastCheck.data.max_amplitude_m, { sig: 4 })}`;
+      }
+      if (key === "frequency" && this.lastCheck.data && num(this.lastCheck.data.max_frequency_hz)) {
+        text += `; at this amplitude up to ${fmtU("frequency", this.lastCheck.data.max_frequency_hz, { sig: 3 })}`;
+      }
+      if (key === "taper_cycles") text += " (at most half the cycles)";
+      if (key === "speed" && this.realTimeOnly) text = "";
+      if (key === "vertical_load") {
+        const d = this.defaultVerticalLoad();
+        text += `; empty: ${fmtU("force", d.value, { sig: 6 })}${d.iso ? " (the isolator's design load)" : ""}`;
+        input.placeholder = fmt("force", d.value, { sig: 6 });
+      }
+      if (spec.limit) {
+        const p = spec.placeholder();
+        if (num(p)) input.placeholder = fmt(spec.quantity, p, { sig: 4 });
+        text += num(p) ? `; empty: ${fmtU(spec.quantity, p, { sig: 4 })}` : "";
+      }
+      if (range) range.textContent = text;
+    }
+    for (const [key, , quantity] of ISO_PARAMS) {
+      const label = $(`iso-${key}`).closest(".field");
+      label.querySelector(".unit").textContent = `(${unit(quantity)})`;
+      const usual = USUAL[key];
+      label.querySelector(".range").textContent = usual
+        ? `usually ${fmt(quantity, usual[0], { sig: 3 })} to ${fmtU(quantity, usual[1], { sig: 3 })}` : "";
+    }
+  }
+
+  defaultVerticalLoad() {
+    const env = (this.rig && this.rig.envelope) || {};
+    const iso = this.isolators.find((i) => i.name === $("f-isolator").value) || {};
+    if (num(iso.design_vertical_load_n)) return { value: iso.design_vertical_load_n, iso: true };
+    return { value: num(env.vertical_load_n_default) ? env.vertical_load_n_default : 125e3, iso: false };
+  }
+
+  /** Put an SI value into a field, in the display unit. */
+  setField(key, si) {
+    const spec = this.fields[key];
+    $(spec.id).value = si === null || si === undefined ? "" : spec.quantity ? inputText(spec.quantity, si) : String(si);
+  }
+
+  /** The units changed: every valid value is shown again in the new unit (the SI value is kept). */
+  onUnitsChanged() {
+    for (const [key, si] of Object.entries(this.values)) {
+      if (num(si) && this.fields[key] && this.fields[key].quantity) this.setField(key, si);
+    }
+    for (const [key, , quantity] of ISO_PARAMS) {
+      const input = $(`iso-${key}`);
+      const si = Number(input.dataset.si);
+      if (input.value.trim() && input.dataset.si !== undefined && num(si)) input.value = inputText(quantity, si);
+    }
+    this.renderFieldMeta();
+    this.showIsolator();
+    this.readAll();
+    this.check();
+  }
+
+  readAll() {
+    const problems = {};
+    for (const key of Object.keys(this.fields)) {
+      const p = this.readField(key);
+      if (p && !(this.fields[key].sine && !this.isSine())) problems[key] = p;
+    }
+    for (const input of document.querySelectorAll("#controller-options-fields input[data-option]")) {
+      const p = this.readOption(input);
+      if (p) problems[`option ${input.dataset.option}`] = p;
+    }
+    return problems;
+  }
+
+  // ------------------------------------------------------------------------------------------ init
+
   async init() {
-    await Promise.all([this.loadRig(), this.loadIsolators(), this.findCheckEndpoint()]);
+    await Promise.all([this.loadRig(), this.loadIsolators(), this.loadSchema()]);
+    await this.loadProtocols();
+    this.renderFieldMeta();
+    this.restoreDraft();
+    this.readAll();
+    this.saveDraft(); // this operator's set-up (the defaults at first), where a test run elsewhere returns to
     const form = $("setup-form");
     form.addEventListener("input", (ev) => {
-      if (ev.target.closest("#iso-form")) return;
-      this.scheduleCheck();
+      if (ev.target.closest("#iso-form")) {
+        this.readIsoField(ev.target);
+        return;
+      }
+      ev.target.dataset.touched = "1";
+      this.formChanged();
     });
     form.addEventListener("change", (ev) => {
       if (ev.target.closest("#iso-form")) return;
       if (ev.target.id === "f-isolator") this.showIsolator();
-      this.scheduleCheck();
+      if (ev.target.id === "f-profile") this.showProfile();
+      if (ev.target.id === "f-controller") this.showControllerOptions();
+      this.formChanged();
     });
     form.addEventListener("submit", (ev) => {
       ev.preventDefault();
@@ -61,18 +269,63 @@ export class SetupPanel {
     });
     $("stop").addEventListener("click", () => this.stop());
     $("iso-save").addEventListener("click", () => this.saveIsolator());
+    $("iso-delete").addEventListener("click", () => this.deleteIsolator());
+    onUnits(() => this.onUnitsChanged());
+    onState((what) => this.onStateChanged(what));
+    this.showPending();
+    this.showProfile();
+    this.updateButtons();
     this.scheduleCheck(0);
+    this.onStateChanged("test"); // a test the stream announced before this panel was ready
   }
 
-  /** Does the service validate a test without creating it (POST /api/tests/check)? Ask its OpenAPI once. */
-  async findCheckEndpoint() {
+  formChanged() {
+    if (this.refusal && this.refusal.cause === "form") this.clearRefusal();
+    else if (!this.refusal) this.message("", ""); // "cancelled", "saved": said once, gone at the next change
+    const { body, problems } = this.body();
+    this.saveDraft();
+    // a value that is not valid is said at once (no request); who and notes do not change the envelope; an
+    // unchanged set-up is not asked again (a blur's change event)
+    if (Object.keys(problems).length) {
+      clearTimeout(this.checkTimer);
+      this.check();
+    } else if (this.checkPending || SetupPanel.checkKey(body) !== this.lastCheck.key) {
+      this.scheduleCheck();
+    }
+    this.updateButtons();
+    changed("form");
+  }
+
+  /** The service's OpenAPI description: which endpoints exist (protocols, manual motion, limit actions). */
+  async loadSchema() {
     try {
       const spec = await api.get("/openapi.json");
-      this.checkEndpoint = Boolean(spec && spec.paths && spec.paths["/api/tests/check"]);
+      this.paths = (spec && spec.paths) || {};
+      this.schemas = (spec && spec.components && spec.components.schemas) || {};
     } catch {
-      this.checkEndpoint = false;
+      this.paths = {};
+      this.schemas = {};
     }
   }
+
+  /** What the backend does not offer yet: said where the operator would look for it. */
+  showPending() {
+    const paths = this.paths || {};
+    const schemas = this.schemas || {};
+    const limitProps = Object.keys((schemas.LimitsIn && schemas.LimitsIn.properties) || {});
+    const actions = limitProps.some((p) => /action/.test(p));
+    $("limits-pending").textContent = actions
+      ? "The service takes an action per limit now; this console still sends the limits only (every trip aborts)."
+      : "Not yet in the service: an action per limit (indicate / controlled stop / valve close) and a velocity " +
+        "limit. Every limit here aborts the test when it trips; the live view shows the margin left.";
+    const manual = Object.keys(paths).filter((p) => /move|jog|manual|zero|offset/.test(p));
+    $("manual-pending").textContent = manual.length
+      ? `The service offers ${manual.join(", ")}; this console does not drive it yet.`
+      : "Not yet in the service: move the table to a position, return to zero at a safe speed, set an offset " +
+        "from the current position. The strip above shows the table position measured last.";
+  }
+
+  // ------------------------------------------------------------------------------------------ rig
 
   async loadRig() {
     try {
@@ -80,16 +333,17 @@ export class SetupPanel {
     } catch {
       this.rig = null;
     }
+    state.rig = this.rig;
     const ctl = $("f-controller");
     const rig = this.rig || {};
     if (Array.isArray(rig.controllers)) this.live.setControllers(rig.controllers.filter((c) => typeof c === "object"));
-    const names = rig.controllers
-      ? rig.controllers.map((c) => (typeof c === "string" ? c : c.name))
-      : ["mrac", "pid"];
+    this.controllers = Array.isArray(rig.controllers) ? rig.controllers.filter((c) => typeof c === "object") : [];
+    const names = rig.controllers ? rig.controllers.map((c) => (typeof c === "string" ? c : c.name)) : ["servo"];
     const def = rig.default_controller || names[0];
     ctl.innerHTML = "";
     for (const n of names) ctl.append(el("option", { value: n, text: n === def ? `${n} (default)` : n }));
     ctl.value = def;
+    this.showControllerOptions();
     // a real rig runs in real time only: the speed is fixed at 1 (the API refuses any other with 422)
     this.realTimeOnly = rigKind(rig) !== "simulated";
     const speed = $("f-speed");
@@ -101,24 +355,181 @@ export class SetupPanel {
     $("speed-row").title = this.realTimeOnly
       ? `the rig ${rig.driver} runs in real time only: speed 1`
       : "simulated rig only: time scale of the run";
+    if (rig.state) {
+      state.rigState = rig.state;
+      changed("rigState");
+    }
+    changed("rig");
   }
 
-  /** The rig's link (RigLink): explain before Start why a test would fail on a rig that does not answer. */
+  /** The shipped protocols: from the service if it lists them, else from its refusal of an unknown name. */
+  async loadProtocols() {
+    const rig = this.rig || {};
+    let list = Array.isArray(rig.protocols) ? rig.protocols : null;
+    this.protocolSource = list ? "GET /api/rig" : "";
+    if (!list && this.paths && this.paths["/api/protocols"]) {
+      try {
+        const data = await api.get("/api/protocols");
+        list = listOf(data, "protocols");
+        this.protocolSource = "GET /api/protocols";
+      } catch {
+        list = null;
+      }
+    }
+    if (!list) {
+      // no listing endpoint: the check names the shipped protocols when asked for one that does not exist
+      try {
+        const iso = this.isolators.length ? this.isolators[0].name : "IUT_b";
+        const env = rig.envelope || {};
+        const data = await api.postQuiet("/api/tests/check", {
+          isolator: iso, supply_bar: env.supply_bar_max || 70, profile: { kind: "protocol", name: "" },
+        });
+        if (data && data.field === "profile.name" && typeof data.limit === "string") {
+          list = data.limit.split(",").map((s) => s.trim()).filter(Boolean);
+          this.protocolSource = "the check's refusal";
+        }
+      } catch { /* no protocols */ }
+    }
+    this.protocols = (list || []).map((p) => (typeof p === "string" ? { name: p } : p)).filter((p) => p && p.name);
+    const sel = $("f-profile");
+    const keep = sel.value;
+    sel.innerHTML = "";
+    sel.append(el("option", { value: "sine", text: "sine (amplitude, frequency, cycles)" }));
+    for (const p of this.protocols) {
+      sel.append(el("option", { value: `protocol:${p.name}`, text: `protocol ${p.name}${p.title ? `: ${p.title}` : ""}` }));
+    }
+    if ([...sel.options].some((o) => o.value === keep)) sel.value = keep;
+  }
+
+  protocol() {
+    const v = $("f-profile").value;
+    return v.startsWith("protocol:") ? this.protocols.find((p) => p.name === v.slice(9)) || { name: v.slice(9) } : null;
+  }
+
+  showProfile() {
+    const p = this.protocol();
+    $("sine-fields").classList.toggle("hidden", Boolean(p));
+    const info = $("protocol-info");
+    info.classList.toggle("hidden", !p);
+    info.innerHTML = "";
+    if (!p) return;
+    if (p.title || p.description) {
+      info.append(el("b", { text: p.title || p.name }));
+      if (p.description) info.append(el("div", { text: p.description }));
+    } else {
+      info.append(el("b", { text: `shipped protocol ${p.name}` }));
+    }
+    const levels = this.protocolLevels(p);
+    if (levels) {
+      info.append(el("div", { text: levels.map((l) => `${fmtU("length", l.amplitude_m)} at ${fmtU("frequency", l.frequency_hz)} x ${l.cycles}`).join("; ") }));
+    } else {
+      info.append(el("div", { class: "muted", text: "Its levels are defined on the service; the service lists " +
+        "no protocol details, so the confirmation cannot show its peak figures before the start." }));
+    }
+  }
+
+  /** A protocol's levels as sine blocks (SI), when the service described them; else null. */
+  protocolLevels(p) {
+    if (!p) return null;
+    if (Array.isArray(p.blocks)) return p.blocks;
+    if (!Array.isArray(p.levels)) return null;
+    const out = [];
+    for (const l of p.levels) {
+      const amp = num(l.amplitude_m) ? l.amplitude_m : num(l.fraction) && num(p.design_displacement_m)
+        ? l.fraction * p.design_displacement_m : NaN;
+      const f = num(l.frequency_hz) ? l.frequency_hz : p.frequency_hz;
+      const taper = num(l.taper_cycles) ? l.taper_cycles : num(p.taper_cycles) ? p.taper_cycles : 0;
+      if (!num(amp) || !num(f)) return null;
+      out.push({ amplitude_m: amp, frequency_hz: f, cycles: (l.cycles || 0) + 2 * taper });
+    }
+    return out;
+  }
+
+  showControllerOptions() {
+    const name = $("f-controller").value;
+    const c = (this.controllers || []).find((x) => x.name === name);
+    const box = $("controller-options-fields");
+    box.innerHTML = "";
+    const options = (c && c.options) || [];
+    $("controller-options-count").textContent = options.length
+      ? `(${options.length}; empty = the controller's default, in its own units)` : "(none)";
+    for (const o of options) {
+      const label = el("label", { class: "field", title: o.meaning || "" });
+      label.append(`${o.name}${o.unit && o.unit !== "-" ? ` (${o.unit})` : ""}`);
+      if (o.kind === "bool") {
+        const sel = el("select", { "data-option": o.name, "data-kind": "bool" });
+        sel.append(el("option", { value: "", text: `default (${o.default ? "on" : "off"})` }),
+          el("option", { value: "true", text: "on" }), el("option", { value: "false", text: "off" }));
+        label.append(sel);
+      } else {
+        const input = el("input", { type: "text", inputmode: o.kind === "int" ? "numeric" : "decimal",
+          "data-option": o.name, "data-kind": o.kind || "float",
+          placeholder: o.default === null || o.default === undefined ? "from the rig" : String(o.default) });
+        if (num(o.min)) input.dataset.min = String(o.min);
+        if (num(o.max)) input.dataset.max = String(o.max);
+        label.append(input);
+        const range = num(o.min) && num(o.max) ? `${+o.min.toPrecision(6)} to ${+o.max.toPrecision(6)}${o.unit && o.unit !== "-" ? ` ${o.unit}` : ""}` : "";
+        label.append(el("small", { class: "range", text: [range, o.meaning].filter(Boolean).join(": ") }));
+        label.append(el("small", { class: "msg" }));
+      }
+      box.append(label);
+    }
+  }
+
+  readOption(input) {
+    const r = parseNumber(input.value, { integer: input.dataset.kind === "int" });
+    const msg = input.parentElement.querySelector(".msg");
+    let problem = "";
+    if (!r.empty && !r.ok) problem = r.error;
+    else if (r.ok) {
+      const lo = Number(input.dataset.min);
+      const hi = Number(input.dataset.max);
+      if ((input.dataset.min !== undefined && r.value < lo) || (input.dataset.max !== undefined && r.value > hi)) {
+        problem = `outside ${+lo.toPrecision(6)} to ${+hi.toPrecision(6)}`;
+      }
+    }
+    if (msg) {
+      msg.textContent = problem || (r.ok && r.comma ? `read as ${r.value}` : "");
+      msg.className = `msg${problem ? " bad" : " info"}`;
+    }
+    input.classList.toggle("invalid", Boolean(problem));
+    return problem;
+  }
+
+  controllerOptions() {
+    const out = {};
+    for (const input of document.querySelectorAll("#controller-options-fields [data-option]")) {
+      if (input.dataset.kind === "bool") {
+        if (input.value) out[input.dataset.option] = input.value === "true";
+        continue;
+      }
+      const r = parseNumber(input.value, { integer: input.dataset.kind === "int" });
+      if (r.ok) out[input.dataset.option] = r.value;
+    }
+    return out;
+  }
+
+  /** The rig's link (RigLink): explain why Start is disabled on a rig that does not answer. */
   showRigLink(link) {
+    state.linkConnected = link.connected();
+    state.linkArmed = Boolean(link.link && link.link.armed && link.source !== "test");
     const box = $("rig-warning");
-    if (!box) return;
     const l = link.link || {};
     const down = link.kind === "udp" && link.connected() === "false";
     box.classList.toggle("hidden", !down);
     box.dataset.state = down ? "down" : "ok";
-    if (!down) return;
-    const arm = link.info && typeof link.info.arm_timeout_s === "number" ? fmtPeriod(link.info.arm_timeout_s) : "";
-    box.innerHTML = "";
-    box.append(el("b", { text: "Rig not connected: Start would fail." }),
-      el("div", { text: `${link.name()}: ${l.detail || "no answer"}. The service arms the rig at Start and gives ` +
-        `up${arm ? ` after ${arm}` : ""} without an answer; check that the rig (or isorig rig-emulator) runs ` +
-        "and is reachable." }));
+    if (down) {
+      const arm = link.info && typeof link.info.arm_timeout_s === "number" ? fmtPeriod(link.info.arm_timeout_s) : "";
+      box.innerHTML = "";
+      box.append(el("b", { text: "Rig not connected: Start is disabled until it answers." }),
+        el("div", { text: `${link.name()}: ${l.detail || "no answer"}. The service arms the rig at Start and gives ` +
+          `up${arm ? ` after ${arm}` : ""} without an answer; check that the rig (or isorig rig-emulator) runs ` +
+          "and is reachable." }));
+    }
+    changed("link");
   }
+
+  // ------------------------------------------------------------------------------------------ isolators
 
   async loadIsolators(select) {
     let data = [];
@@ -133,8 +544,7 @@ export class SetupPanel {
     sel.innerHTML = "";
     const groups = { preset: el("optgroup", { label: "presets" }), user: el("optgroup", { label: "user-defined" }) };
     for (const iso of data) {
-      const user = iso.user_defined || iso.source === "user" || iso.kind === "user" || iso.preset === false;
-      groups[user ? "user" : "preset"].append(el("option", { value: iso.name, text: iso.name }));
+      groups[iso.source === "user" ? "user" : "preset"].append(el("option", { value: iso.name, text: iso.name }));
     }
     sel.append(groups.preset);
     if (groups.user.children.length) sel.append(groups.user);
@@ -148,154 +558,359 @@ export class SetupPanel {
     hsel.value = hkeep;
   }
 
+  selectedIsolator() {
+    return this.isolators.find((i) => i.name === $("f-isolator").value) || null;
+  }
+
   showIsolator() {
-    const iso = this.isolators.find((i) => i.name === $("f-isolator").value);
+    const iso = this.selectedIsolator();
     const table = $("isolator-params");
     table.innerHTML = "";
+    const del = $("iso-delete");
+    const user = Boolean(iso && iso.source === "user");
+    del.disabled = !user || this.locked;
+    del.title = user ? `delete the user isolator ${iso.name}` : "presets cannot be deleted";
     if (!iso) return;
-    for (const [key, label, unit] of PARAMS) {
-      const v = iso[key];
-      table.append(el("tr", {}, el("td", { text: `${label} (${unit})` }),
-        el("td", { text: typeof v === "number" ? String(+v.toPrecision(6)) : "-" })));
+    for (const [key, label, quantity] of ISO_PARAMS) {
+      table.append(el("tr", {}, el("td", { text: `${label} (${unit(quantity)})` }),
+        el("td", { text: fmt(quantity, iso[key], { sig: 4 }) })));
+    }
+    if (num(iso.design_vertical_load_n)) {
+      table.append(el("tr", {}, el("td", { text: `design load (${unit("force")})` }),
+        el("td", { text: fmt("force", iso.design_vertical_load_n) })));
     }
     if (iso.description) table.append(el("tr", {}, el("td", { text: "note" }), el("td", { text: iso.description })));
-    this.showVerticalLoad();
+    table.append(el("tr", {}, el("td", { text: "source" }), el("td", { text: iso.source === "user" ? "user-defined" : "preset" })));
+    this.renderFieldMeta();
   }
 
-  /** The vertical load field: its range (the jack) and its default (the isolator's design load, else the rig's). */
-  showVerticalLoad() {
-    const env = (this.rig && this.rig.envelope) || {};
-    const iso = this.isolators.find((i) => i.name === $("f-isolator").value) || {};
-    const max = typeof env.max_vertical_load_n === "number" ? env.max_vertical_load_n : 850e3;
-    const fallback = typeof env.vertical_load_n_default === "number" ? env.vertical_load_n_default : 125e3;
-    const def = typeof iso.design_vertical_load_n === "number" ? iso.design_vertical_load_n : fallback;
-    const kn = (n) => String(+(n / 1e3).toPrecision(6));
-    $("f-vertical_load_kn").placeholder = kn(def);
-    $("f-vertical_load_kn").max = kn(max);
-    $("vertical-load-note").textContent = `0 to ${kn(max)} kN; empty: ${kn(def)} kN` +
-      (typeof iso.design_vertical_load_n === "number" ? " (the isolator's design load)" : "");
+  readIsoField(input) {
+    const entry = ISO_PARAMS.find(([key]) => `iso-${key}` === input.id);
+    if (!entry) return null;
+    const [key, , quantity] = entry;
+    const r = parseNumber(input.value);
+    const msg = input.closest(".field").querySelector(".msg");
+    let si = null;
+    let text = "";
+    let cls = "msg";
+    if (!r.empty && !r.ok) {
+      text = r.error;
+      cls += " bad";
+      si = undefined;
+    } else if (r.ok) {
+      si = toSI(quantity, r.value);
+      const warn = implausible(key, si);
+      if (warn) {
+        text = warn;
+        cls += " warn";
+      } else if (r.comma) {
+        text = `read as ${fmtU(quantity, si, { sig: 8 })}`;
+        cls += " info";
+      }
+    }
+    if (num(si)) input.dataset.si = String(si);
+    else delete input.dataset.si;
+    msg.textContent = text;
+    msg.className = cls;
+    input.classList.toggle("invalid", si === undefined);
+    return si;
   }
 
-  /** The request body of POST /api/tests from the form (SI units; amplitude converted from mm). */
+  async saveIsolator() {
+    const out = $("iso-error");
+    out.textContent = "";
+    const body = { name: $("iso-name").value.trim(), description: $("iso-description").value.trim() };
+    const warnings = [];
+    for (const [key] of ISO_PARAMS) {
+      const input = $(`iso-${key}`);
+      const si = this.readIsoField(input);
+      if (si === undefined) {
+        out.textContent = `${key}: ${input.closest(".field").querySelector(".msg").textContent}`;
+        return;
+      }
+      body[key] = si;
+      const w = implausible(key, si);
+      if (w) warnings.push(w);
+    }
+    if (warnings.length) {
+      const ok = await confirmDialog({
+        title: `Save isolator ${body.name || "(no name)"} with unusual values?`,
+        body: "These values are far outside what isolators usually have. Check the units before saving.",
+        warnings, ok: "Save anyway",
+      });
+      if (!ok) {
+        this.message("Isolator not saved: check the values.", "");
+        return;
+      }
+    }
+    try {
+      const saved = await operatorPost("/api/isolators", body);
+      await this.loadIsolators(saved && saved.name ? saved.name : body.name);
+      this.formChanged();
+      out.textContent = "";
+      this.message(`Isolator ${body.name} saved.`, "ok");
+    } catch (e) {
+      out.textContent = e.message;
+    }
+  }
+
+  async deleteIsolator() {
+    const iso = this.selectedIsolator();
+    if (!iso || iso.source !== "user") return;
+    const ok = await confirmDialog({
+      title: `Delete the user isolator ${iso.name}?`,
+      body: "It disappears from the list. Records of tests that used it keep their own copy of its parameters.",
+      ok: "Delete isolator", danger: true,
+    });
+    if (!ok) return;
+    try {
+      await api.del(`/api/isolators/${encodeURIComponent(iso.name)}`);
+      await this.loadIsolators("IUT_b");
+      this.formChanged();
+      this.message(`Isolator ${iso.name} deleted.`, "ok");
+    } catch (e) {
+      this.message(`Isolator ${iso.name} not deleted: ${e.message}`, "error");
+    }
+  }
+
+  // ------------------------------------------------------------------------------------------ the request
+
+  /** The request body of POST /api/tests from the form (SI units), or {problems}. */
   body() {
-    const num = (id) => {
-      const raw = $(id).value.trim();
-      return raw === "" ? null : Number(raw);
+    const problems = this.readAll();
+    const v = this.values;
+    const p = this.protocol();
+    const profile = p ? { kind: "protocol", name: p.name } : {
+      kind: "sine", amplitude_m: v.amplitude, frequency_hz: v.frequency, cycles: v.cycles, taper_cycles: v.taper_cycles,
     };
-    const amp = num("f-amplitude_mm");
     const body = {
       isolator: $("f-isolator").value,
-      supply_bar: num("f-supply_bar"),
+      supply_bar: num(v.supply) ? v.supply / BAR : null,
       controller: $("f-controller").value,
-      vertical_load_n: num("f-vertical_load_kn") === null ? null : num("f-vertical_load_kn") * 1e3,
-      profile: {
-        kind: "sine",
-        amplitude_m: amp === null ? null : amp / 1000,
-        frequency_hz: num("f-frequency_hz"),
-        cycles: num("f-cycles"),
-        taper_cycles: num("f-taper_cycles"),
-      },
+      speed: this.realTimeOnly ? 1 : v.speed,
+      profile,
+      specimen_id: $("f-specimen_id").value.trim(),
+      operator_name: $("f-operator_name").value.trim(),
+      notes: $("f-notes").value.trim(),
     };
-    body.speed = this.realTimeOnly ? 1 : num("f-speed");
-    return body;
+    if (num(v.vertical_load)) body.vertical_load_n = v.vertical_load;
+    const options = this.controllerOptions();
+    if (Object.keys(options).length) body.controller_options = options;
+    const limits = {};
+    for (const [key, spec] of Object.entries(this.fields)) {
+      if (spec.limit && num(v[key])) limits[spec.limit] = v[key];
+    }
+    if (Object.keys(limits).length) body.limits = limits;
+    return { body, problems };
   }
 
-  markField(field) {
-    for (const id of Object.values(FIELD_INPUT)) $(id).classList.remove("invalid");
-    const key = field ? String(field).split(".").pop() : "";
-    if (FIELD_INPUT[key]) $(FIELD_INPUT[key]).classList.add("invalid");
+  /** The limits the next test would get: the form's, else the rig's defaults (SI). */
+  nextLimits() {
+    const def = (this.rig && this.rig.limits_default) || {};
+    const out = { ...def };
+    for (const spec of Object.values(this.fields)) {
+      const key = Object.keys(this.fields).find((k) => this.fields[k] === spec);
+      if (spec.limit && num(this.values[key])) out[spec.limit] = this.values[key];
+    }
+    return out;
+  }
+
+  /** The part of the body the envelope depends on (who and notes are not checked against the rig). */
+  static checkKey(body) {
+    const { specimen_id: _s, operator_name: _o, notes: _n, ...rest } = body;
+    return JSON.stringify(rest);
   }
 
   scheduleCheck(delay = 250) {
     clearTimeout(this.checkTimer);
+    this.checkPending = true;
     this.checkTimer = setTimeout(() => this.check(), delay);
   }
 
-  /** What the rig envelope (GET /api/rig) says about the form, without asking the service: a fallback. */
-  staticCheck(body) {
-    const env = (this.rig && this.rig.envelope) || {};
-    const p = body.profile;
-    const bad = (field, value, limit, message) => ({ ok: false, field, message, data: { field, value, limit } });
-    const num = (v) => typeof v === "number" && isFinite(v);
-    if (!num(body.supply_bar)) return bad("supply_bar", body.supply_bar, "a number", "supply pressure is missing");
-    if (num(env.supply_bar_min) && num(env.supply_bar_max) &&
-        (body.supply_bar < env.supply_bar_min || body.supply_bar > env.supply_bar_max)) {
-      return bad("supply_bar", body.supply_bar, `${env.supply_bar_min}-${env.supply_bar_max} bar`,
-        `supply_bar = ${body.supply_bar} bar is outside ${env.supply_bar_min}-${env.supply_bar_max} bar`);
-    }
-    const maxLoad = num(env.max_vertical_load_n) ? env.max_vertical_load_n : 850e3;
-    if (body.vertical_load_n !== null && (!num(body.vertical_load_n) || body.vertical_load_n < 0 || body.vertical_load_n > maxLoad)) {
-      return bad("vertical_load_n", body.vertical_load_n, `0-${maxLoad / 1e3} kN`,
-        `vertical load ${body.vertical_load_n / 1e3} kN is outside 0-${maxLoad / 1e3} kN (the jack)`);
-    }
-    if (!num(p.amplitude_m) || p.amplitude_m <= 0) return bad("amplitude_m", p.amplitude_m, "> 0", "amplitude must be a positive number");
-    if (num(env.stroke_m) && p.amplitude_m > env.stroke_m) {
-      return bad("amplitude_m", p.amplitude_m, `stroke ${env.stroke_m * 1000} mm`,
-        `amplitude ${(p.amplitude_m * 1000).toFixed(1)} mm is beyond the stroke of +-${(env.stroke_m * 1000).toFixed(0)} mm`);
-    }
-    if (!num(p.frequency_hz) || p.frequency_hz <= 0) return bad("frequency_hz", p.frequency_hz, "> 0", "frequency must be a positive number");
-    if (num(env.max_frequency_hz) && p.frequency_hz > env.max_frequency_hz) {
-      return bad("frequency_hz", p.frequency_hz, `${env.max_frequency_hz} Hz`,
-        `frequency ${p.frequency_hz} Hz is above ${env.max_frequency_hz} Hz`);
-    }
-    if (!Number.isInteger(p.cycles) || p.cycles < 1) return bad("cycles", p.cycles, "a whole number >= 1", "cycles must be a whole number >= 1");
-    if (!Number.isInteger(p.taper_cycles) || p.taper_cycles < 0 || 2 * p.taper_cycles > p.cycles) {
-      return bad("taper_cycles", p.taper_cycles, "<= cycles / 2", `taper cycles must be a whole number between 0 and ${Math.floor(p.cycles / 2)}`);
-    }
-    return { ok: null, message: "Basic limits fine; the service checks the full envelope (pump flow, force, valve) at Start." };
-  }
-
-  /** Ask the API what the envelope allows for the current choice, and explain a refusal before Start. */
+  /** Ask the API whether the current choice fits the rig, and explain a refusal before Start. */
   async check() {
     const seq = ++this.checkSeq;
     const box = $("envelope");
-    const body = this.body();
-    let result = this.staticCheck(body);
-    if (result.ok !== false && this.checkEndpoint !== false) {
+    const { body, problems } = this.body();
+    const key = SetupPanel.checkKey(body);
+    const firstProblem = Object.entries(problems)[0];
+    let result;
+    if (firstProblem) {
+      result = { ok: false, local: true, key, message: `${firstProblem[0].replace(/_/g, " ")}: ${firstProblem[1]}` };
+    } else {
       try {
         const data = await api.postQuiet("/api/tests/check", body);
-        this.checkEndpoint = true;
-        result = { ok: data.ok !== false, data, message: data.message || data.detail };
+        result = { ok: data.ok !== false, key, data, message: data.detail, field: data.field };
       } catch (e) {
         if (e instanceof ApiError && e.status === 422) {
-          result = { ok: false, message: e.message, field: errorField(e.detail), data: e.detail };
-        } else if (e instanceof ApiError && (e.status === 404 || e.status === 405 || e.status === 401)) {
-          this.checkEndpoint = false; // this service has no check endpoint: keep the static check
+          result = { ok: false, key, message: e.message, field: errorField(e.detail), data: e.detail };
         } else {
-          result = { ok: null, message: `envelope check not available (${e.message})` };
+          result = { ok: null, key, message: `envelope check not available (${e.message})` };
         }
       }
     }
     if (seq !== this.checkSeq) return; // a newer check is on its way
+    this.checkPending = false;
     this.lastCheck = result;
     const d = result.data || {};
-    const env = (this.rig && this.rig.envelope) || {};
     const limits = [];
-    if (typeof d.max_amplitude_m === "number") limits.push(`amplitude up to ${(d.max_amplitude_m * 1000).toFixed(1)} mm at this frequency`);
-    if (typeof d.max_frequency_hz === "number") limits.push(`frequency up to ${d.max_frequency_hz.toPrecision(3)} Hz at this amplitude`);
-    if (typeof d.max_force_n === "number") limits.push(`force up to ${(d.max_force_n / 1000).toFixed(0)} kN at this pressure`);
-    if (!limits.length && typeof env.stroke_m === "number") {
-      limits.push(`stroke +-${(env.stroke_m * 1000).toFixed(0)} mm`, `supply ${env.supply_bar_min}-${env.supply_bar_max} bar`,
-        `frequency <= ${env.max_frequency_hz} Hz`, `pump ${Math.round(env.pump_max_flow_l_per_min)} l/min`);
-    }
+    if (num(d.max_force_n)) limits.push(`actuator force up to ${fmtU("force", d.max_force_n, { sig: 3 })} at this pressure`);
+    if (result.ok === false && num(d.max_amplitude_m)) limits.push(`amplitude up to ${fmtU("length", d.max_amplitude_m)} at this frequency`);
+    if (result.ok === false && num(d.max_frequency_hz)) limits.push(`frequency up to ${fmtU("frequency", d.max_frequency_hz, { sig: 3 })} at this amplitude`);
     box.innerHTML = "";
     if (result.ok === false) {
       box.className = "envelope refused";
       let text = result.message || "outside the rig envelope";
       if (d.limit && !text.includes(String(d.limit))) text += ` (limit: ${d.limit})`;
-      box.append(el("div", { text: `Refused: ${text}` }));
+      box.append(el("div", { text: `${result.local ? "Not valid" : "Refused"}: ${text}` }));
       this.markField(result.field || d.field);
     } else if (result.ok === true) {
       box.className = "envelope ok";
-      box.append(el("div", { text: result.message || "Within the rig envelope." }));
+      box.append(el("div", { text: "Within the rig envelope." }));
       this.markField("");
+      if (this.refusal && this.refusal.cause === "envelope") this.clearRefusal();
     } else {
       box.className = "envelope";
       box.append(el("div", { text: result.message }));
-      this.markField("");
     }
     if (limits.length) box.append(el("div", { class: "muted", text: `Rig: ${limits.join("; ")}.` }));
     box.dataset.state = result.ok === false ? "refused" : result.ok ? "ok" : "unknown";
+    this.renderFieldMeta();
+    this.updateButtons();
+  }
+
+  markField(field) {
+    document.querySelectorAll("#setup-fields .service-invalid").forEach((x) => x.classList.remove("service-invalid", "invalid"));
+    const key = field ? String(field).split(".").pop() : "";
+    const map = { supply_bar: "f-supply", vertical_load_n: "f-vertical_load", amplitude_m: "f-amplitude",
+      frequency_hz: "f-frequency", cycles: "f-cycles", taper_cycles: "f-taper_cycles", speed: "f-speed",
+      isolator: "f-isolator", controller: "f-controller", displacement_m: "f-lim_displacement",
+      force_n: "f-lim_force", tracking_error_m: "f-lim_tracking", load_pressure_pa: "f-lim_pressure",
+      name: "f-profile", profile: "f-profile" };
+    const id = map[key];
+    if (id && $(id)) $(id).classList.add("invalid", "service-invalid");
+  }
+
+  // ------------------------------------------------------------------------------------------ state
+
+  onStateChanged(what) {
+    if (what === "test" || what === "status") {
+      const t = state.test;
+      if (testRunning() && t && t.id === state.testId) this.followTest(t);
+      else if (!testRunning() && this.locked) this.unlock();
+    }
+    if (what === "rig" || what === "rigState" || what === "status" || what === "conn" || what === "link" ||
+        what === "test" || what === "stopping") {
+      this.updateButtons();
+    }
+  }
+
+  /** A test runs: show its set-up (locked) so this page says what the rig does, also after a reload. */
+  followTest(t) {
+    if (this.locked && this.lockedTestId === t.id) return;
+    this.locked = true;
+    this.lockedTestId = t.id;
+    $("f-specimen_id").value = t.specimen_id || "";
+    $("f-operator_name").value = t.operator_name || "";
+    $("f-notes").value = t.notes || "";
+    if (t.isolator && this.isolators.some((i) => i.name === t.isolator)) $("f-isolator").value = t.isolator;
+    if (num(t.supply_bar)) this.setField("supply", t.supply_bar * BAR);
+    if (num(t.vertical_load_n)) this.setField("vertical_load", t.vertical_load_n);
+    if (num(t.speed)) this.setField("speed", t.speed);
+    const p = t.profile || {};
+    if (p.kind === "protocol" && p.name) {
+      if (![...$("f-profile").options].some((o) => o.value === `protocol:${p.name}`)) {
+        $("f-profile").append(el("option", { value: `protocol:${p.name}`, text: `protocol ${p.name}` }));
+      }
+      $("f-profile").value = `protocol:${p.name}`;
+    } else if (p.kind === "sine") {
+      $("f-profile").value = "sine";
+      this.setField("amplitude", p.amplitude_m);
+      this.setField("frequency", p.frequency_hz);
+      this.setField("cycles", p.cycles);
+      this.setField("taper_cycles", p.taper_cycles);
+    }
+    if (t.controller && [...$("f-controller").options].some((o) => o.value === t.controller)) {
+      $("f-controller").value = t.controller;
+      this.showControllerOptions();
+      const opts = (t.scenario && t.scenario.controller_options) || {};
+      for (const [k, v] of Object.entries(opts)) {
+        const input = document.querySelector(`#controller-options-fields [data-option="${k}"]`);
+        if (input) input.value = typeof v === "boolean" ? String(v) : String(v);
+      }
+    }
+    const lim = t.limits || {};
+    const def = (this.rig && this.rig.limits_default) || {};
+    for (const [key, spec] of Object.entries(this.fields)) {
+      if (!spec.limit) continue;
+      const v = lim[spec.limit];
+      this.setField(key, num(v) && v !== def[spec.limit] ? v : null);
+    }
+    this.showIsolator();
+    this.showProfile();
+    this.readAll();
+    $("setup-fields").disabled = true;
+    $("iso-delete").disabled = true;
+    const lock = $("form-lock");
+    lock.textContent = `The form shows test #${t.id}, which is running: locked until it ends.`;
+    lock.classList.remove("hidden");
+    this.scheduleCheck(0);
+  }
+
+  unlock() {
+    const mine = this.lockedTestId !== null && this.lockedTestId === this.startedId;
+    this.locked = false;
+    this.lockedTestId = null;
+    $("setup-fields").disabled = false;
+    // a test started elsewhere (another console, a script) does not replace this operator's set-up
+    if (!mine) {
+      this.restoreDraft();
+      this.readAll();
+    }
+    $("form-lock").classList.add("hidden");
+    this.showIsolator();
+    this.saveDraft();
+    this.scheduleCheck(0);
+  }
+
+  /** Why Start cannot succeed now ([] when it can). */
+  startBlockers() {
+    const out = [];
+    if (!state.conn) out.push("no connection to the service");
+    if (testRunning()) out.push(`test #${state.testId ?? (state.rigState && state.rigState.test_id)} is running`);
+    if (state.linkConnected === "false") out.push("the rig is not connected");
+    if (!this.locked) {
+      const { body, problems } = this.body();
+      if (!body.specimen_id) out.push("a specimen id");
+      if (!body.operator_name) out.push("the operator's name");
+      const bad = Object.keys(problems);
+      if (bad.length) out.push(`valid values (${bad.map((k) => k.replace(/^lim_/, "limit ").replace(/_/g, " ")).join(", ")})`);
+      else if (this.lastCheck.ok === false) out.push(this.lastCheck.local ? "valid values (see the fields)" : "a set-up within the rig envelope (see above)");
+      else if (this.checkPending || this.lastCheck.key !== SetupPanel.checkKey(body)) out.push("the envelope check (running)");
+      else if (this.lastCheck.ok !== true) out.push("the envelope check (not available)");
+    }
+    return out;
+  }
+
+  updateButtons() {
+    const blockers = this.startBlockers();
+    const start = $("start");
+    start.disabled = blockers.length > 0;
+    const why = $("start-why");
+    why.textContent = blockers.length ? `Start needs: ${blockers.join("; ")}.` : "Start asks for a confirmation with the motion before the valve opens.";
+    why.className = `why${blockers.length ? " blocked" : ""}`;
+    why.dataset.blocked = blockers.length ? "1" : "0";
+    const stop = $("stop");
+    stop.disabled = !testRunning() || state.stopping || !state.conn;
+    stop.textContent = state.stopping ? "Stopping..." : "Stop";
+    // a refusal whose cause is gone is cleared
+    if (this.refusal) {
+      const c = this.refusal.cause;
+      if ((c === "busy" && !testRunning()) || (c === "rig" && state.linkConnected !== "false") ||
+          (c === "conn" && state.conn)) {
+        this.clearRefusal();
+      }
+    }
   }
 
   message(text, kind = "") {
@@ -304,24 +919,156 @@ export class SetupPanel {
     m.className = `message ${kind}`;
   }
 
-  /** Show a refusal of the service (422 at Start) where the envelope is explained. */
-  showRefusal(e) {
-    this.checkSeq++; // a pending check must not overwrite it
-    clearTimeout(this.checkTimer);
-    const box = $("envelope");
-    box.innerHTML = "";
-    box.className = "envelope refused";
-    box.dataset.state = "refused";
-    box.append(el("div", { text: `Refused by the service: ${e.message}` }));
-    this.markField(errorField(e.detail));
+  refuse(cause, text) {
+    this.refusal = { cause, text };
+    this.message(text, "error");
+    $("setup-message").dataset.cause = cause;
+  }
+
+  clearRefusal() {
+    this.refusal = null;
+    this.message("", "");
+    delete $("setup-message").dataset.cause;
+  }
+
+  // ------------------------------------------------------------------------------------------ draft
+
+  saveDraft() {
+    if (this.locked) return;
+    const draft = { values: {}, isolator: $("f-isolator").value, profile: $("f-profile").value,
+      controller: $("f-controller").value, specimen_id: $("f-specimen_id").value,
+      operator_name: $("f-operator_name").value, notes: $("f-notes").value };
+    for (const [key, v] of Object.entries(this.values)) if (num(v) || v === null) draft.values[key] = v;
+    try { localStorage.setItem(DRAFT_KEY, JSON.stringify(draft)); } catch { /* not kept */ }
+  }
+
+  restoreDraft() {
+    let draft = null;
+    try { draft = JSON.parse(localStorage.getItem(DRAFT_KEY) || "null"); } catch { draft = null; }
+    if (!draft) return;
+    if (draft.isolator && this.isolators.some((i) => i.name === draft.isolator)) $("f-isolator").value = draft.isolator;
+    if (draft.profile && [...$("f-profile").options].some((o) => o.value === draft.profile)) $("f-profile").value = draft.profile;
+    if (draft.controller && [...$("f-controller").options].some((o) => o.value === draft.controller)) {
+      $("f-controller").value = draft.controller;
+      this.showControllerOptions();
+    }
+    for (const k of ["specimen_id", "operator_name", "notes"]) if (typeof draft[k] === "string") $(`f-${k}`).value = draft[k];
+    for (const [key, v] of Object.entries(draft.values || {})) {
+      if (this.fields[key] && !(key === "speed" && this.realTimeOnly)) this.setField(key, v);
+    }
+    this.showIsolator();
+  }
+
+  // ------------------------------------------------------------------------------------------ start, stop
+
+  /** Peak displacement, velocity and force of the motion, and its duration (SI), from the form. */
+  motion(body) {
+    const iso = this.selectedIsolator() || {};
+    const params = Object.fromEntries(((this.rig && this.rig.parameters) || []).map((p) => [p.name, p.value]));
+    let blocks = null;
+    if (body.profile.kind === "sine") {
+      blocks = [{ amplitude_m: body.profile.amplitude_m, frequency_hz: body.profile.frequency_hz, cycles: body.profile.cycles }];
+    } else {
+      blocks = this.protocolLevels(this.protocol());
+    }
+    if (!blocks || !blocks.length) return null;
+    const load = num(body.vertical_load_n) ? body.vertical_load_n : this.defaultVerticalLoad().value;
+    let peak = { d: 0, v: 0, f: 0, iso: 0, friction: 0, inertia: 0, viscous: 0 };
+    let duration = 0;
+    for (const b of blocks) {
+      const w = 2 * Math.PI * b.frequency_hz;
+      const d = b.amplitude_m;
+      const v = w * d;
+      const fIso = (iso.kd_n_per_m || 0) * d + (iso.kw_n || 0);
+      const friction = (params.friction_coefficient || 0) * load + (params.coulomb_force_n || 0);
+      const viscous = (params.viscous_n_s_per_m || 0) * v;
+      const inertia = (params.mass_kg || 0) * w * w * d;
+      const f = fIso + friction + viscous + inertia;
+      if (f > peak.f) peak = { d, v, f, iso: fIso, friction, inertia, viscous };
+      peak.d = Math.max(peak.d, d);
+      peak.v = Math.max(peak.v, v);
+      duration += b.cycles / b.frequency_hz;
+    }
+    return { ...peak, duration, load, blocks };
+  }
+
+  /** Values that are valid but look like unit mistakes or certain trips: each needs an explicit tick. */
+  warnings(body, m) {
+    const out = [];
+    if (num(body.vertical_load_n)) {
+      const w = implausible("vertical_load", body.vertical_load_n);
+      if (w) out.push(w);
+    }
+    const lim = { ...((this.rig && this.rig.limits_default) || {}), ...(body.limits || {}) };
+    if (m) {
+      if (num(lim.displacement_m) && m.d >= lim.displacement_m) {
+        out.push(`the amplitude ${fmtU("length", m.d)} reaches the displacement limit of ${fmtU("length", lim.displacement_m)}: the test will trip`);
+      }
+      if (num(lim.force_n) && m.f >= lim.force_n) {
+        out.push(`the estimated peak force ${fmtU("force", m.f, { sig: 3 })} is above the force limit of ${fmtU("force", lim.force_n, { sig: 3 })}: the test will likely trip`);
+      }
+      const maxF = this.lastCheck.data && this.lastCheck.data.max_force_n;
+      if (num(maxF) && m.f > 0.9 * maxF) {
+        out.push(`the estimated peak force ${fmtU("force", m.f, { sig: 3 })} is near or above what the actuator gives at this pressure (${fmtU("force", maxF, { sig: 3 })})`);
+      }
+      if (m.d < 1e-4) out.push(`the amplitude ${fmtU("length", m.d)} is very small: entered in the wrong unit?`);
+    }
+    return out;
+  }
+
+  summary(body, m) {
+    const rows = [
+      ["specimen", body.specimen_id, `operator ${body.operator_name}`],
+      ["isolator", body.isolator, `controller ${body.controller}`],
+    ];
+    if (body.profile.kind === "sine") {
+      rows.push(["motion", `sine ${fmtU("length", body.profile.amplitude_m)} at ${fmtU("frequency", body.profile.frequency_hz)}`,
+        `${body.profile.cycles} cycles, ${body.profile.taper_cycles} taper`]);
+    } else {
+      rows.push(["motion", `protocol ${body.profile.name}`, m ? `${m.blocks.length} levels` : ""]);
+    }
+    if (m) {
+      const maxF = this.lastCheck.data && this.lastCheck.data.max_force_n;
+      rows.push(["peak displacement", `\u00b1${fmtU("length", m.d)}`, `stroke \u00b1${fmtU("length", this.rig.envelope.stroke_m, { sig: 4 })}`]);
+      rows.push(["peak velocity", fmtU("velocity", m.v), "2 pi f A"]);
+      rows.push(["peak force (estimate)", `about ${fmtU("force", m.f, { sig: 3 })}`,
+        `isolator k_d A + k_w ${fmtU("force", m.iso, { sig: 3 })}, guide friction ${fmtU("force", m.friction, { sig: 3 })}, ` +
+        `viscous ${fmtU("force", m.viscous, { sig: 2 })}, inertia ${fmtU("force", m.inertia, { sig: 2 })}` +
+        (num(maxF) ? `; the actuator gives ${fmtU("force", maxF, { sig: 3 })} at this pressure` : "")]);
+      const wall = m.duration / (body.speed || 1);
+      rows.push(["duration", fmtDuration(m.duration), body.speed !== 1 ? `test time; ${fmtDuration(wall)} wall time at ${body.speed}x` : "real time"]);
+    } else {
+      rows.push(["peak figures", "not available", "the service lists no protocol details (the service checks the envelope at the start)"]);
+    }
+    rows.push(["supply / vertical load", `${fmtU("pressure", body.supply_bar * BAR)} / ${fmtU("force", m ? m.load : (body.vertical_load_n ?? this.defaultVerticalLoad().value), { sig: 4 })}`]);
+    const lim = { ...((this.rig && this.rig.limits_default) || {}), ...(body.limits || {}) };
+    rows.push(["limits (trip: abort)", [
+      num(lim.displacement_m) ? `|d| ${fmtU("length", lim.displacement_m, { sig: 4 })}` : "",
+      num(lim.force_n) ? `|F| ${fmtU("force", lim.force_n, { sig: 4 })}` : "",
+      num(lim.tracking_error_m) ? `|y - r| ${fmtU("length", lim.tracking_error_m, { sig: 4 })}` : "",
+      num(lim.load_pressure_pa) ? `|P_L| ${fmtU("pressure", lim.load_pressure_pa, { sig: 4 })}` : "",
+    ].filter(Boolean).join(", ")]);
+    return summaryTable(rows);
   }
 
   async start() {
-    const body = this.body();
-    const pre = this.staticCheck(body);
-    if (pre.ok === false) {
-      this.scheduleCheck(0);
-      this.message(`Refused: ${pre.message}`, "error");
+    this.updateButtons();
+    if ($("start").disabled) return;
+    const { body, problems } = this.body();
+    if (Object.keys(problems).length) return;
+    const m = this.motion(body);
+    const answer = await confirmDialog({
+      title: "Start this test? The valve opens when you confirm.",
+      body: this.summary(body, m),
+      warnings: this.warnings(body, m),
+      ok: "Start motion",
+    });
+    if (!answer) {
+      this.message("Start cancelled: nothing was sent to the rig.", "");
+      return;
+    }
+    if (this.startBlockers().length) { // the state changed while the dialog was open
+      this.refuse("busy", `Not started: ${this.startBlockers().join("; ")}.`);
       return;
     }
     this.message("starting the test...");
@@ -331,59 +1078,63 @@ export class SetupPanel {
     } catch (e) {
       if (e instanceof ApiError && e.status === 422) {
         this.showRefusal(e);
-        this.message("Refused by the service: the reason is above.", "error");
+        this.refuse("envelope", `Refused by the service: ${e.message}`);
+      } else if (e instanceof ApiError && e.status === 409) {
+        this.refuse("busy", `Refused by the service: ${e.message}`);
+      } else if (e instanceof ApiError && (e.status === 401 || e.status === 0)) {
+        this.refuse("form", `Not started: ${e.message}`);
       } else {
-        this.message(`Refused: ${e.message}`, "error");
+        this.refuse("form", `Refused: ${e.message}`);
       }
       return;
     }
+    try { localStorage.setItem("isorig.operator_name", body.operator_name); } catch { /* fine */ }
+    this.startedId = record.id;
     this.message(`Test #${record.id} started.`, "ok");
+    state.stopping = false;
     location.hash = "#/live";
+  }
+
+  /** A refusal of the service (422 at Start) shown where the envelope is explained. */
+  showRefusal(e) {
+    this.checkSeq++; // a pending check must not overwrite it
+    clearTimeout(this.checkTimer);
+    this.checkPending = false;
+    const box = $("envelope");
+    box.innerHTML = "";
+    box.className = "envelope refused";
+    box.dataset.state = "refused";
+    box.append(el("div", { text: `Refused by the service: ${e.message}` }));
+    this.lastCheck = { ok: false, key: this.lastCheck.key, message: e.message };
+    this.markField(errorField(e.detail));
+    this.updateButtons();
   }
 
   async stop() {
     const id = await runningTestId(this.live);
     if (id === null) {
-      this.message("No test is running.", "error");
+      this.refuse("busy", "No test is running.");
       return;
     }
     try {
       await operatorPost(`/api/tests/${id}/stop`);
-      this.message(`Test #${id}: stopping with a ramp-out.`, "ok");
+      state.stopping = true;
+      changed("stopping");
+      this.message(`Test #${id}: stopping with a ramp-out from the next whole cycle.`, "ok");
+      this.live.refreshEvents(id);
     } catch (e) {
-      this.message(`Stop refused: ${e.message}`, "error");
-    }
-  }
-
-  async saveIsolator() {
-    const out = $("iso-error");
-    out.textContent = "";
-    const body = { name: $("iso-name").value.trim(), description: $("iso-description").value.trim() };
-    for (const [key] of PARAMS) {
-      const raw = $(`iso-${key}`).value.trim();
-      body[key] = raw === "" ? null : Number(raw);
-    }
-    try {
-      const saved = await operatorPost("/api/isolators", body);
-      await this.loadIsolators(saved && saved.name ? saved.name : body.name);
-      this.scheduleCheck(0);
-      out.textContent = "";
-      this.message(`Isolator ${body.name} saved.`, "ok");
-    } catch (e) {
-      out.textContent = e.message;
+      this.refuse("form", `Stop refused: ${e.message}`);
     }
   }
 }
 
 /** The id of the test the rig runs now: from the live stream, else asked from the API. */
 export async function runningTestId(live) {
-  if (live && live.testId !== null && (live.status === "running" || live.status === "ready" ||
-      live.status === "stopping")) {
-    return live.testId;
-  }
+  if (live && live.testId !== null && live.status === "running") return live.testId;
   try {
     const list = listOf(await api.get("/api/tests?status=running"), "tests");
     if (list.length) return list[0].id;
   } catch { /* fall through */ }
-  return live && live.testId !== null && live.status === "running" ? live.testId : null;
+  return null;
 }
+

@@ -1,4 +1,6 @@
-// Small shared UI helpers: formatting, the status badge and the alert banner.
+// Small shared UI helpers: formatting, the status badge, the alert banner, events in words.
+
+import { fmtU } from "./units.js";
 
 export function fmtDuration(s) {
   if (typeof s !== "number" || !isFinite(s)) return "-";
@@ -10,10 +12,16 @@ export function fmtDuration(s) {
   return h ? `${h}:${two(m)}:${two(sec)}` : `${m}:${two(sec)}`;
 }
 
-/** value * scale with `digits` significant digits and a unit, or "-" when missing. */
-export function fmtMetric(value, scale, unit, digits = 4) {
-  if (typeof value !== "number" || !isFinite(value)) return "-";
-  return `${(value * scale).toPrecision(digits).replace(/\.?0+$/, (m) => (m.includes(".") ? "" : m))} ${unit}`;
+/** A test's motion in a few words: "sine 30.00 mm at 0.5 Hz x 10" or "protocol quick_check". */
+export function profileText(t) {
+  let p = t.profile || (t.scenario && t.scenario.profile) || (t.request && t.request.profile);
+  if (Array.isArray(p)) p = p.length === 1 ? p[0] : { kind: `${p.length} sine blocks` };
+  if (!p) return "-";
+  if (p.kind === "protocol") return `protocol ${p.name || "(inline)"}`;
+  if (p.kind === "sine" || p.amplitude_m !== undefined) {
+    return `sine ${fmtU("length", p.amplitude_m)} at ${fmtU("frequency", p.frequency_hz)} x ${p.cycles}`;
+  }
+  return p.kind || "-";
 }
 
 export function setStatusBadge(status) {
@@ -51,15 +59,69 @@ export function fmtTime(iso) {
     `${two(d.getHours())}:${two(d.getMinutes())}:${two(d.getSeconds())}`;
 }
 
-export function eventLine(e) {
-  const t = typeof e.time_s === "number" ? `t=${e.time_s.toFixed(2)} s ` : "";
-  const when = e.created_at ? `${fmtTime(e.created_at)} ` : "";
-  let vals = "";
-  if (e.values && typeof e.values === "object" && Object.keys(e.values).length) {
-    vals = " (" + Object.entries(e.values).map(([k, v]) => `${k}=${typeof v === "number" ? +v.toPrecision(4) : v}`)
-      .join(", ") + ")";
+const DETECTORS = {
+  displacement_m: ["displacement", "length"],
+  force_n: ["force", "force"],
+  load_pressure_pa: ["load pressure", "pressure"],
+  tracking_error_m: ["tracking error |y - r|", "length"],
+  supply_pressure_pa: ["supply pressure", "pressure"],
+};
+
+function capital(text) {
+  return text ? text[0].toUpperCase() + text.slice(1) : text;
+}
+
+/**
+ * An event in words for the operator: what happened, with values in the chosen units; no internals (worker
+ * ids, raw value dictionaries). Returns {when, t, text}.
+ */
+export function eventWords(e) {
+  const v = (e && e.values) || {};
+  const kind = e.kind || "event";
+  let text = e.message || kind;
+  if (kind === "limit_trip" && v.limit_name && DETECTORS[v.limit_name]) {
+    const [name, quantity] = DETECTORS[v.limit_name];
+    const value = Math.abs(v[v.limit_name]);
+    text = `LIMIT TRIP: ${name} ${fmtU(quantity, value, { sig: 4 })} beyond the limit of ${fmtU(quantity, v.limit, { sig: 4 })}; ` +
+      "valve command ramped to 0 V, test aborted";
+  } else if (kind === "limit_trip") {
+    text = `LIMIT TRIP: ${e.message || v.detector || "a detector tripped"}`;
+  } else if (kind === "rig_fault") {
+    text = `RIG FAULT: ${e.message || "the rig stopped"}`;
+  } else if (kind === "operator") {
+    const who = e.actor && e.actor !== "operator" ? ` (${e.actor})` : "";
+    const words = {
+      create: "Test created", start: "Test started: the valve opens", stop: "Stop requested: ramp-out from the next whole cycle",
+      abort: "Abort requested: valve command to 0 V", discard: "Start refused: the test was not kept",
+      delete: "Test deleted (it never ran)",
+    }[v.action];
+    if (v.action === "archive" || v.action === "restore") {
+      text = `${v.action === "archive" ? "Archived" : "Restored"} by ${v.by}: ${v.reason}`;
+    } else if (words) {
+      text = words + who;
+    } else {
+      text = capital(text);
+    }
+  } else if (kind === "status") {
+    text = capital(text.replace(/^test \d+ /, "test "));
+  } else {
+    text = capital(text);
   }
-  return `${when}${t}[${e.kind || "event"}] ${e.message || ""}${vals}`;
+  const when = e.created_at ? fmtTime(e.created_at).slice(11) : e.receivedAt ? fmtClock(e.receivedAt) : "";
+  const t = typeof e.time_s === "number" ? `t = ${e.time_s.toFixed(e.time_s < 100 ? 2 : 1)} s` : "";
+  return { when, t, text, kind };
+}
+
+/** One line of an events list: "12:03:04 · t = 3.20 s · Test completed". */
+export function eventLine(e) {
+  const w = eventWords(e);
+  return [w.when, w.t, w.text].filter(Boolean).join(" \u00b7 ");
+}
+
+function fmtClock(ms) {
+  const d = new Date(ms);
+  const two = (x) => String(x).padStart(2, "0");
+  return `${two(d.getHours())}:${two(d.getMinutes())}:${two(d.getSeconds())}`;
 }
 
 export function el(tag, attrs = {}, ...children) {

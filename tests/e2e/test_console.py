@@ -1,0 +1,305 @@
+"""The operator console a lab would trust (issue 17): inputs that cannot be misread, the state always visible and
+followed after a reload or from a second browser, Start only when it can succeed, records kept (delete what
+never ran, archive and restore with who and why), readable live views in one unit choice. At 1366x768 and
+1920x1080, with screenshots in artifacts/e2e/.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import time
+
+from .harness import TOKEN, fill_identity, shots, sine_test, start_from_form, wait_start_enabled
+
+
+def _wait(predicate, timeout_s: float, what: str, interval_s: float = 0.1):
+    deadline = time.monotonic() + timeout_s
+    last = None
+    while time.monotonic() < deadline:
+        last = predicate()
+        if last:
+            return last
+        time.sleep(interval_s)
+    raise AssertionError(f"timed out after {timeout_s} s waiting for {what} (last: {last!r})")
+
+
+def _checks(page) -> list[dict]:
+    """Bodies of the envelope checks the page sent (what the console would ask the service to run)."""
+    return page.evaluate("window.__checks || []")
+
+
+def _record_checks(page) -> None:
+    page.evaluate("""() => {
+      window.__checks = [];
+      const orig = window.fetch;
+      window.fetch = (url, opts) => {
+        if (String(url).includes('/api/tests/check') && opts && opts.body) window.__checks.push(JSON.parse(opts.body));
+        return orig(url, opts);
+      };
+    }""")
+
+
+def test_numbers_cannot_be_misread(server, open_page, artifacts):
+    """A decimal comma is read as one and said so ("3,5" is 3.5 mm, never 35); an ambiguous "1,000" and text are
+    refused with a message; every field shows its unit and range; the unit choice converts the values."""
+    page, _ = open_page(server.url + "/", width=1366, height=768, token=TOKEN)
+    _record_checks(page)
+    fill_identity(page)
+    # every numeric field is a text field with a decimal keypad, its unit and its allowed range
+    for field in ("supply", "amplitude", "frequency", "vertical_load", "lim_displacement", "lim_force", "lim_tracking"):
+        assert page.get_attribute(f"#f-{field}", "type") == "text"
+        assert page.get_attribute(f"#f-{field}", "inputmode") == "decimal"
+    ranges = {k: page.inner_text(f"[data-field='{k}'] .range") for k in
+              ("supply", "amplitude", "frequency", "cycles", "vertical_load", "lim_displacement", "lim_force")}
+    assert ranges["supply"] == "10 to 210 bar", ranges
+    assert ranges["amplitude"].startswith("up to 150 mm (stroke)"), ranges
+    assert ranges["frequency"].startswith("above 0, up to 10 Hz"), ranges
+    assert ranges["cycles"] == "1 to 100000", ranges
+    assert ranges["vertical_load"].startswith("0 to 850 kN"), ranges
+    assert ranges["lim_displacement"] == "above 0, up to 150 mm; empty: 150 mm", ranges
+    assert "280.1 kN" in ranges["lim_force"], ranges
+    assert page.inner_text("[data-field='amplitude'] .unit") == "(mm)"
+
+    page.fill("#f-amplitude", "3,5")
+    page.fill("#f-frequency", "1")
+    page.fill("#f-cycles", "4")
+    assert page.inner_text("[data-field='amplitude'] .msg") == "read as 3.5 mm"
+    wait_start_enabled(page)
+    assert _checks(page)[-1]["profile"]["amplitude_m"] == 0.0035  # never 35 mm
+    page.click("#start")
+    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    assert "\u00b13.50 mm" in page.inner_text("#confirm-body")
+    page.screenshot(path=str(artifacts / "dashboard_confirm_1366x768.png"))
+    page.click("#confirm-cancel")
+
+    page.fill("#f-amplitude", "1,000")  # a thousand or one? refused, never guessed
+    msg = page.inner_text("[data-field='amplitude'] .msg")
+    assert "1000" in msg and "1.0" in msg, msg
+    assert "invalid" in (page.get_attribute("#f-amplitude", "class") or "")
+    page.wait_for_function("document.getElementById('start').disabled")
+    assert "valid values (amplitude)" in page.inner_text("#start-why")
+    page.screenshot(path=str(artifacts / "dashboard_inputs_1366x768.png"))
+    page.fill("#f-amplitude", "3 mm")
+    assert "no spaces" in page.inner_text("[data-field='amplitude'] .msg")
+    page.fill("#f-amplitude", "abc")
+    assert "not a number" in page.inner_text("[data-field='amplitude'] .msg")
+    page.fill("#f-cycles", "3,5")
+    assert "whole number" in page.inner_text("[data-field='cycles'] .msg")
+    page.fill("#f-cycles", "4")
+    page.fill("#f-amplitude", "12.5")
+    wait_start_enabled(page)
+
+    # implausible values ask for a tick in the confirmation (a vertical load in N typed where kN is asked)
+    page.fill("#f-vertical_load", "0,125")
+    assert "wrong unit" in page.inner_text("[data-field='vertical_load'] .msg")
+    wait_start_enabled(page)
+    page.click("#start")
+    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    assert page.locator("#confirm-body .warning-tick").count() == 1
+    assert page.is_disabled("#confirm-ok")
+    page.check("#confirm-body .warning-tick")
+    assert page.is_enabled("#confirm-ok")
+    page.click("#confirm-cancel")
+    page.fill("#f-vertical_load", "")
+
+    # one unit choice for every page: SI shows the same values in m, N, MPa (kept per browser)
+    page.select_option("#units", "si")
+    assert page.input_value("#f-amplitude") == "0.0125"
+    assert page.input_value("#f-supply") == "7"
+    assert page.inner_text("[data-field='amplitude'] .unit") == "(m)"
+    assert page.inner_text("[data-field='supply'] .range") == "1 to 21 MPa"
+    _wait(lambda: "(m)" in json.dumps(page.evaluate("window.__isorigPlots()")["disp"]), 5, "the plot axes in m")
+    assert "N" in page.inner_text("#s-limits")
+    page.fill("#f-amplitude", "0,02")
+    assert page.inner_text("[data-field='amplitude'] .msg") == "read as 0.02 m"
+    page.reload()
+    page.wait_for_selector("body[data-ready='1']", timeout=15000)
+    assert page.input_value("#units") == "si"
+    assert page.input_value("#f-amplitude") == "0.02"  # the draft survives a reload, in SI
+    page.select_option("#units", "lab")
+    assert page.input_value("#f-amplitude") == "20"
+    assert page.inner_text("[data-field='amplitude'] .unit") == "(mm)"
+
+
+def test_state_follows_the_running_test(server, open_page, browser, artifacts):
+    """Start enabled only when a start can succeed; the confirmation; the strip, the readouts and the form follow
+    the running test, also after a reload and in a second browser; Stop shows STOPPING; a refusal clears when
+    its cause is gone; labelled plots; events in words; the banner never covers the header."""
+    page, watch = open_page(server.url + "/", width=1920, height=1080, token=TOKEN)
+    page.wait_for_selector("#conn.conn-up", timeout=10000)
+    assert page.is_disabled("#start")
+    assert "a specimen id" in page.inner_text("#start-why") and "the operator's name" in page.inner_text("#start-why")
+    fill_identity(page, "B-2024-017", "Ann Operator")
+    page.fill("#f-notes", "first run after the seal change")
+    page.select_option("#f-isolator", "IUT_b")
+    page.fill("#f-amplitude", "30")
+    page.fill("#f-frequency", "0.5")
+    page.fill("#f-cycles", "12")
+    page.fill("#f-speed", "1")
+    page.fill("#f-lim_tracking", "20")
+    summary = start_from_form(page)
+    for what in ("\u00b130.00 mm", "94.2 mm/s", "about", "isolator k_d A + k_w", "0:24", "|y - r| 20 mm"):
+        assert what in summary, summary
+    page.wait_for_selector("#rig-status[data-status='running']", timeout=15000)
+    test_id = page.evaluate("window.__isorig.testId")
+    rec = server.call("GET", f"/api/tests/{test_id}")[1]
+    assert rec["specimen_id"] == "B-2024-017" and rec["operator_name"] == "Ann Operator", rec
+    assert rec["notes"] == "first run after the seal change" and rec["limits"]["tracking_error_m"] == 0.02, rec
+
+    # the strip, the header, the readouts, the margins, the form (locked) and the buttons
+    page.wait_for_selector("#s-rig-cell[data-state='running']", timeout=5000)
+    assert page.inner_text("#s-supply") == "70.0 bar set"
+    assert page.inner_text("#s-vertical") == "125 kN"
+    assert "|y-r| 20 mm" in page.inner_text("#s-limits")
+    _wait(lambda: re.fullmatch(r"[+-]?\d+\.\d\d mm", page.inner_text("#s-position")), 5, "the table position")
+    assert "started" in page.inner_text("#s-event").lower()
+    assert page.inner_text("#l-specimen") == "B-2024-017" and page.inner_text("#l-operator") == "Ann Operator"
+    assert page.inner_text("#l-profile") == "sine 30.00 mm at 0.5 Hz x 12"
+    time.sleep(2.5)
+    for ch in ("y", "f", "v"):
+        assert re.fullmatch(r"[+-]?\d+\.\d+ (mm|kN|V)", page.inner_text(f"#r-{ch}")), page.inner_text(f"#r-{ch}")
+        assert page.inner_text(f"#r-{ch}-max") != "-" and page.inner_text(f"#r-{ch}-min") != "-"
+    margins = page.inner_text("#margins")
+    assert re.search(r"\|d\|\s+1[12]\d\.\d\d mm left", margins) and "mm left" in margins, margins
+    assert page.get_attribute(".margin[data-limit='tracking']", "data-max") == "20"  # the test's own limit
+    assert page.get_attribute(".margin[data-limit='displacement']", "data-max") == "150"
+    assert page.is_disabled("#start") and f"test #{test_id} is running" in page.inner_text("#start-why")
+    assert page.is_enabled("#stop")
+    assert page.is_disabled("#f-amplitude") and f"test #{test_id}" in page.inner_text("#form-lock")
+
+    # readable plots: labelled axes with units, the target drawn last (on top), thin and dashed
+    plots = page.evaluate("window.__isorigPlots()")
+    assert plots["disp"]["x"] == "test time (s)" and plots["disp"]["y"] == "displacement (mm)", plots
+    assert plots["volt"]["y"] == "command u (V)" and plots["err"]["y"] == "error (mm)", plots
+    target = plots["disp"]["series"][-1]
+    assert target["label"].startswith("target r") and target["dash"], plots["disp"]
+    assert target["width"] < plots["disp"]["series"][0]["width"], plots["disp"]
+    assert [p["y"] for p in plots["adapt"]] == ["(-)", "(V)", "(Hz)"], plots["adapt"]  # one axis each (servo)
+    assert plots["adapt"][-1]["x"] == "test time (s)"
+    assert plots["loop"] == {"x": "displacement y (mm)", "y": "force F (kN)"}
+    shots(page, artifacts, "dashboard_live")
+
+    # a reload and a second browser come back to the true state of the running test
+    page.reload()
+    page.wait_for_selector("body[data-ready='1']", timeout=15000)
+    page.wait_for_selector("#s-rig-cell[data-state='running']", timeout=10000)
+    page.wait_for_function("document.getElementById('f-specimen_id').value === 'B-2024-017'", timeout=5000)
+    assert page.input_value("#f-amplitude") == "30" and page.input_value("#f-lim_tracking") == "20"
+    assert page.is_disabled("#start") and page.is_enabled("#stop")
+    other, _ = open_page(server.url + "/", width=1366, height=768)
+    other.wait_for_selector("#s-rig-cell[data-state='running']", timeout=10000)
+    other.wait_for_function("document.getElementById('f-specimen_id').value === 'B-2024-017'", timeout=5000)
+    assert other.is_disabled("#start")
+
+    # Stop: STOPPING here at once and in the other browser (from the record's events), then stopped
+    page.click("#stop")
+    page.wait_for_selector("#s-rig-cell[data-state='stopping']", timeout=5000)
+    assert page.is_disabled("#stop")
+    other.wait_for_selector("#s-rig-cell[data-state='stopping']", timeout=8000)
+    other.screenshot(path=str(artifacts / "dashboard_stopping_1366x768.png"))
+    server.wait_status(test_id, {"stopped"}, timeout_s=30)
+    page.wait_for_selector("#rig-status[data-status='stopped']", timeout=10000)
+    page.wait_for_selector("#s-rig-cell[data-state='idle']", timeout=5000)
+    assert "(end of test" in page.inner_text("#s-position")
+    assert "stopped" in page.inner_text("#s-event").lower()
+    assert page.is_enabled("#f-amplitude") and page.is_hidden("#form-lock")
+    wait_start_enabled(page)
+
+    # events in words, in order, without internals
+    events = [li.inner_text() for li in page.query_selector_all("#live-events li")]
+    text = "\n".join(events)
+    assert "pid" not in text and "worker" not in text and "{" not in text, text
+    order = [k for k, e in enumerate(events) for w in ("created", "started", "Stop requested", "stopped") if w in e]
+    assert order == sorted(order) and len(order) >= 4, events
+
+    # the banner sits under the header and the strip, never over them (1366x768)
+    page.set_viewport_size({"width": 1366, "height": 768})
+    page.evaluate("document.getElementById('alert').classList.remove('hidden')")
+    bar = page.locator("#topbar").bounding_box()
+    strip = page.locator("#strip").bounding_box()
+    alert = page.locator("#alert").bounding_box()
+    assert strip["y"] >= bar["y"] + bar["height"] - 1, (bar, strip)
+    assert alert["y"] >= strip["y"] + strip["height"] - 1, (strip, alert)
+    page.mouse.wheel(0, 600)  # scrolled, the header block stays on top and whole
+    time.sleep(0.2)
+    assert page.locator("#topbar").bounding_box()["y"] == 0
+    assert page.locator("#alert").bounding_box()["y"] >= page.locator("#strip").bounding_box()["y"] + 10
+
+    # a refusal whose cause goes away is cleared: a test started elsewhere while the dialog was open
+    page.mouse.wheel(0, -600)
+    page.click("#start")
+    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    other_id = server.start_test(sine_test(cycles=10, speed=2.0))
+    page.wait_for_selector("#rig-status[data-status='running']", timeout=10000)
+    page.click("#confirm-ok")
+    page.wait_for_function("document.getElementById('setup-message').dataset.cause === 'busy'", timeout=5000)
+    assert f"test #{other_id} is running" in page.inner_text("#setup-message")
+    assert server.call("POST", f"/api/tests/{other_id}/abort", token=True)[0] == 200  # the cause goes away
+    page.wait_for_function("document.getElementById('setup-message').textContent === ''", timeout=10000)
+    assert not watch.unexpected_errors()
+
+
+def test_records_delete_archive_restore(server, open_page, artifacts):
+    """History lists who and what; a test that never ran is deleted, one that ran archived with who and why and
+    restored, each after a confirmation, with the result said."""
+    page, _ = open_page(server.url + "/#/history", width=1366, height=768, token=TOKEN)
+    body = {**sine_test(cycles=2, speed=10.0), "specimen_id": "REC-1", "operator_name": "Rec Operator",
+            "vertical_load_n": 2e5}
+    status, ready = server.call("POST", "/api/tests", body, token=True)  # created, never started
+    assert status == 201, ready
+    ran = server.start_test({**body, "specimen_id": "REC-2"})
+    server.wait_status(ran, {"completed"}, timeout_s=30)
+    page.click("#history-filter button[type='submit']")
+    row = page.wait_for_selector(f"#history-table tr[data-id='{ran}']", timeout=10000)
+    for what in ("REC-2", "Rec Operator", "200 kN", "completed"):
+        assert what in row.inner_text(), row.inner_text()
+    assert page.locator(f"#history-table tr[data-id='{ready['id']}'] button[data-action='delete']").count() == 1
+    assert page.locator(f"#history-table tr[data-id='{ran}'] button[data-action='delete']").count() == 0
+    shots(page, artifacts, "dashboard_history")
+
+    # delete what never ran
+    page.click(f"#history-table tr[data-id='{ready['id']}'] button[data-action='delete']")
+    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    assert "never ran" in page.inner_text("#confirm-title")
+    page.click("#confirm-ok")
+    page.wait_for_selector(f"#history-table tr[data-id='{ready['id']}']", state="detached", timeout=5000)
+    assert f"Test #{ready['id']} deleted." in page.inner_text("#history-message")
+    assert server.call("GET", f"/api/tests/{ready['id']}")[0] == 404
+
+    # archive what ran: who and why are required
+    page.click(f"#history-table tr[data-id='{ran}'] button[data-action='archive']")
+    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    page.fill("#confirm-by", "Ann Operator")
+    assert page.is_disabled("#confirm-ok")  # no reason yet
+    page.fill("#confirm-reason", "duplicate of an earlier run")
+    page.screenshot(path=str(artifacts / "dashboard_archive_1366x768.png"))
+    page.click("#confirm-ok")
+    page.wait_for_selector(f"#history-table tr[data-id='{ran}']", state="detached", timeout=5000)
+    assert "archived by Ann Operator: duplicate of an earlier run" in page.inner_text("#history-message")
+    rec = server.call("GET", f"/api/tests/{ran}")[1]
+    assert rec["archived"]["by"] == "Ann Operator" and rec["status"] == "completed", rec
+
+    # the archived ones on their own, restorable
+    page.check("#h-archived")
+    row = page.wait_for_selector(f"#history-table tr[data-id='{ran}']", timeout=5000)
+    assert "archived by Ann Operator" in row.inner_text()
+    page.click(f"#history-table tr[data-id='{ran}'] button[data-action='restore']")
+    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    assert page.input_value("#confirm-by") == "Ann Operator"  # remembered in this browser
+    page.fill("#confirm-reason", "archived by mistake")
+    page.click("#confirm-ok")
+    page.wait_for_selector(f"#history-table tr[data-id='{ran}']", state="detached", timeout=5000)
+    assert "restored" in page.inner_text("#history-message")
+    page.uncheck("#h-archived")
+    page.wait_for_selector(f"#history-table tr[data-id='{ran}']", timeout=5000)
+
+    # the test page: who and what, the action, digits that fit the measurement
+    page.click(f"#history-table tr[data-id='{ran}']")
+    page.wait_for_selector("#t-cycles tbody tr", timeout=10000)
+    summary = page.inner_text("#t-summary")
+    assert "REC-2" in summary and "Rec Operator" in summary and "200 kN" in summary, summary
+    assert page.get_attribute("#t-action", "data-action") == "archive"
+    assert not re.search(r"\d\.\d{5,}", summary), summary  # no absurd precision
+    assert "SI units" in page.inner_text("#t-csv")
+    shots(page, artifacts, "dashboard_test_page", full_page=True)
