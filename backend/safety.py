@@ -1,25 +1,30 @@
 """Safety limit detectors, like the limit and error detectors of a commercial servo-hydraulic controller.
 
 Each block of samples the worker produces is checked before it is released. Operator limits (per test,
-``limits`` in ``POST /api/tests``, bounded by the rig's hard limits): displacement (stroke), force, load
-pressure, tracking error |y - r|. Built-in detectors: non-finite readings or commands, a fault the rig
-reports in its status bits (sensor fault, watchdog, interlock), the supply pressure lost (below
-``SUPPLY_LOSS_FRACTION`` of the test's setting) and a frozen position reading (unchanged for
-``FROZEN_PERIODS`` periods while the valve command stayed beyond ``FROZEN_COMMAND_V``: the valve is open, so
-the table moves, unless the sensor is stuck; a table the controller does not drive may rest). Detectors
-read what the rig measures (``measured_displacement_m``), never a simulation's true state.
+``limits`` in ``POST /api/tests``, bounded by the rig's hard limits): displacement (stroke), force, table
+velocity, load pressure, tracking error |y - r|, each with an action (``ACTIONS``, MTS limit detectors are
+the anchor): ``indicate`` records an event and the test goes on; ``controlled_stop`` ramps the target out
+under control, as an operator's stop; ``valve_close`` ramps the valve command to 0 V in 0.1 s, open loop.
+Built-in detectors, always ``valve_close``: non-finite readings or commands, a fault the rig reports in its
+status bits (sensor fault, watchdog, interlock), the supply pressure lost (below ``SUPPLY_LOSS_FRACTION``
+of the test's setting) and a frozen position reading (unchanged for ``FROZEN_PERIODS`` periods while the
+valve command stayed beyond ``FROZEN_COMMAND_V``: the valve is open, so the table moves, unless the sensor
+is stuck; a table the controller does not drive may rest). Detectors read what the rig measures
+(``measured_displacement_m``; the velocity is its difference over ``VELOCITY_SPAN_PERIODS``), never a
+simulation's true state.
 
-The first sample that trips ends the test: the loop ramps the valve command to zero (sim.loop), the trip is
-recorded with its values and the test ends ``aborted``.
+The first sample that trips (an action other than ``indicate``) ends the test ``aborted``, the trip recorded
+with its values and its action. During a controlled stop a ``valve_close`` trip still closes the valve.
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
 from sim.errors import FieldError
+from sim.loop import CONTROL_PERIOD_S
 from sim.measurement import RIG_FAULT_BITS, describe_status
 from sim.rig import RigParameters
 from sim.samples import Samples
@@ -28,6 +33,20 @@ DEFAULT_TRACKING_ERROR_M = 0.05  # the paper's MRAC reaches ~31 mm peak |y - r| 
 SUPPLY_LOSS_FRACTION = 0.5  # a measured supply pressure below this share of the test's setting trips
 FROZEN_PERIODS = 100  # a position reading unchanged this many periods ...
 FROZEN_COMMAND_V = 2.0  # ... while |valve command| stayed at least this (20 % of the range): the sensor is stuck
+VELOCITY_SPAN_PERIODS = 5  # velocity = measured displacement difference over 5 periods (5 ms): noise / 5
+INDICATIONS_RECORDED = 10  # events per indicating limit and test; further excursions are only counted
+
+ACTIONS = {
+    "indicate": "an event is recorded, the test goes on",
+    "controlled_stop": "the target ramps out under control, as an operator's stop; the test ends aborted",
+    "valve_close": "the valve command ramps to 0 V in 0.1 s, open loop; the test ends aborted",
+}
+DEFAULT_ACTION = "valve_close"
+LIMIT_KEYS = ("displacement_m", "force_n", "velocity_m_per_s", "load_pressure_pa", "tracking_error_m")
+UNITS = {"displacement_m": "m", "force_n": "N", "velocity_m_per_s": "m/s", "load_pressure_pa": "Pa",
+         "tracking_error_m": "m"}
+DETECTORS = {"displacement": "displacement_m", "force": "force_n", "velocity": "velocity_m_per_s",
+             "load_pressure": "load_pressure_pa", "tracking_error": "tracking_error_m"}
 
 
 class LimitError(FieldError):
@@ -36,42 +55,80 @@ class LimitError(FieldError):
 
 @dataclass(frozen=True)
 class SafetyLimits:
-    """Trip thresholds (absolute values, SI units)."""
+    """Trip thresholds (absolute values, SI units) and the action of each (``ACTIONS``; default valve_close)."""
 
     displacement_m: float
     force_n: float
     load_pressure_pa: float
     tracking_error_m: float
+    velocity_m_per_s: float | None = None  # None: not checked (records made before velocity limits existed)
+    actions: dict = field(default_factory=dict)  # every limit's action (those not given: DEFAULT_ACTION)
+
+    def __post_init__(self):
+        object.__setattr__(self, "actions", {key: self.actions.get(key) or DEFAULT_ACTION for key in LIMIT_KEYS})
+
+    def action(self, key: str) -> str:
+        return self.actions[key]
 
     def to_dict(self) -> dict:
         return asdict(self)
 
+    @classmethod
+    def from_dict(cls, values: dict) -> SafetyLimits:
+        """The limits as stored with a test (older records: no velocity limit, every action valve_close)."""
+        known = {k: values[k] for k in (*LIMIT_KEYS, "actions") if values.get(k) is not None}
+        return cls(**known)
+
 
 def hard_limits(rig: RigParameters) -> SafetyLimits:
-    """The largest limits a test may ask for: the rig's stroke, A_p P_s,max, P_s,max, and twice the stroke."""
+    """The largest limits a test may ask for: the rig's stroke, A_p P_s,max, the velocity the pump's flow
+    can drive (Q_pump / A_p), P_s,max, and twice the stroke."""
     return SafetyLimits(displacement_m=rig.stroke_m, force_n=rig.max_force_n(rig.max_supply_pa),
-                        load_pressure_pa=rig.max_supply_pa, tracking_error_m=2 * rig.stroke_m)
+                        load_pressure_pa=rig.max_supply_pa, tracking_error_m=2 * rig.stroke_m,
+                        velocity_m_per_s=rig.pump_max_flow_m3_per_s / rig.piston_area_m2)
 
 
 def default_limits(rig: RigParameters) -> SafetyLimits:
     hard = hard_limits(rig)
     return SafetyLimits(displacement_m=hard.displacement_m, force_n=hard.force_n,
-                        load_pressure_pa=hard.load_pressure_pa, tracking_error_m=DEFAULT_TRACKING_ERROR_M)
+                        load_pressure_pa=hard.load_pressure_pa, tracking_error_m=DEFAULT_TRACKING_ERROR_M,
+                        velocity_m_per_s=hard.velocity_m_per_s)
 
 
-UNITS = {"displacement_m": "m", "force_n": "N", "load_pressure_pa": "Pa", "tracking_error_m": "m"}
+def _actions(requested) -> dict:
+    if requested is None:
+        return {}
+    if not isinstance(requested, dict):
+        raise LimitError("limits.actions", requested, "an object: limit -> action",
+                         "limits.actions must map a limit to an action, e.g. {\"force_n\": \"indicate\"}")
+    actions = {}
+    for key, action in requested.items():
+        if key not in LIMIT_KEYS:
+            raise LimitError(f"limits.actions.{key}", action, ", ".join(LIMIT_KEYS),
+                             f"limits.actions.{key}: {key} is not a limit; allowed: {', '.join(LIMIT_KEYS)}")
+        if action is None:
+            continue
+        if action not in ACTIONS:
+            raise LimitError(f"limits.actions.{key}", action, ", ".join(ACTIONS),
+                             f"limits.actions.{key} = {action!r} is not an action; allowed: {', '.join(ACTIONS)}")
+        actions[key] = action
+    return actions
 
 
 def make_limits(rig: RigParameters, requested: dict | None) -> SafetyLimits:
-    """Defaults overridden by ``requested``; each value must be positive and within the hard limit."""
+    """Defaults overridden by ``requested`` (values, and ``actions``: limit -> action); each value must be
+    positive and within the hard limit."""
     values = default_limits(rig).to_dict()
+    values.pop("actions")
     hard = hard_limits(rig).to_dict()
-    for key, value in (requested or {}).items():
+    requested = dict(requested or {})
+    actions = _actions(requested.pop("actions", None))
+    for key, value in requested.items():
         if value is None:
             continue
         if key not in values:
             raise LimitError(f"limits.{key}", value, ", ".join(values), f"limits.{key} is not a limit; "
-                             f"allowed: {', '.join(values)}")
+                             f"allowed: {', '.join(values)}, actions")
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value <= 0:
             raise LimitError(f"limits.{key}", value, f"a positive number <= {hard[key]:g} {UNITS[key]}",
                              f"limits.{key} = {value!r} must be a positive number (unit {UNITS[key]})")
@@ -80,98 +137,165 @@ def make_limits(rig: RigParameters, requested: dict | None) -> SafetyLimits:
                              f"limits.{key} = {value:g} {UNITS[key]} is beyond the rig's hard limit of "
                              f"{hard[key]:g} {UNITS[key]}")
         values[key] = float(value)
-    return SafetyLimits(**values)
+    return SafetyLimits(**values, actions=actions)
 
 
 @dataclass
 class Trip:
-    """A limit trip: which detector, at which sample, with the values that broke it."""
+    """A limit detector that fired: which, at which sample, with the values that broke it, and its action
+    (``indicate``: an indication, the test goes on)."""
 
     detector: str
     index: int
     time_s: float
     message: str
     values: dict
+    action: str = DEFAULT_ACTION
 
 
-def _values(rows: Samples, i: int) -> dict:
+def measured_velocity(y: np.ndarray, before: np.ndarray | None = None) -> np.ndarray:
+    """Table velocity from the measured displacement: (y[k] - y[k - n]) / (n T) with n =
+    ``VELOCITY_SPAN_PERIODS``; ``before``: the readings that came before ``y`` (NaN where there are none)."""
+    n = VELOCITY_SPAN_PERIODS
+    head = np.full(n, np.nan) if before is None else np.concatenate([np.full(n, np.nan), before])[-n:]
+    full = np.concatenate([head, y])
+    return (full[n:] - full[:-n]) / (n * CONTROL_PERIOD_S)
+
+
+def _values(rows: Samples, i: int, velocity: np.ndarray) -> dict:
     y, r = rows["measured_displacement_m"][i], rows["target_m"][i]
     return {"time_s": float(rows["time_s"][i]), "displacement_m": float(y), "force_n": float(rows["force_n"][i]),
-            "load_pressure_pa": float(rows["load_pressure_pa"][i]),
+            "velocity_m_per_s": float(velocity[i]), "load_pressure_pa": float(rows["load_pressure_pa"][i]),
             "supply_pressure_pa": float(rows["supply_pressure_pa"][i]), "target_m": float(r),
             "tracking_error_m": float(abs(y - r)), "voltage_v": float(rows["voltage_v"][i]),
             "flags": int(np.nan_to_num(rows["flags"][i]))}
 
 
-def check_block(rows: Samples, limits: SafetyLimits, supply_pa: float | None = None) -> Trip | None:
-    """The first sample of ``rows`` that breaks a limit (stateless detectors), or None.
+def limit_masks(rows: Samples, limits: SafetyLimits, velocity: np.ndarray) -> dict[str, np.ndarray]:
+    """For each operator limit (detector name -> mask): the samples beyond it."""
+    y, r = rows["measured_displacement_m"], rows["target_m"]
+    with np.errstate(invalid="ignore"):
+        masks = {"displacement": np.abs(y) > limits.displacement_m,
+                 "force": np.abs(rows["force_n"]) > limits.force_n,
+                 "load_pressure": np.abs(rows["load_pressure_pa"]) > limits.load_pressure_pa,
+                 # rows without a target (open-loop ramp) have r = NaN and are not checked for tracking
+                 "tracking_error": np.isfinite(r) & (np.abs(y - r) > limits.tracking_error_m)}
+        if limits.velocity_m_per_s is not None:
+            masks["velocity"] = np.abs(velocity) > limits.velocity_m_per_s
+    return masks
 
-    ``supply_pa``: the test's supply pressure setting, for the supply-loss detector (skipped if None).
+
+def _limit_trip(rows: Samples, i: int, detector: str, limits: SafetyLimits, velocity: np.ndarray) -> Trip:
+    key = DETECTORS[detector]
+    limit, action, unit = getattr(limits, key), limits.action(key), UNITS[key]
+    values = _values(rows, i, velocity)
+    values.update(limit=limit, limit_name=key, action=action)
+    t = values["time_s"]
+    verb = "exceeded (indicated)" if action == "indicate" else f"tripped ({action.replace('_', ' ')})"
+    message = (f"{detector.replace('_', ' ')} limit {verb} at t = {t:.3f} s: |{key}| = {abs(values[key]):.6g} {unit} "
+               f"> limit {limit:.6g} {unit}")
+    return Trip(detector, i, t, message, values, action)
+
+
+def check_block(rows: Samples, limits: SafetyLimits, supply_pa: float | None = None,
+                velocity: np.ndarray | None = None, skip: tuple[str, ...] = ("indicate",)) -> Trip | None:
+    """The first sample of ``rows`` that trips a detector (stateless; limits whose action is in ``skip``
+    are not checked: ``indicate`` ones are left to ``SafetyMonitor``), or None.
+
+    ``supply_pa``: the test's supply pressure setting, for the supply-loss detector (skipped if None);
+    ``velocity``: the measured velocity of each row (``measured_velocity``; from this block alone if None).
     """
     if len(rows) == 0:
         return None
-    y, f, pl, r = (rows["measured_displacement_m"], rows["force_n"], rows["load_pressure_pa"], rows["target_m"])
+    y, f, pl = rows["measured_displacement_m"], rows["force_n"], rows["load_pressure_pa"]
     ps, u = rows["supply_pressure_pa"], rows["voltage_v"]
+    if velocity is None:
+        velocity = measured_velocity(y)
     flags = np.nan_to_num(rows["flags"]).astype(np.int64)
-    err = np.abs(y - r)
     finite = np.isfinite(y) & np.isfinite(f) & np.isfinite(pl) & np.isfinite(u) & np.isfinite(ps)
-    checks = [
-        ("non_finite", ~finite, None, None),
-        ("rig_fault", (flags & RIG_FAULT_BITS) != 0, None, None),
-        ("displacement", np.abs(y) > limits.displacement_m, "displacement_m", limits.displacement_m),
-        ("force", np.abs(f) > limits.force_n, "force_n", limits.force_n),
-        ("load_pressure", np.abs(pl) > limits.load_pressure_pa, "load_pressure_pa", limits.load_pressure_pa),
-        # rows without a target (open-loop ramp) have r = NaN and are not checked for tracking
-        ("tracking_error", np.isfinite(r) & (err > limits.tracking_error_m), "tracking_error_m",
-         limits.tracking_error_m),
-    ]
+    checks = [("non_finite", ~finite), ("rig_fault", (flags & RIG_FAULT_BITS) != 0)]
+    checks += [(name, mask) for name, mask in limit_masks(rows, limits, velocity).items()
+               if limits.action(DETECTORS[name]) not in skip]
     if supply_pa is not None:
-        floor = SUPPLY_LOSS_FRACTION * supply_pa
-        checks.append(("supply_pressure", ps < floor, "supply_pressure_pa", floor))
+        checks.append(("supply_pressure", ps < SUPPLY_LOSS_FRACTION * supply_pa))
     first = None
-    for name, mask, key, limit in checks:
+    for name, mask in checks:
         hits = np.flatnonzero(mask)
         if hits.size and (first is None or hits[0] < first[1]):
-            first = (name, int(hits[0]), key, limit)
+            first = (name, int(hits[0]))
     if first is None:
         return None
-    name, i, key, limit = first
-    values = _values(rows, i)
+    name, i = first
+    if name in DETECTORS:
+        return _limit_trip(rows, i, name, limits, velocity)
+    values = _values(rows, i, velocity)
     t = values["time_s"]
     if name == "non_finite":
         message = f"non-finite rig state or reading at t = {t:.3f} s"
     elif name == "rig_fault":
         message = f"the rig reports a fault at t = {t:.3f} s: {describe_status(values['flags'] & RIG_FAULT_BITS)}"
-    elif name == "supply_pressure":
-        values.update(limit=limit, limit_name=key)
-        message = (f"supply pressure lost at t = {t:.3f} s: {values[key] / 1e5:.4g} bar < {limit / 1e5:.4g} bar "
-                   f"({SUPPLY_LOSS_FRACTION:.0%} of the test's {supply_pa / 1e5:.4g} bar)")
     else:
-        values.update(limit=limit, limit_name=key)
-        unit = UNITS[key]
-        message = (f"{name.replace('_', ' ')} limit tripped at t = {t:.3f} s: |{key}| = "
-                   f"{abs(values[key]):.6g} {unit} > limit {limit:.6g} {unit}")
+        floor = SUPPLY_LOSS_FRACTION * supply_pa
+        values.update(limit=floor, limit_name="supply_pressure_pa")
+        message = (f"supply pressure lost at t = {t:.3f} s: {values['supply_pressure_pa'] / 1e5:.4g} bar < "
+                   f"{floor / 1e5:.4g} bar ({SUPPLY_LOSS_FRACTION:.0%} of the test's {supply_pa / 1e5:.4g} bar)")
     return Trip(name, i, t, message, values)
 
 
 class SafetyMonitor:
-    """Every detector over a test's blocks in order: ``check_block`` plus the frozen-reading detector,
-    which needs what came before the block."""
+    """Every detector over a test's blocks in order: ``check_block``, the frozen-reading detector and the
+    velocity (which need what came before the block), and the indications of ``indicate`` limits: one per
+    excursion beyond the limit, the first ``INDICATIONS_RECORDED`` of each limit kept for events
+    (``take_indications``), all of them counted (``indication_counts``)."""
 
     def __init__(self, limits: SafetyLimits, supply_pa: float | None = None):
         self.limits = limits
         self.supply_pa = supply_pa
         self._last_reading = np.nan
         self._run_periods = 0  # periods the reading has been unchanged, with the valve open, before the block
+        self._recent = np.zeros(0)  # the last readings, for the velocity
+        self._beyond: dict[str, bool] = {}  # an indicating limit was exceeded at the end of the last block
+        self.indication_counts: dict[str, int] = {}
+        self._indications: list[Trip] = []
 
-    def check(self, rows: Samples) -> Trip | None:
-        trip = check_block(rows, self.limits, self.supply_pa)
-        frozen = self._frozen(rows)
+    def check(self, rows: Samples, valve_close_only: bool = False) -> Trip | None:
+        """The first trip in ``rows`` (``valve_close_only``: during a controlled stop, only what closes the
+        valve), or None; indications are kept for ``take_indications``."""
+        y = rows["measured_displacement_m"]
+        velocity = measured_velocity(y, self._recent)
+        self._recent = np.concatenate([self._recent, y])[-VELOCITY_SPAN_PERIODS:]
+        self._indicate(rows, velocity)
+        skip = ("indicate", "controlled_stop") if valve_close_only else ("indicate",)
+        trip = check_block(rows, self.limits, self.supply_pa, velocity, skip)
+        frozen = self._frozen(rows, velocity)
         if frozen is not None and (trip is None or frozen.index < trip.index):
             return frozen
         return trip
 
-    def _frozen(self, rows: Samples) -> Trip | None:
+    def take_indications(self) -> list[Trip]:
+        out, self._indications = self._indications, []
+        return out
+
+    def _indicate(self, rows: Samples, velocity: np.ndarray) -> None:
+        if len(rows) == 0:
+            return
+        for name, mask in limit_masks(rows, self.limits, velocity).items():
+            key = DETECTORS[name]
+            if self.limits.action(key) != "indicate":
+                continue
+            before = np.concatenate([[self._beyond.get(name, False)], mask[:-1]])
+            for i in np.flatnonzero(mask & ~before):
+                count = self.indication_counts.get(key, 0) + 1
+                self.indication_counts[key] = count
+                if count <= INDICATIONS_RECORDED:
+                    trip = _limit_trip(rows, int(i), name, self.limits, velocity)
+                    trip.values["indication"] = count
+                    if count == INDICATIONS_RECORDED:
+                        trip.message += f" (indication {count}; further ones are counted in the test's summary)"
+                    self._indications.append(trip)
+            self._beyond[name] = bool(mask[-1])
+
+    def _frozen(self, rows: Samples, velocity: np.ndarray) -> Trip | None:
         n = len(rows)
         if n == 0:
             return None
@@ -191,7 +315,7 @@ class SafetyMonitor:
         if hits.size == 0:
             return None
         i = int(hits[0])
-        values = _values(rows, i)
+        values = _values(rows, i, velocity)
         values.update(unchanged_periods=int(run[i]), command_at_least_v=FROZEN_COMMAND_V)
         message = (f"position reading frozen at t = {values['time_s']:.3f} s: {values['displacement_m']:.6g} m for "
                    f"{int(run[i])} periods with the valve command beyond +-{FROZEN_COMMAND_V:g} V (a stuck sensor)")

@@ -35,13 +35,21 @@ class ProtocolProfileIn(StrictModel):
 ProfileIn = Annotated[SineProfileIn | ProtocolProfileIn, Field(discriminator="kind")]
 
 
+LimitAction = Literal["indicate", "controlled_stop", "valve_close"]
+
+
 class LimitsIn(StrictModel):
     """Safety limits of one test (absolute values); each defaults to the rig's, none may exceed the rig's."""
 
     displacement_m: float | None = Field(None, description="stroke limit on |y| in m")
     force_n: float | None = Field(None, description="limit on |force| in N")
+    velocity_m_per_s: float | None = Field(None, description="limit on the measured table velocity |dy/dt| in m/s")
     load_pressure_pa: float | None = Field(None, description="limit on |P_L| in Pa")
     tracking_error_m: float | None = Field(None, description="limit on |y - r| in m (error detector)")
+    actions: dict[str, LimitAction | None] | None = Field(
+        None, description="the action of each limit (key: a limit above): indicate (an event, the test goes on), "
+                          "controlled_stop (the target ramps out under control), valve_close (the command ramps "
+                          "to 0 V in 0.1 s, open loop; the default)")
 
 
 class TestCreate(StrictModel):
@@ -90,6 +98,12 @@ class EnvelopeCheckOut(BaseModel):
     max_frequency_hz: float | None = Field(None, description="highest frequency at this amplitude (sine only)")
     max_force_n: float | None = Field(None, description="A_p P_s at this supply pressure")
     max_vertical_load_n: float | None = Field(None, description="the vertical jack's capacity, N")
+    peak_displacement_m: float | None = Field(None, description="the largest |offset| + amplitude of the profile")
+    peak_velocity_m_per_s: float | None = Field(None, description="the largest 2 pi f A of the profile")
+    peak_force_n: float | None = Field(None, description="upper estimate of the force the profile needs: isolator, "
+                                       "friction at the vertical load, viscous and inertial forces")
+    duration_s: float | None = Field(None, description="how long the profile runs (test time)")
+    cycles_total: int | None = Field(None, description="cycles of the profile, tapers included")
 
 
 class IsolatorIn(StrictModel):

@@ -23,7 +23,7 @@ from sqlalchemy.orm import Session, sessionmaker
 from sim.engine import Scenario
 from sim.loop import CONTROL_PERIOD_S
 from sim.metrics import headline_figures
-from sim.samples import CSV_FIELDS, Samples
+from sim.samples import CSV_FIELDS, SAMPLE_FIELDS, Samples
 from sim.tracking import tracking_summary
 
 from . import store
@@ -86,6 +86,9 @@ class ActiveRun:
         self.cycles_done = 0
         self.arrival_ms: list[float] = []
         self.link: dict = {}  # the latest link health a real rig's driver reported
+        self.last_row: np.ndarray | None = None  # the newest sample (SAMPLE_FIELDS layout)
+        self.stopping: str | None = None  # why the test is ending early (a stop, an abort, a limit trip)
+        self.vertical_load_n = job["scenario"].get("vertical_load_n")
 
 
 class RigService:
@@ -98,6 +101,7 @@ class RigService:
         self.driver = driver or settings.rig  # "simulated" or "udp://HOST:PORT"
         self.active: ActiveRun | None = None
         self.last_link: dict = {}  # the link figures of the last test that ran on a UDP rig
+        self.last_end: dict | None = None  # where the table was when the last test ended (rig_state)
         self._lock = threading.Lock()
         self._context = None
         self._seq: dict[int, int] = {}
@@ -165,6 +169,53 @@ class RigService:
             out["last_test"] = self.last_link
         return out
 
+    @staticmethod
+    def _row_state(row: np.ndarray | None) -> dict:
+        if row is None:
+            return {"table_position_m": None, "force_n": None, "supply_pressure_pa": None}
+        named = dict(zip(SAMPLE_FIELDS, (float(v) for v in row), strict=False))
+        return {key: named[field] if np.isfinite(named[field]) else None for key, field in (
+            ("table_position_m", "measured_displacement_m"), ("force_n", "force_n"),
+            ("supply_pressure_pa", "supply_pressure_pa"))}
+
+    def rig_state(self) -> dict:
+        """What the status strip shows: the rig's status (running, stopping, idle, not_connected, faulted),
+        the running test, where the table is and where that figure comes from (live, the end of the last
+        test, the rig's answer to a probe), supply pressure, vertical load, the limits in force, the last
+        event."""
+        from .drivers import SIMULATED
+
+        run = self.active
+        out: dict = {"at": time.time(), "driver": self.driver}
+        if run is not None and not run.finished.is_set():
+            out.update(status="stopping" if run.stopping else "running", test_id=run.test_id, armed=True,
+                       time_s=run.time_s, stopping_reason=run.stopping, **self._row_state(run.last_row),
+                       position_source="live", vertical_load_n=run.vertical_load_n, limits=run.job["limits"])
+            return out
+        out.update(status="idle", test_id=None, armed=False, vertical_load_n=None, limits=None,
+                   table_position_m=None, force_n=None, supply_pressure_pa=None, position_source="unknown")
+        if self.last_end is None:  # after a restart: the end of the newest test on record
+            with self.sessions() as session:
+                found = store.last_sample(session)
+                if found is not None:
+                    test, row = found
+                    self.last_end = {"test_id": test.id, "status": test.status, **self._row_state(row.array[0])}
+        if self.last_end is not None:
+            out.update({k: self.last_end[k] for k in ("table_position_m", "force_n")},
+                       position_source=f"end of test {self.last_end['test_id']} ({self.last_end['status']})")
+        if self.driver != SIMULATED:
+            from .drivers.udp import probe
+
+            answer = probe(self.driver, timeout_s=0.2)
+            if not answer["connected"]:
+                out.update(status="not_connected", detail=answer["detail"])
+            else:
+                out.update(status="faulted" if answer.get("fault") else "idle", armed=answer["armed"],
+                           rig_status=answer["status"], table_position_m=answer.get("position_m"),
+                           force_n=answer.get("force_n"), supply_pressure_pa=answer.get("supply_pressure_pa"),
+                           position_source="the rig (probe)")
+        return out
+
     # --- operator actions ----------------------------------------------------------------------------
     def start(self, test_id: int, actor: str = "operator") -> None:
         with self._lock:
@@ -178,6 +229,7 @@ class RigService:
                 if test.status != "ready":
                     raise Conflict(f"test {test_id} is {test.status}; only a test with status 'ready' can start "
                                    "(create a new test to run it again)")
+                self._check_start_position()
                 job = {"test_id": test_id, "rig": test.driver, "link": self.settings.link_settings(),
                        "speed": test.speed, "scenario": test.request["job_scenario"], "limits": test.limits,
                        "realtime": self.settings.worker_realtime}
@@ -203,6 +255,19 @@ class RigService:
             run.thread.start()
         self._publish_event(test_id, 0.0, "operator", f"test {test_id} started by {actor}", {"action": "start"})
 
+    def _check_start_position(self) -> None:
+        """A real rig's table must rest at zero before a test starts (one probe; the simulated rig starts every
+        test at zero)."""
+        from .drivers import SIMULATED
+
+        if self.driver == SIMULATED:
+            return
+        from .drivers.udp import start_position_problem
+
+        problem = start_position_problem(self.driver, self.settings.rig_start_tolerance_m)
+        if problem is not None:
+            raise Conflict(problem)
+
     def command(self, test_id: int, action: str, actor: str = "operator") -> None:
         """``stop`` (ramp-out) or ``abort`` (at once) the running test."""
         run = self.active
@@ -216,6 +281,8 @@ class RigService:
             store.add_event(session, test_id, "operator", f"{action} requested by {actor}", {"action": action},
                             actor=actor, time_s=run.time_s)
             session.commit()
+        run.stopping = run.stopping or f"{action} requested by {actor}"
+        self._publish_event(test_id, run.time_s, "operator", f"{action} requested by {actor}", {"action": action})
         with self._lock:  # one writer at a time on the command pipe
             try:
                 run.commands.send(action)
@@ -290,6 +357,7 @@ class RigService:
                         due = run.wall_t0 + (float(rows[-1, 0]) + CONTROL_PERIOD_S) / speed
                         run.arrival_ms.append((time.time() - due) * 1e3)
                     run.time_s = float(rows[-1, 0])
+                    run.last_row = rows[-1].copy()
                     self.hub.publish_threadsafe({"type": "samples", "test_id": test_id,
                                                  "seq": self.hub_seq(test_id), "columns": list(CSV_FIELDS),
                                                  "rows": rows[:, : len(CSV_FIELDS)].tolist()})
@@ -311,6 +379,8 @@ class RigService:
                         "loop": {"displacement_m": payload["displacement_m"].tolist(),
                                  "force_n": payload["force_n"].tolist()}})
                 elif kind == "event":
+                    if payload["kind"] == "limit_trip" and run.stopping is None:
+                        run.stopping = payload["message"]
                     self._publish_event(test_id, payload["time_s"], payload["kind"], payload["message"],
                                         payload["values"])
                 writes.put((kind, payload))
@@ -337,6 +407,7 @@ class RigService:
         pending_rows = 0
         last_commit = time.monotonic()
         final = None
+        indications: dict = {}
 
         def flush() -> None:
             nonlocal pending, pending_rows, last_commit
@@ -402,6 +473,7 @@ class RigService:
                 pacing = {}
             else:
                 status, reason, pacing = final["status"], final["reason"], final.get("pacing", {})
+                indications = final.get("limit_indications") or {}
                 if final.get("link"):
                     run.link = store.clean_json({**final["link"], "lost_periods": final.get("lost_periods", 0)})
                     self.last_link = {"test_id": test_id, **run.link}
@@ -412,7 +484,8 @@ class RigService:
                 pacing = {**pacing, "server_arrival_p50_ms": float(np.percentile(run.arrival_ms, 50)),
                           "server_arrival_p95_ms": float(np.percentile(run.arrival_ms, 95)),
                           "server_arrival_max_ms": float(np.max(run.arrival_ms))}
-            test.summary = self._summary(session, test, run.job, pacing, run.link)
+            test.summary = self._summary(session, test, run.job, pacing, run.link, indications)
+            self.last_end = {"test_id": test_id, "status": status, **self._row_state(run.last_row)}
             store.set_status(session, test, status, reason)
             message = f"test {test_id} {status}" + (f": {reason}" if reason else "")
             store.add_event(session, test_id, "status", message, {"status": status, "time_s": run.time_s},
@@ -440,9 +513,10 @@ class RigService:
         self.hub.publish_threadsafe({"type": "event", "test_id": test_id, "time_s": time_s, "kind": kind,
                                      "message": message, "values": store.clean_json(values)})
 
-    def _summary(self, session: Session, test, job: dict, pacing: dict, link: dict) -> dict:
+    def _summary(self, session: Session, test, job: dict, pacing: dict, link: dict,
+                 indications: dict | None = None) -> dict:
         """Tracking figures (sim.tracking), loop-metric means over the steady cycles (sim.metrics), pacing, the
-        periods lost on the link and its health."""
+        periods lost on the link and its health, how often each indicating limit was exceeded."""
         samples = store.load_samples(session, test.id)
         scenario: Scenario = scenario_from_job(job)
         closed = samples[np.isfinite(samples["target_m"])]
@@ -451,6 +525,8 @@ class RigService:
                          "lost_periods": lost_periods(samples)}
         if link:
             summary["link"] = link
+        if indications:
+            summary["limit_indications"] = indications
         if len(closed):
             tracking = tracking_summary(closed, scenario)
             tracking.pop("samples", None)

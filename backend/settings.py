@@ -43,6 +43,8 @@ class Settings(BaseSettings):
     rig_link_timeout_s: float = Field(default=0.05, gt=0, le=5.0, description="UDP rig: a link silent this long "
                                       "ends the test 'failed' (the rig's watchdog closes its valve by itself)")
     rig_arm_timeout_s: float = Field(default=2.0, gt=0, le=60.0, description="UDP rig: how long arming may take")
+    rig_start_tolerance_m: float = Field(default=0.002, gt=0, le=0.05, description="UDP rig: a test starts only "
+                                         "with the table this close to zero (m), where every test's target begins")
     lab_name: str = Field(default="", max_length=200, description="the lab named at the top of every report")
     lab_address: str = Field(default="", max_length=500, description="the lab's address under its name in reports "
                              "(lines separated by newlines or ';')")

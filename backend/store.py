@@ -269,6 +269,25 @@ def load_events(session: Session, test_id: int | None) -> list[dict]:
     return [event_dict(ev) for ev in session.scalars(query)]
 
 
+def last_event(session: Session) -> dict | None:
+    ev = session.scalars(select(EventRecord).order_by(EventRecord.id.desc()).limit(1)).first()
+    return event_dict(ev) if ev is not None else None
+
+
+def last_sample(session: Session) -> tuple[TestRecord, Samples] | None:
+    """The newest test that stored samples and its last sample (where the table was when it ended)."""
+    test = session.scalars(select(TestRecord).where(TestRecord.samples_stored > 0)
+                           .order_by(TestRecord.id.desc()).limit(1)).first()
+    if test is None:
+        return None
+    chunk = session.scalars(select(SampleChunk).where(SampleChunk.test_id == test.id)
+                            .order_by(SampleChunk.seq.desc()).limit(1)).first()
+    if chunk is None:
+        return None
+    rows = Samples.from_stored(decode_samples(chunk.data, chunk.n_rows, chunk.n_columns))
+    return test, rows[len(rows) - 1:]
+
+
 # --- user isolators --------------------------------------------------------------------------------------
 
 def list_user_isolators(session: Session) -> list[dict]:

@@ -184,7 +184,7 @@ class Run:
         if self.rig.realtime:  # load the compiled period before the rig is armed: its watchdog will not wait
             ClosedLoop(scenario.profile, make_controller(scenario.controller, rig=scenario.rig, **options), limit,
                        table=scenario.target_table()).step(Measurement(0, 0.0, 0.0, 0.0, 0.0, scenario.supply_pa))
-        self.monitor = SafetyMonitor(SafetyLimits(**job["limits"]), self.scenario.supply_pa)
+        self.monitor = SafetyMonitor(SafetyLimits.from_dict(job["limits"]), self.scenario.supply_pa)
         # a hybrid test computes each target from the last measurement: one period at a time on every rig
         self.compiled = getattr(self.driver, "run_compiled", None) if self.hybrid is None else None
         self.windows = cycle_windows(self.scenario)
@@ -204,8 +204,9 @@ class Run:
     def send(self, kind: str, payload) -> None:
         self.out.send((kind, payload))
 
-    def event(self, kind: str, message: str, values: dict | None = None) -> None:
-        self.send("event", {"kind": kind, "message": message, "values": values or {}, "time_s": self.loop.time_s})
+    def event(self, kind: str, message: str, values: dict | None = None, time_s: float | None = None) -> None:
+        self.send("event", {"kind": kind, "message": message, "values": values or {},
+                            "time_s": self.loop.time_s if time_s is None else time_s})
 
     def poll_command(self) -> str | None:
         try:
@@ -280,8 +281,7 @@ class Run:
                            {"action": "abort"})
                 return "aborted", f"operator abort at t = {loop.time_s:.3f} s"
             if command == "stop" and not loop.stopping and self.trip is None:
-                end_s = loop.ramp_out()
-                self.windows = [w for w in self.windows if w[2] <= loop.total_periods]
+                end_s = self.ramp_out()
                 self.event("operator", f"stop at t = {loop.time_s:.3f} s: ramping out, ends at t = {end_s:.3f} s",
                            {"action": "stop", "ends_at_s": end_s})
             rows, command = self.chunk(chunk)
@@ -297,10 +297,27 @@ class Run:
             return "stopped", f"operator stop; ramped out to t = {loop.time_s:.3f} s"
         return "completed", None
 
+    def ramp_out(self) -> float:
+        """The target ramps out under control (an operator's stop, a controlled-stop limit); the end time in s."""
+        end_s = self.loop.ramp_out()
+        self.windows = [w for w in self.windows if w[2] <= self.loop.total_periods]
+        return end_s
+
     def trip_now(self, trip: Trip) -> None:
-        """A limit trip: record it and begin the controlled stop (the command ramps to zero, open loop)."""
+        """A limit trip: record it and act: ``controlled_stop`` ramps the target out under control, anything
+        else ramps the valve command to zero, open loop (a later valve_close trip during a controlled stop
+        still closes the valve: ``escalate``)."""
         self.trip = trip
-        self.event("limit_trip", trip.message, {"detector": trip.detector, **trip.values})
+        self.event("limit_trip", trip.message, {"detector": trip.detector, "action": trip.action, **trip.values})
+        if trip.action == "controlled_stop" and not self.loop.stopping:
+            self.ramp_out()
+        else:
+            self.loop.begin_command_ramp()
+
+    def escalate(self, trip: Trip) -> None:
+        """A valve_close trip during a controlled stop: the valve closes now."""
+        self.event("limit_trip", f"{trip.message}; during the controlled stop: the valve closes",
+                   {"detector": trip.detector, "action": trip.action, "escalation": True, **trip.values})
         self.loop.begin_command_ramp()
 
     def periods(self, n: int) -> Samples:
@@ -332,8 +349,8 @@ class Run:
         return rows
 
     def chunk(self, n: int) -> tuple[Samples, str | None]:
-        """Up to n periods in blocks of CHECK_PERIODS, checking the detectors after each block (until a trip)
-        and polling for an operator command; stops early at a trip or a command."""
+        """Up to n periods in blocks of CHECK_PERIODS, checking the detectors after each block and polling for
+        an operator command; stops early at a trip that closes the valve or a command."""
         loop = self.loop
         command = None
         done = 0
@@ -341,19 +358,24 @@ class Run:
             m = min(CHECK_PERIODS, n - done)
             block = self.periods(m)
             done += len(block)
-            if self.trip is None:
-                trip = self.monitor.check(block)
-                if trip is None and self.hybrid is not None and self.hybrid.tripped:
-                    trip = Trip("rths_stability", len(block) - 1, loop.time_s,
-                                f"hybrid simulation unstable at t = {loop.time_s:.3f} s: {self.hybrid.monitor.reason}",
-                                {"time_s": loop.time_s, **self.hybrid.monitor.to_dict()})
-                fault = self.driver.fault()
-                if trip is None and fault is not None:
-                    trip = Trip("rig_fault", len(block) - 1, loop.time_s, f"{fault} at t = {loop.time_s:.3f} s",
-                                {"time_s": loop.time_s})
-                if trip is not None:
-                    self.trip_now(trip)
+            trip = self.monitor.check(block, valve_close_only=self.trip is not None)
+            for indication in self.monitor.take_indications():
+                self.event("limit_indicate", indication.message, {"detector": indication.detector,
+                                                                  **indication.values}, time_s=indication.time_s)
+            if trip is None and self.hybrid is not None and self.hybrid.tripped:
+                trip = Trip("rths_stability", len(block) - 1, loop.time_s,
+                            f"hybrid simulation unstable at t = {loop.time_s:.3f} s: {self.hybrid.monitor.reason}",
+                            {"time_s": loop.time_s, **self.hybrid.monitor.to_dict()})
+            fault = self.driver.fault()
+            if trip is None and fault is not None:
+                trip = Trip("rig_fault", len(block) - 1, loop.time_s, f"{fault} at t = {loop.time_s:.3f} s",
+                            {"time_s": loop.time_s})
+            if trip is not None and self.trip is None:
+                self.trip_now(trip)
+                if trip.action != "controlled_stop":
                     break
+            elif trip is not None and trip.action == "valve_close" and not loop.ramping:
+                self.escalate(trip)  # a controlled stop is running: only a valve close overrules it
             if len(block) < m:
                 break
             command = self.poll_command()
@@ -456,7 +478,8 @@ def main(job: dict, out, commands) -> None:
         run.priority = priority
         status, reason = run.execute()
         run.send("finished", {"status": status, "reason": reason, "pacing": run.pacing(),
-                              "link": run.driver.link_stats(), "lost_periods": run.lost_periods})
+                              "link": run.driver.link_stats(), "lost_periods": run.lost_periods,
+                              "limit_indications": dict(run.monitor.indication_counts)})
     except ServerGone:
         return
     except Exception as exc:  # report any failure to the server instead of dying silently

@@ -138,6 +138,26 @@ def check_supply(supply_pa: float, rig: RigParameters) -> None:
     _number("supply_bar", value, lo, hi, "bar")
 
 
+def force_estimate_n(block: SineProfile, rig: RigParameters, isolator: Isolator) -> float:
+    """Upper estimate of the force a sine block needs: the isolator's peak force at |offset| + A, the
+    friction at the test's vertical load (mu N + F_c, eq. 1), viscous force at the peak velocity and the
+    table's inertia at the peak acceleration (each at its own peak, so never an underestimate)."""
+    omega = 2 * math.pi * block.frequency_hz
+    reach = abs(block.offset_m) + block.amplitude_m
+    return (isolator.peak_force_n(reach) + rig.friction_force_n + rig.viscous_n_s_per_m * omega * block.amplitude_m
+            + rig.mass_kg * omega ** 2 * block.amplitude_m)
+
+
+def motion_summary(blocks: list[SineProfile], rig: RigParameters, isolator: Isolator) -> dict:
+    """What a profile asks of the rig, for a confirmation before the valve opens: peak displacement
+    (|offset| + A), peak velocity (2 pi f A), the force estimate (``force_estimate_n``), duration and cycles."""
+    return {"peak_displacement_m": max(abs(b.offset_m) + b.amplitude_m for b in blocks),
+            "peak_velocity_m_per_s": max(2 * math.pi * b.frequency_hz * b.amplitude_m for b in blocks),
+            "peak_force_n": max(force_estimate_n(b, rig, isolator) for b in blocks),
+            "duration_s": sum(b.duration_s for b in blocks),
+            "cycles_total": sum(b.cycles for b in blocks)}
+
+
 def envelope_problem(block: SineProfile, rig: RigParameters, isolator: Isolator, supply_pa: float):
     """The first envelope limit a sine block violates, as a ProfileError, or None.
 
@@ -161,8 +181,7 @@ def envelope_problem(block: SineProfile, rig: RigParameters, isolator: Isolator,
                             f"frequency_hz = {f:g} Hz) exceeds the pump's "
                             f"{rig.pump_max_flow_m3_per_s / LITRE_PER_MIN_M3_S:.0f} l/min; at this amplitude "
                             f"frequency_hz must be <= {f_max:.3g} Hz")
-    force = (isolator.peak_force_n(reach) + rig.friction_force_n + rig.viscous_n_s_per_m * v_peak
-             + rig.mass_kg * omega ** 2 * a)
+    force = force_estimate_n(block, rig, isolator)
     f_max = rig.max_force_n(supply_pa)
     if force > f_max:
         at = f"amplitude_m = {a:g} m" + (f" about offset_m = {block.offset_m:g} m" if block.offset_m else "")

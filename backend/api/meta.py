@@ -8,7 +8,8 @@ from sim.controllers import DEFAULT_CONTROLLER, describe_controllers
 from sim.profiles import MAX_CYCLES, MAX_FREQUENCY_HZ
 from sim.rig import BAR_PA, DEFAULT_RIG, LITRE_PER_MIN_M3_S
 
-from ..safety import default_limits, hard_limits
+from .. import store
+from ..safety import ACTIONS, UNITS, default_limits, hard_limits
 
 router = APIRouter(tags=["rig"])
 
@@ -26,6 +27,18 @@ def rig_link(request: Request) -> dict:
     received and lost, packets rejected, the rig's missed commands and the last sequence; when idle, one
     HELLO to the rig (connected or not, round trip, armed)."""
     return request.app.state.service.link_health()
+
+
+@router.get("/api/rig/state", summary="The rig now: status, running test, table position, supply pressure, "
+            "vertical load, limits in force, last event")
+def rig_state(request: Request) -> dict:
+    """``status``: running, stopping (a stop, an abort or a limit trip is ending the test), idle,
+    not_connected or faulted (a UDP rig that does not answer, or reports a fault). ``table_position_m`` comes
+    from ``position_source``: live, the end of the last test, or the rig's answer to a probe."""
+    state = request.app.state.service.rig_state()
+    with request.app.state.sessions() as session:
+        state["last_event"] = store.last_event(session)
+    return store.clean_json(state)
 
 
 @router.get("/api/rig", summary="Rig parameters, envelope, limits and state")
@@ -53,6 +66,8 @@ def rig(request: Request) -> dict:
         },
         "limits_default": default_limits(rig).to_dict(),
         "limits_max": hard_limits(rig).to_dict(),
+        "limit_actions": ACTIONS,
+        "limit_units": UNITS,
         "controllers": describe_controllers(),
         "default_controller": DEFAULT_CONTROLLER,
         "state": service.state(),

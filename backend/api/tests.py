@@ -14,7 +14,7 @@ from sim.controllers import CONTROLLER_NAMES, make_controller
 from sim.engine import Scenario
 from sim.errors import FieldError
 from sim.isolator import IsolatorError
-from sim.profiles import SineProfile, max_amplitude_m, max_frequency_hz
+from sim.profiles import SineProfile, max_amplitude_m, max_frequency_hz, motion_summary
 from sim.rig import BAR_PA, DEFAULT_RIG
 from sim.samples import RECORD_FIELDS, Samples
 from sim.tracking import cycle_windows
@@ -115,6 +115,12 @@ def check_test(body: TestCreate, request: Request, session: SessionDep) -> Envel
     except (IsolatorError, ProtocolError) as exc:
         refusal = {"detail": str(exc), "field": "profile" if isinstance(exc, ProtocolError) else "isolator"}
     out = {"ok": refusal is None, **(refusal or {"detail": "within the rig envelope"})}
+    if refusal is None:  # what the motion asks of the rig, for the confirmation before the valve opens
+        blocks = profile_blocks(body.profile)
+        scenario = Scenario(resolve_isolator(session, body.isolator), body.supply_bar * BAR_PA, blocks,
+                            vertical_load_n=body.vertical_load_n)
+        rig = DEFAULT_RIG.with_changes(vertical_load_n=scenario.effective_vertical_load_n)
+        out.update(motion_summary(blocks, rig, scenario.isolator))
     supply_pa = body.supply_bar * BAR_PA
     if DEFAULT_RIG.min_supply_pa <= supply_pa <= DEFAULT_RIG.max_supply_pa:
         out["max_force_n"] = DEFAULT_RIG.max_force_n(supply_pa)

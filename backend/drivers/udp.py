@@ -267,4 +267,24 @@ def probe(url: str, timeout_s: float = 0.2) -> dict:
         status = int(packet.fields["status"])
         return {"rig": url, "connected": True, "round_trip_ms": (time.perf_counter() - t0) * 1e3,
                 "armed": bool(status & STATUS_ARMED), "status": describe_status(status),
+                "fault": bool(status & RIG_FAULT_BITS), "position_m": packet.fields["position_m"],
+                "force_n": packet.fields["force_n"], "supply_pressure_pa": packet.fields["supply_pressure_pa"],
                 "period_s": packet.fields["period_ns"] * 1e-9, "protocol_version": proto.VERSION}
+
+
+START_TOLERANCE_M = 0.002  # a test starts only with the table this close to zero, where every target begins
+
+
+def start_position_problem(url: str, tolerance_m: float = START_TOLERANCE_M, timeout_s: float = 0.2) -> str | None:
+    """Why no test may start on the rig at ``url`` now: its table is more than ``tolerance_m`` from zero,
+    where every test's target begins, so the controller would drive it back at full flow. None: it may
+    start (or the rig does not answer: arming says so and the test ends failed)."""
+    answer = probe(url, timeout_s)
+    if not answer["connected"]:
+        return None
+    y = answer["position_m"]
+    if abs(y) <= tolerance_m:
+        return None
+    return (f"the table is at {y * 1e3:.2f} mm and every test starts at 0 mm (within +-{tolerance_m * 1e3:g} mm): "
+            "bring the table to zero with the rig's own controls first (isorig has no manual motion yet); "
+            "nothing moved")

@@ -199,6 +199,7 @@ def report_json(bundle, identify: bool = True, meta: dict | None = None, identif
                           "note": "identification not requested"},
         "events": events,
         "limit_trips": [e for e in events if e.get("kind") == "limit_trip"],
+        "limit_indications": (record.get("summary") or {}).get("limit_indications") or {},
         "approval": {"tested_by": operator_of(bundle), "reviewed_by": None, "approved_by": None,
                      "started_by": starter_of(bundle)},
         "software": {"isorig": _version()},

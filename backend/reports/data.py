@@ -423,9 +423,9 @@ def limit_trip_text(values: dict) -> str:
     """A limit trip's recorded values in words: what the rig read at the sample that tripped, and the limit."""
     from sim.measurement import describe_status
 
-    shown = ("displacement_m", "target_m", "tracking_error_m", "force_n", "load_pressure_pa", "supply_pressure_pa",
-             "voltage_v")
-    skip = set(shown) | {"detector", "time_s", "limit", "limit_name", "flags"}
+    shown = ("displacement_m", "target_m", "tracking_error_m", "velocity_m_per_s", "force_n", "load_pressure_pa",
+             "supply_pressure_pa", "voltage_v")
+    skip = set(shown) | {"detector", "time_s", "limit", "limit_name", "flags", "action", "indication", "escalation"}
     parts = [quantity_text(k, values[k]) for k in shown if num(values.get(k)) is not None]
     parts += [quantity_text(k, v) for k, v in values.items() if k not in skip and isinstance(v, (int, float, str))
               and not isinstance(v, bool) and (num(v) is not None or isinstance(v, str))]
@@ -444,7 +444,7 @@ def event_text(event: dict) -> str:
     """An event in words: its message, and for a limit trip or a rig fault what was recorded with it."""
     message = str(event.get("message") or event.get("kind") or "")
     values = event.get("values") or {}
-    if event.get("kind") == "limit_trip" and values:
+    if event.get("kind") in ("limit_trip", "limit_indicate") and values:
         detail = limit_trip_text(values)
         return f"{message} ({detail})" if detail else message
     if event.get("kind") == "rig_fault" and isinstance(values.get("link"), dict):

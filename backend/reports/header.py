@@ -234,11 +234,15 @@ def _condition_lines(r: dict, protocol) -> list[tuple[str, str]]:
     limits = r.get("limits") or {}
     if limits:
         parts = []
+        actions = limits.get("actions") or {}
         for key, words, scale, unit in (("displacement_m", "|y|", 1e3, "mm"), ("force_n", "|F|", 1e-3, "kN"),
+                                        ("velocity_m_per_s", "|dy/dt|", 1e3, "mm/s"),
                                         ("load_pressure_pa", "|P_L|", 1e-5, "bar"),
                                         ("tracking_error_m", "|y - r|", 1e3, "mm")):
             if num(limits.get(key)) is not None:
-                parts.append(f"{words} <= {limits[key] * scale:.4g} {unit}")
+                action = actions.get(key, "valve_close")
+                note = "" if action == "valve_close" else f" ({action.replace('_', ' ')})"
+                parts.append(f"{words} <= {limits[key] * scale:.4g} {unit}{note}")
         lines.append(("Limits", ", ".join(parts) + "; supply pressure >= 50 % of its setting; rig faults; a frozen "
                       "position reading"))
     return lines
@@ -388,3 +392,7 @@ def _results(flow: Flow, report: dict, protocol) -> None:
         _kv(flow, "Limit trips", f"{len(trips)}: " + trips[0]["text"], color=RED)
     else:
         _kv(flow, "Limit trips", "none")
+    indicated = report.get("limit_indications") or {}
+    if indicated:
+        _kv(flow, "Limits indicated", ", ".join(f"{key}: {count} time{'s' if count != 1 else ''}"
+                                                 for key, count in indicated.items()) + " (the test went on)")

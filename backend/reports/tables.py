@@ -27,7 +27,8 @@ QUANTITY_UNITS = {"k_eff_n_per_m": ("kN/mm", 1e-6, "{:.4f}"), "kd_n_per_m": ("kN
                   "d_max_m": ("mm", 1e3, "{:.3f}"), "d_min_m": ("mm", 1e3, "{:.3f}"),
                   "f_max_n": ("kN", 1e-3, "{:.3f}"), "f_min_n": ("kN", 1e-3, "{:.3f}"),
                   "f_peak_max_n": ("kN", 1e-3, "{:.3f}"), "f_peak_min_n": ("kN", 1e-3, "{:.3f}")}
-EVENT_KINDS = {"limit_trip": "limit trip", "rig_fault": "rig fault", "operator": "operator", "status": "status"}
+EVENT_KINDS = {"limit_trip": "limit trip", "limit_indicate": "limit indicated", "rig_fault": "rig fault",
+               "operator": "operator", "status": "status"}
 
 
 def _table_rows(bundle, acc, protocol=None) -> list[tuple]:

@@ -189,6 +189,12 @@ def run_on_rig(args, scenario, out: Path) -> int:
         raise UsageError(f"isorig simulate: --rig: {exc}") from None
     if not (0 < args.link_timeout_s <= 5):
         raise UsageError(f"isorig simulate: --link-timeout-s {args.link_timeout_s:g} is outside (0, 5] s")
+    if args.rig.startswith("udp://"):
+        from backend.drivers.udp import start_position_problem
+
+        problem = start_position_problem(args.rig)
+        if problem is not None:
+            raise UsageError(f"isorig simulate: not started on {args.rig}: {problem}")
     job = {"test_id": None, "rig": args.rig, "speed": 1.0,
            "link": {"period_s": 1e-3, "timeout_s": args.link_timeout_s, "arm_timeout_s": 2.0},
            "scenario": {"isolator": scenario.isolator.to_dict(), "supply_pa": scenario.supply_pa,

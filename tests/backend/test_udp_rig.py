@@ -191,7 +191,11 @@ def test_a_restarted_rig_moves_nothing_until_a_new_test(tmp_path):
     assert code == 1 and summary["status"] == "failed" and "link lost" in summary["reason"]
     assert first["counters"]["restarts"] == 1 and not first["armed"] and first["command_v"] == 0.0
     assert later["position_m"] == pytest.approx(first["position_m"], abs=1e-6)  # the table stays where it is
-    assert code2 == 0 and summary2["status"] == "completed", output2  # a new test arms it again
+    assert abs(first["position_m"]) > 0.005  # mid-stroke: the restart came at the peak of a cycle
+    # every test's target starts at zero: from mid-stroke the controller would drive the table back at full
+    # flow, so no test starts until the table is back at zero; nothing moved
+    assert code2 == 2 and "the table is at" in output2 and "nothing moved" in output2, output2
+    assert emulator.status()["position_m"] == pytest.approx(first["position_m"], abs=1e-6)
 
 
 def test_an_emulator_process_killed_and_started_again_mid_test(tmp_path):
@@ -349,6 +353,9 @@ def test_the_service_runs_a_test_on_the_emulator_and_shows_the_link(tmp_path):
             assert rig["rig"]["kind"] == "udp" and rig["rig"]["port"] == emulator.port
             assert rig["rig"]["control_period_s"] == 1e-3 and rig["rig"]["link_timeout_s"] == 0.05
             assert rig["link"]["connected"] and not rig["link"]["armed"]
+            state = client.get("/api/rig/state").json()  # idle: where the rig says its table is
+            assert state["status"] == "idle" and state["position_source"] == "the rig (probe)"
+            assert abs(state["table_position_m"]) < 1e-3 and state["supply_pressure_pa"] >= 0 and not state["armed"]
             r = client.post("/api/tests", json=sine_test(speed=2.0), headers=AUTH)
             assert r.status_code == 422 and "real time" in r.json()["detail"]  # no faster than real time
             r = client.post("/api/tests", json=sine_test(speed=1.0, vertical_load_n=3e5), headers=AUTH)
@@ -363,6 +370,8 @@ def test_the_service_runs_a_test_on_the_emulator_and_shows_the_link(tmp_path):
                 time.sleep(0.05)
             assert live["armed"] and live["test_id"] == test_id and live["last_sequence"] > 100, live
             assert live["round_trip_p50_ms"] < 1.0 and "lost" in live and "rejected" in live
+            state = client.get("/api/rig/state").json()
+            assert state["status"] == "running" and state["position_source"] == "live" and state["armed"]
             record = wait_for(client, test_id)
             assert record["status"] == "completed", record["reason"]
             assert record["samples_stored"] == 1500
@@ -372,6 +381,37 @@ def test_the_service_runs_a_test_on_the_emulator_and_shows_the_link(tmp_path):
             idle = client.get("/api/rig/link").json()
             assert idle["armed"] is False and idle["last_test"]["test_id"] == test_id
             assert idle["last_test"]["received"] >= 1490
+            emulator.stop()
+            gone = client.get("/api/rig/state").json()
+            assert gone["status"] == "not_connected"
+            assert "no answer" in gone["detail"] or "nothing listens" in gone["detail"]
+            assert gone["position_source"] == f"end of test {test_id} (completed)"  # the last known position
     finally:
         status = emulator.stop()
     assert status["vertical_load_n"] == 3e5 and status["supply_pa"] == 100e5  # ARM carried the conditions
+
+
+def test_the_service_starts_no_test_while_the_rigs_table_is_off_zero(tmp_path):
+    from conftest import AUTH, make_settings, sine_test, wait_for
+    from fastapi.testclient import TestClient
+
+    from backend.app import create_app
+
+    emulator = Emulator(tmp_path, "--restart-after-s", "0.6")  # the rig restarts mid-cycle: table left mid-stroke
+    try:
+        with TestClient(create_app(make_settings(tmp_path, rig=emulator.url))) as client:
+            r = client.post("/api/tests?start=true", json=sine_test(speed=1.0, profile={"cycles": 6}), headers=AUTH)
+            assert r.status_code == 201, r.text
+            first = wait_for(client, r.json()["id"])
+            assert first["status"] == "failed"
+            position = emulator.fresh_status()["position_m"]
+            assert abs(position) > 0.005
+            state = client.get("/api/rig/state").json()
+            assert state["table_position_m"] == pytest.approx(position, abs=1e-6)
+            r = client.post("/api/tests?start=true", json=sine_test(speed=1.0), headers=AUTH)
+            assert r.status_code == 409 and f"the table is at {position * 1e3:.2f} mm" in r.json()["detail"]
+            assert "nothing moved" in r.json()["detail"]
+            assert [t["id"] for t in client.get("/api/tests").json()] == [first["id"]]  # nothing left behind
+            assert emulator.fresh_status()["position_m"] == pytest.approx(position, abs=1e-6)
+    finally:
+        emulator.stop()
