@@ -186,3 +186,16 @@ ERROR_RESPONSES = {
     409: {"model": ErrorOut, "description": "not allowed in the current state"},
     422: {"model": ErrorOut, "description": "invalid input: names the field, the value and the limit"},
 }
+
+
+class MoveIn(StrictModel):
+    """``POST /api/rig/move`` (``/api/rig/zero``: position 0): move the table under control when no test runs."""
+
+    position_m: float = Field(0.0, description="where to move the table, m (within the stroke and the "
+                                               "displacement limit)")
+    speed_m_per_s: float = Field(0.005, description="peak speed of the move, m/s (0 < speed <= 0.05)")
+    isolator: str = Field(min_length=1, max_length=64, description="the isolator mounted (a preset or user isolator)")
+    supply_bar: float = Field(description="supply pressure in bar")
+    vertical_load_n: float | None = Field(None, description="vertical load in N (default as for a test)")
+    limits: LimitsIn | None = Field(None, description="the same limits as a test's (default: the rig's)")
+    operator_name: str = Field("", max_length=64, description="who moves the table")

@@ -194,13 +194,7 @@ class RigService:
             return out
         out.update(status="idle", test_id=None, armed=False, vertical_load_n=None, limits=None,
                    table_position_m=None, force_n=None, supply_pressure_pa=None, position_source="unknown")
-        if self.last_end is None:  # after a restart: the end of the newest test on record
-            with self.sessions() as session:
-                found = store.last_sample(session)
-                if found is not None:
-                    test, row = found
-                    self.last_end = {"test_id": test.id, "status": test.status, **self._row_state(row.array[0])}
-        if self.last_end is not None:
+        if self._last_end() is not None:
             out.update({k: self.last_end[k] for k in ("table_position_m", "force_n")},
                        position_source=f"end of test {self.last_end['test_id']} ({self.last_end['status']})")
         if self.driver != SIMULATED:
@@ -229,10 +223,12 @@ class RigService:
                 if test.status != "ready":
                     raise Conflict(f"test {test_id} is {test.status}; only a test with status 'ready' can start "
                                    "(create a new test to run it again)")
-                self._check_start_position()
+                motion = test.request["job_scenario"].get("motion")
+                self._check_start_position(motion["start_m"] if motion else 0.0, test_id)
                 job = {"test_id": test_id, "rig": test.driver, "link": self.settings.link_settings(),
                        "speed": test.speed, "scenario": test.request["job_scenario"], "limits": test.limits,
-                       "realtime": self.settings.worker_realtime}
+                       "realtime": self.settings.worker_realtime,
+                       "table_position_m": self.resting_position_m() or 0.0}
                 ctx = self.context()
                 out_r, out_w = ctx.Pipe(duplex=False)
                 cmd_r, cmd_w = ctx.Pipe(duplex=False)
@@ -255,18 +251,47 @@ class RigService:
             run.thread.start()
         self._publish_event(test_id, 0.0, "operator", f"test {test_id} started by {actor}", {"action": "start"})
 
-    def _check_start_position(self) -> None:
-        """A real rig's table must rest at zero before a test starts (one probe; the simulated rig starts every
-        test at zero)."""
+    def _check_start_position(self, start_m: float, test_id: int) -> None:
+        """The table must rest where the target begins (0 for a test, the start of a manual move), within
+        ``rig_start_tolerance_m``: else the controller would drive it there at full flow. A UDP rig is asked
+        (one probe); the simulated rig's table is where the last test or move left it."""
         from .drivers import SIMULATED
 
-        if self.driver == SIMULATED:
-            return
-        from .drivers.udp import start_position_problem
+        tolerance = self.settings.rig_start_tolerance_m
+        if self.driver != SIMULATED:
+            from .drivers.udp import start_position_problem
 
-        problem = start_position_problem(self.driver, self.settings.rig_start_tolerance_m)
+            problem = start_position_problem(self.driver, tolerance, expected_m=start_m)
+        else:
+            y = self.resting_position_m() or 0.0
+            problem = None if abs(y - start_m) <= tolerance else (
+                f"the table is at {y * 1e3:.2f} mm and test {test_id} starts at {start_m * 1e3:.2f} mm (within "
+                f"+-{tolerance * 1e3:g} mm): move the table to zero first (POST /api/rig/zero, the console's "
+                "Zero button); nothing moved")
         if problem is not None:
             raise Conflict(problem)
+
+    def resting_position_m(self) -> float | None:
+        """Where the table rests now (m), as far as the service knows: a UDP rig is asked; the simulated rig's
+        table is where the last test or move left it (None: never moved, or not known)."""
+        from .drivers import SIMULATED
+
+        if self.driver != SIMULATED:
+            from .drivers.udp import probe
+
+            answer = probe(self.driver, timeout_s=0.2)
+            return answer.get("position_m") if answer["connected"] else None
+        end = self._last_end()
+        return end["table_position_m"] if end is not None else None
+
+    def _last_end(self) -> dict | None:
+        if self.last_end is None:  # after a restart: the end of the newest test on record
+            with self.sessions() as session:
+                found = store.last_sample(session)
+                if found is not None:
+                    test, row = found
+                    self.last_end = {"test_id": test.id, "status": test.status, **self._row_state(row.array[0])}
+        return self.last_end
 
     def command(self, test_id: int, action: str, actor: str = "operator") -> None:
         """``stop`` (ramp-out) or ``abort`` (at once) the running test."""

@@ -92,21 +92,30 @@ class Outbox:
 
 
 def scenario_from_job(job: dict) -> Scenario:
+    """The test's scenario; a manual motion (spec["motion"]: start_m, end_m, speed_m_per_s) runs as a time
+    history (sim.motion)."""
     spec = job["scenario"]
+    history = spec.get("history_target")
+    motion = spec.get("motion")
+    if motion is not None:
+        from sim.motion import move_target
+
+        history = move_target(motion["start_m"], motion["end_m"], motion["speed_m_per_s"])
     return Scenario(isolator_from_dict(spec["isolator"]), spec["supply_pa"], blocks_from_dicts(spec["profile"]),
                     spec["controller"],
                     dict(spec.get("controller_options") or {}), vertical_load_n=spec.get("vertical_load_n"),
-                    history=spec.get("history_target"))
+                    history=history)
 
 
-def make_driver(rig: str, scenario: Scenario, link: dict | None = None) -> RigDriver:
+def make_driver(rig: str, scenario: Scenario, link: dict | None = None, table_position_m: float = 0.0) -> RigDriver:
     """The driver of a rig named ``simulated`` or ``udp://HOST:PORT`` (with the link settings ``link``).
 
-    The simulated rig is built with the test's isolator mounted, as a real rig has its specimen mounted;
-    no driver receives the isolator through the protocol.
+    The simulated rig is built with the test's isolator mounted, as a real rig has its specimen mounted, and
+    its table where the last test left it (``table_position_m``); no driver receives the isolator through
+    the protocol.
     """
     if rig == SIMULATED:
-        return SimulatedRig(scenario.isolator, scenario.rig, scenario.noise_seed)
+        return SimulatedRig(scenario.isolator, scenario.rig, scenario.noise_seed, table_position_m)
     from .drivers.udp import UdpRig
 
     return UdpRig.from_url(rig, **(link or {}))
@@ -167,7 +176,9 @@ class Run:
         self.commands = commands
         self.scenario = scenario_from_job(job)
         self.speed = float(job.get("speed", 1.0))
-        self.driver = driver or make_driver(job.get("rig", SIMULATED), self.scenario, job.get("link"))
+        self.driver = driver or make_driver(job.get("rig", SIMULATED), self.scenario, job.get("link"),
+                                            job.get("table_position_m") or 0.0)
+        self.motion = job["scenario"].get("motion") is not None  # a manual move: a stop holds where it is
         self.rig = self.driver.describe()
         if abs(self.rig.control_period_s - CONTROL_PERIOD_S) > 1e-9:
             raise ValueError(f"the rig {self.rig.name!r} runs at a control period of {self.rig.control_period_s:g} s; "
@@ -280,7 +291,12 @@ class Run:
                 self.event("operator", f"abort at t = {loop.time_s:.3f} s: valve command set to zero at once",
                            {"action": "abort"})
                 return "aborted", f"operator abort at t = {loop.time_s:.3f} s"
-            if command == "stop" and not loop.stopping and self.trip is None:
+            if command == "stop" and self.motion and not loop.ramping:  # the table stops where it is
+                loop.begin_command_ramp()
+                loop.stopping = True
+                self.event("operator", f"stop at t = {loop.time_s:.3f} s: the move stops where it is (valve "
+                           "command to 0 V in 0.1 s)", {"action": "stop"})
+            elif command == "stop" and not loop.stopping and self.trip is None:
                 end_s = self.ramp_out()
                 self.event("operator", f"stop at t = {loop.time_s:.3f} s: ramping out, ends at t = {end_s:.3f} s",
                            {"action": "stop", "ends_at_s": end_s})

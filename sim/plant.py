@@ -113,6 +113,12 @@ class SimulatedPlant:
         self._work = tuple(np.empty(N_STATES) for _ in range(5))
         self._sensed = np.empty(2)
 
+    def place(self, position_m: float) -> None:
+        """Start with the table at rest at ``position_m`` (where the last test or move left it; the sensors'
+        delay lines hold it too). Load pressure and the isolator's hysteretic state start at zero."""
+        self.state[X_Y] = position_m
+        self.history[0, :] = position_m
+
     def rebuild(self, rig: RigParameters, isolator: Isolator) -> None:
         """The plant's parameters changed (a timed change in the middle of a test): state and history kept."""
         self.rig, self.isolator = rig, isolator

@@ -306,6 +306,16 @@ def get_csv(test_id: TestId, request: Request, session: SessionDep) -> Streaming
                              headers={"Content-Disposition": f'attachment; filename="test-{test_id}.csv"'})
 
 
+def _reportable(session, test_id: int):
+    """The test, if a report can be made of it (404 unknown; 422 for a manual move, which has none)."""
+    test = _test_or_404(session, test_id)
+    if (test.request.get("profile") or {}).get("kind") == "move":
+        raise ApiError(422, f"test {test_id} is a manual move of the table: it has no report; its record "
+                            f"(GET /api/tests/{test_id}) and samples (data.csv) are kept", "test_id", test_id,
+                       "a test with a sine or protocol profile")
+    return test
+
+
 def _reports():
     try:
         from .. import reports
@@ -317,7 +327,7 @@ def _reports():
 @router.get("/api/tests/{test_id}/report.pdf", summary="The test report as PDF", response_class=Response,
             responses={**ERROR_RESPONSES, 503: {"description": "reports not available"}})
 def report_pdf(test_id: TestId, request: Request, session: SessionDep) -> Response:
-    _test_or_404(session, test_id)
+    _reportable(session, test_id)
     reports = _reports()
     buf = io.BytesIO()
     lab = reports.lab_header(settings=request.app.state.settings)
@@ -329,7 +339,7 @@ def report_pdf(test_id: TestId, request: Request, session: SessionDep) -> Respon
 @router.get("/api/tests/{test_id}/report.json", summary="The test report as JSON",
             responses={**ERROR_RESPONSES, 503: {"description": "reports not available"}})
 def report_json(test_id: TestId, request: Request, session: SessionDep) -> dict:
-    _test_or_404(session, test_id)
+    _reportable(session, test_id)
     reports = _reports()
     lab = reports.lab_header(settings=request.app.state.settings)
     return clean_json(reports.report_json(store.load_test_bundle(session, test_id), lab=lab))
@@ -341,7 +351,7 @@ def report_json(test_id: TestId, request: Request, session: SessionDep) -> dict:
 def bundle_zip(test_id: TestId, request: Request, session: SessionDep) -> Response:
     """The record as GET /api/tests/{id}, the report (JSON and PDF, with the lab header of the settings), every
     sample (the columns of data.csv) and every cycle with its phase (CSV, SI units), and a README."""
-    _test_or_404(session, test_id)
+    _reportable(session, test_id)
     reports = _reports()
     lab = reports.lab_header(settings=request.app.state.settings)
     data = reports.bundle_zip_bytes(store.load_test_bundle(session, test_id), lab=lab)

@@ -21,10 +21,12 @@ from .base import ArmConditions, RigDescription, RigDriver, check_command
 class SimulatedRig(RigDriver):
     """The rig model of sim/ in place of hardware; paced by the caller, so it may run faster than real time."""
 
-    def __init__(self, isolator: Isolator, rig: RigParameters = DEFAULT_RIG, noise_seed: int = 0):
+    def __init__(self, isolator: Isolator, rig: RigParameters = DEFAULT_RIG, noise_seed: int = 0,
+                 table_position_m: float = 0.0):
         self.rig = rig
         self.isolator = isolator
         self.noise_seed = noise_seed
+        self.table_position_m = table_position_m  # where the table rests when armed (the last test left it)
         self.plant: SimulatedPlant | None = None
         self.armed = False
         self.command_v = 0.0
@@ -38,6 +40,8 @@ class SimulatedRig(RigDriver):
     def arm(self, conditions: ArmConditions) -> None:
         rig = self.rig.with_changes(vertical_load_n=conditions.vertical_load_n)  # the jack: friction follows
         self.plant = SimulatedPlant(rig, self.isolator, conditions.supply_pressure_pa, self.noise_seed)
+        if self.table_position_m:
+            self.plant.place(self.table_position_m)
         self.command_v = 0.0
         self.armed = True
 

@@ -275,16 +275,17 @@ def probe(url: str, timeout_s: float = 0.2) -> dict:
 START_TOLERANCE_M = 0.002  # a test starts only with the table this close to zero, where every target begins
 
 
-def start_position_problem(url: str, tolerance_m: float = START_TOLERANCE_M, timeout_s: float = 0.2) -> str | None:
-    """Why no test may start on the rig at ``url`` now: its table is more than ``tolerance_m`` from zero,
-    where every test's target begins, so the controller would drive it back at full flow. None: it may
-    start (or the rig does not answer: arming says so and the test ends failed)."""
+def start_position_problem(url: str, tolerance_m: float = START_TOLERANCE_M, timeout_s: float = 0.2,
+                           expected_m: float = 0.0) -> str | None:
+    """Why nothing may start on the rig at ``url`` now: its table is more than ``tolerance_m`` from
+    ``expected_m``, where the target begins (0 for every test), so the controller would drive it there at
+    full flow. None: it may start (or the rig does not answer: arming says so and the run ends failed)."""
     answer = probe(url, timeout_s)
     if not answer["connected"]:
         return None
     y = answer["position_m"]
-    if abs(y) <= tolerance_m:
+    if abs(y - expected_m) <= tolerance_m:
         return None
-    return (f"the table is at {y * 1e3:.2f} mm and every test starts at 0 mm (within +-{tolerance_m * 1e3:g} mm): "
-            "bring the table to zero with the rig's own controls first (isorig has no manual motion yet); "
-            "nothing moved")
+    return (f"the table is at {y * 1e3:.2f} mm and the run starts at {expected_m * 1e3:.2f} mm (within "
+            f"+-{tolerance_m * 1e3:g} mm): move the table to zero first (POST /api/rig/zero, the console's Zero "
+            "button, or isorig move); nothing moved")

@@ -9,11 +9,12 @@ from __future__ import annotations
 import dataclasses
 import math
 import socket
+import subprocess
 import time
 
 import numpy as np
 import pytest
-from emulator import Emulator, read_record, simulate_on
+from emulator import ISORIG, Emulator, read_record, simulate_on
 
 from backend.drivers import ArmConditions, RigFault, SimulatedRig
 from backend.drivers.check import DriverCheckError, check_driver
@@ -186,6 +187,11 @@ def test_a_restarted_rig_moves_nothing_until_a_new_test(tmp_path):
         time.sleep(0.5)
         later = emulator.fresh_status()
         code2, summary2, output2 = simulate_on(emulator.url, tmp_path / "again", cycles=3)
+        refused_at = emulator.status()["position_m"]
+        moved = subprocess.run([*ISORIG, "move", "--rig", emulator.url, "--speed-m-per-s", "0.02"],
+                               capture_output=True, text=True, timeout=60)
+        zeroed = emulator.fresh_status()
+        code3, summary3, output3 = simulate_on(emulator.url, tmp_path / "third", cycles=3)
     finally:
         emulator.stop()
     assert code == 1 and summary["status"] == "failed" and "link lost" in summary["reason"]
@@ -195,7 +201,11 @@ def test_a_restarted_rig_moves_nothing_until_a_new_test(tmp_path):
     # every test's target starts at zero: from mid-stroke the controller would drive the table back at full
     # flow, so no test starts until the table is back at zero; nothing moved
     assert code2 == 2 and "the table is at" in output2 and "nothing moved" in output2, output2
-    assert emulator.status()["position_m"] == pytest.approx(first["position_m"], abs=1e-6)
+    assert refused_at == pytest.approx(first["position_m"], abs=1e-6)
+    # isorig move brings it back to zero under control, and the next test runs
+    assert moved.returncode == 0 and "move completed" in moved.stdout, moved.stdout + moved.stderr
+    assert abs(zeroed["position_m"]) < 5e-4 and not zeroed["armed"] and zeroed["command_v"] == 0.0
+    assert code3 == 0 and summary3["status"] == "completed", output3
 
 
 def test_an_emulator_process_killed_and_started_again_mid_test(tmp_path):
@@ -413,5 +423,16 @@ def test_the_service_starts_no_test_while_the_rigs_table_is_off_zero(tmp_path):
             assert "nothing moved" in r.json()["detail"]
             assert [t["id"] for t in client.get("/api/tests").json()] == [first["id"]]  # nothing left behind
             assert emulator.fresh_status()["position_m"] == pytest.approx(position, abs=1e-6)
+            # the operator brings the table back to zero through the same link, then the test runs
+            r = client.post("/api/rig/zero", json={"speed_m_per_s": 0.02, "isolator": "IUT_a", "supply_bar": 100},
+                            headers=AUTH)
+            assert r.status_code == 201, r.text
+            assert f"manual move {position * 1e3:.2f} mm -> 0.00 mm" in r.json()["label"]
+            moved = wait_for(client, r.json()["id"])
+            assert moved["status"] == "completed", moved["reason"]
+            assert abs(emulator.fresh_status()["position_m"]) < 5e-4 and not emulator.status()["armed"]
+            r = client.post("/api/tests?start=true", json=sine_test(speed=1.0), headers=AUTH)
+            assert r.status_code == 201, r.text
+            assert wait_for(client, r.json()["id"])["status"] == "completed"
     finally:
         emulator.stop()

@@ -1,0 +1,80 @@
+"""`isorig move`: move a rig's table to a position at a safe speed, without the service (manual motion).
+
+Same loop, limits and stop paths as a test (backend.worker.run_here); the target is a minimum-jerk move
+from where the rig says its table rests (sim.motion). Ctrl-C stops the move where it is (valve closed).
+"""
+
+from __future__ import annotations
+
+import time
+
+from isorig.cli import UsageError
+
+
+def register(sub) -> None:
+    from sim.isolator import PRESETS
+    from sim.motion import DEFAULT_SPEED_M_PER_S, MAX_SPEED_M_PER_S
+
+    p = sub.add_parser("move", help="move a rig's table to a position (default 0) at a safe speed")
+    p.add_argument("--rig", required=True, help="udp://HOST:PORT (a real-time I/O target or `isorig rig-emulator`)")
+    p.add_argument("--position-m", type=float, default=0.0, help="where to move the table, m (default 0: zero)")
+    p.add_argument("--speed-m-per-s", type=float, default=DEFAULT_SPEED_M_PER_S,
+                   help=f"peak speed of the move, m/s (default {DEFAULT_SPEED_M_PER_S:g}, at most "
+                        f"{MAX_SPEED_M_PER_S:g})")
+    p.add_argument("--isolator", default="IUT_a", help=f"the specimen mounted: a preset ({', '.join(PRESETS)})")
+    p.add_argument("--supply-bar", type=float, default=100.0, help="supply pressure in bar (default 100)")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    import signal
+
+    from backend.drivers import rig_kind
+    from backend.drivers.udp import probe
+    from backend.safety import default_limits
+    from backend.worker import AbortSwitch, run_here
+    from sim.engine import Scenario
+    from sim.isolator import PRESETS
+    from sim.motion import MotionError, check_move, move_target
+    from sim.profiles import ProfileError
+    from sim.rig import BAR_PA, DEFAULT_RIG
+
+    try:
+        if rig_kind(args.rig) != "udp":
+            raise ValueError("manual motion needs a rig that keeps its table where it is: udp://HOST:PORT")
+    except ValueError as exc:
+        raise UsageError(f"isorig move: --rig: {exc}") from None
+    if args.isolator not in PRESETS:
+        raise UsageError(f"isorig move: --isolator {args.isolator!r} is not a preset ({', '.join(PRESETS)})")
+    answer = probe(args.rig, timeout_s=0.5)
+    if not answer["connected"]:
+        raise UsageError(f"isorig move: {answer['detail']}; nothing moved")
+    start_m = float(answer["position_m"])
+    try:
+        check_move(start_m, args.position_m, args.speed_m_per_s, DEFAULT_RIG.stroke_m)
+        scenario = Scenario(PRESETS[args.isolator], args.supply_bar * BAR_PA, [], "servo",
+                            history=move_target(start_m, args.position_m, args.speed_m_per_s))
+        scenario.validate()
+    except (MotionError, ProfileError) as exc:
+        raise UsageError(f"isorig move: {exc}") from None
+    motion = {"start_m": start_m, "end_m": args.position_m, "speed_m_per_s": args.speed_m_per_s}
+    job = {"test_id": None, "rig": args.rig, "speed": 1.0,
+           "link": {"period_s": 1e-3, "timeout_s": 0.05, "arm_timeout_s": 2.0},
+           "scenario": {"isolator": scenario.isolator.to_dict(), "supply_pa": scenario.supply_pa,
+                        "vertical_load_n": scenario.effective_vertical_load_n, "profile": [], "controller": "servo",
+                        "controller_options": {}, "motion": motion},
+           "limits": default_limits(DEFAULT_RIG).to_dict()}
+    switch = AbortSwitch()
+    previous = signal.signal(signal.SIGINT, lambda *_: switch.pending.append("stop"))  # Ctrl-C: stop where it is
+    print(f"moving the table on {args.rig} from {start_m * 1e3:.2f} mm to {args.position_m * 1e3:.2f} mm at "
+          f"{args.speed_m_per_s * 1e3:g} mm/s ({scenario.duration_s:.1f} s; Ctrl-C stops it where it is)")
+    t0 = time.perf_counter()
+    try:
+        run_, sent, status, reason = run_here(job, switch)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    samples = sent.samples()
+    end = float(samples["measured_displacement_m"][-1]) if len(samples) else start_m
+    print(f"move {status}{': ' + reason if reason else ''}; the table is at {end * 1e3:.2f} mm "
+          f"({time.perf_counter() - t0:.1f} s)")
+    return 0 if status == "completed" else 1

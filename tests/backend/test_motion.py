@@ -1,0 +1,101 @@
+"""Manual motion: the minimum-jerk move target, POST /api/rig/move and /api/rig/zero, and the rule that a
+test starts only with the table at zero."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+from conftest import AUTH, make_settings, sine_test, wait_for
+from fastapi.testclient import TestClient
+
+from backend.app import create_app
+from sim.motion import HOLD_S, MAX_SPEED_M_PER_S, MotionError, check_move, move_target
+
+
+def test_the_move_target_starts_and_ends_at_rest_at_the_asked_peak_speed():
+    h = move_target(0.0095, -0.002, 0.005)
+    assert h.r_m[0] == 0.0095 and h.r_m[-1] == pytest.approx(-0.002, abs=1e-15)
+    assert np.max(np.abs(h.r_dot_m_per_s)) == pytest.approx(0.005, rel=1e-4)
+    assert h.r_dot_m_per_s[0] == 0.0 and h.r_ddot_m_per_s2[0] == 0.0
+    hold = int(HOLD_S / h.dt_s)
+    assert np.all(h.r_m[-hold:] == h.r_m[-1]) and np.all(h.r_dot_m_per_s[-hold:] == 0.0)
+    # r' and r'' are the derivatives of r (trapezoid rule over one period)
+    np.testing.assert_allclose(np.diff(h.r_m), 0.5 * h.dt_s * (h.r_dot_m_per_s[1:] + h.r_dot_m_per_s[:-1]),
+                               atol=1e-10)
+    assert np.all(np.diff(h.r_m[: -hold]) <= 0)  # monotonic: never overshoots
+
+
+@pytest.mark.parametrize(("start", "end", "speed", "field"), [
+    (0.0, 0.2, 0.005, "position_m"), (0.0, float("nan"), 0.005, "position_m"), (0.3, 0.0, 0.005, "start_m"),
+    (0.0, 0.01, 0.0, "speed_m_per_s"), (0.0, 0.01, MAX_SPEED_M_PER_S * 1.01, "speed_m_per_s"),
+])
+def test_a_move_outside_what_manual_motion_allows_is_refused_with_its_field(start, end, speed, field):
+    with pytest.raises(MotionError) as err:
+        check_move(start, end, speed, stroke_m=0.15)
+    assert err.value.field == field
+
+
+def move(client, position_m, speed=0.02, **extra):
+    body = {"position_m": position_m, "speed_m_per_s": speed, "isolator": "IUT_a", "supply_bar": 100, **extra}
+    return client.post("/api/rig/move", json=body, headers=AUTH)
+
+
+def test_a_test_starts_only_with_the_table_at_zero_and_zero_brings_it_back(tmp_path):
+    settings = make_settings(tmp_path)
+    with TestClient(create_app(settings)) as client:
+        r = move(client, 0.01, operator_name="A. Rossi")
+        assert r.status_code == 201, r.text
+        moved = wait_for(client, r.json()["id"])
+        assert moved["status"] == "completed" and moved["profile"]["kind"] == "move"
+        assert moved["label"].startswith("manual move 0.00 mm -> 10.00 mm at 20 mm/s")
+        assert moved["cycles_total"] == 0 and moved["operator_name"] == "A. Rossi"
+        state = client.get("/api/rig/state").json()
+        assert state["table_position_m"] == pytest.approx(0.01, abs=2e-4)
+        r = client.post("/api/tests?start=true", json=sine_test(), headers=AUTH)
+        assert r.status_code == 409 and "the table is at 9.9" in r.json()["detail"] and "nothing moved" in r.text
+        assert [t["id"] for t in client.get("/api/tests").json()] == [moved["id"]]  # nothing left behind
+        assert client.get(f"/api/tests/{moved['id']}/report.pdf").status_code == 422  # a move has no report
+    with TestClient(create_app(settings)) as client:  # the table is still there after a restart
+        r = client.post("/api/tests?start=true", json=sine_test(), headers=AUTH)
+        assert r.status_code == 409 and "the table is at 9.9" in r.json()["detail"]
+        body = {"speed_m_per_s": 0.02, "isolator": "IUT_a", "supply_bar": 100}
+        r = client.post("/api/rig/zero", json=body, headers=AUTH)
+        assert r.status_code == 201 and "-> 0.00 mm" in r.json()["label"]
+        assert wait_for(client, r.json()["id"])["status"] == "completed"
+        assert abs(client.get("/api/rig/state").json()["table_position_m"]) < 2e-4
+        r = client.post("/api/tests?start=true", json=sine_test(), headers=AUTH)
+        assert r.status_code == 201 and wait_for(client, r.json()["id"])["status"] == "completed"
+
+
+def test_a_stopped_move_holds_the_table_where_it_is(client):
+    r = move(client, 0.05, speed=0.01)  # 9.4 s of move
+    test_id = r.json()["id"]
+    deadline = time.monotonic() + 20
+    while client.get("/api/rig/state").json().get("table_position_m") in (None, 0.0) or \
+            abs(client.get("/api/rig/state").json()["table_position_m"]) < 0.002:
+        assert time.monotonic() < deadline
+        time.sleep(0.05)
+    assert client.post(f"/api/tests/{test_id}/stop", headers=AUTH).status_code == 200
+    rec = wait_for(client, test_id)
+    assert rec["status"] == "stopped" and rec["time_s"] < 9.0
+    rows = [r.split(",") for r in client.get(f"/api/tests/{test_id}/data.csv").text.splitlines()[1:]]
+    y = np.array([float(r[3]) for r in rows])
+    assert 0.002 < y[-1] < 0.049 and float(rows[-1][4]) == 0.0  # stopped part way, the valve closed
+    assert abs(y[-1] - client.get("/api/rig/state").json()["table_position_m"]) < 1e-4
+
+
+def test_moves_are_refused_while_a_test_runs_and_beyond_the_limits(client):
+    r = client.post("/api/tests?start=true", json=sine_test(speed=1.0, profile={"cycles": 6}), headers=AUTH)
+    test_id = r.json()["id"]
+    r = move(client, 0.01)
+    assert r.status_code == 409 and f"test {test_id} is running" in r.json()["detail"]
+    client.post(f"/api/tests/{test_id}/abort", headers=AUTH)
+    wait_for(client, test_id)
+    r = move(client, 0.02, limits={"displacement_m": 0.01})
+    assert r.status_code == 422 and r.json()["field"] == "position_m" and "displacement limit" in r.json()["detail"]
+    r = move(client, 0.01, speed=0.5)
+    assert r.status_code == 422 and r.json()["field"] == "speed_m_per_s" and "50 mm/s" in r.json()["detail"]
+    r = client.post("/api/rig/move", json={"position_m": 0.01, "isolator": "IUT_a", "supply_bar": 100})
+    assert r.status_code == 401  # the operator token moves the table, nobody else
