@@ -111,16 +111,21 @@ def _tracking(folder: Path, cycles: int) -> list[dict]:
                 proc = subprocess.run([sys.executable, "-m", "isorig", "simulate", "--rig", rig, "--out", str(target),
                                        *args], capture_output=True, text=True)
                 summary = json.loads((target / "summary.json").read_text())
+                last = summary.get("last_two_cycles")  # absent when the run ended before its last cycles
                 out[rig] = {"exit": proc.returncode, "status": summary.get("status", "completed"),
-                            "rms_last2": summary["last_two_cycles"]["rms_y_minus_r_over_amplitude"],
+                            "reason": summary.get("reason"),
+                            "rms_last2": last["rms_y_minus_r_over_amplitude"] if last else None,
                             "lost_periods": summary.get("lost_periods", 0)}
         finally:
             emulator.stop()
         sim, udp = out["simulated"], out[emulator.url]
+        both = None not in (udp["rms_last2"], sim["rms_last2"])
         rows.append({"isolator": isolator, "supply_bar": supply_bar, "amplitude_m": amplitude_m,
                      "frequency_hz": frequency_hz, "cycles": cycles, "simulated_rms_last2": sim["rms_last2"],
-                     "emulator_rms_last2": udp["rms_last2"], "difference": udp["rms_last2"] - sim["rms_last2"],
-                     "emulator_status": udp["status"], "emulator_lost_periods": udp["lost_periods"]})
+                     "emulator_rms_last2": udp["rms_last2"],
+                     "difference": udp["rms_last2"] - sim["rms_last2"] if both else None,
+                     "emulator_status": udp["status"], "emulator_reason": udp["reason"],
+                     "emulator_lost_periods": udp["lost_periods"]})
     return rows
 
 
@@ -187,6 +192,10 @@ def _print(results: dict) -> None:
         print("  case                          simulated   emulator   difference  status")
         for r in results["tracking"]:
             case = f"{r['isolator']} {r['supply_bar']:g} bar {1e3 * r['amplitude_m']:g} mm {r['frequency_hz']:g} Hz"
+            if r["difference"] is None:
+                print(f"  {case:28s}  no figure: the emulator run ended {r['emulator_status']} "
+                      f"({r['emulator_reason']})")
+                continue
             print(f"  {case:28s}  {100 * r['simulated_rms_last2']:8.3f} %  {100 * r['emulator_rms_last2']:8.3f} %"
                   f"  {100 * r['difference']:+9.3f} %  {r['emulator_status']}, "
                   f"{r['emulator_lost_periods']} lost")
