@@ -98,8 +98,9 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(ProtocolError)
     async def _protocol_error(_request: Request, exc: ProtocolError):
-        return error_response(422, str(exc), "profile.protocol", getattr(exc, "value", None),
-                              getattr(exc, "limit", None))
+        field = getattr(exc, "field", None) or "profile.protocol"
+        field = field if field.startswith("profile") else f"profile.protocol.{field}"
+        return error_response(422, str(exc), field, getattr(exc, "value", None), getattr(exc, "limit", None))
 
     @app.exception_handler(Conflict)
     async def _conflict(_request: Request, exc: Conflict):

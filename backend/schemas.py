@@ -30,6 +30,8 @@ class ProtocolProfileIn(StrictModel):
     kind: Literal["protocol"]
     name: str | None = Field(None, max_length=200, description="a shipped protocol's name")
     protocol: dict[str, Any] | None = Field(None, description="an inline protocol definition")
+    design_displacement_m: float | None = Field(None, description="scale the protocol's levels to this design "
+                                                "displacement, m (levels given as fractions)")
 
 
 ProfileIn = Annotated[SineProfileIn | ProtocolProfileIn, Field(discriminator="kind")]

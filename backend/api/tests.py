@@ -41,23 +41,15 @@ Status = Literal["ready", "running", "completed", "stopped", "aborted", "interru
 
 
 def profile_blocks(profile: SineProfileIn | ProtocolProfileIn) -> list[SineProfile]:
-    if isinstance(profile, SineProfileIn):
-        return [SineProfile(profile.amplitude_m, profile.frequency_hz, profile.cycles, profile.taper_cycles,
-                            profile.offset_m)]
+    """The profile's sine blocks, parsed by the one profile parser (sim.protocols.profile_from_spec); a
+    protocol is named among the shipped ones (never a path on the server) or given inline."""
     try:
-        from sim.protocols import SHIPPED_PROTOCOLS, load_protocol, protocol_from_dict
+        from sim.protocols import profile_from_spec
     except ImportError:
         raise ApiError(422, "profile kind 'protocol' is not available in this version (sim.protocols missing)",
                        "profile.kind", "protocol", "sine") from None
-    if (profile.name is None) == (profile.protocol is None):
-        raise ApiError(422, "a protocol profile needs exactly one of 'name' (a shipped protocol) or 'protocol' "
-                            "(an inline definition)", "profile", None, "exactly one of name, protocol")
-    if profile.name is not None and profile.name not in SHIPPED_PROTOCOLS:  # never a path on the server
-        raise ApiError(422, f"protocol {profile.name!r} is not a shipped protocol; shipped: "
-                            f"{', '.join(SHIPPED_PROTOCOLS)} (or send the definition inline as 'protocol')",
-                       "profile.name", profile.name, ", ".join(SHIPPED_PROTOCOLS))
-    protocol = load_protocol(profile.name) if profile.name is not None else protocol_from_dict(profile.protocol)
-    return list(protocol.blocks)
+    blocks, _protocol = profile_from_spec(profile.model_dump())
+    return list(blocks)
 
 
 def build_test(session, body: TestCreate, request: Request) -> dict:

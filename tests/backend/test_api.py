@@ -138,8 +138,15 @@ def test_protocol_profiles(client):
     assert r.status_code == 201, r.text
     rec = r.json()
     assert len(rec["scenario"]["profile"]) >= 1 and rec["profile"] == {"kind": "protocol", "name": "quick_check",
-                                                                        "protocol": None}
+                                                                        "protocol": None,
+                                                                        "design_displacement_m": None}
     assert rec["cycles_total"] == sum(b["cycles"] for b in rec["scenario"]["profile"])
+    # scaled to another design displacement: every level in proportion (the one parser, sim.protocols)
+    scaled = {**body, "profile": {"kind": "protocol", "name": "quick_check", "design_displacement_m": 0.01}}
+    r = client.post("/api/tests", json=scaled, headers=AUTH)
+    assert r.status_code == 201, r.text
+    amplitudes = [b["amplitude_m"] for b in r.json()["scenario"]["profile"]]
+    assert amplitudes == pytest.approx([0.5 * b["amplitude_m"] for b in rec["scenario"]["profile"]])
     for profile, field in (({"kind": "protocol", "name": "/etc/passwd"}, "profile.name"),
                            ({"kind": "protocol"}, "profile"),
                            ({"kind": "protocol", "protocol": {"name": "x"}}, "profile")):
