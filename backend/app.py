@@ -56,6 +56,8 @@ def create_app(settings: Settings | None = None, driver: str | None = None) -> F
                   description="Control and test service for a hydraulic seismic-isolator test rig. Actions that "
                               "move the rig or change records need the operator token (Authorization: Bearer).")
     app.state.settings = settings
+    app.state.rig_description = settings.rig_description()
+    app.state.rig = app.state.rig_description.parameters  # what the controller assumes; envelope, limits
     app.state.engine = engine
     app.state.sessions = sessions
     app.state.token = token

@@ -45,6 +45,9 @@ class Settings(BaseSettings):
     rig_arm_timeout_s: float = Field(default=2.0, gt=0, le=60.0, description="UDP rig: how long arming may take")
     rig_start_tolerance_m: float = Field(default=0.002, gt=0, le=0.05, description="UDP rig: a test starts only "
                                          "with the table this close to zero (m), where every test's target begins")
+    rig_file: Path | None = Field(default=None, description="the lab's rig: a .json or .toml file of RigParameters "
+                                  "names (SI) over the defaults (docs/compare.md, 'Rig files'); what the controller "
+                                  "assumes, the envelope and the limits follow it")
     lab_name: str = Field(default="", max_length=200, description="the lab named at the top of every report")
     lab_address: str = Field(default="", max_length=500, description="the lab's address under its name in reports "
                              "(lines separated by newlines or ';')")
@@ -58,6 +61,22 @@ class Settings(BaseSettings):
 
         rig_kind(value)  # ValueError with what is allowed
         return value
+
+    @field_validator("rig_file")
+    @classmethod
+    def _readable_rig_file(cls, value: Path | None) -> Path | None:
+        if value is not None:
+            from sim.rigfile import load_rig_file
+
+            load_rig_file(value)  # RigError (a ValueError) says what is wrong with the file
+        return value
+
+    def rig_description(self):
+        """The rig the service drives (sim.rigfile.RigDescription): the rig file's, else the defaults."""
+        from sim.rig import DEFAULT_RIG
+        from sim.rigfile import RigDescription, load_rig_file
+
+        return RigDescription(DEFAULT_RIG) if self.rig_file is None else load_rig_file(self.rig_file)
 
     def link_settings(self) -> dict:
         """What the worker's UDP driver is built with (host and port come from ``rig``)."""

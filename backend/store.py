@@ -92,6 +92,7 @@ def test_record(session: Session, test: TestRecord, with_events: bool = True) ->
         "controller": test.controller,
         "speed": test.speed,
         "driver": test.driver,
+        "rig": test.request.get("rig_name"),  # the rig description the service ran with (settings.rig_file)
         "profile": test.request.get("profile"),
         "limits": test.limits,
         "duration_s": test.duration_s,

@@ -37,6 +37,7 @@ from sim.isolator import isolator_from_dict
 from sim.loop import CONTROL_PERIOD_S, ClosedLoop
 from sim.measurement import FLAG_LOST, Measurement
 from sim.profiles import B_CYCLES, B_TAPER, blocks_from_dicts
+from sim.rig import DEFAULT_RIG
 from sim.samples import Samples
 from sim.tracking import cycle_phase, cycle_windows
 
@@ -101,9 +102,10 @@ def scenario_from_job(job: dict) -> Scenario:
         from sim.motion import move_target
 
         history = move_target(motion["start_m"], motion["end_m"], motion["speed_m_per_s"])
+    rig = DEFAULT_RIG.with_changes(**spec["rig_changes"]) if spec.get("rig_changes") else DEFAULT_RIG
     return Scenario(isolator_from_dict(spec["isolator"]), spec["supply_pa"], blocks_from_dicts(spec["profile"]),
                     spec["controller"],
-                    dict(spec.get("controller_options") or {}), vertical_load_n=spec.get("vertical_load_n"),
+                    dict(spec.get("controller_options") or {}), rig=rig, vertical_load_n=spec.get("vertical_load_n"),
                     history=history)
 
 

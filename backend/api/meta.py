@@ -6,7 +6,7 @@ from fastapi import APIRouter, Request
 
 from sim.controllers import DEFAULT_CONTROLLER, describe_controllers
 from sim.profiles import MAX_CYCLES, MAX_FREQUENCY_HZ
-from sim.rig import BAR_PA, DEFAULT_RIG, LITRE_PER_MIN_M3_S
+from sim.rig import BAR_PA, LITRE_PER_MIN_M3_S
 
 from .. import store
 from ..safety import ACTIONS, UNITS, default_limits, hard_limits
@@ -43,13 +43,14 @@ def rig_state(request: Request) -> dict:
 
 @router.get("/api/rig", summary="Rig parameters, envelope, limits and state")
 def rig(request: Request) -> dict:
-    rig = DEFAULT_RIG
+    rig = request.app.state.rig
     service = request.app.state.service
     return {
         "driver": service.driver,
         "rig": service.rig_info(),
         "link": service.link_health(),
         "parameters": rig.describe(),
+        "rig_file": request.app.state.rig_description.to_dict(),  # name, description, source, what it changes
         "envelope": {
             "stroke_m": rig.stroke_m,
             "supply_bar_min": rig.min_supply_pa / BAR_PA,

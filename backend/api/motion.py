@@ -12,7 +12,7 @@ from fastapi import APIRouter, Request
 
 from sim.engine import Scenario
 from sim.motion import check_move, move_target
-from sim.rig import BAR_PA, DEFAULT_RIG
+from sim.rig import BAR_PA
 
 from .. import store
 from ..errors import ApiError
@@ -36,21 +36,23 @@ def build_move(session, body: MoveIn, request: Request) -> dict:
         raise ApiError(409, f"the rig at {service.driver} does not answer: its table position is unknown, so "
                             "nothing can move")
     start_m = start_m or 0.0
-    check_move(start_m, body.position_m, body.speed_m_per_s, DEFAULT_RIG.stroke_m)  # MotionError -> 422
-    limits = make_limits(DEFAULT_RIG, body.limits.model_dump() if body.limits else None)
+    rig = request.app.state.rig
+    check_move(start_m, body.position_m, body.speed_m_per_s, rig.stroke_m)  # MotionError -> 422
+    limits = make_limits(rig, body.limits.model_dump() if body.limits else None)
     if abs(body.position_m) > limits.displacement_m:
         raise ApiError(422, f"position_m = {body.position_m:g} m is beyond the displacement limit of "
                             f"{limits.displacement_m:g} m", "position_m", body.position_m,
                        f"within +-{limits.displacement_m:g} m")
     isolator = resolve_isolator(session, body.isolator)
     target = move_target(start_m, body.position_m, body.speed_m_per_s)
-    scenario = Scenario(isolator, body.supply_bar * BAR_PA, [], "servo", {}, rig=DEFAULT_RIG,
+    scenario = Scenario(isolator, body.supply_bar * BAR_PA, [], "servo", {}, rig=rig,
                         vertical_load_n=body.vertical_load_n, history=target)
     scenario.validate()  # supply pressure, vertical load, the move within the envelope
     motion = {"start_m": start_m, "end_m": body.position_m, "speed_m_per_s": body.speed_m_per_s}
     job_scenario = {"isolator": isolator.to_dict(), "supply_pa": scenario.supply_pa,
                     "vertical_load_n": scenario.effective_vertical_load_n, "profile": [], "controller": "servo",
-                    "controller_options": {}, "motion": motion}
+                    "controller_options": {}, "motion": motion,
+                    "rig_changes": scenario.describe()["rig_changes"]}
     label = (f"manual move {start_m * 1e3:.2f} mm -> {body.position_m * 1e3:.2f} mm at "
              f"{body.speed_m_per_s * 1e3:g} mm/s")
     return {
@@ -58,7 +60,7 @@ def build_move(session, body: MoveIn, request: Request) -> dict:
         "isolator": isolator.name, "supply_bar": body.supply_bar, "vertical_load_n": scenario.effective_vertical_load_n,
         "controller": "servo", "speed": 1.0, "driver": service.driver,
         "request": {**body.model_dump(mode="json"), "profile": {"kind": "move", **motion},
-                    "job_scenario": job_scenario},
+                    "job_scenario": job_scenario, "rig_name": request.app.state.rig_description.name},
         "scenario": clean_json(scenario.describe()), "limits": limits.to_dict(),
         "duration_s": scenario.duration_s, "cycles_total": 0,
     }

@@ -15,7 +15,7 @@ from sim.engine import Scenario
 from sim.errors import FieldError
 from sim.isolator import IsolatorError
 from sim.profiles import SineProfile, max_amplitude_m, max_frequency_hz, motion_summary
-from sim.rig import BAR_PA, DEFAULT_RIG
+from sim.rig import BAR_PA
 from sim.samples import RECORD_FIELDS, Samples
 from sim.tracking import cycle_windows
 
@@ -70,24 +70,25 @@ def build_test(session, body: TestCreate, request: Request) -> dict:
     if body.speed != 1.0 and service.driver != SIMULATED:
         raise ApiError(422, f"the rig {service.driver} runs in real time: speed must be 1", "speed", body.speed, "1")
     blocks = profile_blocks(body.profile)
-    scenario = Scenario(isolator, body.supply_bar * BAR_PA, blocks, body.controller, options, rig=DEFAULT_RIG,
-                        vertical_load_n=body.vertical_load_n)
+    scenario = Scenario(isolator, body.supply_bar * BAR_PA, blocks, body.controller, options,
+                        rig=request.app.state.rig, vertical_load_n=body.vertical_load_n)
     scenario.validate()  # ProfileError -> 422 with field, value, limit (vertical_load_n among them)
     if scenario.duration_s > settings.max_test_duration_s:
         raise ApiError(422, f"the profile lasts {scenario.duration_s:g} s, longer than the allowed "
                             f"{settings.max_test_duration_s:g} s", "profile", scenario.duration_s,
                        f"<= {settings.max_test_duration_s:g} s")
-    limits = make_limits(DEFAULT_RIG, body.limits.model_dump() if body.limits else None)
+    limits = make_limits(request.app.state.rig, body.limits.model_dump() if body.limits else None)
     job_scenario = {"isolator": isolator.to_dict(), "supply_pa": scenario.supply_pa,
                     "vertical_load_n": scenario.effective_vertical_load_n,
                     "profile": [b.to_dict() for b in blocks], "controller": body.controller,
-                    "controller_options": options}
+                    "controller_options": options, "rig_changes": scenario.describe()["rig_changes"]}
     return {
         "label": body.label, "specimen_id": body.specimen_id.strip(), "operator_name": body.operator_name.strip(),
         "notes": body.notes, "isolator": isolator.name, "supply_bar": body.supply_bar,
         "vertical_load_n": scenario.effective_vertical_load_n,
         "controller": body.controller, "speed": body.speed, "driver": service.driver,
-        "request": {**body.model_dump(mode="json"), "job_scenario": job_scenario},
+        "request": {**body.model_dump(mode="json"), "job_scenario": job_scenario,
+                    "rig_name": request.app.state.rig_description.name},
         "scenario": clean_json(scenario.describe()), "limits": limits.to_dict(),
         "duration_s": scenario.duration_s, "cycles_total": len(cycle_windows(scenario)),
     }
@@ -107,24 +108,25 @@ def check_test(body: TestCreate, request: Request, session: SessionDep) -> Envel
     except (IsolatorError, ProtocolError) as exc:
         refusal = {"detail": str(exc), "field": "profile" if isinstance(exc, ProtocolError) else "isolator"}
     out = {"ok": refusal is None, **(refusal or {"detail": "within the rig envelope"})}
+    rig = request.app.state.rig
     if refusal is None:  # what the motion asks of the rig, for the confirmation before the valve opens
         blocks = profile_blocks(body.profile)
-        scenario = Scenario(resolve_isolator(session, body.isolator), body.supply_bar * BAR_PA, blocks,
+        scenario = Scenario(resolve_isolator(session, body.isolator), body.supply_bar * BAR_PA, blocks, rig=rig,
                             vertical_load_n=body.vertical_load_n)
-        rig = DEFAULT_RIG.with_changes(vertical_load_n=scenario.effective_vertical_load_n)
-        out.update(motion_summary(blocks, rig, scenario.isolator))
+        loaded = rig.with_changes(vertical_load_n=scenario.effective_vertical_load_n)
+        out.update(motion_summary(blocks, loaded, scenario.isolator))
     supply_pa = body.supply_bar * BAR_PA
-    if DEFAULT_RIG.min_supply_pa <= supply_pa <= DEFAULT_RIG.max_supply_pa:
-        out["max_force_n"] = DEFAULT_RIG.max_force_n(supply_pa)
-        out["max_vertical_load_n"] = DEFAULT_RIG.max_vertical_load_n
+    if rig.min_supply_pa <= supply_pa <= rig.max_supply_pa:
+        out["max_force_n"] = rig.max_force_n(supply_pa)
+        out["max_vertical_load_n"] = rig.max_vertical_load_n
         if isinstance(body.profile, SineProfileIn):
             try:
                 isolator = resolve_isolator(session, body.isolator)
             except (ApiError, IsolatorError):
                 isolator = None
             if isolator is not None:
-                out["max_amplitude_m"] = max_amplitude_m(body.profile.frequency_hz, DEFAULT_RIG, isolator, supply_pa)
-                out["max_frequency_hz"] = max_frequency_hz(body.profile.amplitude_m, DEFAULT_RIG, isolator, supply_pa)
+                out["max_amplitude_m"] = max_amplitude_m(body.profile.frequency_hz, rig, isolator, supply_pa)
+                out["max_frequency_hz"] = max_frequency_hz(body.profile.amplitude_m, rig, isolator, supply_pa)
     return EnvelopeCheckOut(**out)
 
 

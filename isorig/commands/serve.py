@@ -14,6 +14,9 @@ def register(sub) -> None:
     p.add_argument("--data-dir", default=None, help="data directory for the SQLite file and the token file")
     p.add_argument("--rig", default=None, help="the rig: 'simulated' (default) or udp://HOST:PORT, a real-time I/O "
                    "target or `isorig rig-emulator` (ISORIG_RIG; link settings ISORIG_RIG_*, docs/backend.md)")
+    p.add_argument("--rig-file", default=None, metavar="FILE",
+                   help="the lab's rig: a .json or .toml file of RigParameters names (SI) over the defaults; what "
+                        "the controller assumes, the envelope and the limits follow it (ISORIG_RIG_FILE)")
     p.add_argument("--log-level", default="info", choices=("critical", "error", "warning", "info", "debug"))
     p.set_defaults(func=run)
 
@@ -37,7 +40,8 @@ def run(args) -> int:
     from isorig.cli import UsageError
 
     overrides = {k: v for k, v in (("host", args.host), ("port", args.port), ("database_url", args.database_url),
-                                   ("data_dir", args.data_dir), ("rig", args.rig)) if v is not None}
+                                   ("data_dir", args.data_dir), ("rig", args.rig), ("rig_file", args.rig_file))
+                 if v is not None}
     try:
         settings = Settings(**overrides)
     except ValidationError as exc:
@@ -61,7 +65,8 @@ def run(args) -> int:
               f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}", file=sys.stderr)
         return 2
     print(f"isorig: serving on http://{settings.host}:{settings.port}/ (API docs at /docs), "
-          f"database {app.state.engine.url.render_as_string(hide_password=True)}, rig {settings.rig}",
+          f"database {app.state.engine.url.render_as_string(hide_password=True)}, rig {settings.rig} "
+          f"({app.state.rig_description.name})",
           file=sys.stderr, flush=True)
     uvicorn.run(app, host=settings.host, port=settings.port, log_level=args.log_level,
                 ws_per_message_deflate=settings.ws_per_message_deflate)

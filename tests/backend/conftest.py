@@ -62,3 +62,13 @@ def create_and_start(client, **overrides) -> int:
     r = client.post(f"/api/tests/{test_id}/start", headers=AUTH)
     assert r.status_code == 200, r.text
     return test_id
+
+
+def zero_table(client, isolator: str = "IUT_a", supply_bar: float = 100) -> dict:
+    """Bring the table back to zero (POST /api/rig/zero at 20 mm/s) and wait for the move to end."""
+    r = client.post("/api/rig/zero", json={"speed_m_per_s": 0.02, "isolator": isolator, "supply_bar": supply_bar},
+                    headers=AUTH)
+    assert r.status_code == 201, r.text
+    record = wait_for(client, r.json()["id"])
+    assert record["status"] == "completed", record["reason"]
+    return record

@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 
 import httpx
-from conftest import AUTH, TOKEN, create_and_start, make_settings, sine_test, wait_for
+from conftest import AUTH, TOKEN, create_and_start, make_settings, sine_test, wait_for, zero_table
 from fastapi.testclient import TestClient
 
 from backend.app import create_app
@@ -49,8 +49,13 @@ def test_killing_the_worker_aborts_the_test_and_keeps_its_data(client):
     assert 800 <= rec["samples_stored"] < 20000
     lines = client.get(f"/api/tests/{test_id}/data.csv").text.splitlines()
     assert len(lines) == 1 + rec["samples_stored"]
-    # the rig is free again
+    # the rig is free again; the table rests where the killed test left it, so no test starts until the
+    # operator brings it back to zero
     assert client.get("/api/rig").json()["state"]["status"] == "idle"
+    if abs(client.get("/api/rig/state").json()["table_position_m"]) > 0.002:
+        r = client.post("/api/tests?start=true", json=sine_test(), headers=AUTH)
+        assert r.status_code == 409 and "move the table to zero first" in r.json()["detail"]
+        zero_table(client)
     next_id = create_and_start(client)
     assert wait_for(client, next_id)["status"] == "completed"
 
