@@ -46,30 +46,20 @@ def register(sub) -> None:
 
 def _on_rig(args, building, ag, scenario):
     """The hybrid test in real time on a rig through its driver (backend.worker.run_here)."""
-    import signal
-
     from backend.drivers import rig_kind
-    from backend.safety import default_limits
-    from backend.worker import AbortSwitch, run_here
+
+    from .rig_run import check_start_position, rig_job, run_job
 
     try:
         rig_kind(args.rig)
     except ValueError as exc:
         raise UsageError(f"isorig hybrid: --rig: {exc}") from None
-    job = {"test_id": None, "rig": args.rig, "speed": 1.0,
-           "link": {"period_s": 1e-3, "timeout_s": 0.05, "arm_timeout_s": 2.0},
-           "scenario": {"isolator": scenario.isolator.to_dict(), "supply_pa": scenario.supply_pa,
-                        "vertical_load_n": scenario.effective_vertical_load_n, "profile": [],
-                        "controller": scenario.controller, "controller_options": scenario.controller_options},
-           "hybrid": {"building": building.to_dict(), "ground_acc_m_per_s2": ag},
-           "limits": default_limits(scenario.rig).to_dict()}
-    switch = AbortSwitch()
-    previous = signal.signal(signal.SIGINT, switch.abort)
+    check_start_position("hybrid", args.rig)
+    # the scenario's history (the reference's base displacement) puts the servo in its history mode, as in
+    # the virtual RTHS; the targets themselves come from the building, period by period
+    job = rig_job(args.rig, scenario, hybrid={"building": building.to_dict(), "ground_acc_m_per_s2": ag})
     print(f"running {ag.size / 1000:g} s of hybrid simulation in real time on {args.rig} (Ctrl-C aborts)")
-    try:
-        run, sent, status, reason = run_here(job, switch)
-    finally:
-        signal.signal(signal.SIGINT, previous)
+    run, sent, status, reason, _wall_s = run_job(job)
     return run.hybrid, sent.samples(), (None if status == "completed" else f"{status}: {reason}")
 
 
@@ -122,6 +112,9 @@ def run(args) -> int:
     else:
         sub, samples, stopped = _on_rig(args, building, ag, scenario)
     elapsed = time.perf_counter() - t0
+    closed = np.isfinite(samples["target_m"]) & np.isfinite(samples["displacement_m"])
+    if stopped and not closed.all():  # ended by a trip or a fault: the criteria over the closed-loop part only
+        samples = samples[: int(np.argmin(closed)) if not closed[0] or not closed.all() else len(samples)]
     res = sub.results(samples)
     j45 = compare_with_reference(res, ref)
     text = samples_to_csv(samples).splitlines()

@@ -6,8 +6,6 @@ from where the rig says its table rests (sim.motion). Ctrl-C stops the move wher
 
 from __future__ import annotations
 
-import time
-
 from isorig.cli import UsageError
 
 
@@ -27,17 +25,15 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    import signal
-
     from backend.drivers import rig_kind
     from backend.drivers.udp import probe
-    from backend.safety import default_limits
-    from backend.worker import AbortSwitch, run_here
     from sim.engine import Scenario
     from sim.isolator import PRESETS
     from sim.motion import MotionError, check_move, move_target
     from sim.profiles import ProfileError
     from sim.rig import BAR_PA, DEFAULT_RIG
+
+    from .rig_run import rig_job, run_job
 
     try:
         if rig_kind(args.rig) != "udp":
@@ -58,23 +54,11 @@ def run(args) -> int:
     except (MotionError, ProfileError) as exc:
         raise UsageError(f"isorig move: {exc}") from None
     motion = {"start_m": start_m, "end_m": args.position_m, "speed_m_per_s": args.speed_m_per_s}
-    job = {"test_id": None, "rig": args.rig, "speed": 1.0,
-           "link": {"period_s": 1e-3, "timeout_s": 0.05, "arm_timeout_s": 2.0},
-           "scenario": {"isolator": scenario.isolator.to_dict(), "supply_pa": scenario.supply_pa,
-                        "vertical_load_n": scenario.effective_vertical_load_n, "profile": [], "controller": "servo",
-                        "controller_options": {}, "motion": motion},
-           "limits": default_limits(DEFAULT_RIG).to_dict()}
-    switch = AbortSwitch()
-    previous = signal.signal(signal.SIGINT, lambda *_: switch.pending.append("stop"))  # Ctrl-C: stop where it is
+    job = rig_job(args.rig, scenario, motion=motion, history_target=None)
     print(f"moving the table on {args.rig} from {start_m * 1e3:.2f} mm to {args.position_m * 1e3:.2f} mm at "
           f"{args.speed_m_per_s * 1e3:g} mm/s ({scenario.duration_s:.1f} s; Ctrl-C stops it where it is)")
-    t0 = time.perf_counter()
-    try:
-        run_, sent, status, reason = run_here(job, switch)
-    finally:
-        signal.signal(signal.SIGINT, previous)
+    _run, sent, status, reason, wall_s = run_job(job, interrupt="stop")
     samples = sent.samples()
     end = float(samples["measured_displacement_m"][-1]) if len(samples) else start_m
-    print(f"move {status}{': ' + reason if reason else ''}; the table is at {end * 1e3:.2f} mm "
-          f"({time.perf_counter() - t0:.1f} s)")
+    print(f"move {status}{': ' + reason if reason else ''}; the table is at {end * 1e3:.2f} mm ({wall_s:.1f} s)")
     return 0 if status == "completed" else 1

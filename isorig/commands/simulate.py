@@ -175,13 +175,11 @@ def run(args) -> int:
 
 def run_on_rig(args, scenario, out: Path) -> int:
     """The test in real time on the rig ``args.rig`` through its driver; same files as the engine's run."""
-    import signal
-
     from backend.drivers import rig_kind
-    from backend.safety import default_limits
-    from backend.worker import AbortSwitch, run_here
     from sim.engine import Result
     from sim.records import write_csv
+
+    from .rig_run import check_start_position, rig_job, run_job
 
     try:
         rig_kind(args.rig)
@@ -190,30 +188,14 @@ def run_on_rig(args, scenario, out: Path) -> int:
     if not (0 < args.link_timeout_s <= 5):
         raise UsageError(f"isorig simulate: --link-timeout-s {args.link_timeout_s:g} is outside (0, 5] s")
     if args.rig.startswith("udp://"):
-        from backend.drivers.udp import start_position_problem
-
-        problem = start_position_problem(args.rig)
-        if problem is not None:
-            raise UsageError(f"isorig simulate: not started on {args.rig}: {problem}")
-    job = {"test_id": None, "rig": args.rig, "speed": 1.0,
-           "link": {"period_s": 1e-3, "timeout_s": args.link_timeout_s, "arm_timeout_s": 2.0},
-           "scenario": {"isolator": scenario.isolator.to_dict(), "supply_pa": scenario.supply_pa,
-                        "vertical_load_n": scenario.effective_vertical_load_n, "history_target": scenario.history,
-                        "profile": [b.to_dict() for b in scenario.profile], "controller": scenario.controller,
-                        "controller_options": scenario.controller_options},
-           "limits": default_limits(scenario.rig).to_dict()}
-    switch = AbortSwitch()
-    previous = signal.signal(signal.SIGINT, switch.abort)  # Ctrl-C: abort the test, valve closed, files written
+        check_start_position("simulate", args.rig)
+    job = rig_job(args.rig, scenario, args.link_timeout_s)
     print(f"running {scenario.duration_s:g} s in real time on {args.rig} (Ctrl-C aborts)")
-    t0 = time.perf_counter()
-    try:
-        run, sent, status, reason = run_here(job, switch)
-    finally:
-        signal.signal(signal.SIGINT, previous)
+    run, sent, status, reason, wall_s = run_job(job)  # Ctrl-C: abort the test, valve closed, files written
     samples = sent.samples()
     write_csv(out / "timeseries.csv", samples)
     summary = Result(scenario, samples, diverged=False).summary()
-    summary.update(rig=args.rig, status=status, reason=reason, wall_time_s=time.perf_counter() - t0,
+    summary.update(rig=args.rig, status=status, reason=reason, wall_time_s=wall_s,
                    lost_periods=run.lost_periods, link=run.driver.link_stats(), pacing=run.pacing(),
                    events=sent.of_kind("event"))
     (out / "summary.json").write_text(json.dumps(summary, indent=2, default=float))

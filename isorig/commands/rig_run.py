@@ -1,0 +1,52 @@
+"""A run on a real-time rig from the command line (`simulate --rig`, `hybrid --rig`, `move`): the job the
+service's worker would get, the check that the table rests where the run starts, and Ctrl-C, then the same
+loop, detectors and stop paths as the service (backend.worker.run_here). Not a command itself."""
+
+from __future__ import annotations
+
+import signal
+import time
+
+from isorig.cli import UsageError
+
+
+def rig_job(rig: str, scenario, link_timeout_s: float = 0.05, **extra) -> dict:
+    """The worker's job for ``scenario`` on ``rig`` (udp://HOST:PORT), with the rig's default limits;
+    ``extra`` adds to the job's scenario (``motion``, ``history_target``) or the job (``hybrid``)."""
+    from backend.safety import default_limits
+
+    spec = {"isolator": scenario.isolator.to_dict(), "supply_pa": scenario.supply_pa,
+            "vertical_load_n": scenario.effective_vertical_load_n,
+            "profile": [b.to_dict() for b in scenario.profile], "controller": scenario.controller,
+            "controller_options": scenario.controller_options, "history_target": scenario.history,
+            "rig_changes": scenario.describe()["rig_changes"]}
+    job = {"test_id": None, "rig": rig, "speed": 1.0,
+           "link": {"period_s": 1e-3, "timeout_s": link_timeout_s, "arm_timeout_s": 2.0},
+           "scenario": spec, "limits": default_limits(scenario.rig).to_dict()}
+    for key, value in extra.items():
+        (job if key == "hybrid" else spec)[key] = value
+    return job
+
+
+def check_start_position(command: str, rig: str, expected_m: float = 0.0) -> None:
+    """One HELLO: refuse (exit 2) while the table rests off where the run starts; nothing moves."""
+    from backend.drivers.udp import start_position_problem
+
+    problem = start_position_problem(rig, expected_m=expected_m)
+    if problem is not None:
+        raise UsageError(f"isorig {command}: not started on {rig}: {problem}")
+
+
+def run_job(job: dict, interrupt: str = "abort"):
+    """Run ``job`` here; Ctrl-C sends ``interrupt`` (``abort``: valve closed at once; ``stop``). Returns
+    (run, what it sent, status, reason, wall time in s)."""
+    from backend.worker import AbortSwitch, run_here
+
+    switch = AbortSwitch()
+    previous = signal.signal(signal.SIGINT, lambda *_: switch.pending.append(interrupt))
+    t0 = time.perf_counter()
+    try:
+        run, sent, status, reason = run_here(job, switch)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    return run, sent, status, reason, time.perf_counter() - t0
