@@ -24,12 +24,10 @@ range ...) is drawn again too; when more than 1 % of the runs needed that, the c
 from __future__ import annotations
 
 import csv
-import json
 import logging
 import math
 import os
 import time
-import tomllib
 from concurrent.futures import CancelledError
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -38,6 +36,7 @@ import numpy as np
 
 from ._numba_cache import source_fingerprint
 from .compare import CYCLES, TAPER_CYCLES, TARGETS, GridPoint, limit_cycle, meets_targets, point_figures, run_grid
+from .datafile import load_mapping
 from .engine import ISOLATOR_PARAMETERS, Scenario, Simulation, warm_up
 from .errors import FieldError
 from .isolator import LIMITS, Isolator, IsolatorError, load_isolator
@@ -390,17 +389,7 @@ def campaign_from_mapping(data, source: str = "", base_dir: Path | None = None) 
 def load_campaign(path: str | Path) -> Campaign:
     """A campaign file (``.toml`` or ``.json``)."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise CampaignError("campaign_file", str(path), "a readable .json or .toml file",
-                            f"cannot read the campaign file {path}: {exc.strerror}") from None
-    toml = path.suffix.lower() == ".toml"
-    try:
-        data = tomllib.loads(text) if toml else json.loads(text)
-    except (json.JSONDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise CampaignError("campaign_file", str(path), "valid JSON or TOML", f"the campaign file {path} is not "
-                            f"valid {'TOML' if toml else 'JSON'}: {exc}") from None
+    data = load_mapping(path, "campaign file", "campaign_file", CampaignError)
     campaign = campaign_from_mapping(data, str(path), path.parent)
     if not campaign.name:
         campaign.name = path.stem

@@ -14,12 +14,11 @@ cannot be a rig (a dead zone as wide as the command range, a minimum supply abov
 from __future__ import annotations
 
 import difflib
-import json
 import math
-import tomllib
 from dataclasses import dataclass, fields
 from pathlib import Path
 
+from .datafile import load_mapping
 from .errors import FieldError
 from .rig import DEFAULT_RIG, RigError, RigParameters
 
@@ -83,19 +82,7 @@ def rig_from_mapping(data: dict, base: RigParameters = DEFAULT_RIG, where: str =
 def load_rig_file(path: str | Path, base: RigParameters = DEFAULT_RIG) -> RigDescription:
     """A rig file (``.json`` or ``.toml``) over ``base``."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise RigError("rig_file", str(path), "a readable .json or .toml file",
-                       f"cannot read the rig file {path}: {exc.strerror}") from None
-    try:
-        if path.suffix.lower() == ".toml":
-            data = tomllib.loads(text)
-        else:
-            data = json.loads(text)
-    except (json.JSONDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise RigError("rig_file", str(path), "valid JSON or TOML", f"the rig file {path} is not valid "
-                       f"{'TOML' if path.suffix.lower() == '.toml' else 'JSON'}: {exc}") from None
+    data = load_mapping(path, "rig file", "rig_file", RigError)
     parameters = rig_from_mapping(data, base, where=f"rig file {path}")
     name = data.get("name", path.stem)
     description = data.get("description", "")
