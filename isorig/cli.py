@@ -43,6 +43,18 @@ class Progress:
             self.stream.write("\n")
 
 
+def output_folder(path: str, prog: str):
+    """The --out folder, created with its parents; a folder that cannot be made is a usage error."""
+    from pathlib import Path
+
+    out = Path(path)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(f"{prog}: cannot create --out {out}: {exc.strerror}") from None
+    return out
+
+
 def whole_number(text: str) -> int:
     try:
         return int(text)

@@ -45,10 +45,12 @@ def test_user_isolator_file(tmp_path):
     (["simulate", "--out", "x", "--isolator", "nope"], "unknown isolator"),
     (["simulate", "--out", "x", "--controller", "lqr"], "--controller"),
     (["simulate"], "--out"),
+    (["simulate", "--out", "a_file/run", "--cycles", "2"], "cannot create --out a_file/run"),
     (["frobnicate"], "invalid choice"),
 ])
 def test_bad_arguments_exit_2_with_one_line(args, words, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
+    (tmp_path / "a_file").write_text("not a folder")
     proc = subprocess.run([sys.executable, "-m", "isorig", *args], capture_output=True, text=True)
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()

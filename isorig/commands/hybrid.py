@@ -11,9 +11,8 @@ from __future__ import annotations
 
 import json
 import time
-from pathlib import Path
 
-from isorig.cli import UsageError
+from isorig.cli import UsageError, output_folder
 
 
 def register(sub) -> None:
@@ -93,11 +92,7 @@ def run(args) -> int:
     scenario = Scenario(isolator, args.supply_bar * 1e5, [], args.controller, vertical_load_n=load_n,
                         history=predicted)
     scenario.validate()
-    out = Path(args.out)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise UsageError(f"isorig hybrid: cannot create --out {out}: {exc.strerror}") from None
+    out = output_folder(args.out, "isorig hybrid")
 
     t0 = time.perf_counter()
     if args.rig == "simulated":

@@ -12,7 +12,7 @@ import json
 import time
 from pathlib import Path
 
-from isorig.cli import Progress, UsageError, whole_number
+from isorig.cli import Progress, UsageError, output_folder, whole_number
 
 
 def register(sub) -> None:
@@ -142,11 +142,7 @@ def run(args) -> int:
 
         scenario = dataclasses.replace(scenario, profile=[], history=history_target(args, scenario))
     scenario.validate()
-    out = Path(args.out)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise UsageError(f"isorig simulate: cannot create --out {out}: {exc.strerror}") from None
+    out = output_folder(args.out, "isorig simulate")
     if args.rig != "simulated":
         return run_on_rig(args, scenario, out)
     progress = Progress(f"simulating {scenario.duration_s:g} s")
