@@ -154,18 +154,26 @@ def simulate_loop(isolator: Isolator, d_m: np.ndarray, dt_s: float, substeps: in
 
 
 @njit(cache=True)
+def bouc_wen_step(w, d0, d1, dt, substeps, rho, sigma, nexp):
+    """w after the displacement moves linearly from d0 to d1 (m) in dt (s): RK4, ``substeps`` substeps.
+    The isolator force at d1 is then k_d d1 + k_w w (eq. 4)."""
+    d_dot = (d1 - d0) / dt
+    h = dt / substeps
+    for _ in range(substeps):
+        k1 = bouc_wen_rate(w, d_dot, rho, sigma, nexp)
+        k2 = bouc_wen_rate(w + 0.5 * h * k1, d_dot, rho, sigma, nexp)
+        k3 = bouc_wen_rate(w + 0.5 * h * k2, d_dot, rho, sigma, nexp)
+        k4 = bouc_wen_rate(w + h * k3, d_dot, rho, sigma, nexp)
+        w += h * (k1 + 2.0 * k2 + 2.0 * k3 + k4) / 6.0
+    return w
+
+
+@njit(cache=True)
 def _loop_forces(d, dt, substeps, rho, sigma, n, kd, kw):
     out = np.empty(d.size)
     w = 0.0
-    h = dt / substeps
     out[0] = kd * d[0]
     for i in range(d.size - 1):
-        d_dot = (d[i + 1] - d[i]) / dt
-        for _ in range(substeps):
-            k1 = bouc_wen_rate(w, d_dot, rho, sigma, n)
-            k2 = bouc_wen_rate(w + 0.5 * h * k1, d_dot, rho, sigma, n)
-            k3 = bouc_wen_rate(w + 0.5 * h * k2, d_dot, rho, sigma, n)
-            k4 = bouc_wen_rate(w + h * k3, d_dot, rho, sigma, n)
-            w += h * (k1 + 2 * k2 + 2 * k3 + k4) / 6.0
+        w = bouc_wen_step(w, d[i], d[i + 1], dt, substeps, rho, sigma, n)
         out[i + 1] = kd * d[i + 1] + kw * w
     return out

@@ -49,7 +49,7 @@ import numpy as np
 from numba import njit
 
 from .errors import FieldError
-from .isolator import Isolator, bouc_wen_rate
+from .isolator import Isolator, bouc_wen_rate, bouc_wen_step
 
 G_M_PER_S2 = 9.80665
 MAX_STOREYS = 50
@@ -519,21 +519,6 @@ def reference_response(building: ShearBuilding, isolator: Isolator, time_s, grou
 
 
 # ---- a virtual specimen for checks without the rig ------------------------------------------------------
-@njit(cache=True)
-def bouc_wen_step(w, d0, d1, dt, substeps, rho, sigma, nexp):
-    """w after the displacement moves linearly from d0 to d1 (m) in dt (s): RK4, ``substeps`` substeps.
-    The isolator force at d1 is then k_d d1 + k_w w (eq. 4)."""
-    d_dot = (d1 - d0) / dt
-    h = dt / substeps
-    for _ in range(substeps):
-        k1 = bouc_wen_rate(w, d_dot, rho, sigma, nexp)
-        k2 = bouc_wen_rate(w + 0.5 * h * k1, d_dot, rho, sigma, nexp)
-        k3 = bouc_wen_rate(w + 0.5 * h * k2, d_dot, rho, sigma, nexp)
-        k4 = bouc_wen_rate(w + h * k3, d_dot, rho, sigma, nexp)
-        w += h * (k1 + 2.0 * k2 + 2.0 * k3 + k4) / 6.0
-    return w
-
-
 def virtual_rths(building: ShearBuilding, isolator: Isolator, time_s, ground_acc_m_per_s2,
                  delay_steps: int = 0, monitor=None) -> dict:
     """RTHS with an ideal actuator that reaches each command ``delay_steps`` periods late (a pure delay),
