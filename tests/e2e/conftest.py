@@ -9,6 +9,7 @@ machine or the console shows an error. Screenshots go to artifacts/e2e/ (git-ign
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import pytest
@@ -85,3 +86,26 @@ def open_page(browser):
             problems.append(f"console errors: {watch.unexpected_errors()}")
         context.close()
     assert not problems, "; ".join(problems)
+
+
+@pytest.fixture(autouse=True)
+def table_at_zero(request):
+    """Every test that uses the shared service begins with its table at zero, as an operator brings it back
+    after a trip or an abort: the service refuses a start while the table rests off zero (docs/backend.md)."""
+    if "server" not in request.fixturenames:
+        yield
+        return
+    srv = request.getfixturevalue("server")
+    deadline = time.monotonic() + 60
+    while True:
+        _, state = srv.call("GET", "/api/rig/state")
+        if state.get("status") == "idle" or time.monotonic() > deadline:
+            break
+        time.sleep(0.2)
+    position = state.get("table_position_m")
+    if state.get("status") == "idle" and position is not None and abs(position) > 0.001:
+        code, move = srv.call("POST", "/api/rig/zero", {"speed_m_per_s": 0.05, "isolator": "IUT_b",
+                                                        "supply_bar": 70}, token=True)
+        assert code == 201, (code, move)
+        srv.wait_status(move["id"], {"completed"})
+    yield

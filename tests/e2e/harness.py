@@ -126,6 +126,17 @@ class Server:
         assert status == 200, (status, started)
         return rec["id"]
 
+    def zero_table(self) -> None:
+        """Bring the table back to zero when it rests off it (POST /api/rig/zero), as an operator must before the
+        next test: the service starts no test with the table more than 2 mm from zero."""
+        _, state = self.call("GET", "/api/rig/state")
+        position = state.get("table_position_m")
+        if state.get("status") == "idle" and position is not None and abs(position) > 0.001:
+            code, move = self.call("POST", "/api/rig/zero", {"speed_m_per_s": 0.05, "isolator": "IUT_b",
+                                                             "supply_bar": 70}, token=True)
+            assert code == 201, (code, move)
+            self.wait_status(move["id"], {"completed"})
+
     def wait_status(self, test_id: int, statuses: set[str], timeout_s: float = 60.0) -> dict:
         deadline = time.monotonic() + timeout_s
         rec = None
@@ -140,9 +151,10 @@ class Server:
 class RigEmulator:
     """`isorig rig-emulator` (an emulated real-time rig on UDP) on a free loopback port; ``url`` is its address."""
 
-    def __init__(self, isolator: str = "IUT_a", port: int = 0):
+    def __init__(self, *flags: str, isolator: str = "IUT_a", port: int = 0):
+        """``flags``: more options of ``isorig rig-emulator`` (e.g. ``--restart-after-s 0.6``)."""
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "isorig", "rig-emulator", "--port", str(port), "--isolator", isolator],
+            [sys.executable, "-m", "isorig", "rig-emulator", "--port", str(port), "--isolator", isolator, *flags],
             cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
         line = self.proc.stderr.readline()  # "isorig rig-emulator: udp://127.0.0.1:PORT, ..."
         match = re.search(r"udp://([\d.]+):(\d+)", line)
@@ -164,7 +176,8 @@ class RigEmulator:
 
 
 def sine_test(amplitude_m=0.03, frequency_hz=0.5, cycles=4, speed=2.0, isolator="IUT_b", supply_bar=70.0,
-              controller="mrac", taper_cycles=1) -> dict:
+              controller="servo", taper_cycles=1) -> dict:
+    """A test's body for POST /api/tests; the rig's default controller (servo), as the console's form."""
     return {"isolator": isolator, "supply_bar": supply_bar, "controller": controller, "speed": speed,
             "profile": {"kind": "sine", "amplitude_m": amplitude_m, "frequency_hz": frequency_hz,
                         "cycles": cycles, "taper_cycles": taper_cycles}}
@@ -246,6 +259,23 @@ def start_from_form(page, token: str | None = None) -> str:
         page.fill("#token-input", token)
         page.click("#token-ok")
     return summary
+
+
+def record_checks(page) -> None:
+    """Keep the bodies and answers of the page's envelope checks (window.__checks, window.__checkAnswers)."""
+    page.evaluate("""() => {
+      window.__checks = [];
+      window.__checkAnswers = [];
+      const orig = window.fetch;
+      window.fetch = async (url, opts) => {
+        const res = await orig(url, opts);
+        if (String(url).includes('/api/tests/check') && opts && opts.body) {
+          window.__checks.push(JSON.parse(opts.body));
+          res.clone().json().then((a) => window.__checkAnswers.push(a)).catch(() => {});
+        }
+        return res;
+      };
+    }""")
 
 
 def shots(page, artifacts: Path, name: str, full_page: bool = False) -> None:

@@ -10,7 +10,7 @@ import json
 import re
 import time
 
-from .harness import TOKEN, fill_identity, shots, sine_test, start_from_form, wait_start_enabled
+from .harness import TOKEN, fill_identity, record_checks, shots, sine_test, start_from_form, wait_start_enabled
 
 
 def _wait(predicate, timeout_s: float, what: str, interval_s: float = 0.1):
@@ -29,36 +29,28 @@ def _checks(page) -> list[dict]:
     return page.evaluate("window.__checks || []")
 
 
-def _record_checks(page) -> None:
-    page.evaluate("""() => {
-      window.__checks = [];
-      const orig = window.fetch;
-      window.fetch = (url, opts) => {
-        if (String(url).includes('/api/tests/check') && opts && opts.body) window.__checks.push(JSON.parse(opts.body));
-        return orig(url, opts);
-      };
-    }""")
-
-
 def test_numbers_cannot_be_misread(server, open_page, artifacts):
     """A decimal comma is read as one and said so ("3,5" is 3.5 mm, never 35); an ambiguous "1,000" and text are
     refused with a message; every field shows its unit and range; the unit choice converts the values."""
     page, _ = open_page(server.url + "/", width=1366, height=768, token=TOKEN)
-    _record_checks(page)
+    record_checks(page)
     fill_identity(page)
     # every numeric field is a text field with a decimal keypad, its unit and its allowed range
-    for field in ("supply", "amplitude", "frequency", "vertical_load", "lim_displacement", "lim_force", "lim_tracking"):
+    for field in ("supply", "amplitude", "frequency", "vertical_load", "lim_displacement", "lim_force", "lim_velocity",
+                  "lim_tracking"):
         assert page.get_attribute(f"#f-{field}", "type") == "text"
         assert page.get_attribute(f"#f-{field}", "inputmode") == "decimal"
     ranges = {k: page.inner_text(f"[data-field='{k}'] .range") for k in
-              ("supply", "amplitude", "frequency", "cycles", "vertical_load", "lim_displacement", "lim_force")}
+              ("supply", "amplitude", "frequency", "cycles", "vertical_load", "lim_displacement", "lim_force",
+               "lim_velocity")}
     assert ranges["supply"] == "10 to 210 bar", ranges
     assert ranges["amplitude"].startswith("up to 150 mm (stroke)"), ranges
     assert ranges["frequency"].startswith("above 0, up to 10 Hz"), ranges
     assert ranges["cycles"] == "1 to 100000", ranges
     assert ranges["vertical_load"].startswith("0 to 850 kN"), ranges
     assert ranges["lim_displacement"] == "above 0, up to 150 mm; empty: 150 mm", ranges
-    assert "280.1 kN" in ranges["lim_force"], ranges
+    assert ranges["lim_force"] == "above 0, up to 280.14 kN; empty: 280.14 kN", ranges
+    assert ranges["lim_velocity"] == "above 0, up to 391.054 mm/s; empty: 391.054 mm/s", ranges  # Q_pump / A_p
     assert page.inner_text("[data-field='amplitude'] .unit") == "(mm)"
 
     page.fill("#f-amplitude", "3,5")
@@ -139,8 +131,9 @@ def test_state_follows_the_running_test(server, open_page, browser, artifacts):
     page.fill("#f-speed", "1")
     page.fill("#f-lim_tracking", "20")
     summary = start_from_form(page)
-    for what in ("\u00b130.00 mm", "94.2 mm/s", "about", "isolator k_d A + k_w", "0:24", "|y - r| 20 mm"):
+    for what in ("\u00b130.00 mm", "94.2 mm/s", "about", "the service's upper estimate", "0:24", "12 cycles"):
         assert what in summary, summary
+    assert re.search(r"tracking error \|y-r\|\s+20 mm\s+valve close", summary), summary  # each limit, its action
     page.wait_for_selector("#rig-status[data-status='running']", timeout=15000)
     test_id = page.evaluate("window.__isorig.testId")
     rec = server.call("GET", f"/api/tests/{test_id}")[1]
@@ -149,10 +142,13 @@ def test_state_follows_the_running_test(server, open_page, browser, artifacts):
 
     # the strip, the header, the readouts, the margins, the form (locked) and the buttons
     page.wait_for_selector("#s-rig-cell[data-state='running']", timeout=5000)
-    assert page.inner_text("#s-supply") == "70.0 bar set"
+    # the setting, with the measured supply pressure once GET /api/rig/state has answered
+    supply = page.inner_text("#s-supply")
+    assert re.fullmatch(r"70\.0 bar set|\d+\.\d bar \(set 70\.0\)", supply), supply
     assert page.inner_text("#s-vertical") == "125 kN"
     assert "|y-r| 20 mm" in page.inner_text("#s-limits")
-    _wait(lambda: re.fullmatch(r"[+-]?\d+\.\d\d mm", page.inner_text("#s-position")), 5, "the table position")
+    _wait(lambda: re.fullmatch(r"[+-]?\d+\.\d\d mm \u00b7 live", page.inner_text("#s-position")), 5,
+          "the table position, live")
     assert "started" in page.inner_text("#s-event").lower()
     assert page.inner_text("#l-specimen") == "B-2024-017" and page.inner_text("#l-operator") == "Ann Operator"
     assert page.inner_text("#l-profile") == "sine 30.00 mm at 0.5 Hz x 12"
@@ -161,9 +157,13 @@ def test_state_follows_the_running_test(server, open_page, browser, artifacts):
         assert re.fullmatch(r"[+-]?\d+\.\d+ (mm|kN|V)", page.inner_text(f"#r-{ch}")), page.inner_text(f"#r-{ch}")
         assert page.inner_text(f"#r-{ch}-max") != "-" and page.inner_text(f"#r-{ch}-min") != "-"
     margins = page.inner_text("#margins")
-    assert re.search(r"\|d\|\s+1[12]\d\.\d\d mm left", margins) and "mm left" in margins, margins
-    assert page.get_attribute(".margin[data-limit='tracking']", "data-max") == "20"  # the test's own limit
-    assert page.get_attribute(".margin[data-limit='displacement']", "data-max") == "150"
+    assert re.search(r"\|d\|\s+1[12]\d\.\d\d mm left\s+valve close", margins), margins
+    assert re.search(r"\|v\|\s+\d+\.\d mm/s left", margins), margins  # |dy/dt| of the streamed displacement
+    assert page.get_attribute(".margin[data-limit='tracking_error_m']", "data-max") == "20"  # the test's own limit
+    assert page.get_attribute(".margin[data-limit='displacement_m']", "data-max") == "150"
+    # the velocity of the current cycle: 2 pi f A = 94.2 mm/s at full amplitude (3rd of 12 cycles and on)
+    _wait(lambda: 80 < float(page.get_attribute(".margin[data-limit='velocity_m_per_s']", "data-peak")) < 110, 10,
+          "the cycle's peak velocity near 94 mm/s")
     assert page.is_disabled("#start") and f"test #{test_id} is running" in page.inner_text("#start-why")
     assert page.is_enabled("#stop")
     assert page.is_disabled("#f-amplitude") and f"test #{test_id}" in page.inner_text("#form-lock")
@@ -192,17 +192,21 @@ def test_state_follows_the_running_test(server, open_page, browser, artifacts):
     other.wait_for_function("document.getElementById('f-specimen_id').value === 'B-2024-017'", timeout=5000)
     assert other.is_disabled("#start")
 
-    # Stop: STOPPING here at once and in the other browser (from the record's events), then stopped
+    # Stop: STOPPING here at once and in the other browser, which learns of it from the live stream's event
     page.click("#stop")
     page.wait_for_selector("#s-rig-cell[data-state='stopping']", timeout=5000)
     assert page.is_disabled("#stop")
     other.wait_for_selector("#s-rig-cell[data-state='stopping']", timeout=8000)
+    other.wait_for_selector("#live-events li.operator[data-source='stream']:has-text('Stop requested by operator')",
+                            timeout=5000)  # streamed, not read from the record
+    assert other.inner_text("#s-rig-why") == "stop requested by operator", other.inner_text("#s-rig-why")
+    assert other.is_disabled("#start")
     other.screenshot(path=str(artifacts / "dashboard_stopping_1366x768.png"))
     server.wait_status(test_id, {"stopped"}, timeout_s=30)
     page.wait_for_selector("#rig-status[data-status='stopped']", timeout=10000)
     page.wait_for_selector("#s-rig-cell[data-state='idle']", timeout=5000)
-    assert "(end of test" in page.inner_text("#s-position")
-    assert "stopped" in page.inner_text("#s-event").lower()
+    _wait(lambda: re.search(r"\u00b7 end of test \d+", page.inner_text("#s-position")), 5, "where the table stopped")
+    _wait(lambda: "stopped" in page.inner_text("#s-event").lower(), 10, "the end in the strip's last event")
     assert page.is_enabled("#f-amplitude") and page.is_hidden("#form-lock")
     wait_start_enabled(page)
 

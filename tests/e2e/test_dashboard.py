@@ -272,8 +272,8 @@ def test_limit_trip_is_shown_prominently(server, open_page, artifacts):
     """A tracking-error trip (bound set low through the API) raises the red banner with the limit's values."""
     page, _ = open_page(server.url + "/")
     page.wait_for_selector("#conn.conn-up", timeout=10000)
-    body = sine_test(cycles=10, speed=1.0)
-    body["limits"] = {"tracking_error_m": 0.0005}  # 0.5 mm: the start-up transient exceeds it
+    body = sine_test(cycles=10, speed=1.0, controller="mrac")
+    body["limits"] = {"tracking_error_m": 0.0005}  # 0.5 mm: the MRAC's start-up transient exceeds it
     test_id = server.start_test(body)
     rec = server.wait_status(test_id, {"aborted"}, timeout_s=30)
     assert rec["reason"], rec
@@ -284,6 +284,9 @@ def test_limit_trip_is_shown_prominently(server, open_page, artifacts):
     assert page.locator("#live-events li.limit_trip").count() >= 1
     events = page.inner_text("#live-events")
     assert "LIMIT TRIP: tracking error" in events and "beyond the limit of 0.5 mm" in events, events
+    # the action taken, in the event and in the banner (valve close: the default action)
+    assert "valve close: the valve command ramps to 0 V in 0.1 s" in events, events
+    assert "valve close: the valve command ramps to 0 V" in page.inner_text("#alert-text")
     assert "pid" not in events and "worker" not in events, events  # no internals
     page.screenshot(path=str(artifacts / "dashboard_limit_trip.png"))
 

@@ -1,14 +1,15 @@
 """The rig and its link in the dashboard's top bar: the simulated default, and a real rig over UDP
 (`isorig rig-emulator` in its own process, `isorig serve --rig udp://...`): connected, the link figures of a
-running test, and "not connected" once the rig is gone.
+running test, "not connected" once the rig is gone, and a table left off zero that keeps Start disabled.
 """
 
 from __future__ import annotations
 
+import json
 import re
 import time
 
-from .harness import TOKEN, RigEmulator, Server, fill_identity, start_from_form
+from .harness import TOKEN, RigEmulator, Server, fill_identity, sine_test, start_from_form, wait_start_enabled
 
 VIEWPORTS = [(1366, 768), (1920, 1080)]
 MS = r"\d+(\.\d{1,2})? ms"  # a latency: at most 2 decimals
@@ -125,6 +126,74 @@ def test_udp_rig_link_health(open_page, artifacts, tmp_path):
         page.wait_for_selector("#s-rig-cell[data-state='not-connected']", timeout=5000)
         _fits_top_bar(page)
         _shots(page, artifacts, "dashboard_udp_not_connected")
+    finally:
+        emulator.stop()
+        if srv is not None:
+            srv.stop()
+
+
+def test_udp_rig_table_off_zero_keeps_start_disabled(open_page, artifacts, tmp_path):
+    """An emulated rig restarts mid-test (`--restart-after-s 0.6`) and leaves its table mid-stroke: the strip
+    shows where it rests (the rig's own reading), Start stays disabled saying why (no manual motion in this
+    console), and a start the service refuses (409, nothing moved) is shown in words beside Start."""
+    emulator = RigEmulator("--restart-after-s", "0.6", isolator="IUT_a")
+    srv = None
+    try:
+        srv = Server(tmp_path / "serve", rig=emulator.url).start()
+        first = srv.start_test({**sine_test(amplitude_m=0.01, frequency_hz=1.0, cycles=6, speed=1.0,
+                                            isolator="IUT_a", supply_bar=100)})
+        rec = srv.wait_status(first, {"failed"}, timeout_s=30)  # the rig restarted: link lost
+        _, state = srv.call("GET", "/api/rig/state")
+        assert state["position_source"] == "the rig (probe)" and abs(state["table_position_m"]) > 0.002, state
+        position = f"{state['table_position_m'] * 1e3:+.2f} mm"
+
+        page, watch = open_page(srv.url + "/", width=1366, height=768, token=TOKEN)
+        watch.allowed_status.add(409)  # the refused start below
+        page.wait_for_selector("#rig-link[data-connected='true']", timeout=10000)
+        page.wait_for_selector("#s-position[data-source='the rig (probe)']", timeout=10000)
+        assert page.inner_text("#s-position") == f"{position} \u00b7 the rig (probe)"
+        fill_identity(page)
+        page.select_option("#f-isolator", "IUT_a")
+        page.fill("#f-supply", "100")
+        page.fill("#f-amplitude", "10")
+        page.fill("#f-frequency", "1")
+        page.fill("#f-cycles", "3")
+        page.wait_for_selector("#envelope[data-state='ok']", timeout=10000)
+        page.wait_for_selector("#rig-warning[data-state='off-zero']", timeout=5000)
+        page.wait_for_function("!document.getElementById('start-why').textContent.includes('envelope check')",
+                               timeout=10000)  # the set-up checked: only the table keeps Start disabled
+        assert page.is_disabled("#start")
+        why = page.inner_text("#start-why")
+        assert f"Start needs: the table at zero (it rests at {position}, see above)" in why, why
+        warning = page.inner_text("#rig-warning")
+        assert warning.startswith("Table off zero: Start is disabled until it rests at zero."), warning
+        assert f"The table rests at {position} (the rig's reading)" in warning, warning
+        assert "within \u00b12 mm of zero" in warning and "no manual motion" in warning, warning
+        manual = page.inner_text("#manual-motion")  # where a lab would look for it: said plainly
+        assert "Not in this console yet" in manual and "\u00b12 mm" in manual, manual
+        assert page.locator("#manual-motion button, #manual-motion input").count() == 0
+        _shots(page, artifacts, "dashboard_udp_off_zero")
+
+        # the console's view is 2 s old at worst: should a start still reach the service, its refusal is shown
+        def at_zero(route):
+            data = route.fetch().json()
+            data["table_position_m"] = 0.0
+            route.fulfill(status=200, content_type="application/json", body=json.dumps(data))
+
+        page.route("**/api/rig/state", at_zero)
+        wait_start_enabled(page, timeout_ms=10000)
+        start_from_form(page)
+        page.wait_for_function("document.getElementById('setup-message').dataset.cause === 'position'", timeout=10000)
+        message = page.inner_text("#setup-message")
+        assert message.startswith("Not started, refused by the service: the table is at"), message
+        assert "nothing moved" in message, message
+        assert [t["id"] for t in srv.call("GET", "/api/tests")[1]] == [first]  # nothing created
+        page.unroute("**/api/rig/state")
+        page.wait_for_selector("#start[disabled]", timeout=10000)  # the rig's reading again
+        assert "the table at zero" in page.inner_text("#start-why")
+        assert page.inner_text("#setup-message") == message  # the refusal stays: its cause is still there
+        page.screenshot(path=str(artifacts / "dashboard_udp_off_zero_refused_1366x768.png"))
+        assert rec["status"] == "failed"
     finally:
         emulator.stop()
         if srv is not None:

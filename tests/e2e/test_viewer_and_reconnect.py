@@ -47,7 +47,7 @@ def test_reconnects_after_service_restart(server, browser, artifacts):
         watch = PageWatch(page)
         # while the service is down the browser logs failed websocket connections and nothing else
         watch.allowed_patterns.append(r"WebSocket connection to 'ws://127\.0\.0\.1:\d+/ws/live' failed")
-        # ... and the running test's record it asks for every second, refused while the service is down
+        # ... and the rig's state it asks for every 2 s (and records), refused while the service is down
         watch.allowed_patterns.append(r"^Failed to load resource: net::ERR_CONNECTION_REFUSED$")
         page.goto(srv.url + "/?viewer=off")
         page.wait_for_selector("body[data-ready='1']", timeout=15000)
@@ -70,9 +70,11 @@ def test_reconnects_after_service_restart(server, browser, artifacts):
         page.wait_for_selector(f"#rig-status[data-status='{rec['status']}']", timeout=10000)
         assert rec["status"].upper() in page.inner_text("#alert-text")
         page.screenshot(path=str(artifacts / "dashboard_interrupted.png"))
+        srv.zero_table()  # the interrupted test left the table where it was
         status, rec = srv.call("POST", "/api/tests", sine_test(cycles=2, speed=4.0), token=True)
         assert status == 201, rec
-        srv.call("POST", f"/api/tests/{rec['id']}/start", token=True)
+        status, started = srv.call("POST", f"/api/tests/{rec['id']}/start", token=True)
+        assert status == 200, started
         page.wait_for_function(f"window.__isorig.testId === {rec['id']} && window.__isorig.samples > 200",
                                timeout=15000)
         srv.wait_status(rec["id"], {"completed"}, timeout_s=30)

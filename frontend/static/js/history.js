@@ -5,8 +5,8 @@
 
 import { api, askToken, getToken } from "./api.js";
 import { confirmDialog, summaryTable } from "./dialogs.js";
+import { indicationsText, limitsText } from "./limits.js";
 import { LoopPlot } from "./plots.js";
-import { limitsText } from "./strip.js";
 import { el, eventLine, fmtTime, profileText } from "./ui.js";
 import { factorIn, fmt, fmtU, onUnits, system, unit } from "./units.js";
 
@@ -215,8 +215,10 @@ export class History {
       kv("vertical load", num(t.vertical_load_n) ? fmtU("force", t.vertical_load_n, { sig: 4 })
         : `- (recorded before it was a condition: ${fmtU("force", 125e3)})`),
       kv("speed", num(t.speed) ? `${t.speed}x` : "-"),
-      kv("limits", limitsText(t.limits), "wide"),
+      kv("limits (action when exceeded)", limitsText(t.limits), "wide"),
     );
+    const indicated = indicationsText(t.summary && t.summary.limit_indications);
+    if (indicated) summary.append(kv("limits indicated", indicated, "wide"));
     if (t.label) summary.append(kv("label", t.label));
     if (t.notes) summary.append(kv("notes", t.notes, "wide notes"));
     for (const [key, label, quantity, opts] of [

@@ -1,9 +1,12 @@
 // Live view: follows /ws/live (websocket schema v1: hello, samples, status, cycle, event), keeps the recent
 // samples in typed-array buffers (display units) and redraws the plots on requestAnimationFrame with a smoothly
 // advancing clock. Also: large readouts with the current cycle's peak and valley, the margin left to each
-// limit, the events in words, and what the console knows of the test (js/state.js) for the strip and the form.
+// limit with its action and how often an indicating limit was exceeded, the events in words (a stop or abort
+// asked from any console arrives as an event), the trip banner with the action taken, and what the console
+// knows of the test (js/state.js) for the strip and the form.
 
 import { LoopPlot, PlotStack, TimePlot } from "./plots.js";
+import { actionName, actionOf, LIMITS } from "./limits.js";
 import { changed, state } from "./state.js";
 import { eventLine, eventWords, fmtDuration, profileText, setStatusBadge, showAlert } from "./ui.js";
 import { factorIn, fmt, fmtU, onUnits, system, toDisplay, unit } from "./units.js";
@@ -13,7 +16,11 @@ const KEEP = 65536; // samples kept on compaction
 const WINDOW_S = 10; // time plots show the last 10 s of test time
 const PREFILL_MAX_CYCLES = 60; // a late page fetches the stored loops of tests up to this many cycles
 const READOUT_MS = 100; // readouts change at most 10 times a second (readable)
-const POLL_MS = 1000; // a running test's record (events: a stop requested elsewhere) is asked this often
+// The table velocity of the margins, as the service's detector computes it (on the measured displacement):
+// (y[k] - y[k - 5]) / 5 ms over contiguous 1 kHz samples of the streamed displacement.
+const VELOCITY_SPAN = 5;
+const VELOCITY_SPAN_S = 0.005;
+const INDICATIONS_RECORDED = 10; // the service keeps the first 10 indications of a limit as events, counts the rest
 const FINAL = new Set(["completed", "stopped", "aborted", "interrupted", "failed"]);
 const BAD = new Set(["aborted", "interrupted", "failed"]);
 
@@ -80,7 +87,7 @@ class Buffer {
 
 function emptyExtremes(start) {
   return { start, scanned: start, yMax: -Infinity, yMin: Infinity, fMax: -Infinity, fMin: Infinity,
-    vMax: -Infinity, vMin: Infinity, eAbs: 0, plAbs: 0, yAbs: 0, fAbs: 0 };
+    vMax: -Infinity, vMin: Infinity, eAbs: 0, plAbs: 0, yAbs: 0, fAbs: 0, velAbs: 0 };
 }
 
 export class LiveView {
@@ -117,7 +124,6 @@ export class LiveView {
     this.cyc = emptyExtremes(0);
     this.readoutAt = 0;
     this.events = []; // [{key, e}] in order
-    this.polledAt = 0;
     onUnits(() => this.onUnitsChanged());
   }
 
@@ -290,6 +296,10 @@ export class LiveView {
       if (e > c.eAbs) c.eAbs = e;
       const pl = Math.abs(a.pl[i]);
       if (pl > c.plAbs) c.plAbs = pl;
+      if (i >= VELOCITY_SPAN && Math.abs(a.t[i] - a.t[i - VELOCITY_SPAN] - VELOCITY_SPAN_S) < 5e-4) {
+        const vel = Math.abs(a.y[i] - a.y[i - VELOCITY_SPAN]) / VELOCITY_SPAN_S; // display length unit per s
+        if (vel > c.velAbs) c.velAbs = vel;
+      }
     }
     c.scanned = i1;
     c.yAbs = Math.max(Math.abs(c.yMax), Math.abs(c.yMin));
@@ -317,7 +327,10 @@ export class LiveView {
     this.renderMargins(false);
   }
 
-  /** Each limit of the test: the largest value of the current cycle against it, and the margin left. */
+  /**
+   * Each limit of the test: the largest value of the current cycle against it, the margin left, the action
+   * when it is exceeded, and for an indicating limit how often it was exceeded so far.
+   */
   renderMargins(force) {
     const box = $("margins");
     const lim = (this.test && this.test.limits) || null;
@@ -331,34 +344,66 @@ export class LiveView {
     box.dataset.empty = "0";
     const c = this.cyc;
     const si = (quantity, shown) => shown / factorIn(quantity, this.sys);
-    const rows = [
-      ["displacement", "|d|", "length", lim.displacement_m, c.yAbs],
-      ["force", "|F|", "force", lim.force_n, c.fAbs],
-      ["tracking", "|y-r|", "length", lim.tracking_error_m, c.eAbs],
-      ["pressure", "|P_L|", "pressure", lim.load_pressure_pa, c.plAbs],
-    ];
+    const peaks = { displacement_m: si("length", c.yAbs), force_n: si("force", c.fAbs),
+      velocity_m_per_s: si("length", c.velAbs), load_pressure_pa: si("pressure", c.plAbs),
+      tracking_error_m: si("length", c.eAbs) };
     if (!box.querySelector(".margin") || force) {
       box.innerHTML = "";
-      for (const [key, label] of rows) {
-        box.insertAdjacentHTML("beforeend", `<div class="margin" data-limit="${key}"><span class="ml">${label}</span>` +
-          "<span class=\"bar\"><i></i></span><span class=\"mv\"></span></div>");
+      for (const l of LIMITS) {
+        box.insertAdjacentHTML("beforeend", `<div class="margin" data-limit="${l.key}"><span class="ml">${l.short}</span>` +
+          "<span class=\"bar\"><i></i></span><span class=\"mv\"></span><span class=\"ma\"></span></div>");
       }
-      box.insertAdjacentHTML("beforeend", "<div class=\"margin pending\" data-limit=\"velocity\"><span class=\"ml\">|v|</span>" +
-        "<span class=\"mv muted\" title=\"the service has no velocity limit yet\">no limit in the service yet</span></div>");
     }
-    for (const [key, , quantity, limitSI, peakShown] of rows) {
-      const row = box.querySelector(`.margin[data-limit="${key}"]`);
+    const counts = this.indications();
+    for (const l of LIMITS) {
+      const row = box.querySelector(`.margin[data-limit="${l.key}"]`);
       if (!row) continue;
-      const peak = num(peakShown) && peakShown > 0 ? si(quantity, peakShown) : 0;
+      const limitSI = lim[l.key];
+      const peak = num(peaks[l.key]) && peaks[l.key] > 0 ? peaks[l.key] : 0;
       const used = num(limitSI) && limitSI > 0 ? Math.min(1, peak / limitSI) : 0;
+      const action = actionOf(lim, l.key);
       row.querySelector(".bar i").style.width = `${(used * 100).toFixed(1)}%`;
       row.dataset.level = used > 0.95 ? "bad" : used > 0.8 ? "warn" : "ok";
-      row.querySelector(".mv").textContent = num(limitSI) ? `${fmtU(quantity, Math.max(0, limitSI - peak))} left` : "-";
-      row.title = num(limitSI) ? `largest ${key} this cycle ${fmtU(quantity, peak)} of the limit ` +
-        `${fmtU(quantity, limitSI, { sig: 4 })} (${(used * 100).toFixed(0)} %); a trip aborts the test` : "";
-      row.dataset.peak = fmt(quantity, peak);
-      row.dataset.max = fmt(quantity, limitSI, { sig: 4 });
+      row.dataset.action = action;
+      row.querySelector(".mv").textContent = num(limitSI) ? `${fmtU(l.quantity, Math.max(0, limitSI - peak))} left`
+        : "no limit";
+      const ma = row.querySelector(".ma");
+      const n = counts[l.key];
+      if (action === "indicate") {
+        ma.textContent = n ? `indicated ${n.text}` : "indicate";
+        ma.dataset.count = n ? String(n.count) : "0";
+      } else {
+        ma.textContent = { valve_close: "valve close", controlled_stop: "ctrl stop" }[action] || actionName(action);
+        delete ma.dataset.count;
+      }
+      row.title = num(limitSI) ? `largest ${l.name} this cycle ${fmtU(l.quantity, peak)} of the limit ` +
+        `${fmtU(l.quantity, limitSI, { sig: 4 })} (${(used * 100).toFixed(0)} %); when exceeded: ${actionName(action)}` +
+        (l.key === "velocity_m_per_s" ? "; velocity: the streamed displacement's change over 5 ms (the service's " +
+          "detector uses the measured displacement the same way)" : "") +
+        (action === "indicate" ? `; exceeded ${n ? n.text : "0 times"} in this test` : "") : "";
+      row.dataset.peak = fmt(l.quantity, peak);
+      row.dataset.max = num(limitSI) ? fmt(l.quantity, limitSI, { sig: 4 }) : "";
     }
+  }
+
+  /**
+   * How often each indicating limit was exceeded: the record's summary once the test has ended (every
+   * excursion), else from the indication events (the service keeps the first 10 per limit as events: "10+").
+   */
+  indications() {
+    const out = {};
+    const summary = this.test && this.test.summary && this.test.summary.limit_indications;
+    if (summary && FINAL.has(this.status)) {
+      for (const [key, count] of Object.entries(summary)) out[key] = { count, text: `${count}\u00d7` };
+      return out;
+    }
+    for (const { e } of this.events) {
+      if (e.kind !== "limit_indicate" || !e.values) continue;
+      const key = e.values.limit_name;
+      const k = typeof e.values.indication === "number" ? e.values.indication : ((out[key] && out[key].count) || 0) + 1;
+      if (!out[key] || k > out[key].count) out[key] = { count: k, text: k >= INDICATIONS_RECORDED ? `${k}+\u00d7` : `${k}\u00d7` };
+    }
+    return out;
   }
 
   closeCycle(j) {
@@ -410,9 +455,10 @@ export class LiveView {
   resetTest(testId, test) {
     this.buf.clear();
     this.testId = testId;
+    metrics.testId = testId; // the test in view, also before its first sample is drawn
     this.test = test;
     this.lastT = -Infinity;
-    this.tripMessage = "";
+    this.trips = []; // the limit trips of this test in words (a second one: a valve close during a controlled stop)
     this.storedUntil = -Infinity;
     this.localLoops = [];
     this.cycleStart = 0;
@@ -435,6 +481,7 @@ export class LiveView {
     state.testId = testId;
     state.test = test;
     state.stopping = false;
+    state.stoppingReason = "";
     state.faulted = "";
     this.renderMargins(true);
     this.dirty = true;
@@ -509,7 +556,10 @@ export class LiveView {
     state.status = msg.status;
     state.reason = msg.reason || "";
     if (msg.status === "running") state.faulted = "";
-    if (FINAL.has(msg.status)) state.stopping = false;
+    if (FINAL.has(msg.status)) {
+      state.stopping = false;
+      state.stoppingReason = "";
+    }
     if (msg.status === "failed") state.faulted = msg.reason || "the test failed";
     setStatusBadge(state.stopping && msg.status === "running" ? "stopping" : msg.status);
     if (msg.cycle !== undefined && msg.cycle !== null) {
@@ -527,8 +577,9 @@ export class LiveView {
     }
     if (changedStatus && this.testId !== null) {
       if (BAD.has(msg.status)) {
-        const reason = this.tripMessage || msg.reason || ""; // the trip in words, not the detector's internals
-        showAlert(`${this.tripMessage ? "LIMIT TRIP - " : ""}Test ${this.testId} ${msg.status.toUpperCase()}` +
+        const trip = this.tripText();
+        const reason = trip || msg.reason || ""; // the trip in words with its action, not the detector's internals
+        showAlert(`${trip ? "LIMIT TRIP - " : ""}Test ${this.testId} ${msg.status.toUpperCase()}` +
           `${reason ? ": " + reason : ""}`, "bad");
       } else if (FINAL.has(msg.status)) {
         showAlert(`Test ${this.testId} ${msg.status}`, "info");
@@ -562,17 +613,47 @@ export class LiveView {
     if (this.events.some((x) => x.key === key)) return;
     this.events.push({ key, e });
     if (this.events.length > 300) this.events.shift();
-    if (e.kind === "operator" && e.values && e.values.action === "stop" && this.status === "running") {
-      state.stopping = true;
-      setStatusBadge("stopping");
-      changed("stopping");
-    }
+    this.noteEnding(e);
     if (e.kind === "rig_fault") state.faulted = e.message || "rig fault";
     this.renderEvents();
-    if (msg.kind === "limit_trip") {
-      this.tripMessage = eventWords(msg).text.replace(/^LIMIT TRIP: /, "");
-      if (alert) showAlert(`LIMIT TRIP (test ${msg.test_id}): ${this.tripMessage}`, "bad");
+    if (e.kind === "limit_indicate") this.renderMargins(false);
+    if (e.kind === "limit_trip" && alert) showAlert(`LIMIT TRIP (test ${e.test_id ?? this.testId}): ${this.tripText()}`, "bad");
+  }
+
+  /**
+   * An event that ends the running test early: a stop or abort asked from any console (streamed at once), a
+   * limit trip (its action). The strip says STOPPING with the reason until the test ends.
+   */
+  noteEnding(e) {
+    const v = e.values || {};
+    this.noteTrip(e);
+    const operator = e.kind === "operator" && (v.action === "stop" || v.action === "abort");
+    if (!(operator || e.kind === "limit_trip") || this.status !== "running") return;
+    state.stopping = true;
+    if (e.kind === "limit_trip") {
+      const l = LIMITS.find((x) => x.key === v.limit_name);
+      state.stoppingReason = `limit trip${l ? ` (${l.name})` : ""}: ${actionName(v.escalation ? "valve_close" : v.action)}`;
+    } else if (/requested by/.test(e.message || "")) { // the request, from this or another console
+      state.stoppingReason = e.message;
+    } else if (!state.stoppingReason) { // the worker's own note of the ramp-out or abort
+      state.stoppingReason = v.action === "stop" ? "ramping out" : "aborting";
     }
+    setStatusBadge("stopping");
+    changed("stopping");
+  }
+
+  /** A limit trip, kept in words with the action taken for the banner (each once). */
+  noteTrip(e) {
+    if (e.kind !== "limit_trip") return;
+    const key = LiveView.eventKey(e);
+    if (this.trips.some((t) => t.key === key)) return;
+    const words = eventWords(e).text.replace(/^LIMIT TRIP( during the controlled stop)?: /, "");
+    this.trips.push({ key, words: e.values && e.values.escalation ? `then, during the controlled stop: ${words}` : words });
+  }
+
+  /** The limit trips of this test in words, with the action taken ("" when none tripped). */
+  tripText() {
+    return this.trips.map((t) => t.words).join("; ");
   }
 
   /** The record's events (ordered by the service): they replace what the stream gave, the rest follows. */
@@ -581,13 +662,9 @@ export class LiveView {
     const keys = new Set(fromRecord.map((x) => x.key));
     const live = this.events.filter((x) => !keys.has(x.key));
     this.events = [...fromRecord, ...live].slice(-300);
-    const stop = fromRecord.some((x) => x.e.kind === "operator" && x.e.values && x.e.values.action === "stop");
-    if (stop && this.status === "running" && !state.stopping) {
-      state.stopping = true;
-      setStatusBadge("stopping");
-      changed("stopping");
-    }
+    for (const { e } of fromRecord) this.noteEnding(e);
     this.renderEvents();
+    this.renderMargins(false);
   }
 
   renderEvents() {
@@ -597,6 +674,7 @@ export class LiveView {
     for (const { e } of this.events) {
       const li = document.createElement("li");
       li.className = e.kind || "";
+      li.dataset.source = e.created_at ? "record" : "stream"; // a streamed event arrived live, before any record
       li.textContent = eventLine(e);
       list.append(li);
     }
@@ -610,9 +688,8 @@ export class LiveView {
     }
   }
 
-  /** Fetch the test's record: its events (a stop asked elsewhere is not streamed) and its figures. */
+  /** Fetch the test's record: its events (those of before this page joined) and its figures (the summary). */
   refreshEvents(testId) {
-    this.polledAt = performance.now();
     return fetch(`/api/tests/${testId}`).then((r) => (r.ok ? r.json() : null)).then((rec) => {
       if (!rec || this.testId !== testId) return;
       this.test = { ...this.test, ...rec };
@@ -644,6 +721,7 @@ export class LiveView {
     else this.test = test || this.test;
     state.test = this.test;
     this.renderHead();
+    for (const e of (test && test.events) || []) this.noteTrip(e); // the banner below says the trip in words
     if (test && test.status) this.onStatus({ status: test.status, test_id: id, reason: test.reason });
     this.loadLastCycle(id);
     if (test) this.loadStoredLoops(id, test.cycles_done);
@@ -824,14 +902,10 @@ export class LiveView {
     this.backoffMs = Math.min(2000, this.backoffMs * 2);
   }
 
-  /** Called by the worker tick (and on focus/visibility/online): reconnect when due; poll a running test. */
+  /** Called by the worker tick (and on focus/visibility/online): reconnect when due. */
   tick() {
     if (!this.wsWanted) return;
     if (!this.ws && Date.now() >= this.retryAt) this.connect();
-    if (this.status === "running" && this.testId !== null && state.conn && !document.hidden &&
-        performance.now() - this.polledAt > POLL_MS) {
-      this.refreshEvents(this.testId);
-    }
   }
 
   reconnectNow() {

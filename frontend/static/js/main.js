@@ -163,22 +163,27 @@ function trackChromeHeight() {
   set();
 }
 
-/** The rig's own state (table position, supply pressure when idle), if the service offers it. */
+/**
+ * The rig's state as the service sees it (GET /api/rig/state, every 2 s): status, where the table is and where
+ * that figure comes from, supply, vertical load, the limits in force, the last event; also when no test runs
+ * and whatever another console did. A service without it (404) is not asked again.
+ */
 async function pollRigState() {
-  let has = false;
-  try {
-    const spec = await api.get("/openapi.json");
-    has = Boolean(spec && spec.paths && spec.paths["/api/rig/state"]);
-  } catch { has = false; }
-  if (!has) return;
   const poll = async () => {
     try {
       state.rigState = await api.get("/api/rig/state");
+      state.rigStateSeq++;
       changed("rigState");
-    } catch { /* the strip keeps the last answer */ }
+    } catch (e) {
+      if (e.status === 404) {
+        clearInterval(timer);
+        return;
+      }
+      /* the service is down: the strip keeps the last answer (and says NO CONNECTION) */
+    }
   };
+  const timer = setInterval(poll, 2000);
   await poll();
-  setInterval(poll, 2000);
 }
 
 async function main() {

@@ -1,12 +1,14 @@
 // Set-up panel: who and what (specimen, operator, notes), the isolator (its parameters, add one, delete a user
-// one), conditions, the motion (sine or a shipped protocol), the controller and its options, the limits, and the
-// rig envelope for the current choice (asked from the API at every change). Numbers are typed as text and
-// parsed explicitly (js/parse.js) in the console's units (js/units.js); every field shows its unit and range.
-// Start is enabled only when a start can succeed and asks for a confirmation that summarises the motion.
-// While a test runs the form shows that test (locked), also after a reload or in a second browser.
+// one), conditions, the motion (sine or a shipped protocol, GET /api/protocols), the controller and its
+// options, the limits each with its action (js/limits.js), and the rig envelope for the current choice (asked
+// from the API at every change). Numbers are typed as text and parsed explicitly (js/parse.js) in the
+// console's units (js/units.js); every field shows its unit and range. Start is enabled only when a start can
+// succeed (a UDP rig's table must rest at zero) and asks for a confirmation with the service's figures of the
+// motion. While a test runs the form shows that test (locked), also after a reload or in a second browser.
 
 import { api, ApiError, errorField, operatorPost } from "./api.js";
 import { confirmDialog, summaryTable } from "./dialogs.js";
+import { actionHelp, actionName, actionOf, ACTION_ORDER, DEFAULT_ACTION, LIMITS, limitValue, setActionHelp } from "./limits.js";
 import { parseNumber } from "./parse.js";
 import { fmtPeriod, rigKind } from "./rig.js";
 import { changed, onState, state, testRunning } from "./state.js";
@@ -17,6 +19,7 @@ const $ = (id) => document.getElementById(id);
 const num = (v) => typeof v === "number" && Number.isFinite(v);
 const DRAFT_KEY = "isorig.setup_draft";
 const BAR = 1e5;
+const START_TOLERANCE_M = 0.002; // a UDP rig's table must rest this close to zero for a start (the service's default)
 
 // Isolator parameters: key, label, quantity
 const ISO_PARAMS = [
@@ -34,6 +37,10 @@ const USUAL = {
   rho_bw_per_m: [10, 1e3, "rho_BW"],
   vertical_load: [1e4, 2e6, "vertical load"],
 };
+
+function capitalize(text) {
+  return text ? text[0].toUpperCase() + text.slice(1) : text;
+}
 
 function listOf(data, key) {
   if (Array.isArray(data)) return data;
@@ -72,7 +79,8 @@ export class SetupPanel {
     this.live = live;
     this.isolators = [];
     this.rig = null;
-    this.protocols = []; // [{name, title?, description?, levels?}]
+    this.protocols = []; // GET /api/protocols: [{name, title, description, levels, duration_s, ...}]
+    this.protocolError = "";
     this.checkSeq = 0;
     this.checkTimer = null;
     this.lastCheck = { ok: null, key: "", data: null };
@@ -108,6 +116,8 @@ export class SetupPanel {
         range: () => [0, max().displacement_m ?? 0.15], placeholder: () => def().displacement_m },
       lim_force: { id: "f-lim_force", quantity: "force", required: false, openLow: true, limit: "force_n",
         range: () => [0, max().force_n ?? 280e3], placeholder: () => def().force_n },
+      lim_velocity: { id: "f-lim_velocity", quantity: "velocity", required: false, openLow: true, limit: "velocity_m_per_s",
+        range: () => [0, max().velocity_m_per_s ?? 0.39], placeholder: () => def().velocity_m_per_s },
       lim_tracking: { id: "f-lim_tracking", quantity: "length", required: false, openLow: true, limit: "tracking_error_m",
         range: () => [0, max().tracking_error_m ?? 0.3], placeholder: () => def().tracking_error_m },
       lim_pressure: { id: "f-lim_pressure", quantity: "pressure", required: false, openLow: true, limit: "load_pressure_pa",
@@ -182,8 +192,8 @@ export class SetupPanel {
       }
       if (spec.limit) {
         const p = spec.placeholder();
-        if (num(p)) input.placeholder = fmt(spec.quantity, p, { sig: 4 });
-        text += num(p) ? `; empty: ${fmtU(spec.quantity, p, { sig: 4 })}` : "";
+        if (num(p)) input.placeholder = fmt(spec.quantity, p, { sig: 6 });
+        text += num(p) ? `; empty: ${fmtU(spec.quantity, p, { sig: 6 })}` : "";
       }
       if (range) range.textContent = text;
     }
@@ -241,8 +251,7 @@ export class SetupPanel {
   // ------------------------------------------------------------------------------------------ init
 
   async init() {
-    await Promise.all([this.loadRig(), this.loadIsolators(), this.loadSchema()]);
-    await this.loadProtocols();
+    await Promise.all([this.loadRig(), this.loadIsolators(), this.loadProtocols()]);
     this.renderFieldMeta();
     this.restoreDraft();
     this.readAll();
@@ -261,6 +270,7 @@ export class SetupPanel {
       if (ev.target.id === "f-isolator") this.showIsolator();
       if (ev.target.id === "f-profile") this.showProfile();
       if (ev.target.id === "f-controller") this.showControllerOptions();
+      if (ev.target.dataset.limit) this.showActionHelp();
       this.formChanged();
     });
     form.addEventListener("submit", (ev) => {
@@ -272,7 +282,7 @@ export class SetupPanel {
     $("iso-delete").addEventListener("click", () => this.deleteIsolator());
     onUnits(() => this.onUnitsChanged());
     onState((what) => this.onStateChanged(what));
-    this.showPending();
+    this.showActionHelp();
     this.showProfile();
     this.updateButtons();
     this.scheduleCheck(0);
@@ -296,33 +306,50 @@ export class SetupPanel {
     changed("form");
   }
 
-  /** The service's OpenAPI description: which endpoints exist (protocols, manual motion, limit actions). */
-  async loadSchema() {
-    try {
-      const spec = await api.get("/openapi.json");
-      this.paths = (spec && spec.paths) || {};
-      this.schemas = (spec && spec.components && spec.components.schemas) || {};
-    } catch {
-      this.paths = {};
-      this.schemas = {};
+  // ------------------------------------------------------------------------------------------ limit actions
+
+  /** The action choices of every limit (GET /api/rig limit_actions; the default marked). */
+  renderActions() {
+    const rig = this.rig || {};
+    setActionHelp(rig.limit_actions);
+    const actions = rig.limit_actions ? ACTION_ORDER.filter((a) => a in rig.limit_actions) : ACTION_ORDER;
+    const defaults = (rig.limits_default && rig.limits_default.actions) || {};
+    for (const l of LIMITS) {
+      const sel = this.actionSelect(l.key);
+      const keep = sel.value;
+      const def = defaults[l.key] || DEFAULT_ACTION;
+      sel.innerHTML = "";
+      for (const a of actions) sel.append(el("option", { value: a, text: actionName(a) }));
+      sel.value = actions.includes(keep) ? keep : def;
+      sel.dataset.default = def;
+      sel.title = `default: ${actionName(def)}\n${actions.map((a) => `${actionName(a)}: ${actionHelp(a)}`).join("\n")}`;
+    }
+    // what each action does, in the service's words, once under the limits
+    const help = $("limit-actions-help");
+    help.innerHTML = "";
+    for (const a of actions) {
+      const def = a === DEFAULT_ACTION ? " (the default)" : "";
+      help.append(el("div", { "data-action": a }, el("b", { text: `${actionName(a)}${def}` }), ` ${actionHelp(a)}`));
     }
   }
 
-  /** What the backend does not offer yet: said where the operator would look for it. */
-  showPending() {
-    const paths = this.paths || {};
-    const schemas = this.schemas || {};
-    const limitProps = Object.keys((schemas.LimitsIn && schemas.LimitsIn.properties) || {});
-    const actions = limitProps.some((p) => /action/.test(p));
-    $("limits-pending").textContent = actions
-      ? "The service takes an action per limit now; this console still sends the limits only (every trip aborts)."
-      : "Not yet in the service: an action per limit (indicate / controlled stop / valve close) and a velocity " +
-        "limit. Every limit here aborts the test when it trips; the live view shows the margin left.";
-    const manual = Object.keys(paths).filter((p) => /move|jog|manual|zero|offset/.test(p));
-    $("manual-pending").textContent = manual.length
-      ? `The service offers ${manual.join(", ")}; this console does not drive it yet.`
-      : "Not yet in the service: move the table to a position, return to zero at a safe speed, set an offset " +
-        "from the current position. The strip above shows the table position measured last.";
+  actionSelect(key) {
+    return document.querySelector(`select[data-limit="${key}"]`);
+  }
+
+  /** Each limit's action: {key: action} (SI keys of the service). */
+  actions() {
+    return Object.fromEntries(LIMITS.map((l) => [l.key, this.actionSelect(l.key).value || DEFAULT_ACTION]));
+  }
+
+  /** Each limit row says its action (an action other than the default is marked). */
+  showActionHelp() {
+    for (const l of LIMITS) {
+      const sel = this.actionSelect(l.key);
+      const row = sel.closest(".limit-row");
+      row.dataset.action = sel.value;
+      row.dataset.changed = sel.value !== (sel.dataset.default || DEFAULT_ACTION) ? "1" : "0";
+    }
   }
 
   // ------------------------------------------------------------------------------------------ rig
@@ -355,50 +382,33 @@ export class SetupPanel {
     $("speed-row").title = this.realTimeOnly
       ? `the rig ${rig.driver} runs in real time only: speed 1`
       : "simulated rig only: time scale of the run";
-    if (rig.state) {
-      state.rigState = rig.state;
-      changed("rigState");
-    }
+    this.renderActions();
+    const tol = this.startTolerance();
+    $("start-tolerance").textContent = `\u00b1${fmtU("length", tol, { sig: 3 })}`;
     changed("rig");
   }
 
-  /** The shipped protocols: from the service if it lists them, else from its refusal of an unknown name. */
+  /** The shipped protocols (GET /api/protocols): name, title, levels, peak motion, duration. */
   async loadProtocols() {
-    const rig = this.rig || {};
-    let list = Array.isArray(rig.protocols) ? rig.protocols : null;
-    this.protocolSource = list ? "GET /api/rig" : "";
-    if (!list && this.paths && this.paths["/api/protocols"]) {
-      try {
-        const data = await api.get("/api/protocols");
-        list = listOf(data, "protocols");
-        this.protocolSource = "GET /api/protocols";
-      } catch {
-        list = null;
-      }
+    try {
+      const data = await api.get("/api/protocols");
+      this.protocols = listOf(data, "protocols").filter((p) => p && p.name);
+      this.protocolError = "";
+    } catch (e) {
+      this.protocols = [];
+      this.protocolError = `the service lists no protocols (GET /api/protocols: ${e.message}); only a sine can be chosen`;
     }
-    if (!list) {
-      // no listing endpoint: the check names the shipped protocols when asked for one that does not exist
-      try {
-        const iso = this.isolators.length ? this.isolators[0].name : "IUT_b";
-        const env = rig.envelope || {};
-        const data = await api.postQuiet("/api/tests/check", {
-          isolator: iso, supply_bar: env.supply_bar_max || 70, profile: { kind: "protocol", name: "" },
-        });
-        if (data && data.field === "profile.name" && typeof data.limit === "string") {
-          list = data.limit.split(",").map((s) => s.trim()).filter(Boolean);
-          this.protocolSource = "the check's refusal";
-        }
-      } catch { /* no protocols */ }
-    }
-    this.protocols = (list || []).map((p) => (typeof p === "string" ? { name: p } : p)).filter((p) => p && p.name);
     const sel = $("f-profile");
     const keep = sel.value;
     sel.innerHTML = "";
     sel.append(el("option", { value: "sine", text: "sine (amplitude, frequency, cycles)" }));
     for (const p of this.protocols) {
-      sel.append(el("option", { value: `protocol:${p.name}`, text: `protocol ${p.name}${p.title ? `: ${p.title}` : ""}` }));
+      const figures = [num(p.duration_s) ? fmtDuration(p.duration_s) : "", num(p.cycles_total) ? `${p.cycles_total} cycles` : ""];
+      sel.append(el("option", { value: `protocol:${p.name}`,
+        text: `protocol ${p.name} (${figures.filter(Boolean).join(", ") || "duration not given"})` }));
     }
     if ([...sel.options].some((o) => o.value === keep)) sel.value = keep;
+    $("profile-note").textContent = this.protocolError;
   }
 
   protocol() {
@@ -406,6 +416,7 @@ export class SetupPanel {
     return v.startsWith("protocol:") ? this.protocols.find((p) => p.name === v.slice(9)) || { name: v.slice(9) } : null;
   }
 
+  /** The chosen protocol: its title, what it is for, every level and the whole (duration, cycles, peaks). */
   showProfile() {
     const p = this.protocol();
     $("sine-fields").classList.toggle("hidden", Boolean(p));
@@ -413,36 +424,28 @@ export class SetupPanel {
     info.classList.toggle("hidden", !p);
     info.innerHTML = "";
     if (!p) return;
-    if (p.title || p.description) {
-      info.append(el("b", { text: p.title || p.name }));
-      if (p.description) info.append(el("div", { text: p.description }));
-    } else {
-      info.append(el("b", { text: `shipped protocol ${p.name}` }));
+    info.append(el("b", { class: "protocol-title", text: p.title || `protocol ${p.name}` }));
+    if (p.description) info.append(el("div", { class: "muted", text: p.description }));
+    if (!Array.isArray(p.levels)) {
+      info.append(el("div", { class: "field-error", text: `protocol ${p.name}: the service does not describe it` }));
+      return;
     }
-    const levels = this.protocolLevels(p);
-    if (levels) {
-      info.append(el("div", { text: levels.map((l) => `${fmtU("length", l.amplitude_m)} at ${fmtU("frequency", l.frequency_hz)} x ${l.cycles}`).join("; ") }));
-    } else {
-      info.append(el("div", { class: "muted", text: "Its levels are defined on the service; the service lists " +
-        "no protocol details, so the confirmation cannot show its peak figures before the start." }));
-    }
-  }
-
-  /** A protocol's levels as sine blocks (SI), when the service described them; else null. */
-  protocolLevels(p) {
-    if (!p) return null;
-    if (Array.isArray(p.blocks)) return p.blocks;
-    if (!Array.isArray(p.levels)) return null;
-    const out = [];
+    const table = el("table", { class: "params protocol-levels" });
+    table.append(el("tr", {}, ...["level", "amplitude", "freq.", "cycles", "time"].map((h) => el("th", { text: h }))));
     for (const l of p.levels) {
-      const amp = num(l.amplitude_m) ? l.amplitude_m : num(l.fraction) && num(p.design_displacement_m)
-        ? l.fraction * p.design_displacement_m : NaN;
-      const f = num(l.frequency_hz) ? l.frequency_hz : p.frequency_hz;
-      const taper = num(l.taper_cycles) ? l.taper_cycles : num(p.taper_cycles) ? p.taper_cycles : 0;
-      if (!num(amp) || !num(f)) return null;
-      out.push({ amplitude_m: amp, frequency_hz: f, cycles: (l.cycles || 0) + 2 * taper });
+      const taper = num(l.taper_cycles) && l.taper_cycles > 0 ? ` (+${l.taper_cycles}+${l.taper_cycles})` : "";
+      table.append(el("tr", {},
+        el("td", { text: l.label || "" }),
+        el("td", { text: fmtU("length", l.amplitude_m) }),
+        el("td", { text: fmtU("frequency", l.frequency_hz) }),
+        el("td", { text: `${l.cycles}${taper}` }),
+        el("td", { text: fmtDuration(l.duration_s) })));
     }
-    return out;
+    info.append(table);
+    info.append(el("div", { class: "muted", text: "cycles: test cycles (+ ramp-in + ramp-out cycles)" }));
+    info.append(el("div", { class: "protocol-total", text: `${p.levels.length} levels, ${p.cycles_total} cycles, ` +
+      `duration ${fmtDuration(p.duration_s)} (test time); peak \u00b1${fmtU("length", p.peak_displacement_m)}, ` +
+      `${fmtU("velocity", p.peak_velocity_m_per_s)}; design displacement ${fmtU("length", p.design_displacement_m)}` }));
   }
 
   showControllerOptions() {
@@ -513,20 +516,56 @@ export class SetupPanel {
   showRigLink(link) {
     state.linkConnected = link.connected();
     state.linkArmed = Boolean(link.link && link.link.armed && link.source !== "test");
+    this.rigLink = link;
+    this.renderRigWarning();
+    changed("link");
+  }
+
+  /** A start cannot succeed on this rig now: it does not answer, or its table rests off zero. Said above Start. */
+  renderRigWarning() {
     const box = $("rig-warning");
-    const l = link.link || {};
-    const down = link.kind === "udp" && link.connected() === "false";
-    box.classList.toggle("hidden", !down);
-    box.dataset.state = down ? "down" : "ok";
+    const link = this.rigLink;
+    const down = Boolean(link && link.kind === "udp" && link.connected() === "false");
+    const off = down ? null : this.offZero();
+    box.classList.toggle("hidden", !down && !off);
+    box.dataset.state = down ? "down" : off ? "off-zero" : "ok";
+    box.innerHTML = "";
     if (down) {
+      const l = link.link || {};
       const arm = link.info && typeof link.info.arm_timeout_s === "number" ? fmtPeriod(link.info.arm_timeout_s) : "";
-      box.innerHTML = "";
       box.append(el("b", { text: "Rig not connected: Start is disabled until it answers." }),
         el("div", { text: `${link.name()}: ${l.detail || "no answer"}. The service arms the rig at Start and gives ` +
           `up${arm ? ` after ${arm}` : ""} without an answer; check that the rig (or isorig rig-emulator) runs ` +
           "and is reachable." }));
+    } else if (off) {
+      box.append(el("b", { text: "Table off zero: Start is disabled until it rests at zero." }),
+        el("div", { text: `${capitalize(off.text)}, where every test's target begins. Bring it to zero first: ` +
+          "this console has no manual motion yet (the service's POST /api/rig/zero does it, with the operator " +
+          "token; a real rig also has its own controls)." }));
     }
-    changed("link");
+  }
+
+  startTolerance() {
+    const r = (this.rig && this.rig.rig) || {};
+    return num(r.start_tolerance_m) ? r.start_tolerance_m : START_TOLERANCE_M;
+  }
+
+  /**
+   * The table rests more than the start tolerance from zero (GET /api/rig/state while no test runs: a UDP rig's
+   * own reading, the simulated rig's table where the last run left it): the service refuses a start there.
+   * {at, text} in words, or null.
+   */
+  offZero() {
+    const rs = state.rigState;
+    if (!rs || rs.status !== "idle" && rs.status !== "faulted" || testRunning()) return null;
+    const source = rs.position_source || "";
+    if (!num(rs.table_position_m) || source === "live" || source === "unknown") return null;
+    const tol = this.startTolerance();
+    if (Math.abs(rs.table_position_m) <= tol) return null;
+    const at = fmtU("length", rs.table_position_m, { sign: true });
+    const where = source === "the rig (probe)" ? "the rig's reading" : source.replace(/^end of test (\d+).*/, "where test $1 left it");
+    return { at, text: `the table rests at ${at} (${where}) and a test starts only within ` +
+      `\u00b1${fmtU("length", tol, { sig: 3 })} of zero` };
   }
 
   // ------------------------------------------------------------------------------------------ isolators
@@ -700,18 +739,18 @@ export class SetupPanel {
     for (const [key, spec] of Object.entries(this.fields)) {
       if (spec.limit && num(v[key])) limits[spec.limit] = v[key];
     }
-    if (Object.keys(limits).length) body.limits = limits;
+    body.limits = { ...limits, actions: this.actions() }; // every action said, the defaults too
     return { body, problems };
   }
 
-  /** The limits the next test would get: the form's, else the rig's defaults (SI). */
+  /** The limits the next test would get, with their actions: the form's, else the rig's defaults (SI). */
   nextLimits() {
     const def = (this.rig && this.rig.limits_default) || {};
     const out = { ...def };
-    for (const spec of Object.values(this.fields)) {
-      const key = Object.keys(this.fields).find((k) => this.fields[k] === spec);
+    for (const [key, spec] of Object.entries(this.fields)) {
       if (spec.limit && num(this.values[key])) out[spec.limit] = this.values[key];
     }
+    out.actions = this.actions();
     return out;
   }
 
@@ -786,9 +825,9 @@ export class SetupPanel {
       frequency_hz: "f-frequency", cycles: "f-cycles", taper_cycles: "f-taper_cycles", speed: "f-speed",
       isolator: "f-isolator", controller: "f-controller", displacement_m: "f-lim_displacement",
       force_n: "f-lim_force", tracking_error_m: "f-lim_tracking", load_pressure_pa: "f-lim_pressure",
-      name: "f-profile", profile: "f-profile" };
-    const id = map[key];
-    if (id && $(id)) $(id).classList.add("invalid", "service-invalid");
+      velocity_m_per_s: "f-lim_velocity", name: "f-profile", profile: "f-profile" };
+    const target = /(^|\.)actions\./.test(String(field)) ? this.actionSelect(key) : $(map[key]);
+    if (target) target.classList.add("invalid", "service-invalid");
   }
 
   // ------------------------------------------------------------------------------------------ state
@@ -799,6 +838,7 @@ export class SetupPanel {
       if (testRunning() && t && t.id === state.testId) this.followTest(t);
       else if (!testRunning() && this.locked) this.unlock();
     }
+    if (what === "rigState") this.renderRigWarning();
     if (what === "rig" || what === "rigState" || what === "status" || what === "conn" || what === "link" ||
         what === "test" || what === "stopping") {
       this.updateButtons();
@@ -846,6 +886,8 @@ export class SetupPanel {
       const v = lim[spec.limit];
       this.setField(key, num(v) && v !== def[spec.limit] ? v : null);
     }
+    for (const l of LIMITS) this.actionSelect(l.key).value = actionOf(lim, l.key);
+    this.showActionHelp();
     this.showIsolator();
     this.showProfile();
     this.readAll();
@@ -879,6 +921,10 @@ export class SetupPanel {
     if (!state.conn) out.push("no connection to the service");
     if (testRunning()) out.push(`test #${state.testId ?? (state.rigState && state.rigState.test_id)} is running`);
     if (state.linkConnected === "false") out.push("the rig is not connected");
+    else if (!testRunning()) {
+      const off = this.offZero();
+      if (off) out.push(`the table at zero (it rests at ${off.at}, see above)`);
+    }
     if (!this.locked) {
       const { body, problems } = this.body();
       if (!body.specimen_id) out.push("a specimen id");
@@ -907,7 +953,7 @@ export class SetupPanel {
     if (this.refusal) {
       const c = this.refusal.cause;
       if ((c === "busy" && !testRunning()) || (c === "rig" && state.linkConnected !== "false") ||
-          (c === "conn" && state.conn)) {
+          (c === "conn" && state.conn) || (c === "position" && this.tableBackAtZero())) {
         this.clearRefusal();
       }
     }
@@ -919,8 +965,17 @@ export class SetupPanel {
     m.className = `message ${kind}`;
   }
 
+  /** After an off-zero refusal: the rig's own reading, asked after the refusal, is back within the tolerance. */
+  tableBackAtZero() {
+    const rs = state.rigState;
+    if (testRunning()) return true;
+    if (!rs || state.rigStateSeq <= this.refusal.rigStateSeq) return false;
+    return rs.position_source !== "live" && num(rs.table_position_m) &&
+      Math.abs(rs.table_position_m) <= this.startTolerance();
+  }
+
   refuse(cause, text) {
-    this.refusal = { cause, text };
+    this.refusal = { cause, text, rigStateSeq: state.rigStateSeq };
     this.message(text, "error");
     $("setup-message").dataset.cause = cause;
   }
@@ -937,7 +992,7 @@ export class SetupPanel {
     if (this.locked) return;
     const draft = { values: {}, isolator: $("f-isolator").value, profile: $("f-profile").value,
       controller: $("f-controller").value, specimen_id: $("f-specimen_id").value,
-      operator_name: $("f-operator_name").value, notes: $("f-notes").value };
+      operator_name: $("f-operator_name").value, notes: $("f-notes").value, actions: this.actions() };
     for (const [key, v] of Object.entries(this.values)) if (num(v) || v === null) draft.values[key] = v;
     try { localStorage.setItem(DRAFT_KEY, JSON.stringify(draft)); } catch { /* not kept */ }
   }
@@ -956,40 +1011,40 @@ export class SetupPanel {
     for (const [key, v] of Object.entries(draft.values || {})) {
       if (this.fields[key] && !(key === "speed" && this.realTimeOnly)) this.setField(key, v);
     }
+    for (const l of LIMITS) {
+      const a = draft.actions && draft.actions[l.key];
+      const sel = this.actionSelect(l.key);
+      if (a && [...sel.options].some((o) => o.value === a)) sel.value = a;
+    }
+    this.showActionHelp();
     this.showIsolator();
   }
 
   // ------------------------------------------------------------------------------------------ start, stop
 
-  /** Peak displacement, velocity and force of the motion, and its duration (SI), from the form. */
-  motion(body) {
-    const iso = this.selectedIsolator() || {};
-    const params = Object.fromEntries(((this.rig && this.rig.parameters) || []).map((p) => [p.name, p.value]));
-    let blocks = null;
-    if (body.profile.kind === "sine") {
-      blocks = [{ amplitude_m: body.profile.amplitude_m, frequency_hz: body.profile.frequency_hz, cycles: body.profile.cycles }];
-    } else {
-      blocks = this.protocolLevels(this.protocol());
+  /**
+   * What the motion asks of the rig (SI): the service's figures from the envelope check of exactly this set-up
+   * (peak displacement, velocity, force estimate, duration, cycles). If the service gave none, displacement,
+   * velocity and duration are worked out here from the motion (a sine, or a protocol as listed), and the force
+   * is not estimated: `source` says which.
+   */
+  figures(body) {
+    const d = this.lastCheck.key === SetupPanel.checkKey(body) ? this.lastCheck.data || {} : {};
+    if (num(d.peak_displacement_m) && num(d.peak_velocity_m_per_s) && num(d.duration_s)) {
+      return { source: "service", d: d.peak_displacement_m, v: d.peak_velocity_m_per_s,
+        f: num(d.peak_force_n) ? d.peak_force_n : null, duration: d.duration_s, cycles: d.cycles_total };
     }
-    if (!blocks || !blocks.length) return null;
-    const load = num(body.vertical_load_n) ? body.vertical_load_n : this.defaultVerticalLoad().value;
-    let peak = { d: 0, v: 0, f: 0, iso: 0, friction: 0, inertia: 0, viscous: 0 };
-    let duration = 0;
-    for (const b of blocks) {
-      const w = 2 * Math.PI * b.frequency_hz;
-      const d = b.amplitude_m;
-      const v = w * d;
-      const fIso = (iso.kd_n_per_m || 0) * d + (iso.kw_n || 0);
-      const friction = (params.friction_coefficient || 0) * load + (params.coulomb_force_n || 0);
-      const viscous = (params.viscous_n_s_per_m || 0) * v;
-      const inertia = (params.mass_kg || 0) * w * w * d;
-      const f = fIso + friction + viscous + inertia;
-      if (f > peak.f) peak = { d, v, f, iso: fIso, friction, inertia, viscous };
-      peak.d = Math.max(peak.d, d);
-      peak.v = Math.max(peak.v, v);
-      duration += b.cycles / b.frequency_hz;
+    const p = body.profile;
+    if (p.kind === "sine") {
+      return { source: "console", d: Math.abs(p.offset_m || 0) + p.amplitude_m, v: 2 * Math.PI * p.frequency_hz * p.amplitude_m,
+        f: null, duration: p.cycles / p.frequency_hz, cycles: p.cycles };
     }
-    return { ...peak, duration, load, blocks };
+    const listed = this.protocol();
+    if (listed && num(listed.duration_s)) {
+      return { source: "console", d: listed.peak_displacement_m, v: listed.peak_velocity_m_per_s, f: null,
+        duration: listed.duration_s, cycles: listed.cycles_total };
+    }
+    return null;
   }
 
   /** Values that are valid but look like unit mistakes or certain trips: each needs an explicit tick. */
@@ -1000,18 +1055,34 @@ export class SetupPanel {
       if (w) out.push(w);
     }
     const lim = { ...((this.rig && this.rig.limits_default) || {}), ...(body.limits || {}) };
+    const outcome = (key) => `the test will trip (${actionName(actionOf(lim, key))})`;
+    const trips = (key) => actionOf(lim, key) !== "indicate"; // an indicating limit is warned about below
     if (m) {
-      if (num(lim.displacement_m) && m.d >= lim.displacement_m) {
-        out.push(`the amplitude ${fmtU("length", m.d)} reaches the displacement limit of ${fmtU("length", lim.displacement_m)}: the test will trip`);
+      if (num(lim.displacement_m) && m.d >= lim.displacement_m && trips("displacement_m")) {
+        out.push(`the peak displacement ${fmtU("length", m.d)} reaches the displacement limit of ` +
+          `${fmtU("length", lim.displacement_m)}: ${outcome("displacement_m")}`);
       }
-      if (num(lim.force_n) && m.f >= lim.force_n) {
-        out.push(`the estimated peak force ${fmtU("force", m.f, { sig: 3 })} is above the force limit of ${fmtU("force", lim.force_n, { sig: 3 })}: the test will likely trip`);
+      if (num(lim.velocity_m_per_s) && m.v >= lim.velocity_m_per_s && trips("velocity_m_per_s")) {
+        out.push(`the peak velocity ${fmtU("velocity", m.v)} reaches the velocity limit of ` +
+          `${fmtU("velocity", lim.velocity_m_per_s, { sig: 4 })}: ${outcome("velocity_m_per_s")}`);
+      }
+      if (num(m.f) && num(lim.force_n) && m.f >= lim.force_n && trips("force_n")) {
+        out.push(`the estimated peak force ${fmtU("force", m.f, { sig: 3 })} is above the force limit of ` +
+          `${fmtU("force", lim.force_n, { sig: 3 })}: ${outcome("force_n")} likely`);
       }
       const maxF = this.lastCheck.data && this.lastCheck.data.max_force_n;
-      if (num(maxF) && m.f > 0.9 * maxF) {
+      if (num(m.f) && num(maxF) && m.f > 0.9 * maxF) {
         out.push(`the estimated peak force ${fmtU("force", m.f, { sig: 3 })} is near or above what the actuator gives at this pressure (${fmtU("force", maxF, { sig: 3 })})`);
       }
       if (m.d < 1e-4) out.push(`the amplitude ${fmtU("length", m.d)} is very small: entered in the wrong unit?`);
+    }
+    const onlyIndicate = LIMITS.filter((l) => actionOf(lim, l.key) === "indicate");
+    if (onlyIndicate.length) {
+      const reached = m ? onlyIndicate.filter((l) => ({ displacement_m: m.d, velocity_m_per_s: m.v, force_n: m.f })[l.key] >= lim[l.key]) : [];
+      out.push(`${onlyIndicate.map((l) => limitValue(l, lim[l.key])).join(", ")} only ` +
+        `indicate${onlyIndicate.length > 1 ? "" : "s"}: the test goes on beyond ${onlyIndicate.length > 1 ? "these limits" : "it"} ` +
+        "(an event each time, nothing stops the rig there)" +
+        (reached.length ? `; this motion exceeds ${reached.map((l) => l.short).join(", ")} every cycle` : ""));
     }
     return out;
   }
@@ -1025,30 +1096,46 @@ export class SetupPanel {
       rows.push(["motion", `sine ${fmtU("length", body.profile.amplitude_m)} at ${fmtU("frequency", body.profile.frequency_hz)}`,
         `${body.profile.cycles} cycles, ${body.profile.taper_cycles} taper`]);
     } else {
-      rows.push(["motion", `protocol ${body.profile.name}`, m ? `${m.blocks.length} levels` : ""]);
+      const p = this.protocol() || {};
+      rows.push(["motion", `protocol ${body.profile.name}`, Array.isArray(p.levels)
+        ? `${p.levels.length} levels: ${p.levels.map((l) => `${fmtU("length", l.amplitude_m)} at ${fmtU("frequency", l.frequency_hz)} x ${l.cycles}`).join(", ")}`
+        : ""]);
     }
     if (m) {
       const maxF = this.lastCheck.data && this.lastCheck.data.max_force_n;
-      rows.push(["peak displacement", `\u00b1${fmtU("length", m.d)}`, `stroke \u00b1${fmtU("length", this.rig.envelope.stroke_m, { sig: 4 })}`]);
-      rows.push(["peak velocity", fmtU("velocity", m.v), "2 pi f A"]);
-      rows.push(["peak force (estimate)", `about ${fmtU("force", m.f, { sig: 3 })}`,
-        `isolator k_d A + k_w ${fmtU("force", m.iso, { sig: 3 })}, guide friction ${fmtU("force", m.friction, { sig: 3 })}, ` +
-        `viscous ${fmtU("force", m.viscous, { sig: 2 })}, inertia ${fmtU("force", m.inertia, { sig: 2 })}` +
-        (num(maxF) ? `; the actuator gives ${fmtU("force", maxF, { sig: 3 })} at this pressure` : "")]);
+      const by = m.source === "service" ? "" : " (worked out in this console from the motion: the service's check gave no figures)";
+      rows.push(["peak displacement", `\u00b1${fmtU("length", m.d)}`, `stroke \u00b1${fmtU("length", this.rig.envelope.stroke_m, { sig: 4 })}${by}`]);
+      rows.push(["peak velocity", fmtU("velocity", m.v), `2 pi f A${by}`]);
+      rows.push(num(m.f)
+        ? ["peak force (estimate)", `about ${fmtU("force", m.f, { sig: 3 })}`, "the service's upper estimate: isolator, " +
+          "guide friction at the vertical load, viscous and inertia forces" +
+          (num(maxF) ? `; the actuator gives ${fmtU("force", maxF, { sig: 3 })} at this pressure` : "")]
+        : ["peak force (estimate)", "not available", "the service's check gave no force estimate"]);
       const wall = m.duration / (body.speed || 1);
-      rows.push(["duration", fmtDuration(m.duration), body.speed !== 1 ? `test time; ${fmtDuration(wall)} wall time at ${body.speed}x` : "real time"]);
+      rows.push(["duration", fmtDuration(m.duration), `${num(m.cycles) ? `${m.cycles} cycles, ` : ""}` +
+        (body.speed !== 1 ? `test time; ${fmtDuration(wall)} wall time at ${body.speed}x` : "real time")]);
     } else {
-      rows.push(["peak figures", "not available", "the service lists no protocol details (the service checks the envelope at the start)"]);
+      rows.push(["peak figures", "not available", "the service gave none and this console cannot work them out"]);
     }
-    rows.push(["supply / vertical load", `${fmtU("pressure", body.supply_bar * BAR)} / ${fmtU("force", m ? m.load : (body.vertical_load_n ?? this.defaultVerticalLoad().value), { sig: 4 })}`]);
+    const load = body.vertical_load_n ?? this.defaultVerticalLoad().value;
+    rows.push(["supply / vertical load", `${fmtU("pressure", body.supply_bar * BAR)} / ${fmtU("force", load, { sig: 4 })}`]);
+    const box = el("div", {}, summaryTable(rows));
     const lim = { ...((this.rig && this.rig.limits_default) || {}), ...(body.limits || {}) };
-    rows.push(["limits (trip: abort)", [
-      num(lim.displacement_m) ? `|d| ${fmtU("length", lim.displacement_m, { sig: 4 })}` : "",
-      num(lim.force_n) ? `|F| ${fmtU("force", lim.force_n, { sig: 4 })}` : "",
-      num(lim.tracking_error_m) ? `|y - r| ${fmtU("length", lim.tracking_error_m, { sig: 4 })}` : "",
-      num(lim.load_pressure_pa) ? `|P_L| ${fmtU("pressure", lim.load_pressure_pa, { sig: 4 })}` : "",
-    ].filter(Boolean).join(", ")]);
-    return summaryTable(rows);
+    const table = el("table", { class: "params summary-table limits-table" });
+    table.append(el("tr", {}, el("th", { text: "limit" }), el("th", { text: "value" }), el("th", { text: "when exceeded" })));
+    const used = new Set();
+    for (const l of LIMITS) {
+      if (!num(lim[l.key])) continue;
+      const a = actionOf(lim, l.key);
+      used.add(a);
+      table.append(el("tr", { "data-limit": l.key, "data-action": a },
+        el("td", { text: `${l.name} ${l.short}` }), el("td", {}, el("b", { text: fmtU(l.quantity, lim[l.key], { sig: 4 }) })),
+        el("td", {}, el("b", { text: actionName(a) }))));
+    }
+    box.append(table);
+    box.append(el("p", { class: "actions-help" }, ...ACTION_ORDER.filter((a) => used.has(a))
+      .map((a) => el("span", {}, el("b", { text: actionName(a) }), `: ${actionHelp(a)}. `))));
+    return box;
   }
 
   async start() {
@@ -1056,7 +1143,7 @@ export class SetupPanel {
     if ($("start").disabled) return;
     const { body, problems } = this.body();
     if (Object.keys(problems).length) return;
-    const m = this.motion(body);
+    const m = this.figures(body);
     const answer = await confirmDialog({
       title: "Start this test? The valve opens when you confirm.",
       body: this.summary(body, m),
@@ -1080,7 +1167,8 @@ export class SetupPanel {
         this.showRefusal(e);
         this.refuse("envelope", `Refused by the service: ${e.message}`);
       } else if (e instanceof ApiError && e.status === 409) {
-        this.refuse("busy", `Refused by the service: ${e.message}`);
+        // a test runs elsewhere, or the table rests off zero (a UDP rig's own reading at Start): nothing moved
+        this.refuse(/table is at/.test(e.message) ? "position" : "busy", `Not started, refused by the service: ${e.message}`);
       } else if (e instanceof ApiError && (e.status === 401 || e.status === 0)) {
         this.refuse("form", `Not started: ${e.message}`);
       } else {
@@ -1119,6 +1207,7 @@ export class SetupPanel {
     try {
       await operatorPost(`/api/tests/${id}/stop`);
       state.stopping = true;
+      state.stoppingReason = state.stoppingReason || "stop requested from this console";
       changed("stopping");
       this.message(`Test #${id}: stopping with a ramp-out from the next whole cycle.`, "ok");
       this.live.refreshEvents(id);

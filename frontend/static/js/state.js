@@ -9,12 +9,14 @@ export const state = {
   rig: null, // GET /api/rig
   linkConnected: "unknown", // "true" / "false" / "unknown" (RigLink.connected())
   linkArmed: false, // a UDP rig answered HELLO as armed
-  rigState: null, // GET /api/rig/state when the service has it
+  rigState: null, // GET /api/rig/state (polled every 2 s)
+  rigStateSeq: 0, // answers of GET /api/rig/state received so far
   testId: null, // the test in view (the live stream's)
   test: null, // its record
   status: null, // its status
   reason: "",
-  stopping: false, // a stop (ramp-out) was requested for the running test
+  stopping: false, // the running test is ending: a stop or abort was requested, or a limit tripped
+  stoppingReason: "", // why, in words
   lastEvent: null, // {text, kind, at}
   position: null, // {m, testId, t, live}: the latest measured table position
   faulted: "", // why the rig is faulted (a test ended failed / rig fault), "" when not
@@ -40,5 +42,6 @@ export function changed(what) {
 export function testRunning() {
   if (state.status === "running") return true;
   if (state.conn && state.helloSeen) return false; // the live stream is the truth while it is up
-  return Boolean(state.rigState && state.rigState.status === "running");
+  const s = state.rigState && state.rigState.status;
+  return s === "running" || s === "stopping";
 }

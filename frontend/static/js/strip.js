@@ -1,106 +1,150 @@
-// The status strip under the top bar, always visible: the rig (connected / armed / running / stopping /
-// faulted), supply pressure, table position, vertical load, the limits in force and the last event in words.
-// Everything comes from js/state.js (the live stream, the rig link, GET /api/rig, GET /api/rig/state when the
-// service has it); what the service does not report is said, not guessed.
+// The status strip under the top bar, always visible: the rig (running / stopping / idle / armed / faulted /
+// not connected), supply pressure, table position and where that figure comes from, vertical load, the limits
+// in force with their actions, and the last event in words. It reads js/state.js: the live stream (fresh, 10
+// times a second during a test), the rig link, and GET /api/rig/state (every 2 s: also when no test runs, and
+// what another console did); what the service does not report is said, not guessed.
 
+import { limitsLines, limitsText } from "./limits.js";
 import { onState, state, testRunning } from "./state.js";
-import { fmtU, onUnits } from "./units.js";
+import { eventLine } from "./ui.js";
+import { fmt, fmtU, onUnits } from "./units.js";
 
 const $ = (id) => document.getElementById(id);
 const num = (v) => typeof v === "number" && Number.isFinite(v);
 
-export function limitsText(lim) {
-  if (!lim) return "-";
-  return [
-    num(lim.displacement_m) ? `|d| ${fmtU("length", lim.displacement_m, { sig: 4 })}` : "",
-    num(lim.force_n) ? `|F| ${fmtU("force", lim.force_n, { sig: 4 })}` : "",
-    num(lim.tracking_error_m) ? `|y-r| ${fmtU("length", lim.tracking_error_m, { sig: 4 })}` : "",
-    num(lim.load_pressure_pa) ? `|P_L| ${fmtU("pressure", lim.load_pressure_pa, { sig: 4 })}` : "",
-  ].filter(Boolean).join(" \u00b7 ");
-}
-
 export class StatusStrip {
   constructor() {
     this.nextLimits = null; // () -> limits the next test would use (the set-up panel)
-    onState((what) => this.render(what));
-    onUnits(() => this.render("units"));
+    onState(() => this.render());
+    onUnits(() => this.render());
   }
 
-  /** The rig's state in one word and a class. */
-  rigState() {
-    const t = state.test;
-    const id = state.testId;
-    if (!state.conn) {
-      return ["NO CONNECTION", "bad", state.everConnected ? "to the service: reconnecting; the rest is the last known state" : "connecting to the service..."];
-    }
-    if (state.linkConnected === "false") return ["NOT CONNECTED", "bad", "the rig does not answer"];
-    if (testRunning()) {
-      if (state.stopping) return ["STOPPING", "stopping", `test #${id}: ramp-out to the end of the next whole cycle`];
-      return ["RUNNING", "running", `test #${id ?? (state.rigState && state.rigState.test_id)}`];
-    }
-    if (state.faulted) return ["FAULTED", "bad", state.faulted];
+  /**
+   * GET /api/rig/state's last answer, unless it is older than what the live stream says: an answer of while the
+   * test still ran, when the stream has seen it end (the next answer comes within 2 s).
+   */
+  serviceState() {
     const rs = state.rigState || {};
+    const busy = rs.status === "running" || rs.status === "stopping";
+    if (busy && state.conn && state.helloSeen && !testRunning()) return { driver: rs.driver, last_event: rs.last_event };
+    return rs;
+  }
+
+  /** The rig's state: [word, class, why] (why is shown next to the word when it matters). */
+  rigState() {
+    const rs = this.serviceState();
+    if (!state.conn) {
+      return ["NO CONNECTION", "bad", state.everConnected ? "to the service: reconnecting; the rest is the last known state"
+        : "connecting to the service..."];
+    }
+    if (state.linkConnected === "false" || rs.status === "not_connected") {
+      return ["NOT CONNECTED", "bad", rs.detail || "the rig does not answer"];
+    }
+    if (testRunning()) {
+      const id = state.testId ?? rs.test_id;
+      const serviceStopping = rs.status === "stopping" && rs.test_id === id;
+      if (state.stopping || serviceStopping) {
+        return ["STOPPING", "stopping", state.stoppingReason || rs.stopping_reason || "the test is ending"];
+      }
+      return ["RUNNING", "running", `test #${id}`];
+    }
+    if (rs.status === "faulted") return ["FAULTED", "bad", rs.rig_status ? `the rig reports: ${rs.rig_status}` : "the rig reports a fault"];
+    if (state.faulted) return ["FAULTED", "bad", state.faulted];
     if (state.linkArmed || rs.armed) return ["ARMED", "warn", "the rig is armed, no test runs"];
-    const kind = state.rig && state.rig.rig && state.rig.rig.kind;
-    const last = t && t.status && t.status !== "running" ? `; last test #${id} ${t.status}` : "";
-    return ["IDLE", "idle", `${kind === "simulated" ? "simulated rig, " : "connected, "}no test runs${last}`];
+    const t = state.test;
+    const simulated = (rs.driver || (state.rig && state.rig.driver)) === "simulated";
+    const last = t && t.status && t.status !== "running" ? `; last test #${state.testId} ${t.status}` : "";
+    return ["IDLE", "idle", `${simulated ? "simulated rig, " : "connected, "}no test runs${last}`];
   }
 
   render() {
-    const [word, cls, detail] = this.rigState();
+    const [word, cls, why] = this.rigState();
     const rig = $("s-rig");
     rig.textContent = word;
-    rig.title = detail;
+    rig.title = why;
+    rig.dataset.detail = why;
     const cell = $("s-rig-cell");
     cell.dataset.state = word.toLowerCase().replace(/ /g, "-");
     cell.className = `cell cell-rig ${cls}`;
-    rig.dataset.detail = detail;
+    const showWhy = ["STOPPING", "NOT CONNECTED", "FAULTED"].includes(word);
+    $("s-rig-why").textContent = showWhy ? why : "";
+    $("s-rig-why").title = showWhy ? why : "";
     const running = testRunning();
     const t = state.test || {};
-    const rs = state.rigState || {};
-    // supply pressure: measured when the service reports it, else the running test's setting
-    const supply = $("s-supply");
-    if (num(rs.supply_pressure_pa)) {
-      supply.textContent = fmtU("pressure", rs.supply_pressure_pa);
-      supply.title = "measured (GET /api/rig/state)";
-    } else if (running && num(t.supply_bar)) {
-      supply.textContent = `${fmtU("pressure", t.supply_bar * 1e5)} set`;
-      supply.title = "the running test's supply setting (the stream does not carry the measured supply pressure)";
-    } else {
-      supply.textContent = "not reported";
-      supply.title = "the service reports no supply pressure while no test runs (no GET /api/rig/state)";
-    }
-    // table position: the latest measured sample (live during a test; the last of the last test otherwise)
-    const pos = $("s-position");
-    const p = state.position;
-    if (num(rs.table_position_m) && !(p && p.live)) {
-      pos.textContent = fmtU("length", rs.table_position_m, { sign: true });
-      pos.title = "measured (GET /api/rig/state)";
-    } else if (p && num(p.m)) {
-      pos.textContent = `${fmtU("length", p.m, { sign: true })}${p.live && running ? "" : ` (end of test #${p.testId})`}`;
-      pos.title = p.live && running ? "measured, live" : `last measured sample of test #${p.testId}, t = ${p.t.toFixed(2)} s`;
-    } else {
-      pos.textContent = "unknown";
-      pos.title = "no sample since this page opened and no GET /api/rig/state on this service";
-    }
-    // vertical load: the running test's (or the last test's) condition
+    const rs = this.serviceState();
+    this.renderSupply(running, t, rs);
+    this.renderPosition(running, rs);
+    // vertical load: the running test's, else the last test's condition
     const vl = $("s-vertical");
-    if (num(rs.vertical_load_n) && !running) {
-      vl.textContent = fmtU("force", rs.vertical_load_n, { sig: 4 });
-    } else if (num(t.vertical_load_n)) {
-      vl.textContent = `${fmtU("force", t.vertical_load_n, { sig: 4 })}${running ? "" : ` (test #${state.testId})`}`;
+    const load = running && num(rs.vertical_load_n) ? rs.vertical_load_n : t.vertical_load_n;
+    if (num(load)) {
+      vl.textContent = `${fmtU("force", load, { sig: 4 })}${running ? "" : ` (test #${state.testId})`}`;
+      vl.title = running ? "the running test's vertical load" : "the vertical load of the last test; each test sets its own";
     } else {
       vl.textContent = "no test yet";
       vl.title = "the vertical load is a condition of each test";
     }
-    // limits: the running test's, else those the next test would get
-    const lim = running && t.limits ? t.limits : this.nextLimits ? this.nextLimits() : null;
-    $("s-limits-label").textContent = running ? `limits of test #${state.testId} (trip: abort)` : "limits of the next test";
+    // limits: the running test's (with their actions), else those the next test would get
+    const lim = running ? t.limits || rs.limits : this.nextLimits ? this.nextLimits() : null;
+    const id = state.testId ?? rs.test_id;
+    $("s-limits-label").textContent = running ? `limits of test #${id}, action when exceeded` : "limits of the next test, action when exceeded";
     $("s-limits").textContent = limitsText(lim);
-    const ev = state.lastEvent;
+    $("s-limits").title = limitsLines(lim);
+    // the last event: this page's (the test in view), else the service's latest
     const e = $("s-event");
-    e.textContent = ev ? ev.text : "none yet";
-    e.title = ev ? ev.text : "";
-    e.dataset.kind = ev ? ev.kind : "";
+    const mine = state.lastEvent;
+    const theirs = rs.last_event;
+    const text = mine ? mine.text : theirs ? `${theirs.test_id ? `test #${theirs.test_id}: ` : ""}${eventLine(theirs)}` : "none yet";
+    e.textContent = text;
+    e.title = text;
+    e.dataset.kind = mine ? mine.kind : theirs ? theirs.kind : "";
+  }
+
+  /** Supply pressure: measured when the service reports it (a running test, a UDP rig's answer), else the setting. */
+  renderSupply(running, t, rs) {
+    const supply = $("s-supply");
+    const set = running && num(t.supply_bar) ? t.supply_bar * 1e5 : null;
+    if (num(rs.supply_pressure_pa)) {
+      supply.textContent = `${fmtU("pressure", rs.supply_pressure_pa)}${set !== null ? ` (set ${fmt("pressure", set)})` : ""}`;
+      supply.title = `measured (${rs.position_source === "live" ? "the running test's latest sample" : "the rig's answer"}, ` +
+        "GET /api/rig/state every 2 s)";
+    } else if (set !== null) {
+      supply.textContent = `${fmtU("pressure", set)} set`;
+      supply.title = "the running test's supply setting (the service reports no measured value yet)";
+    } else {
+      supply.textContent = "not reported";
+      supply.title = "no measured supply pressure: no test runs and this rig reports none while idle";
+    }
+  }
+
+  /** Table position and where the figure comes from: live, the end of a test, the rig's own answer. */
+  renderPosition(running, rs) {
+    const pos = $("s-position");
+    const p = state.position;
+    let value = null;
+    let source = "";
+    const ended = /^end of test (\d+)/.exec(rs.position_source || "");
+    const newer = p && num(p.m) && ended && p.testId > Number(ended[1]); // the service's answer predates the test in view
+    if (running && p && p.live && num(p.m)) {
+      value = p.m;
+      source = "live";
+    } else if (num(rs.table_position_m) && !newer) {
+      value = rs.table_position_m;
+      source = rs.position_source || "";
+    } else if (p && num(p.m)) {
+      value = p.m;
+      source = `end of test ${p.testId}`;
+    }
+    pos.dataset.source = source;
+    if (value === null) {
+      pos.textContent = "unknown";
+      pos.title = rs.position_source ? `position source: ${rs.position_source}` : "no sample since this page opened";
+      return;
+    }
+    pos.textContent = `${fmtU("length", value, { sign: true })} \u00b7 ${source || "?"}`;
+    pos.title = {
+      live: "measured, live (the running test's latest sample)",
+      "the rig (probe)": "the rig's own reading, asked every 2 s while no test runs",
+    }[source] || `the last sample of the last test (${source}); the table may have moved since, by the rig's own controls`;
   }
 }

@@ -1,5 +1,6 @@
 // Small shared UI helpers: formatting, the status badge, the alert banner, events in words.
 
+import { actionName, limitInfo } from "./limits.js";
 import { fmtU } from "./units.js";
 
 export function fmtDuration(s) {
@@ -18,6 +19,10 @@ export function profileText(t) {
   if (Array.isArray(p)) p = p.length === 1 ? p[0] : { kind: `${p.length} sine blocks` };
   if (!p) return "-";
   if (p.kind === "protocol") return `protocol ${p.name || "(inline)"}`;
+  if (p.kind === "move") {
+    return `manual move ${fmtU("length", p.start_m, { sign: true })} to ${fmtU("length", p.end_m, { sign: true })} ` +
+      `at ${fmtU("velocity", p.speed_m_per_s)}`;
+  }
   if (p.kind === "sine" || p.amplitude_m !== undefined) {
     return `sine ${fmtU("length", p.amplitude_m)} at ${fmtU("frequency", p.frequency_hz)} x ${p.cycles}`;
   }
@@ -59,16 +64,37 @@ export function fmtTime(iso) {
     `${two(d.getHours())}:${two(d.getMinutes())}:${two(d.getSeconds())}`;
 }
 
-const DETECTORS = {
-  displacement_m: ["displacement", "length"],
-  force_n: ["force", "force"],
-  load_pressure_pa: ["load pressure", "pressure"],
-  tracking_error_m: ["tracking error |y - r|", "length"],
-  supply_pressure_pa: ["supply pressure", "pressure"],
-};
-
 function capital(text) {
   return text ? text[0].toUpperCase() + text.slice(1) : text;
+}
+
+/** A limit event (limit_trip, limit_indicate) in words: the quantity, its value and the limit, the action taken. */
+function limitWords(e) {
+  const v = e.values || {};
+  const info = limitInfo(v.limit_name);
+  const reading = info && typeof v[v.limit_name] === "number" && typeof v.limit === "number"
+    ? `${info.name} ${fmtU(info.quantity, Math.abs(v[v.limit_name]), { sig: 4 })} beyond the limit of ` +
+      `${fmtU(info.quantity, v.limit, { sig: 4 })}`
+    : e.message || v.detector || "a detector tripped";
+  if (e.kind === "limit_indicate") {
+    const n = typeof v.indication === "number" ? ` (indication ${v.indication}` +
+      `${v.indication >= 10 ? "; further ones are only counted, in the test's summary" : ""})` : "";
+    return `LIMIT INDICATED: ${reading}; the test goes on${n}`;
+  }
+  if (v.escalation) return `LIMIT TRIP during the controlled stop: ${reading}; valve close: the valve closes now`;
+  const action = v.action || "valve_close";
+  const done = {
+    valve_close: "valve close: the valve command ramps to 0 V in 0.1 s, the test ends aborted",
+    controlled_stop: "controlled stop: the target ramps out under control, the test ends aborted",
+  }[action] || `${actionName(action)}: the test ends aborted`;
+  return `LIMIT TRIP: ${reading}; ${done}`;
+}
+
+/** "stop requested by operator" -> "operator" (the actor of a request streamed live, which has no actor field). */
+function requestedBy(e) {
+  if (e.actor && e.actor !== "system") return e.actor;
+  const m = /requested by (.+)$/.exec(e.message || "");
+  return m ? m[1] : "";
 }
 
 /**
@@ -79,28 +105,30 @@ export function eventWords(e) {
   const v = (e && e.values) || {};
   const kind = e.kind || "event";
   let text = e.message || kind;
-  if (kind === "limit_trip" && v.limit_name && DETECTORS[v.limit_name]) {
-    const [name, quantity] = DETECTORS[v.limit_name];
-    const value = Math.abs(v[v.limit_name]);
-    text = `LIMIT TRIP: ${name} ${fmtU(quantity, value, { sig: 4 })} beyond the limit of ${fmtU(quantity, v.limit, { sig: 4 })}; ` +
-      "valve command ramped to 0 V, test aborted";
-  } else if (kind === "limit_trip") {
-    text = `LIMIT TRIP: ${e.message || v.detector || "a detector tripped"}`;
+  if (kind === "limit_trip" || kind === "limit_indicate") {
+    text = limitWords(e);
   } else if (kind === "rig_fault") {
     text = `RIG FAULT: ${e.message || "the rig stopped"}`;
   } else if (kind === "operator") {
-    const who = e.actor && e.actor !== "operator" ? ` (${e.actor})` : "";
-    const words = {
-      create: "Test created", start: "Test started: the valve opens", stop: "Stop requested: ramp-out from the next whole cycle",
-      abort: "Abort requested: valve command to 0 V", discard: "Start refused: the test was not kept",
-      delete: "Test deleted (it never ran)",
-    }[v.action];
-    if (v.action === "archive" || v.action === "restore") {
+    const who = requestedBy(e);
+    const requested = /requested by/.test(e.message || "") || (e.actor && e.actor !== "system");
+    if (v.action === "stop" && !requested) {
+      text = typeof v.ends_at_s === "number" ? `Ramp-out begun: the test ends at t = ${v.ends_at_s.toFixed(2)} s`
+        : "Ramp-out begun";
+    } else if (v.action === "abort" && !requested) {
+      text = "Abort: valve command set to 0 V at once";
+    } else if (v.action === "archive" || v.action === "restore") {
       text = `${v.action === "archive" ? "Archived" : "Restored"} by ${v.by}: ${v.reason}`;
-    } else if (words) {
-      text = words + who;
+    } else if (v.action === "stop" || v.action === "abort") {
+      text = v.action === "stop"
+        ? `Stop requested by ${who || "an operator"}: ramp-out to the end of the next whole cycle`
+        : `Abort requested by ${who || "an operator"}: valve command to 0 V`;
     } else {
-      text = capital(text);
+      const words = {
+        create: "Test created", start: "Test started: the valve opens",
+        discard: "Start refused: the test was not kept", delete: "Test deleted (it never ran)",
+      }[v.action];
+      text = words ? `${words}${who && who !== "operator" ? ` (${who})` : ""}` : capital(text);
     }
   } else if (kind === "status") {
     text = capital(text.replace(/^test \d+ /, "test "));
