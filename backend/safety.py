@@ -7,11 +7,14 @@ the anchor): ``indicate`` records an event and the test goes on; ``controlled_st
 under control, as an operator's stop; ``valve_close`` ramps the valve command to 0 V in 0.1 s, open loop.
 Built-in detectors, always ``valve_close``: non-finite readings or commands, a fault the rig reports in its
 status bits (sensor fault, watchdog, interlock), the supply pressure lost (below ``SUPPLY_LOSS_FRACTION``
-of the test's setting) and a frozen position reading (unchanged for ``FROZEN_PERIODS`` periods while the
-valve command stayed beyond ``FROZEN_COMMAND_V``: the valve is open, so the table moves, unless the sensor
-is stuck; a table the controller does not drive may rest). Detectors read what the rig measures
-(``measured_displacement_m``; the velocity is its difference over ``VELOCITY_SPAN_PERIODS``), never a
-simulation's true state.
+of the test's setting), a position reading beyond the rig's stroke (``sensor_range_m``: no table can be
+there, whatever the operator's displacement limit and its action) and a frozen position reading (unchanged
+for ``FROZEN_TIERS`` periods while the valve command stayed beyond the tier's voltage: the valve is open, so
+the table moves, unless the sensor is stuck; a table the controller does not drive may rest). Detectors read
+what the rig measures (``measured_displacement_m``; the velocity is its difference over
+``VELOCITY_SPAN_PERIODS``), never a simulation's true state. After a sensor fault (``SENSOR_FAULTS``) the
+last command was computed from a reading that cannot be trusted: the valve closes at once, not over a ramp
+(``Trip.close_at_once``).
 
 The first sample that trips (an action other than ``indicate``) ends the test ``aborted``, the trip recorded
 with its values and its action. During a controlled stop a ``valve_close`` trip still closes the valve.
@@ -33,6 +36,10 @@ DEFAULT_TRACKING_ERROR_M = 0.05  # the paper's MRAC reaches ~31 mm peak |y - r| 
 SUPPLY_LOSS_FRACTION = 0.5  # a measured supply pressure below this share of the test's setting trips
 FROZEN_PERIODS = 100  # a position reading unchanged this many periods ...
 FROZEN_COMMAND_V = 2.0  # ... while |valve command| stayed at least this (20 % of the range): the sensor is stuck
+FROZEN_SATURATED_PERIODS = 20  # ... or this many with the valve nearly wide open (the table would move 8 mm)
+FROZEN_SATURATED_V = 8.0
+FROZEN_TIERS = ((FROZEN_COMMAND_V, FROZEN_PERIODS), (FROZEN_SATURATED_V, FROZEN_SATURATED_PERIODS))
+SENSOR_FAULTS = ("non_finite", "rig_fault", "sensor_range", "position_frozen")  # the reading is not trusted
 VELOCITY_SPAN_PERIODS = 5  # velocity = measured displacement difference over 5 periods (5 ms): noise / 5
 INDICATIONS_RECORDED = 10  # events per indicating limit and test; further excursions are only counted
 
@@ -152,6 +159,11 @@ class Trip:
     values: dict
     action: str = DEFAULT_ACTION
 
+    @property
+    def close_at_once(self) -> bool:
+        """A sensor fault: the last command came from a reading that cannot be trusted, so no ramp from it."""
+        return self.detector in SENSOR_FAULTS
+
 
 def measured_velocity(y: np.ndarray, before: np.ndarray | None = None) -> np.ndarray:
     """Table velocity from the measured displacement: (y[k] - y[k - n]) / (n T) with n =
@@ -198,12 +210,14 @@ def _limit_trip(rows: Samples, i: int, detector: str, limits: SafetyLimits, velo
 
 
 def check_block(rows: Samples, limits: SafetyLimits, supply_pa: float | None = None,
-                velocity: np.ndarray | None = None, skip: tuple[str, ...] = ("indicate",)) -> Trip | None:
+                velocity: np.ndarray | None = None, skip: tuple[str, ...] = ("indicate",),
+                sensor_range_m: float | None = None) -> Trip | None:
     """The first sample of ``rows`` that trips a detector (stateless; limits whose action is in ``skip``
     are not checked: ``indicate`` ones are left to ``SafetyMonitor``), or None.
 
     ``supply_pa``: the test's supply pressure setting, for the supply-loss detector (skipped if None);
-    ``velocity``: the measured velocity of each row (``measured_velocity``; from this block alone if None).
+    ``velocity``: the measured velocity of each row (``measured_velocity``; from this block alone if None);
+    ``sensor_range_m``: the rig's stroke, beyond which a position reading is a sensor fault (None: unchecked).
     """
     if len(rows) == 0:
         return None
@@ -214,6 +228,9 @@ def check_block(rows: Samples, limits: SafetyLimits, supply_pa: float | None = N
     flags = np.nan_to_num(rows["flags"]).astype(np.int64)
     finite = np.isfinite(y) & np.isfinite(f) & np.isfinite(pl) & np.isfinite(u) & np.isfinite(ps)
     checks = [("non_finite", ~finite), ("rig_fault", (flags & RIG_FAULT_BITS) != 0)]
+    if sensor_range_m is not None:
+        with np.errstate(invalid="ignore"):
+            checks.append(("sensor_range", np.abs(y) > sensor_range_m))
     checks += [(name, mask) for name, mask in limit_masks(rows, limits, velocity).items()
                if limits.action(DETECTORS[name]) not in skip]
     if supply_pa is not None:
@@ -234,6 +251,10 @@ def check_block(rows: Samples, limits: SafetyLimits, supply_pa: float | None = N
         message = f"non-finite rig state or reading at t = {t:.3f} s"
     elif name == "rig_fault":
         message = f"the rig reports a fault at t = {t:.3f} s: {describe_status(values['flags'] & RIG_FAULT_BITS)}"
+    elif name == "sensor_range":
+        values.update(limit=sensor_range_m, limit_name="sensor_range_m")
+        message = (f"position reading out of range at t = {t:.3f} s: {values['displacement_m'] * 1e3:.6g} mm is "
+                   f"beyond the rig's stroke of +-{sensor_range_m * 1e3:g} mm (a sensor fault; the valve closes)")
     else:
         floor = SUPPLY_LOSS_FRACTION * supply_pa
         values.update(limit=floor, limit_name="supply_pressure_pa")
@@ -248,11 +269,12 @@ class SafetyMonitor:
     excursion beyond the limit, the first ``INDICATIONS_RECORDED`` of each limit kept for events
     (``take_indications``), all of them counted (``indication_counts``)."""
 
-    def __init__(self, limits: SafetyLimits, supply_pa: float | None = None):
+    def __init__(self, limits: SafetyLimits, supply_pa: float | None = None, sensor_range_m: float | None = None):
         self.limits = limits
         self.supply_pa = supply_pa
+        self.sensor_range_m = sensor_range_m
         self._last_reading = np.nan
-        self._run_periods = 0  # periods the reading has been unchanged, with the valve open, before the block
+        self._run_periods = [0] * len(FROZEN_TIERS)  # per tier: periods unchanged, valve open, before the block
         self._recent = np.zeros(0)  # the last readings, for the velocity
         self._beyond: dict[str, bool] = {}  # an indicating limit was exceeded at the end of the last block
         self.indication_counts: dict[str, int] = {}
@@ -266,7 +288,7 @@ class SafetyMonitor:
         self._recent = np.concatenate([self._recent, y])[-VELOCITY_SPAN_PERIODS:]
         self._indicate(rows, velocity)
         skip = ("indicate", "controlled_stop") if valve_close_only else ("indicate",)
-        trip = check_block(rows, self.limits, self.supply_pa, velocity, skip)
+        trip = check_block(rows, self.limits, self.supply_pa, velocity, skip, self.sensor_range_m)
         frozen = self._frozen(rows, velocity)
         if frozen is not None and (trip is None or frozen.index < trip.index):
             return frozen
@@ -296,27 +318,32 @@ class SafetyMonitor:
             self._beyond[name] = bool(mask[-1])
 
     def _frozen(self, rows: Samples, velocity: np.ndarray) -> Trip | None:
+        """The first sample whose reading has not changed for a tier's periods with the valve open beyond
+        the tier's voltage (``FROZEN_TIERS``), or None."""
         n = len(rows)
         if n == 0:
             return None
         y = rows["measured_displacement_m"]
-        with np.errstate(invalid="ignore"):
-            open_valve = np.abs(rows["voltage_v"]) >= FROZEN_COMMAND_V
-        changed = np.empty(n, dtype=bool)
-        changed[0] = not (y[0] == self._last_reading)
-        changed[1:] = y[1:] != y[:-1]
-        changed |= ~open_valve  # a run counts only periods with the valve open
-        index = np.arange(n)
-        start = np.maximum.accumulate(np.where(changed, index, -1))  # where the current run began (-1: before)
-        run = np.where(start >= 0, index - start, index + 1 + self._run_periods)
-        hits = np.flatnonzero(run >= FROZEN_PERIODS)
+        same = np.empty(n, dtype=bool)
+        same[0] = y[0] == self._last_reading
+        same[1:] = y[1:] == y[:-1]
         self._last_reading = y[-1]
-        self._run_periods = int(run[-1])
-        if hits.size == 0:
+        index = np.arange(n)
+        first = None
+        for tier, (command_v, periods) in enumerate(FROZEN_TIERS):
+            with np.errstate(invalid="ignore"):
+                changed = ~same | ~(np.abs(rows["voltage_v"]) >= command_v)  # a run counts valve-open periods
+            start = np.maximum.accumulate(np.where(changed, index, -1))  # where the current run began (-1: before)
+            run = np.where(start >= 0, index - start, index + 1 + self._run_periods[tier])
+            self._run_periods[tier] = int(run[-1])
+            hits = np.flatnonzero(run >= periods)
+            if hits.size and (first is None or hits[0] < first[0]):
+                first = (int(hits[0]), int(run[hits[0]]), command_v)
+        if first is None:
             return None
-        i = int(hits[0])
+        i, unchanged, command_v = first
         values = _values(rows, i, velocity)
-        values.update(unchanged_periods=int(run[i]), command_at_least_v=FROZEN_COMMAND_V)
+        values.update(unchanged_periods=unchanged, command_at_least_v=command_v)
         message = (f"position reading frozen at t = {values['time_s']:.3f} s: {values['displacement_m']:.6g} m for "
-                   f"{int(run[i])} periods with the valve command beyond +-{FROZEN_COMMAND_V:g} V (a stuck sensor)")
+                   f"{unchanged} periods with the valve command beyond +-{command_v:g} V (a stuck sensor)")
         return Trip("position_frozen", i, values["time_s"], message, values)

@@ -274,12 +274,13 @@ class ClosedLoop:
             raise ValueError(f"period {period} has run already (the loop is at {self.period})")
         self.table[period] = (r_m, r_dot_m_per_s, r_ddot_m_per_s2)
 
-    def begin_command_ramp(self, duration_s: float = COMMAND_RAMP_S) -> None:
-        """Controlled stop: from this period on, the command ramps from its last value to zero, open loop."""
+    def begin_command_ramp(self, duration_s: float = COMMAND_RAMP_S, at_once: bool = False) -> None:
+        """Controlled stop: from this period on, the command ramps from its last value to zero, open loop
+        (``at_once``: it is zero from this period on; the last value came from a reading not to be trusted)."""
         if self.ramping:
             return
         self.state[LS_MODE] = MODE_RAMP
-        self.state[LS_RAMP_U0] = self.state[LS_LAST_U]
+        self.state[LS_RAMP_U0] = 0.0 if at_once else self.state[LS_LAST_U]
         self.state[LS_RAMP_K0] = self.period
         self.state[LS_RAMP_N] = max(1, int(round(duration_s / self.control_period_s)))
 

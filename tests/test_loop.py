@@ -121,6 +121,21 @@ def test_command_ramp_is_open_loop_and_ends_the_loop():
     assert commands[-1] == 0.0
 
 
+def test_a_sensor_fault_closes_the_valve_at_once():
+    """After a reading that cannot be trusted, no ramp from the command computed from it: 0 V from the next
+    period on, and the loop ends."""
+    loop = ClosedLoop([SineProfile(0.02, 1.0, 5, 1)], make_controller("pid"), 10.0)
+    for k in range(300):
+        loop.step(Measurement(k, k * 1e-3, 0.0, 0.0, 0.0, 100e5))
+    assert loop.last_command_v > 1.0
+    loop.begin_command_ramp(0.05, at_once=True)
+    commands = []
+    while not loop.done:
+        u, _ = loop.step(Measurement(loop.period, loop.time_s, 0.5, 0.0, 0.0, 100e5))
+        commands.append(u)
+    assert len(commands) == 50 and not any(commands)
+
+
 def test_ramp_out_profile_is_continuous_and_ends_at_a_cycle():
     blocks = pack_profile([SineProfile(0.02, 1.0, 10, 2), SineProfile(0.01, 2.0, 4, 1)])
     for t_stop, end_expected in ((0.3, 3.0), (3.27, 6.0), (7.9, 10.0), (9.5, 10.0)):

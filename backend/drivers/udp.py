@@ -277,12 +277,15 @@ START_TOLERANCE_M = 0.002  # a test starts only with the table this close to zer
 
 def start_position_problem(url: str, tolerance_m: float = START_TOLERANCE_M, timeout_s: float = 0.2,
                            expected_m: float = 0.0) -> str | None:
-    """Why nothing may start on the rig at ``url`` now: its table is more than ``tolerance_m`` from
-    ``expected_m``, where the target begins (0 for every test), so the controller would drive it there at
-    full flow. None: it may start (or the rig does not answer: arming says so and the run ends failed)."""
+    """Why nothing may start on the rig at ``url`` now, or None: it may. Refused when the rig does not answer
+    (where its table is is then unknown), when it is armed (another host's test or move runs on it), and when
+    its table is more than ``tolerance_m`` from ``expected_m``, where the target begins (0 for every test),
+    since the controller would drive it there at full flow."""
     answer = probe(url, timeout_s)
     if not answer["connected"]:
-        return None
+        return f"{answer['detail']}, so where its table is is unknown; nothing moved"
+    if answer["armed"]:
+        return "the rig is armed: another test or move runs on it (wait for it to end); nothing moved"
     y = answer["position_m"]
     if abs(y - expected_m) <= tolerance_m:
         return None

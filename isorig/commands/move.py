@@ -45,6 +45,9 @@ def run(args) -> int:
     answer = probe(args.rig, timeout_s=0.5)
     if not answer["connected"]:
         raise UsageError(f"isorig move: {answer['detail']}; nothing moved")
+    if answer["armed"]:
+        raise UsageError(f"isorig move: the rig at {args.rig} is armed: another test or move runs on it (wait for it "
+                         "to end); nothing moved")
     start_m = float(answer["position_m"])
     try:
         check_move(start_m, args.position_m, args.speed_m_per_s, DEFAULT_RIG.stroke_m)

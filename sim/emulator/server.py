@@ -202,6 +202,9 @@ class RigEmulator:
             return
         if self.armed and packet.session == self.session:
             return  # the host repeats ARM until it hears the rig: already armed
+        if self.armed:
+            self._reject("busy")  # another host's test runs: it keeps the rig (its disarm or the watchdog frees it)
+            return
         self._reset_session()
         self.armed = True
         self.session = packet.session

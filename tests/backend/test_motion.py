@@ -53,13 +53,14 @@ def test_a_test_starts_only_with_the_table_at_zero_and_zero_brings_it_back(tmp_p
         assert moved["cycles_total"] == 0 and moved["operator_name"] == "A. Rossi"
         state = client.get("/api/rig/state").json()
         assert state["table_position_m"] == pytest.approx(0.01, abs=2e-4)
+        at = f"the table is at {state['table_position_m'] * 1e3:.2f} mm"  # where the move left it, near 10 mm
         r = client.post("/api/tests?start=true", json=sine_test(), headers=AUTH)
-        assert r.status_code == 409 and "the table is at 9.9" in r.json()["detail"] and "nothing moved" in r.text
+        assert r.status_code == 409 and at in r.json()["detail"] and "nothing moved" in r.text
         assert [t["id"] for t in client.get("/api/tests").json()] == [moved["id"]]  # nothing left behind
         assert client.get(f"/api/tests/{moved['id']}/report.pdf").status_code == 422  # a move has no report
     with TestClient(create_app(settings)) as client:  # the table is still there after a restart
         r = client.post("/api/tests?start=true", json=sine_test(), headers=AUTH)
-        assert r.status_code == 409 and "the table is at 9.9" in r.json()["detail"]
+        assert r.status_code == 409 and at in r.json()["detail"]
         body = {"speed_m_per_s": 0.02, "isolator": "IUT_a", "supply_bar": 100}
         r = client.post("/api/rig/zero", json=body, headers=AUTH)
         assert r.status_code == 201 and "-> 0.00 mm" in r.json()["label"]

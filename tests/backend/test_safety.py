@@ -6,7 +6,15 @@ import numpy as np
 import pytest
 from conftest import create_and_start, wait_for
 
-from backend.safety import FROZEN_PERIODS, LimitError, SafetyLimits, SafetyMonitor, check_block, make_limits
+from backend.safety import (
+    FROZEN_PERIODS,
+    FROZEN_SATURATED_PERIODS,
+    LimitError,
+    SafetyLimits,
+    SafetyMonitor,
+    check_block,
+    make_limits,
+)
 from sim.measurement import STATUS_ARMED, STATUS_SENSOR_FAULT, STATUS_WATCHDOG
 from sim.rig import DEFAULT_RIG
 from sim.samples import Samples
@@ -89,6 +97,37 @@ def test_a_frozen_reading_trips_only_while_the_valve_is_open():
         r["measured_displacement_m"] = 0.001
         r["target_m"] = 0.001
         assert monitor.check(r) is None
+
+
+def test_a_wide_open_valve_finds_a_stuck_sensor_sooner():
+    tripped = stuck_run(150, command_v=9.0)
+    assert tripped is not None and tripped.detector == "position_frozen" and tripped.close_at_once
+    assert tripped.values["unchanged_periods"] == FROZEN_SATURATED_PERIODS < FROZEN_PERIODS
+    assert tripped.time_s == pytest.approx(0.150 + FROZEN_SATURATED_PERIODS * 1e-3, abs=0.002)
+    assert "+-8 V" in tripped.message
+
+
+def test_a_reading_beyond_the_stroke_is_a_sensor_fault_whatever_the_operators_limit():
+    """An operator may let the displacement limit only indicate; a reading no table can give still closes
+    the valve at once (the command came from it)."""
+    indicate = {key: "indicate" for key in ("displacement_m", "velocity_m_per_s", "tracking_error_m")}
+    lenient = SafetyLimits(displacement_m=0.1, force_n=1e5, load_pressure_pa=2e7, tracking_error_m=0.5,
+                           velocity_m_per_s=100.0, actions=indicate)
+    r = rows()
+    r["measured_displacement_m"][9] = 1.0
+    assert SafetyMonitor(lenient, 100e5).check(r) is None  # without the rig's stroke: only indications
+    trip = SafetyMonitor(lenient, 100e5, sensor_range_m=DEFAULT_RIG.stroke_m).check(r)
+    assert trip is not None and trip.detector == "sensor_range" and trip.index == 9
+    assert trip.action == "valve_close" and trip.close_at_once
+    assert "out of range" in trip.message and "1000 mm" in trip.message and "150 mm" in trip.message
+    r["measured_displacement_m"][9] = -0.149  # inside the stroke: nothing but the operator's indication
+    assert SafetyMonitor(lenient, 100e5, sensor_range_m=DEFAULT_RIG.stroke_m).check(r) is None
+
+
+def test_only_sensor_faults_close_the_valve_at_once():
+    r = rows()
+    r["force_n"][3] = 3e5
+    assert not check_block(r, LIMITS).close_at_once  # a limit: the command was sound, it ramps to 0 V
 
 
 def test_limits_bounded_by_the_rig():
