@@ -16,9 +16,11 @@ above every driver). A lab connects its rig by implementing seven methods (docs/
 
 Stop, abort and faults, side by side (after bluesky's ``stop(success)``): an operator stop and a limit
 trip are handled above the driver (sim.loop ramps the target or the command out through ``write``), then
-``disarm(success=True)``; an abort writes 0 V and calls ``disarm(success=False)``; a lost link or a rig
-fault raises ``RigFault`` from ``read``/``wait_next_period`` (never a hang) and the worker calls
-``disarm(success=False)``. A real rig must also close its valve by itself when commands stop coming (its
+``disarm(success=True)``; an abort calls ``disarm(success=False)``, which sets the valve command to 0 V at
+once (the UDP driver sends DISARM three times; the rig applies 0 V on it); a lost link or a rig fault raises
+``RigFault`` from ``read``/``wait_next_period`` (never a hang) and the worker calls ``disarm(success=False)``.
+After a sensor fault the loop writes 0 V from the next period (``ClosedLoop.begin_command_ramp(at_once=True)``).
+A real rig must also close its valve by itself when commands stop coming (its
 watchdog): the host cannot be trusted to be there.
 
 Optional capability: ``run_compiled(loop, n)`` runs n periods of a ``sim.loop.ClosedLoop`` in one call
