@@ -3,12 +3,16 @@ and rig variant, with the tracking figures a lab judges a sine test by.
 
 Grid: isolators IUT_a, IUT_b, LRB_example, HDRB_soft; supply 50, 100, 150 bar; 0.25, 0.5, 1, 1.5 Hz; the
 nominal rig and a rig whose valve passes twice the flow (twice the loop gain; the controllers are not
-told). Amplitude: ``AMPLITUDE_SHARE`` of the largest amplitude the envelope of the nominal rig allows
-(sim.profiles.max_amplitude_m: stroke, pump flow, force A_p P_s, valve capacity), capped at
-``AMPLITUDE_CAP_M``. ``CYCLES`` cycles with a one-cycle taper in and out.
+told: a plant-only change, ``Scenario.plant_changes``). Amplitude: ``AMPLITUDE_SHARE`` of the largest amplitude
+the envelope of the nominal rig allows (sim.profiles.max_amplitude_m: stroke, pump flow, force A_p P_s, valve
+capacity), capped at ``AMPLITUDE_CAP_M``. ``CYCLES`` cycles with a one-cycle taper in and out.
 
 Robust corners: the learning controller's nominal rig values (piston area, valve flow gain, dead zone)
 each off by -30 % or +30 % (8 corners); mrac and pid use no nominal values.
+
+The nominal rig is ``sim.rig.DEFAULT_RIG`` unless a lab's rig is given (``base_rig``: ``isorig compare
+--rig-file``, ``--rig-set``): the controllers assume it and the plant is it, with ``plant`` (``--plant-set``)
+changing the plant alone in every run.
 """
 
 from __future__ import annotations
@@ -16,11 +20,11 @@ from __future__ import annotations
 import itertools
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from .engine import CONTROL_PERIOD_S, Scenario, run_batch
+from .engine import CONTROL_PERIOD_S, ISOLATOR_PARAMETERS, Scenario, run_batch
 from .isolator import load_isolator
 from .profiles import max_amplitude_m
 from .rig import BAR_PA, DEFAULT_RIG, LITRE_PER_MIN_M3_S, RigParameters
@@ -49,12 +53,22 @@ TARGETS = {
 }
 
 
-def rig_variant(name: str, base: RigParameters = DEFAULT_RIG) -> RigParameters:
+def variant_plant_changes(name: str, base: RigParameters = DEFAULT_RIG, plant: dict | None = None) -> dict:
+    """The plant-only changes of a rig variant over ``base`` and the plant changes ``plant``: the controllers
+    assume ``base`` and are not told."""
+    plant = dict(plant or {})
     if name == "nominal":
-        return base
+        return plant
     if name == "2x_flow_gain":
-        return base.with_changes(flow_gain_m3_per_s_v_sqrt_pa=2.0 * base.flow_gain_m3_per_s_v_sqrt_pa)
+        key = "flow_gain_m3_per_s_v_sqrt_pa"
+        return {**plant, key: 2.0 * plant.get(key, getattr(base, key))}
     raise ValueError(f"unknown rig variant {name!r}; allowed: {', '.join(RIG_VARIANTS)}")
+
+
+def rig_variant(name: str, base: RigParameters = DEFAULT_RIG) -> RigParameters:
+    """The simulated rig of a variant (what the plant is; the controllers assume ``base``)."""
+    rig_changes = {k: v for k, v in variant_plant_changes(name, base).items() if k not in ISOLATOR_PARAMETERS}
+    return base.with_changes(**rig_changes) if rig_changes else base
 
 
 def grid_amplitude_m(isolator: str, supply_bar: float, frequency_hz: float, rig: RigParameters = DEFAULT_RIG) -> float:
@@ -63,9 +77,8 @@ def grid_amplitude_m(isolator: str, supply_bar: float, frequency_hz: float, rig:
     return min(AMPLITUDE_SHARE * a_max, AMPLITUDE_CAP_M)
 
 
-def robust_corners() -> list[dict]:
+def robust_corners(base: RigParameters = DEFAULT_RIG) -> list[dict]:
     """The 8 corners of +-30 % on the nominal piston area, flow gain and dead zone."""
-    base = DEFAULT_RIG
     out = []
     for sa, sk, sd in itertools.product((-1, 1), repeat=3):
         out.append({
@@ -100,11 +113,14 @@ class GridPoint:
     rig: str
     corner: str = "exact"
     options: dict | None = None
+    base_rig: RigParameters = DEFAULT_RIG  # the nominal rig: what the controllers assume
+    plant: dict = field(default_factory=dict)  # plant-only changes of every run (--plant-set)
 
     def scenario(self, cycles: int = CYCLES) -> Scenario:
         s = Scenario.sine(self.isolator, self.supply_bar, self.amplitude_m, self.frequency_hz, cycles,
                           controller=self.controller, taper_cycles=TAPER_CYCLES,
-                          controller_options=dict(self.options or {}), rig=rig_variant(self.rig))
+                          controller_options=dict(self.options or {}), rig=self.base_rig,
+                          plant_changes=variant_plant_changes(self.rig, self.base_rig, self.plant))
         s.label = self.label
         return s
 
@@ -115,33 +131,37 @@ class GridPoint:
 
 
 def grid_points(controllers=CONTROLLERS, robust: bool = False, isolators=ISOLATORS, supplies_bar=SUPPLIES_BAR,
-                frequencies_hz=FREQUENCIES_HZ, rigs=RIG_VARIANTS) -> list[GridPoint]:
-    """Every grid point; with ``robust`` the learning controller at each +-30 % corner instead."""
+                frequencies_hz=FREQUENCIES_HZ, rigs=RIG_VARIANTS, base_rig: RigParameters = DEFAULT_RIG,
+                plant: dict | None = None) -> list[GridPoint]:
+    """Every grid point; with ``robust`` the learning controller at each +-30 % corner instead. ``base_rig``: the
+    nominal rig (amplitudes from its envelope), ``plant``: plant-only changes of every run."""
     points = []
-    corners = robust_corners() if robust else [{"label": "exact", "options": {}}]
+    corners = robust_corners(base_rig) if robust else [{"label": "exact", "options": {}}]
     for iso, bar, f in itertools.product(isolators, supplies_bar, frequencies_hz):
-        amp = grid_amplitude_m(iso, bar, f)
+        amp = grid_amplitude_m(iso, bar, f, base_rig)
         for rig in rigs:
             for name in controllers:
                 if robust and name != "servo":
                     continue
                 for corner in corners:
-                    points.append(GridPoint(name, iso, bar, f, amp, rig, corner["label"], corner["options"]))
+                    points.append(GridPoint(name, iso, bar, f, amp, rig, corner["label"], corner["options"],
+                                            base_rig=base_rig, plant=dict(plant or {})))
     return points
 
 
 ABLATION_CORNERS = ("exact", "A_p+30% K_q-30% DZ-30%", "A_p-30% K_q+30% DZ+30%")
 
 
-def ablation_points() -> list[GridPoint]:
+def ablation_points(base_rig: RigParameters = DEFAULT_RIG, plant: dict | None = None,
+                    supplies_bar=SUPPLIES_BAR) -> list[GridPoint]:
     """The learning controller on the whole grid with one piece switched off at a time, with exact nominal values
     and at the two extreme corners (loop gain x 1.86 with the dead zone under-compensated; x 0.54 with it
     over-compensated). The label goes in ``corner``: "<ablation> / <corner>"."""
-    corners = {"exact": {}, **{c["label"]: c["options"] for c in robust_corners()}}
+    corners = {"exact": {}, **{c["label"]: c["options"] for c in robust_corners(base_rig)}}
     points = []
     for label, options in ABLATIONS:
         for corner in ABLATION_CORNERS:
-            for p in grid_points(controllers=("servo",)):
+            for p in grid_points(controllers=("servo",), base_rig=base_rig, plant=plant, supplies_bar=supplies_bar):
                 p.corner = f"{label} / {corner}"
                 p.options = {**corners[corner], **options}
                 points.append(p)
@@ -215,6 +235,7 @@ def point_figures(point: GridPoint, result) -> dict:
         "pump_flow_l_per_min": scenario.rig.pump_max_flow_m3_per_s / LITRE_PER_MIN_M3_S,
         "limit_cycle_rms_m": limit_cycle_rms_m(result.samples, scenario),
         "rms_command_v": float(np.sqrt(np.mean(u * u))) if u.size else float("nan"),
+        **(point.extra_figures(result) if hasattr(point, "extra_figures") else {}),
     }
 
 

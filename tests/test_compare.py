@@ -1,5 +1,6 @@
 """The comparison grid: its points, its limit-cycle detector, a tiny run and the command line."""
 
+import json
 import math
 
 import numpy as np
@@ -87,3 +88,44 @@ def test_cli_rejects_engine_options_that_do_not_go_together(capsys):
     assert main(["compare", "--scheduler-timeout", "3"]) == 2
     assert main(["compare", "--scheduler", "tcp://127.0.0.1:8786", "--scheduler-timeout", "nan"]) == 2
     assert "--scheduler-timeout must be between" in capsys.readouterr().err
+
+
+def test_the_twice_gain_valve_is_a_plant_change_the_controllers_are_not_told():
+    lab = DEFAULT_RIG.with_changes(piston_area_m2=0.02)
+    (point,) = [p for p in compare.grid_points(controllers=("servo",), isolators=("IUT_a",), supplies_bar=(100.0,),
+                                               frequencies_hz=(1.0,), rigs=("2x_flow_gain",), base_rig=lab,
+                                               plant={"bulk_modulus_pa": 7e8})]
+    s = point.scenario()
+    assert s.rig == lab  # what the controller assumes
+    assert s.plant_rig.flow_gain_m3_per_s_v_sqrt_pa == 2.0 * lab.flow_gain_m3_per_s_v_sqrt_pa
+    assert s.plant_rig.bulk_modulus_pa == 7e8 and s.plant_rig.piston_area_m2 == 0.02
+    assert point.amplitude_m == compare.grid_amplitude_m("IUT_a", 100.0, 1.0, lab)  # the lab rig's envelope
+
+
+def test_a_rig_file_reaches_the_runs_and_a_bad_one_is_one_line(tmp_path, capsys):
+    rig = tmp_path / "lab.toml"
+    rig.write_text('name = "Lab B"\nmass_kg = 4000.0\n')
+    assert main(["compare", "--robustness", "--groups", "sensor latency", "--rig-file", str(rig), "--rig-set",
+                 "coulomb_force_n=1800", "--processes", "1", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["rig"]["name"] == "Lab B" and out["rig"]["changed"] == {"mass_kg": 4000.0}
+    assert out["rig_set"] == ["coulomb_force_n=1800"]
+    assert out["robustness"]["base_rig_oil_column_hz"] == pytest.approx(30.0, abs=0.1)  # the heavier table's
+    assert len(out["rows"]) == 18 and all(r["met"] for r in out["rows"])
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"mass_kg": -1}')
+    for args, words in ((["--rig-file", str(bad)], "mass_kg"), (["--rig-file", str(tmp_path / "none.toml")], "none"),
+                        (["--rig-set", "masskg=3"], "did you mean mass_kg"),
+                        (["--plant-set", "dead_zone_v=20"], "dead_zone_v"),
+                        (["--monte-carlo", str(rig), "--rig-file", str(rig)], "--rig-file cannot go with")):
+        assert main(["compare", *args]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and words in err[0], err
+
+
+def test_supplies_outside_the_rig_are_skipped():
+    from isorig.commands.compare import supplies_in_range
+
+    inside, skipped = supplies_in_range(DEFAULT_RIG.with_changes(max_supply_pa=120e5), compare)
+    assert inside == (50.0, 100.0) and skipped == [150.0]
+    assert supplies_in_range(DEFAULT_RIG, compare) == (compare.SUPPLIES_BAR, [])

@@ -387,6 +387,22 @@ def test_identify_steps_rig_set_changes_the_rig(capsys):
     assert bigger["a_s_m"] > default["a_s_m"] * 1.1  # more push at the same pressure: farther travel
 
 
+
+def test_identify_steps_rig_file_sets_the_rig_and_rig_set_goes_on_top(capsys, tmp_path):
+    base = ["identify", "steps", "--isolator", "IUT_a", "--supply-bar", "40", "--step-v", "4", "--json"]
+    rig = tmp_path / "lab.toml"
+    rig.write_text('name = "Lab B"\npiston_area_m2 = 0.016\n')
+    assert main(base + ["--rig-set", "piston_area_m2=0.016"]) == 0
+    by_flag = json.loads(capsys.readouterr().out)[0]
+    assert main(base + ["--rig-file", str(rig)]) == 0
+    by_file = json.loads(capsys.readouterr().out)[0]
+    assert by_file["a_s_m"] == by_flag["a_s_m"] and by_file["a_p_per_s"] == by_flag["a_p_per_s"]
+    assert main(base + ["--rig-file", str(rig), "--rig-set", "piston_area_m2=0.01334"]) == 0
+    assert json.loads(capsys.readouterr().out)[0]["a_s_m"] < 0.9 * by_file["a_s_m"]  # the flag wins
+    assert main(base[:-1] + ["--rig-file", str(rig)]) == 0
+    assert "rig: Lab B" in capsys.readouterr().out
+
+
 def test_identify_bouc_wen_on_a_simulate_timeseries(tmp_path, capsys):
     assert main(["simulate", "--isolator", "IUT_b", "--supply-bar", "70", "--amplitude-m", "0.03",
                  "--frequency-hz", "0.5", "--cycles", "3", "--controller", "pid", "--out", str(tmp_path)]) == 0
@@ -442,6 +458,9 @@ def test_malformed_csv_from_the_shell_exit_2_without_traceback(tmp_path):
     (["identify", "bouc-wen"], "file"),
     (["identify", "steps", "--rig-set", "nope=1"], "--rig-set 'nope=1'"),
     (["identify", "steps", "--rig-set", "piston_area_m2=abc"], "not a number"),
+    (["identify", "steps", "--rig-file", "nope.toml"], "nope.toml"),
+    (["identify", "steps", "--csv", "x.csv", "--rig-file", "lab.toml"], "is fitted as recorded"),
+    (["identify", "steps", "--rig-set", "dead_zone_v=11"], "dead_zone_v"),
     (["identify", "steps", "--vertical-load-n", "-1"], "--vertical-load-n -1 is outside the jack's range [0, 850000]"),
     (["identify", "steps", "--vertical-load-n", "850001"], "--vertical-load-n 850001 is outside the jack's range"),
     (["identify", "steps", "--vertical-load-n", "nan"], "--vertical-load-n nan"),

@@ -6,6 +6,7 @@ import pytest
 
 from sim.compare import limit_cycle_rms_m
 from sim.controllers import make_controller
+from sim.controllers import servo as sv
 from sim.controllers.base import N_MEAS, R_AR, R_AS, R_MODEL
 from sim.controllers.servo import S_C, valve_inverse
 from sim.engine import CONTROL_PERIOD_S, PLANT_SUBSTEPS, Scenario, Simulation
@@ -194,7 +195,9 @@ def test_a_new_block_at_another_frequency_is_learned_again():
     assert result.samples["as_hat"][-1] == pytest.approx(1.0, rel=1e-3)  # locked to the new frequency
     summary = tracking_summary(result.samples, s)
     rms = [c["rms_y_minus_r_m"] for c in summary["cycles"]]
-    assert rms[-1] < 0.5 * rms[4]  # the second block's error falls as it is learned
+    # the second block's error falls as it is learned: from its largest (the old block's feed-forward is still
+    # applied until the new sine has been steady for a period) to well under it, and under 0.1 % of 10 mm
+    assert rms[-1] < 0.6 * max(rms[4:7]) and rms[-1] < 1e-5
     assert rms[-1] < 0.002 * 0.01
 
 
@@ -207,3 +210,52 @@ def test_a_taper_out_does_not_bend_the_learned_frequency():
     steady_part = result.samples["as_hat"][(t > 3.0) & (t < 4.0)]
     assert steady_part == pytest.approx(1.0, rel=1e-3)
     assert result.samples["as_hat"][-1] == pytest.approx(1.0, rel=0.01)
+
+
+def test_rig_options_default_to_the_declared_rig_and_are_checked():
+    lab = DEFAULT_RIG.with_changes(mass_kg=9000.0, position_latency_s=0.002, half_volume_m3=3e-3)
+    c = make_controller("servo", rig=lab)
+    assert c.options["mass_kg"] == 9000.0 and c.options["position_latency_s"] == 0.002
+    assert c.options["half_volume_m3"] == 3e-3 and c.options["bulk_modulus_pa"] == DEFAULT_RIG.bulk_modulus_pa
+    assert c.params[sv.P_LAT] == 0.002
+    assert make_controller("servo", rig=lab, mass_kg=1500.0).options["mass_kg"] == 1500.0  # an option wins
+    for bad in ({"position_latency_s": 0.5}, {"bulk_modulus_pa": float("nan")}, {"mass_kg": 0.0},
+                {"pressure_feedback_max_damping": -0.1}, {"null_offset_max_v": float("inf")},
+                {"dead_zone_ramp_share": 2.0}):
+        (name,) = bad
+        with pytest.raises(ValueError, match=name):
+            make_controller("servo", **bad)
+
+
+def test_pressure_feedback_is_designed_on_the_declared_rig():
+    """Off on the paper's stiff oil column (55 Hz, beyond the 40 Hz valve: the leak would lag and remove damping);
+    on where the column is soft, where the linearised loop without it is unstable (eqs. 1-3, linearised)."""
+    paper = make_controller("servo")
+    assert paper.params[sv.P_KPF] == 0.0
+    o = dict(paper.options)
+    d = sv.pressure_feedback_design(o)
+    assert d["oil_column_hz"] == pytest.approx(54.8, abs=0.1) and d["damping"] == 0.0
+    soft = dict(o, mass_kg=9000.0)
+    d = sv.pressure_feedback_design(soft)
+    assert d["oil_column_hz"] == pytest.approx(20.0, abs=0.1)
+    assert d["loop_damping_without"] < 0.0 < d["damping"] and d["loop_damping"] > 0.2
+    compliance = o["half_volume_m3"] / (2.0 * o["bulk_modulus_pa"])  # V_0 / (2 beta), eq. (3)
+    assert d["gain_m_per_s_per_pa"] == pytest.approx(2.0 * d["damping"] * np.sqrt(compliance / 9000.0), rel=1e-12)
+    c = make_controller("servo", rig=DEFAULT_RIG.with_changes(mass_kg=9000.0))
+    assert c.params[sv.P_KPF] == pytest.approx(d["gain_m_per_s_per_pa"])
+    assert make_controller("servo", mass_kg=9000.0, pressure_feedback_max_damping=0.0).params[sv.P_KPF] == 0.0
+    # a marginal gain of the linearised loop is not worth the feedback
+    assert sv.pressure_feedback_design(dict(o, piston_area_m2=0.7 * o["piston_area_m2"]))["damping"] == 0.0
+
+
+@pytest.mark.parametrize("plant_offset_v", [0.1, -0.08])
+def test_the_valve_null_offset_is_estimated(plant_offset_v):
+    """The plant's valve null offset (v_e0 of eq. 2) differs from the declared 0.02 V: the estimate finds it."""
+    s = Scenario.sine("IUT_a", 100, 0.02, 1.0, 8, taper_cycles=1, plant_changes={"driver_offset_v": plant_offset_v})
+    sim = Simulation(s)
+    sim.run()
+    assert sim.loop.controller_state[sv.S_OFFSET] == pytest.approx(plant_offset_v, abs=0.01)
+    s.controller_options = {"null_offset_adaptive": 0.0}
+    sim = Simulation(s)
+    sim.run()
+    assert sim.loop.controller_state[sv.S_OFFSET] == pytest.approx(DEFAULT_RIG.driver_offset_v)

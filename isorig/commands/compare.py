@@ -1,5 +1,7 @@
-"""`isorig compare`: every controller on the grid of issue 7 (isolators x supply x frequency x rig), or a Monte
-Carlo campaign over the rig and the isolator, on dask.distributed (a local cluster, or --scheduler ADDRESS)."""
+"""`isorig compare`: every controller on the grid of issue 7 (isolators x supply x frequency x rig), the robustness
+suite of issue 15 (small amplitudes, soft oil columns, sensor latency, stiffness changes), or a Monte Carlo campaign
+over the rig and the isolator, on dask.distributed (a local cluster, or --scheduler ADDRESS). ``--rig-file`` /
+``--rig-set`` give the lab's rig (what the controllers assume), ``--plant-set`` changes the simulated plant only."""
 
 from __future__ import annotations
 
@@ -19,6 +21,22 @@ def register(sub) -> None:
                         "each off by -30 %% / +30 %% (8 corners)")
     p.add_argument("--ablation", action="store_true",
                    help="run the learning controller with one piece switched off at a time")
+    p.add_argument("--robustness", action="store_true",
+                   help="run the robustness suite of issue 15 (small amplitudes, soft oil columns, sensor latency, "
+                        "stiffness changes) and print each case's figure against its target (docs/compare.md)")
+    p.add_argument("--groups", default=None,
+                   help="with --robustness: comma-separated groups to run (default: all four)")
+    p.add_argument("--rig-file", default=None, metavar="FILE",
+                   help="the lab's rig: a .json or .toml file of RigParameters names (SI) over the defaults; what "
+                        "the controllers assume and, unless --plant-set says otherwise, the simulated plant")
+    p.add_argument("--rig-set", action="append", default=[], metavar="NAME=VALUE",
+                   help="change one rig parameter (after --rig-file), e.g. mass_kg=3000 (repeatable)")
+    p.add_argument("--controller-option", action="append", default=[], metavar="NAME=VALUE",
+                   help="a controller option for every run (docs/controller.md), e.g. "
+                        "pressure_feedback_max_damping=0 to see what a piece buys (repeatable)")
+    p.add_argument("--plant-set", action="append", default=[], metavar="NAME=VALUE",
+                   help="change one rig parameter of the simulated plant only (the rig as it truly is, unknown to "
+                        "the controllers), e.g. bulk_modulus_pa=5e8 (repeatable)")
     p.add_argument("--monte-carlo", metavar="FILE", default=None,
                    help="run the Monte Carlo campaign of FILE (.json or .toml: distributions of rig and isolator "
                         "parameters of the simulated plant; docs/compare.md, Campaigns) instead of the grid")
@@ -80,57 +98,131 @@ def check_arguments(args, cmp) -> None:
     if args.compare_backends and args.scheduler is not None:
         raise UsageError("isorig compare: --compare-backends measures both paths on this machine; leave out "
                          "--scheduler")
-    if args.robust and args.ablation:
-        raise UsageError("isorig compare: choose --robust or --ablation, not both")
+    modes = [flag for flag, on in (("--robust", args.robust), ("--ablation", args.ablation),
+                                   ("--robustness", args.robustness)) if on]
+    if len(modes) > 1:
+        raise UsageError(f"isorig compare: choose one of {', '.join(modes)}, not several")
+    if args.groups is not None and not args.robustness:
+        raise UsageError("isorig compare: --groups applies to --robustness only")
+    if args.robustness:
+        if args.cycles is not None:
+            raise UsageError("isorig compare: --cycles cannot go with --robustness (each case has its own cycles)")
+        if args.figure is not None:
+            raise UsageError("isorig compare: --figure draws the grid's error distribution; with --robustness use "
+                             "--csv or --json for the cases' figures")
     if args.monte_carlo is not None:
         given = [flag for flag, on in (("--robust", args.robust), ("--ablation", args.ablation),
+                                       ("--robustness", args.robustness),
                                        ("--controllers", args.controllers is not None),
-                                       ("--cycles", args.cycles is not None)) if on]
+                                       ("--cycles", args.cycles is not None),
+                                       ("--rig-file", args.rig_file is not None), ("--rig-set", bool(args.rig_set)),
+                                       ("--plant-set", bool(args.plant_set)),
+                                       ("--controller-option", bool(args.controller_option))) if on]
         if given:
             raise UsageError(f"isorig compare: {', '.join(given)} cannot go with --monte-carlo (the campaign file "
-                             "names its controllers and cycles)")
+                             "names its controllers, cycles, nominal rig and plant distributions)")
     elif args.cycles is not None and args.cycles < 2 * cmp.TAPER_CYCLES + 2:
         raise UsageError(f"isorig compare: --cycles {args.cycles} is too few; need at least "
                          f"{2 * cmp.TAPER_CYCLES + 2} (tapers plus two full cycles)")
 
 
+def rig_arguments(args):
+    """(the nominal rig, its description or None, plant-only changes) from --rig-file, --rig-set, --plant-set."""
+    from sim.rig import DEFAULT_RIG
+    from sim.rigfile import RIG_FIELDS, load_rig_file, parse_assignment, rig_from_mapping, with_assignments
+
+    described = load_rig_file(args.rig_file) if args.rig_file else None
+    rig = described.parameters if described is not None else DEFAULT_RIG
+    rig = with_assignments(rig, args.rig_set, "--rig-set")
+    plant = dict(parse_assignment(a, RIG_FIELDS, "rig parameter (--plant-set changes the simulated rig; the "
+                                  "isolator parameters differ per isolator of the grid)") for a in args.plant_set)
+    if plant:
+        rig_from_mapping(plant, rig, "--plant-set")  # the plant must be a rig too: one clear error otherwise
+    return rig, described, plant
+
+
+def supplies_in_range(rig, cmp) -> tuple[tuple[float, ...], list[float]]:
+    """The grid's supply pressures the rig allows, and those it does not (skipped, with a note)."""
+    from sim.rig import BAR_PA
+
+    inside = tuple(b for b in cmp.SUPPLIES_BAR if rig.min_supply_pa <= b * BAR_PA <= rig.max_supply_pa)
+    return inside, [b for b in cmp.SUPPLIES_BAR if b not in inside]
+
+
 def run(args) -> int:
     from sim import campaign as cpg
     from sim import compare as cmp
+    from sim import robustness as rb
     from sim.controllers import CONTROLLER_NAMES
+    from sim.rig import DEFAULT_RIG
 
     check_arguments(args, cmp)
     campaign = None
+    base_rig, described, plant = DEFAULT_RIG, None, {}
+    notes: list[str] = []
     if args.monte_carlo is not None:
         campaign = cpg.load_campaign(args.monte_carlo)
         cycles = campaign.cycles
         points = campaign.points()  # the draws, every plant checked: a bad file stops here
         group_key = "controller"
     else:
+        base_rig, described, plant = rig_arguments(args)
         cycles = cmp.CYCLES if args.cycles is None else args.cycles
         if args.controllers is None:
-            controllers = ("servo",) if (args.robust or args.ablation) else cmp.CONTROLLERS
+            controllers = ("servo",) if (args.robust or args.ablation or args.robustness) else cmp.CONTROLLERS
         else:
             controllers = tuple(c.strip() for c in args.controllers.split(",") if c.strip())
             bad = [c for c in controllers if c not in CONTROLLER_NAMES]
             if bad or not controllers:
                 raise UsageError(f"isorig compare: unknown controller(s) {', '.join(bad) or '(none)'}; "
                                  f"allowed: {', '.join(CONTROLLER_NAMES)}")
-        if args.ablation:
-            points = cmp.ablation_points()
+        supplies, skipped = supplies_in_range(base_rig, cmp)
+        if skipped and not args.robustness:
+            notes.append(f"supply {', '.join(f'{b:g}' for b in skipped)} bar skipped: outside the rig's range "
+                         f"[{base_rig.min_supply_pa / 1e5:g}, {base_rig.max_supply_pa / 1e5:g}] bar")
+        if args.robustness:
+            groups_run = rb.GROUPS if args.groups is None else \
+                tuple(g.strip() for g in args.groups.split(",") if g.strip())
+            bad = [g for g in groups_run if g not in rb.GROUPS]
+            if bad or not groups_run:
+                raise UsageError(f"isorig compare: unknown robustness group(s) {', '.join(bad) or '(none)'}; "
+                                 f"allowed: {', '.join(repr(g) for g in rb.GROUPS)}")
+            points = rb.robustness_points(controllers=controllers, base_rig=base_rig, plant=plant, groups=groups_run)
+            rb.check_points(points)  # every case inside its rig's envelope, before anything runs
+            group_key = "group"
+        elif args.ablation:
+            points = cmp.ablation_points(base_rig=base_rig, plant=plant, supplies_bar=supplies)
             group_key = "corner"
         else:
-            points = cmp.grid_points(controllers=controllers, robust=args.robust)
+            points = cmp.grid_points(controllers=controllers, robust=args.robust, supplies_bar=supplies,
+                                     base_rig=base_rig, plant=plant)
             group_key = "corner" if args.robust else "controller"
+        if args.controller_option:
+            from isorig.commands.simulate import option_pair
+
+            extra = {}
+            for text in args.controller_option:
+                try:
+                    name, value = option_pair(text)
+                except Exception as exc:  # argparse.ArgumentTypeError: one line
+                    raise UsageError(f"isorig compare: --controller-option {exc}") from None
+                extra[name] = value
+            for p in points:
+                p.options = {**(p.options or {}), **extra}
+            from sim.controllers import make_controller
+
+            for name in {p.controller for p in points}:  # an unknown or out-of-range option: one error, now
+                make_controller(name, **extra)
         if not points:
-            raise UsageError("isorig compare: nothing to run (--robust and --ablation apply to servo only)")
+            raise UsageError("isorig compare: nothing to run (--robust and --ablation apply to servo only; a rig "
+                             "whose supply range holds none of the grid's pressures has no grid)")
     outputs = cpg.Outputs(args.csv, args.figure)  # paths checked before anything runs
 
     timeout = cpg.SCHEDULER_TIMEOUT_S if args.scheduler_timeout is None else args.scheduler_timeout
     with cpg.Engine(scheduler=args.scheduler, workers=args.processes, timeout_s=timeout) as engine:
         if not args.json:
-            print(f"running {len(points)} closed-loop tests of {cycles} cycles on {engine.description} ...",
-                  file=sys.stderr)
+            what = "cases of the robustness suite" if args.robustness else f"closed-loop tests of {cycles} cycles"
+            print(f"running {len(points)} {what} on {engine.description} ...", file=sys.stderr)
         bar = ProgressBar()
         bar(0, len(points))
         try:
@@ -150,14 +242,39 @@ def run(args) -> int:
         title = (f"Monte Carlo '{campaign.name}': {campaign.runs} plants, {campaign.isolator.name}, "
                  f"{campaign.supply_bar:g} bar, {campaign.amplitude_m * 1e3:g} mm at {campaign.frequency_hz:g} Hz, "
                  f"{cycles} cycles")
+    elif args.robustness:
+        title = f"isorig compare, robustness suite: {len(rows)} cases"
     else:
         mode = "ablations" if args.ablation else ("robust corners" if args.robust else "grid")
         title = f"isorig compare, {mode}: {len(rows)} runs of {cycles} cycles"
     outputs.write(rows, groups, title)  # both complete, or neither
 
+    rig_json = {"rig": described.to_dict() if described is not None else
+                {"name": "isorig default rig (sim.rig)", "source": "sim.rig defaults"},
+                "rig_set": list(args.rig_set), "plant_set": plant} if campaign is None else {}
+    if args.robustness:
+        if args.json:
+            out = {"robustness": rb.description(base_rig), **rig_json, "wall_time_s": wall,
+                   "engine": {"where": where, "startup_s": startup},
+                   "summary": cmp.jsonable(rb.group_summary(rows)), "rows": cmp.jsonable(rows)}
+            print(json.dumps(out, indent=1, allow_nan=False))
+            return 0
+        for note in rig_notes(described, args, plant) + notes:
+            print(note)
+        if not args.summary_only:
+            print("\n### every case\n")
+            print(rb.robustness_table(rows, markdown=args.markdown))
+        print("\n### worst case per group\n")
+        print(rb.summary_table(rows, markdown=args.markdown))
+        met = sum(r["met"] for r in rows)
+        print(f"\n{met}/{len(rows)} cases meet their target; {len(rows)} cases in {wall:.1f} s wall time on {where} "
+              f"(and {startup:.1f} s to start it)")
+        if args.csv:
+            print(f"wrote {args.csv}", file=sys.stderr)
+        return 0
     if args.json:
         out = {"campaign": campaign.describe()} if campaign is not None else \
-            {"grid": cmp.grid_description(cycles, robust=args.robust, ablation=args.ablation)}
+            {"grid": cmp.grid_description(cycles, robust=args.robust, ablation=args.ablation), **rig_json}
         out.update({
             "wall_time_s": wall,
             "engine": {"where": where, "startup_s": startup},
@@ -172,6 +289,8 @@ def run(args) -> int:
         print(json.dumps(out, indent=1, allow_nan=False))
         return 0
     table = cmp.markdown_table if args.markdown else cmp.text_table
+    for note in rig_notes(described, args, plant) + notes:
+        print(note)
     if campaign is not None:
         print(f"\n### Monte Carlo campaign {campaign.name}: {campaign.runs} plants x "
               f"{len(campaign.controllers)} controller(s), {campaign.isolator.name}, {campaign.supply_bar:g} bar, "
@@ -196,3 +315,18 @@ def run(args) -> int:
         if path:
             print(f"wrote {path}", file=sys.stderr)
     return 0
+
+
+def rig_notes(described, args, plant: dict) -> list[str]:
+    """What rig the runs assumed, when it is not the default one."""
+    lines = []
+    if described is not None:
+        changed = ", ".join(f"{k} = {v:g}" for k, v in described.changed().items()) or "the defaults"
+        lines.append(f"rig: {described.name} ({described.source}): {changed}")
+    if getattr(args, "rig_set", None):
+        lines.append(f"rig changes: {', '.join(args.rig_set)}")
+    if getattr(args, "controller_option", None):
+        lines.append(f"controller options: {', '.join(args.controller_option)}")
+    if plant:
+        lines.append(f"plant only (unknown to the controllers): {', '.join(f'{k} = {v:g}' for k, v in plant.items())}")
+    return lines

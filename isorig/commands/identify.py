@@ -29,9 +29,12 @@ def register(sub) -> None:
                         "(850 kN); default: the load fitted to the isolator's paper table for IUT_a and IUT_b "
                         "(sim.identify_steps.PAPER_TABLE_VERTICAL_LOAD_N), else the isolator's design load, else "
                         "the rig's")
+    s.add_argument("--rig-file", default=None, metavar="FILE",
+                   help="the lab's rig: a .json or .toml file of RigParameters names (SI) over the defaults; the "
+                        "step tests are simulated on it (docs/drivers.md)")
     s.add_argument("--rig-set", nargs="+", default=[], metavar="NAME=VALUE",
-                   help="override rig parameters (SI, names as in sim/rig.py RigParameters), e.g. "
-                        "piston_area_m2=0.01246")
+                   help="override rig parameters (SI, names as in sim/rig.py RigParameters; after --rig-file), "
+                        "e.g. piston_area_m2=0.01246")
     s.add_argument("--csv", default=None,
                    help="fit one measured step instead (columns time_s, voltage_v, displacement_m)")
     s.add_argument("--json", action="store_true", help="print JSON instead of a table")
@@ -53,6 +56,9 @@ def register(sub) -> None:
 
 def run_steps(args) -> int:
     if args.csv:
+        if args.rig_file is not None:
+            raise UsageError("isorig identify steps: --rig-file sets the rig of the simulated step tests; a measured "
+                             "step (--csv) is fitted as recorded")
         return _fit_csv(args)
     from sim.identify_steps import (
         STEP_DURATION_S,
@@ -67,7 +73,12 @@ def run_steps(args) -> int:
     from sim.rig import BAR_PA, DEFAULT_RIG
 
     iso = load_isolator(args.isolator)
-    rig = rig_with_overrides(DEFAULT_RIG, args.rig_set)
+    described = None
+    if args.rig_file is not None:
+        from sim.rigfile import load_rig_file
+
+        described = load_rig_file(args.rig_file)  # a RigError (exit 2, one line) if it is not a rig
+    rig = rig_with_overrides(described.parameters if described is not None else DEFAULT_RIG, args.rig_set)
     for bar in args.supply_bar:
         if not (rig.min_supply_pa <= bar * BAR_PA <= rig.max_supply_pa):
             raise UsageError(f"isorig identify steps: --supply-bar {bar:g} is outside the rig's range "
@@ -94,6 +105,9 @@ def run_steps(args) -> int:
     paper = any("paper_a_s_m" in r for r in rows)
     print(f"eq. (7) identified on the fifth-order model, {iso.name}, step tests of {duration:g} s sampled at "
           f"500 Hz" + (" (paper: Table III)" if iso.name == "IUT_a" else " (paper: Table IV)" if paper else ""))
+    if described is not None:
+        changed = ", ".join(f"{k} = {v:g}" for k, v in described.changed().items()) or "the defaults"
+        print(f"rig: {described.name} ({described.source}): {changed}")
     loaded = rig.with_changes(vertical_load_n=load_n)
     print(f"vertical load {load_n / 1e3:g} kN"
           + (" (fitted to the paper's table)" if args.vertical_load_n is None and paper else "")
@@ -158,7 +172,16 @@ def rig_with_overrides(rig, pairs: list[str]):
         if not value > 0.0 or value == float("inf"):
             raise UsageError(f"isorig identify steps: --rig-set {pair!r}: the value must be a positive number")
         changes[name] = value
-    return rig.with_changes(**changes) if changes else rig
+    if not changes:
+        return rig
+    from sim.rig import RigError
+
+    changed = rig.with_changes(**changes)
+    try:
+        changed.check()  # ranges and combinations, as a rig file is checked
+    except RigError as exc:
+        raise UsageError(f"isorig identify steps: --rig-set: {exc}") from None
+    return changed
 
 
 def _fit_csv(args) -> int:

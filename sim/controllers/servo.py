@@ -1,33 +1,39 @@
 """Learning servo controller: flow-linearised velocity feed-forward, position feedback, an estimate of the
-valve's true flow gain and harmonic learning of the periodic error. Design and stability argument:
-docs/controller.md.
+valve's true flow gain, dead zone and null offset, harmonic learning of the periodic error, and what a lab's
+declared rig adds (a damping load-pressure feedback on a soft oil column, the sensor latency). Design and
+stability argument: docs/controller.md.
 
-    v   = r' + tau_v r'' + K_p (r - y) + dv                    velocity demand, m/s
-    dv  = c_0 + V_env Re sum_k c_k exp(j k theta)              learned periodic feed-forward
-    u_l = A_n (v / g) / (K_qn sqrt(P_s - sgn(v) P_L))          inverse of the valve flow law, eq. (3)
-    u   = u_l + DZ ramp(u_l / delta)                           dead-zone inverse (ramp over +-delta)
+    v    = r' + tau_v r'' + K_p (r(t - L) - y_L) + dv            velocity demand, m/s (y_L: the reading, L late)
+    dv   = c_0 + V_env Re sum_k c_k exp(j k theta)              learned periodic feed-forward
+    u_l  = A_n (v / g) / (K_qn R(P_s - sgn(v) P_L))             inverse of the valve flow law, eq. (3) second line
+    u    = u_l + DZ ramp(u_l / delta) - o + u_pf                dead-zone inverse (ramp over +-delta), null offset
+    u_pf = -A_n k_pf HP(P_L) / (g K_qn R(P_s - sgn(v) P_L))     load-pressure feedback (soft oil columns only)
 
-g is the ratio of the true to the nominal flow gain (K_q A_n / (K_qn A_p)) and DZ the valve's dead zone, both
-estimated by least squares of the measured table velocity on what the nominal valve gives for the command
-sent tau_l earlier: y' = g (x - DZ w), x = u K_qn sqrt(dp) / A_n, w = sgn(u) K_qn sqrt(dp) / A_n (exponential
-forgetting, a prior at the nominal values, projection); it keeps the loop gain at K_p whatever the valve and
-the nominal values.
+R is the orifice law of the rig model: sqrt(dp), linear below the declared regularisation drop. g is the ratio of
+the true to the nominal flow gain (K_q A_n / (K_qn A_p)), DZ the valve's dead zone and o its null offset (v_e0 of
+eq. 2), estimated by least squares of the flow the valve passed (the table's velocity plus the oil's compression
+(V_0 / (2 beta A_n)) P_L', eq. 3 second line, as a velocity) on what the nominal valve gives for the command sent
+tau_l + L earlier: y' = g (x - DZ w + o z), x = u K_qn R(dp) / A_n, w = sgn(u + o) K_qn R(dp) / A_n,
+z = K_qn R(dp) / A_n (exponential forgetting, a prior at the nominal values, projection; the offset over a longer
+window); it keeps the loop gain at K_p whatever the valve and the nominal values.
 
 theta and V_env (the phase and the velocity amplitude of the sine target) come from the target rate r' and
 its differences, so the controller needs no profile information: for r = A sin(w t), w^2 = -r''' r' / r'^2
 at every instant. The complex coefficients c_k (harmonic k = 1..H of the target frequency, dimensionless:
 relative to the target's peak velocity) learn the periodic error:
 
-    c_k += gamma_k dt / (pi A_eff) (r - y) exp(-j k theta) (K_p + j k w) exp(j k w tau_l)
+    c_k += gamma_k dt / (pi A_eff) (r(t - L) - y_L) exp(-j k theta) L_k
+    L_k = (K_p + j k w) exp(j k w (tau_l + L)) (1 - (k w / w_h)^2 + 2 j zeta_h k w / w_h)
     gamma_k = gamma min(1, K_p / (k w))
 
 that is, the error's k-th Fourier coefficient divided by a nominal model of the closed loop from dv to y
-(1 / (s + K_p) with a pure delay tau_l for the valve), so each harmonic's error shrinks by about
-(1 - gamma_k) per cycle. The learning runs only on a steady sine (not in a taper, not at a block change;
-a new frequency clears it), is frozen while the command saturates (the error then says nothing about the
-feed-forward) and each |c_k| is projected onto a bound. Only the measured position, the load pressure, the
-supply pressure setting and nominal rig values (A_p, K_q, dead zone, command limit) are used; never the
-isolator's parameters.
+(1 / (s + K_p) with a pure delay for the valve and the reading, and the declared oil column w_h damped by the
+pressure feedback's zeta_h), so each harmonic's error shrinks by about (1 - gamma_k) per cycle. The learning
+runs only on a steady sine (not in a taper, not at a block change; a new frequency clears it), is frozen while
+the command saturates (the error then says nothing about the feed-forward) and each |c_k| is projected onto a
+bound. Only the measured position, the load pressure, the supply pressure setting and declared rig values (A_p,
+K_q, dead zone, null offset, orifice regularisation, command limit; m, V_0, beta and the valve's frequency and
+damping for the pressure feedback; the position sensor's latency) are used; never the isolator's parameters.
 
 Report: model_m = r (the feed-forward removes the reference lag: the reference model is the target itself);
 ar_hat = g, the estimated ratio of the true to the nominal flow gain; ay_hat = the estimated dead zone in V;
@@ -35,6 +41,8 @@ as_hat = the target frequency the learning is locked to, in Hz (0 before the fir
 """
 
 from __future__ import annotations
+
+from functools import lru_cache
 
 import numpy as np
 from numba import njit
@@ -63,15 +71,22 @@ MAX_HARMONICS = 24
  P_TW, P_AFLOOR, P_C1MAX, P_CKMAX, P_C0MAX, P_DZ_FRAC, P_GW, P_GMIN, P_GMAX, P_GVMIN, P_STEADY,
  P_PL_SHARE, P_DZ_ADAPT, P_DZ_LO, P_DZ_HI) = range(27)
 P_JERK_LEAD, P_INTEGRAL = 27, 28
-N_PARAMS = 29
-DELAY_LINE = 32  # samples of the regressor history kept for the valve estimate
+(P_RAMP_SHARE, P_RAMP_MIN, P_OFFSET_MAX, P_KPF, P_PF_WC, P_LAT, P_COMPLIANCE, P_WH, P_ZH, P_OFFSET_ADAPT,
+ P_OW, P_DP_REG) = range(29, 41)
+N_PARAMS = 41
+DELAY_LINE = 256  # periods of regressor and target history kept (valve estimate, position latency)
 
 # State indices; the delay line and the harmonic coefficients (real, imaginary) follow.
 (S_STARTED, S_RD1, S_RD2, S_NUM, S_DEN, S_OMEGA_LEARNED, S_C0, S_SAT, S_VENV, S_YPREV, S_GXY, S_GXX,
  S_GAIN, S_HEAD, S_STEADY_S, S_GXW, S_GWW, S_GWY, S_DZ_HAT, S_NEW_FREQ_S) = range(20)
-S_LINE_X = 20
+(S_OFFSET, S_GZZ, S_GXZ, S_GWZ, S_GZY, S_PL_PREV, S_PL_HP) = range(20, 27)
+# the same sums over the offset's longer window: xx, xw, ww, xz, wz, zz, xy, wy, zy
+S_LONG = 27
+S_LINE_X = S_LONG + 9
 S_LINE_W = S_LINE_X + DELAY_LINE
-S_C = S_LINE_W + DELAY_LINE
+S_LINE_Z = S_LINE_W + DELAY_LINE
+S_LINE_R = S_LINE_Z + DELAY_LINE
+S_C = S_LINE_R + DELAY_LINE
 N_STATE = S_C + 2 * MAX_HARMONICS
 
 
@@ -80,12 +95,14 @@ def _nominal_rig(rig=None) -> dict:
     from ..rig import DEFAULT_RIG
 
     rig = rig or DEFAULT_RIG
-    return {
-        "piston_area_m2": rig.piston_area_m2,
-        "flow_gain_m3_per_s_v_sqrt_pa": rig.flow_gain_m3_per_s_v_sqrt_pa,
-        "dead_zone_v": rig.dead_zone_v,
-        "command_limit_v": rig.command_limit_v,
-    }
+    return {name: getattr(rig, name) for name in RIG_OPTIONS}
+
+
+#: the servo's options that default to the rig's value of the same name (what the lab's rig file says)
+RIG_OPTIONS = ("piston_area_m2", "flow_gain_m3_per_s_v_sqrt_pa", "dead_zone_v", "command_limit_v", "mass_kg",
+               "half_volume_m3", "bulk_modulus_pa", "valve_natural_frequency_rad_s", "valve_damping_ratio",
+               "orifice_regularisation_pa", "driver_offset_v", "position_latency_s")
+SAMPLING_DELAY_S = 1.5e-3  # what the loop adds to the valve: half a 1 ms period of zero-order hold and one period
 
 
 OPTIONS = {
@@ -94,6 +111,18 @@ OPTIONS = {
     "flow_gain_m3_per_s_v_sqrt_pa": Option(None, 1e-10, 1e-4, "m3/(s V sqrt(Pa))", meaning="nominal valve flow gain"),
     "dead_zone_v": Option(None, 0.0, 5.0, "V", meaning="nominal valve dead zone (half width)"),
     "command_limit_v": Option(None, 0.1, 20.0, "V", meaning="valve command saturation"),
+    "mass_kg": Option(None, 1.0, 1e6, "kg", meaning="nominal moving mass m (sets the oil column's frequency)"),
+    "half_volume_m3": Option(None, 1e-6, 10.0, "m3", meaning="nominal oil volume per side V_0, hoses included"),
+    "bulk_modulus_pa": Option(None, 1e7, 1e11, "Pa", meaning="nominal effective bulk modulus beta"),
+    "valve_natural_frequency_rad_s": Option(None, 1.0, 1e5, "rad/s", meaning="nominal valve natural frequency "
+                                            "(the design of the pressure feedback)"),
+    "valve_damping_ratio": Option(None, 0.01, 10.0, "-", meaning="nominal valve damping ratio"),
+    "orifice_regularisation_pa": Option(None, 0.0, 1e8, "Pa", meaning="nominal pressure drop below which the "
+                                        "valve's flow goes as dp, not sqrt(dp) (the rig model's; 0: sqrt always)"),
+    "driver_offset_v": Option(None, -5.0, 5.0, "V", meaning="nominal valve null offset v_e0 (eq. 2): where the "
+                              "estimate of the offset starts"),
+    "position_latency_s": Option(None, 0.0, 0.2, "s", meaning="declared delay of the position reading: the "
+                                 "controller aims the table, not the late reading"),
     # fixed design constants, the same on every isolator (docs/controller.md)
     "kp_per_s": Option(30.0, 1e-3, 500.0, "1/s", meaning="position loop gain: velocity demand per metre of error"),
     "velocity_lead_s": Option(0.006, 0.0, 0.1, "s", meaning="feed-forward lead for the valve lag (r' + tau r'')"),
@@ -101,11 +130,13 @@ OPTIONS = {
     "learning_gain": Option(0.8, 0.0, 1.5, "-", meaning="share of each harmonic's error removed per cycle"),
     "harmonics": Option(15, 0, MAX_HARMONICS, "-", "int", "harmonics of the target frequency learned"),
     "learning_max_hz": Option(12.0, 1e-3, 100.0, "Hz", meaning="harmonics above this frequency are not learned"),
+    "learning_max_oil_share": Option(0.5, 0.01, 10.0, "-", meaning="... nor above this share of the nominal "
+                                     "oil-column frequency"),
     "dead_zone_ramp_v": Option(0.05, 1e-4, 2.0, "V", meaning="the dead-zone inverse ramps in over +-this"),
     "dead_zone_share": Option(1.0, 0.0, 2.0, "-", meaning="share of the dead zone that is compensated"),
     "min_pressure_drop_share": Option(0.05, 1e-3, 1.0, "-", meaning="floor of P_s - sgn(v) P_L, share of P_s"),
     "frequency_window_s": Option(0.1, 1e-3, 10.0, "s", meaning="forgetting time of the target-frequency estimate"),
-    "amplitude_floor_m": Option(1.0e-3, 1e-6, 0.1, "m", meaning="learning normalises by max(envelope, this)"),
+    "amplitude_floor_m": Option(1.0e-4, 1e-6, 0.1, "m", meaning="learning normalises by max(envelope, this)"),
     "c1_max": Option(1.5, 0.0, 10.0, "-", meaning="projection bound of |c_1| (relative velocity)"),
     "ck_max": Option(0.5, 0.0, 10.0, "-", meaning="projection bound of |c_k|, k >= 2"),
     "c0_max_m_per_s": Option(0.02, 0.0, 1.0, "m/s", meaning="projection bound of the learned constant velocity"),
@@ -124,6 +155,26 @@ OPTIONS = {
                            "sines, where the learning does it; time histories turn it on)"),
     "integral_per_s": Option(0.0, 0.0, 100.0, "1/s", meaning="integral action on the position error (0: off, as "
                              "on sines, where the learned constant does it; time histories turn it on)"),
+    # small amplitudes, soft oil columns (docs/controller.md, "Robustness")
+    "dead_zone_ramp_share": Option(0.05, 0.0, 1.0, "-", meaning="the dead-zone ramp shrinks to this share of the "
+                                   "target's peak velocity (0: always dead_zone_ramp_v)"),
+    "dead_zone_ramp_min_v": Option(1e-4, 1e-6, 2.0, "V", meaning="the narrowest dead-zone ramp"),
+    "null_offset_adaptive": Option(1.0, 0.0, 1.0, "-", meaning="1: the valve's null offset is estimated with the "
+                                   "flow gain and the dead zone (0: the nominal driver_offset_v is kept)"),
+    "null_offset_window_s": Option(3.0, 1e-3, 1000.0, "s", meaning="forgetting time of the null-offset estimate (a "
+                                   "constant of the valve: longer than the gain's)"),
+    "null_offset_max_v": Option(0.2, 0.0, 5.0, "V", meaning="bound of the estimated valve null offset (0: not "
+                                "estimated)"),
+    "pressure_feedback_max_damping": Option(0.5, 0.0, 2.0, "-", meaning="the largest damping ratio the load-pressure "
+                                            "feedback may add to the oil column; the design picks the one that damps "
+                                            "the linearised loop of the declared rig best (0: no pressure feedback)"),
+    "pressure_feedback_corner_share": Option(0.5, 0.01, 1.0, "-", meaning="high-pass corner of the pressure "
+                                             "feedback, share of the oil-column frequency"),
+    "pressure_feedback_min_improvement": Option(0.02, 0.0, 1.0, "-", meaning="the pressure feedback is used only "
+                                                "where it raises the smallest damping ratio of the linearised loop "
+                                                "by at least this much"),
+    "compressibility_share": Option(1.0, 0.0, 1.0, "-", meaning="1: the valve estimate counts the flow that "
+                                    "compresses the oil (V_0 / (2 beta)) P_L' with the table's"),
 }
 DEFAULTS = {name: spec.default for name, spec in OPTIONS.items()}
 #: what a time history (no repeating cycle to learn) runs with: no harmonic learning; an integral on the position
@@ -174,6 +225,23 @@ def make_servo(rig=None, **options) -> Controller:
     params[P_DZ_HI] = o["dead_zone_max_share"] * o["dead_zone_v"]
     params[P_JERK_LEAD] = o["jerk_lead_s2"]
     params[P_INTEGRAL] = o["integral_per_s"]
+    params[P_RAMP_SHARE] = o["dead_zone_ramp_share"]
+    params[P_RAMP_MIN] = min(o["dead_zone_ramp_min_v"], o["dead_zone_ramp_v"])
+    params[P_OFFSET_MAX] = o["null_offset_max_v"]
+    params[P_OFFSET_ADAPT] = o["null_offset_adaptive"]
+    params[P_OW] = o["null_offset_window_s"]
+    params[P_DP_REG] = o["orifice_regularisation_pa"]
+    # load-pressure feedback, designed on the declared rig (pressure_feedback_design)
+    design = pressure_feedback_design(o)
+    compliance = o["half_volume_m3"] / (2.0 * o["bulk_modulus_pa"])
+    params[P_KPF] = design["gain_m_per_s_per_pa"]
+    params[P_PF_WC] = design["corner_rad_s"]
+    params[P_LAT] = o["position_latency_s"]
+    params[P_COMPLIANCE] = o["compressibility_share"] * compliance / o["piston_area_m2"]
+    params[P_WH] = oil_column_rad_s(o)
+    params[P_ZH] = design["damping"]
+    # harmonics close to the oil column are not learned: there the loop model is least sure
+    params[P_FMAX] = min(o["learning_max_hz"], o["learning_max_oil_share"] * params[P_WH] / (2.0 * np.pi))
     state = np.zeros(N_STATE)
     state[S_GAIN] = 1.0
     state[S_DZ_HAT] = o["dead_zone_v"]
@@ -187,18 +255,119 @@ def make_servo(rig=None, **options) -> Controller:
     state[S_GWW] = b * b
     state[S_GXY] = a * a
     state[S_GWY] = 0.0
+    state[S_GZZ] = b * b  # a third one at rest (x = w = 0, z = b, velocity 0): the nominal null offset
+    state[S_OFFSET] = min(max(o["driver_offset_v"], -o["null_offset_max_v"]), o["null_offset_max_v"])
+    state[S_GZY] = b * b * state[S_OFFSET]
+    long = (state[S_GXX], state[S_GXW], state[S_GWW], 0.0, 0.0, state[S_GZZ], state[S_GXY], state[S_GWY], state[S_GZY])
+    state[S_LONG:S_LONG + 9] = long
     return Controller("servo", KIND, params, state, o)
 
 
+def oil_column_rad_s(o: dict) -> float:
+    """Natural frequency of the oil column on the nominal rig, rad/s: sqrt(2 beta A_p^2 / (V_0 m)) (the first two lines
+    of eq. 3 without friction, isolator and valve flow slope)."""
+    return float(np.sqrt(2.0 * o["bulk_modulus_pa"] * o["piston_area_m2"] ** 2 / (o["half_volume_m3"] * o["mass_kg"])))
+
+
+def _pade(delay_s: float) -> tuple[np.poly1d, np.poly1d]:
+    """First-order Pade approximation of exp(-s delay): (numerator, denominator)."""
+    return np.poly1d([-0.5 * delay_s, 1.0]), np.poly1d([0.5 * delay_s, 1.0])
+
+
+def linearised_poles(o: dict, damping: float) -> np.ndarray:
+    """Closed-loop poles of the servo's loop on the declared rig, eq. (3) linearised: the valve (second order, flow per
+    velocity demand 1 after the inverse) with the sampling delay, the oil column (compliance V_0 / (2 beta)) on
+    the mass m (isolator and friction left out: the worst case for damping), the position loop K_p on the reading
+    (late by the declared latency) and the load-pressure feedback k_pf s / (s + w_c) P_L for the added damping
+    ratio ``damping``. The natural damping of the valve's pressure-flow slope is left out too: the inverse with the
+    measured P_L cancels it."""
+    area, mass = o["piston_area_m2"], o["mass_kg"]
+    compliance = o["half_volume_m3"] / (2.0 * o["bulk_modulus_pa"])
+    wv, xv = o["valve_natural_frequency_rad_s"], o["valve_damping_ratio"]
+    s = np.poly1d([1.0, 0.0])
+    valve_n, valve_d = np.poly1d([wv * wv]), np.poly1d([1.0, 2.0 * xv * wv, wv * wv])
+    dn, dd = _pade(SAMPLING_DELAY_S)
+    ln, ld = _pade(o["position_latency_s"])
+    kpf = 2.0 * damping * float(np.sqrt(compliance / mass))
+    wc = o["pressure_feedback_corner_share"] * oil_column_rad_s(o)
+    hn, hd = np.poly1d([1.0, 0.0]), np.poly1d([1.0, wc])
+    # q = V D (-K_p L y - k_pf H P),  C s P = A (q - s y),  m s^2 y = A P
+    g_n, g_d = valve_n * dn, valve_d * dd
+    mass_p = np.poly1d([mass, 0.0, 0.0])
+    char = (compliance * s * g_d * hd * ld * mass_p
+            + area * (g_n * (o["kp_per_s"] * ln * hd * area + kpf * hn * ld * mass_p) + s * g_d * hd * ld * area))
+    return np.roots(char.coeffs)
+
+
+def smallest_damping_ratio(poles: np.ndarray) -> float:
+    """The smallest damping ratio -Re/|p| among the poles (negative: unstable)."""
+    mag = np.abs(poles)
+    mag[mag == 0.0] = 1.0
+    return float(np.min(-poles.real / mag))
+
+
+#: what the pressure-feedback design reads of the options
+DESIGN_KEYS = ("piston_area_m2", "mass_kg", "half_volume_m3", "bulk_modulus_pa", "valve_natural_frequency_rad_s",
+               "valve_damping_ratio", "position_latency_s", "kp_per_s", "pressure_feedback_max_damping",
+               "pressure_feedback_corner_share", "pressure_feedback_min_improvement")
+
+
+def pressure_feedback_design(o: dict) -> dict:
+    """The load-pressure feedback for the declared rig.
+
+    A leak of A k_pf per pascal adds the damping ratio xi to an oil column of compliance C = V_0 / (2 beta) on the
+    mass m: k_pf = 2 xi sqrt(C / m) (m/s of velocity demand per Pa; from the second and first lines of eq. 3),
+    high-passed at a share of the column's frequency w_h = sqrt(2 beta A^2 / (V_0 m)) so that the test's own
+    frequencies pass. Through the valve the leak lags: where the column lies near or above the valve's frequency
+    (the paper's rig: 55 Hz against 40 Hz) it would remove damping. So xi is picked from 0 to
+    pressure_feedback_max_damping (11 steps) as the one whose linearised loop has the largest smallest damping
+    ratio (``linearised_poles``), and kept only if it adds at least pressure_feedback_min_improvement to it: the
+    linearised loop leaves out the valve's pressure-flow slope, friction and the isolator, so a smaller gain is
+    within its error and not worth the feedback's transients. 0 wins on a stiff column."""
+    return dict(_design(tuple(float(o[k]) for k in DESIGN_KEYS)))
+
+
+@lru_cache(maxsize=256)
+def _design(values: tuple) -> tuple:
+    """``pressure_feedback_design`` on the DESIGN_KEYS values (cached: a grid builds thousands of controllers on a
+    handful of rigs, and the design costs milliseconds)."""
+    o = dict(zip(DESIGN_KEYS, values, strict=True))
+    wh = oil_column_rad_s(o)
+    xi_max = o["pressure_feedback_max_damping"]
+    without = smallest_damping_ratio(linearised_poles(o, 0.0))
+    best = (without, 0.0)
+    if xi_max > 0.0:
+        for xi in np.linspace(0.0, xi_max, 11)[1:]:
+            zeta = smallest_damping_ratio(linearised_poles(o, float(xi)))
+            if zeta > best[0]:
+                best = (zeta, float(xi))
+    if best[0] < without + o["pressure_feedback_min_improvement"]:
+        best = (without, 0.0)
+    compliance = o["half_volume_m3"] / (2.0 * o["bulk_modulus_pa"])
+    return (("oil_column_hz", wh / (2.0 * np.pi)), ("damping", best[1]),
+            ("gain_m_per_s_per_pa", 2.0 * best[1] * float(np.sqrt(compliance / o["mass_kg"]))),
+            ("corner_rad_s", o["pressure_feedback_corner_share"] * wh),
+            ("loop_damping_without", without), ("loop_damping", best[0]))
+
+
 @njit(cache=True)
-def valve_inverse(v, p_load, p_supply, area, kq, dz, dz_ramp, dp_min_share):
+def orifice_root(dp, dp_reg):
+    """The orifice law's sqrt(dp), linear below the regularisation drop dp_reg as in the rig model (sim.rig:
+    dp / sqrt(dp_reg) there; dp_reg = 0: the plain square root)."""
+    if dp >= dp_reg:
+        return np.sqrt(dp)
+    return dp / np.sqrt(dp_reg)
+
+
+@njit(cache=True)
+def valve_inverse(v, p_load, p_supply, area, kq, dz, dz_ramp, dp_min_share, dp_reg=0.0):
     """Command u that makes the nominal valve pass the flow area * v: inverse of eq. (3) with the dead zone."""
     sgn = 1.0 if v >= 0.0 else -1.0
     dp = p_supply - sgn * p_load
     dp_min = dp_min_share * p_supply
     if dp < dp_min:
         dp = dp_min
-    u_lin = area * v / (kq * np.sqrt(dp))
+    u_lin = area * v / (kq * orifice_root(dp, dp_reg))
     ramp = u_lin / dz_ramp
     if ramp > 1.0:
         ramp = 1.0
@@ -208,17 +377,50 @@ def valve_inverse(v, p_load, p_supply, area, kq, dz, dz_ramp, dp_min_share):
 
 
 @njit(cache=True)
+def _delayed(s, base, head, lag):
+    """The value ``lag`` periods (fractional) before the newest one of a ring of DELAY_LINE in s[base:]."""
+    whole = int(lag)
+    frac = lag - whole
+    a = s[base + (head - whole) % DELAY_LINE]
+    if frac <= 0.0:
+        return a
+    return (1.0 - frac) * a + frac * s[base + (head - whole - 1) % DELAY_LINE]
+
+
+@njit(cache=True)
+def _solve3(m11, m12, m13, m22, m23, m33, b1, b2, b3):
+    """Solution of the symmetric 3x3 system M t = b (Cramer's rule) and det(M)."""
+    c11 = m22 * m33 - m23 * m23
+    c12 = m13 * m23 - m12 * m33
+    c13 = m12 * m23 - m13 * m22
+    det = m11 * c11 + m12 * c12 + m13 * c13
+    if det == 0.0:
+        return 0.0, 0.0, 0.0, 0.0
+    c22 = m11 * m33 - m13 * m13
+    c23 = m12 * m13 - m11 * m23
+    c33 = m11 * m22 - m12 * m12
+    t1 = (c11 * b1 + c12 * b2 + c13 * b3) / det
+    t2 = (c12 * b1 + c22 * b2 + c23 * b3) / det
+    t3 = (c13 * b1 + c23 * b2 + c33 * b3) / det
+    return t1, t2, t3, det
+
+
+@njit(cache=True)
 def servo_step(p, s, meas, dt, report):
     """One control period of the learning servo controller (see the module docstring)."""
     r = meas[M_TARGET]
     rd = meas[M_TARGET_RATE]
     y = meas[M_POSITION]
+    p_meas = meas[M_LOAD_PRESSURE]
     if s[S_STARTED] < 0.5:
         s[S_RD1] = rd
         s[S_RD2] = rd
         s[S_YPREV] = y
-        for i in range(2 * DELAY_LINE):
+        s[S_PL_PREV] = p_meas
+        for i in range(3 * DELAY_LINE):
             s[S_LINE_X + i] = np.nan
+        for i in range(DELAY_LINE):
+            s[S_LINE_R + i] = r
         s[S_STARTED] = 1.0
     rd1 = s[S_RD1]
     rd2 = s[S_RD2]
@@ -273,11 +475,12 @@ def servo_step(p, s, meas, dt, report):
         nmax = int(p[P_FMAX] * 2.0 * np.pi / omega)
         if nmax < nh:
             nh = nmax
-    # valve estimate: table velocity = g (x - DZ w) with x = the velocity the nominal valve without dead zone
-    # gives at the command sent tau_l earlier and w = its velocity per volt times sgn(u); least squares of g
-    # and g DZ with forgetting (the dead zone only if dead_zone_adaptive), projected onto their bounds
+    # the position reading is late by the declared latency L: the table's velocity and the error it shows are
+    # those of L ago, so the valve estimate and the learning look L further back, and the reading is compared
+    # with the target of L ago (the table, not the late reading, follows the target)
+    latency = p[P_LAT] / dt  # periods
     head = int(s[S_HEAD])
-    lag = int(round(p[P_TAU_L] / dt))
+    lag = int(round((p[P_TAU_L] + p[P_LAT]) / dt))
     if lag > DELAY_LINE - 1:
         lag = DELAY_LINE - 1
     if lag < 1:
@@ -285,8 +488,14 @@ def servo_step(p, s, meas, dt, report):
     old = (head - lag) % DELAY_LINE
     xd = s[S_LINE_X + old]
     wd = s[S_LINE_W + old]
-    vel = (y - s[S_YPREV]) / dt
+    zd = s[S_LINE_Z + old]
+    # the flow the valve passed, as a velocity: the table's plus the oil's compression (V_0 / (2 beta A)) P_L'
+    vel = (y - s[S_YPREV]) / dt + p[P_COMPLIANCE] * (p_meas - s[S_PL_PREV]) / dt
     s[S_YPREV] = y
+    # valve estimate: table velocity = g (x - DZ w + o z) with x = the velocity the nominal valve without dead
+    # zone gives at the command sent then, w = its velocity per volt times the sign of the opening, z = its
+    # velocity per volt; least squares of g, g DZ and g o (o: the valve's null offset, V) with forgetting,
+    # projected onto their bounds; each parameter moves only when the samples tell it apart from the others
     if np.isfinite(xd):
         gf = dt / p[P_GW]
         s[S_GXX] += gf * (xd * xd - s[S_GXX])
@@ -294,28 +503,67 @@ def servo_step(p, s, meas, dt, report):
         s[S_GXW] += gf * (xd * wd - s[S_GXW])
         s[S_GWW] += gf * (wd * wd - s[S_GWW])
         s[S_GWY] += gf * (vel * wd - s[S_GWY])
-        if s[S_GXX] > p[P_GVMIN] ** 2:
-            sxx, sxw, sww, sxy, swy = s[S_GXX], s[S_GXW], s[S_GWW], s[S_GXY], s[S_GWY]
+        s[S_GZZ] += gf * (zd * zd - s[S_GZZ])
+        s[S_GXZ] += gf * (xd * zd - s[S_GXZ])
+        s[S_GWZ] += gf * (wd * zd - s[S_GWZ])
+        s[S_GZY] += gf * (vel * zd - s[S_GZY])
+        if p[P_OFFSET_ADAPT] > 0.5:
+            lf = dt / p[P_OW]
+            for i, v_i in enumerate((xd * xd, xd * wd, wd * wd, xd * zd, wd * zd, zd * zd, vel * xd, vel * wd,
+                                     vel * zd)):
+                s[S_LONG + i] += lf * (v_i - s[S_LONG + i])
+        sxx, sxw, sww, sxy, swy = s[S_GXX], s[S_GXW], s[S_GWW], s[S_GXY], s[S_GWY]
+        szz, sxz, swz, szy = s[S_GZZ], s[S_GXZ], s[S_GWZ], s[S_GZY]
+        dz_hat = s[S_DZ_HAT]
+        # the mean square of the velocity the valve model predicts, q = x - DZ w + o z: only a valve that opens
+        # well past its dead zone tells its gain, dead zone and offset apart from friction and the oil's give
+        o_hat = s[S_OFFSET]
+        qq = (sxx + dz_hat * dz_hat * sww + o_hat * o_hat * szz - 2.0 * dz_hat * sxw + 2.0 * o_hat * sxz
+              - 2.0 * dz_hat * o_hat * swz)
+        if qq > p[P_GVMIN] ** 2:
+            dzn = p[P_DZ_LO] + 0.5 * (p[P_DZ_HI] - p[P_DZ_LO])
+            if p[P_OFFSET_ADAPT] > 0.5 and p[P_DZ_ADAPT] > 0.5:
+                # the offset, over its long window, when z is not (nearly) a combination of x and w (both
+                # directions of motion in the window): the Schur complement of z in the normal matrix of (x, -w, z)
+                lxx, lxw, lww, lxz, lwz, lzz, lxy, lwy, lzy = s[S_LONG:S_LONG + 9]
+                ldet = lxx * lww - lxw * lxw
+                lqq = lxx - 2.0 * dzn * lxw + dzn * dzn * lww
+                if ldet > 0.02 * lqq * lww:
+                    res = lzz - (lww * lxz * lxz - 2.0 * lxw * lxz * lwz + lxx * lwz * lwz) / ldet
+                    if res > 0.02 * lzz:
+                        g_l, _eta, zeta, det3 = _solve3(lxx, -lxw, lxz, lww, -lwz, lzz, lxy, -lwy, lzy)
+                        if det3 != 0.0 and g_l > 0.0:
+                            s[S_OFFSET] = min(max(zeta / g_l, -p[P_OFFSET_MAX]), p[P_OFFSET_MAX])
+                            o_hat = s[S_OFFSET]
             det = sxx * sww - sxw * sxw
             # excitation test in the coordinates (x - DZ_n w, w): x alone is nearly collinear with w when the
             # dead zone dominates the command (slow tests); the shear leaves det and the solution unchanged
-            dzn = p[P_DZ_LO] + 0.5 * (p[P_DZ_HI] - p[P_DZ_LO])
-            szz = sxx - 2.0 * dzn * sxw + dzn * dzn * sww
-            if p[P_DZ_ADAPT] > 0.5 and det > 0.02 * szz * sww:
-                g_new = (sxy * sww - sxw * swy) / det
-                eta = (sxy * sxw - sxx * swy) / det  # g DZ
+            sqq = sxx - 2.0 * dzn * sxw + dzn * dzn * sww
+            if p[P_DZ_ADAPT] > 0.5 and det > 0.02 * sqq * sww:
+                # g and g DZ with the offset held: the velocity less its share g o z, g o = (g at its last value) o
+                zeta = s[S_GAIN] * o_hat
+                bxy = sxy - zeta * sxz
+                bwy = swy - zeta * swz
+                g_new = (bxy * sww - sxw * bwy) / det
+                eta = (bxy * sxw - sxx * bwy) / det  # g DZ
                 if g_new > 0.0:
                     s[S_GAIN] = min(max(g_new, p[P_GMIN]), p[P_GMAX])
                     s[S_DZ_HAT] = min(max(eta / g_new, p[P_DZ_LO]), p[P_DZ_HI])
-            else:
-                dz = s[S_DZ_HAT]
-                szz = sxx - 2.0 * dz * sxw + dz * dz * sww
-                if szz > 0.0:
-                    s[S_GAIN] = min(max((sxy - dz * swy) / szz, p[P_GMIN]), p[P_GMAX])
+            else:  # g alone, with the dead zone and the offset held
+                qq = (sxx + dz_hat * dz_hat * sww + o_hat * o_hat * szz - 2.0 * dz_hat * sxw + 2.0 * o_hat * sxz
+                      - 2.0 * dz_hat * o_hat * swz)
+                if qq > 0.0:
+                    s[S_GAIN] = min(max((sxy - dz_hat * swy + o_hat * szy) / qq, p[P_GMIN]), p[P_GMAX])
     gain = s[S_GAIN]
+    # the target of L ago, to compare with the late reading
+    head_new = (head + 1) % DELAY_LINE
+    s[S_LINE_R + head_new] = r
+    r_seen = r
+    if latency > 0.0:
+        r_seen = _delayed(s, S_LINE_R, head_new, latency)
     # velocity demand: feed-forward with lead (and, for arbitrary commands, the jerk through the second-order
     # lag of the valve and the oil column), position feedback, learned periodic feed-forward
-    e = r - y
+    e = r_seen - y
     kp = p[P_KP]
     v = rd + p[P_TAU_V] * rdd + kp * e + s[S_C0]
     if p[P_JERK_LEAD] > 0.0:
@@ -336,10 +584,29 @@ def servo_step(p, s, meas, dt, report):
             acc += a * ck - b * sk
             ck, sk = ck * c1 - sk * s1, sk * c1 + ck * s1
         v += v_env * acc
-    p_load = p[P_PL_SHARE] * meas[M_LOAD_PRESSURE]
+    # load-pressure feedback, high-passed: a leak that damps the oil column and leaves the test's frequencies alone
+    v_pf = 0.0
+    if p[P_KPF] > 0.0:
+        a_hp = 1.0 / (1.0 + p[P_PF_WC] * dt)
+        s[S_PL_HP] = a_hp * (s[S_PL_HP] + p_meas - s[S_PL_PREV])
+        v_pf = -p[P_KPF] * s[S_PL_HP]
+    s[S_PL_PREV] = p_meas
+    p_load = p[P_PL_SHARE] * p_meas
     p_supply = meas[M_SUPPLY_PRESSURE]
-    u = valve_inverse(v / gain, p_load, p_supply, p[P_AREA], p[P_KQ], p[P_DZ_FRAC] * s[S_DZ_HAT], p[P_DZ_RAMP],
-                      p[P_DP_MIN])
+    # the dead-zone ramp: narrow enough that the test's own velocities pass it (small amplitudes), never wider
+    # than dead_zone_ramp_v (the step of the inverse at a reversal rings the oil column)
+    ramp = p[P_DZ_RAMP]
+    if p[P_RAMP_SHARE] > 0.0:
+        ramp_fit = p[P_RAMP_SHARE] * p[P_AREA] * v_est / (gain * p[P_KQ] * np.sqrt(max(p_supply, 1.0)))
+        ramp = min(max(ramp_fit, p[P_RAMP_MIN]), ramp)
+    o_hat = s[S_OFFSET]
+    u = valve_inverse(v / gain, p_load, p_supply, p[P_AREA], p[P_KQ], p[P_DZ_FRAC] * s[S_DZ_HAT], ramp,
+                      p[P_DP_MIN], p[P_DP_REG]) - o_hat
+    if v_pf != 0.0:
+        # added after the dead-zone inverse, linearly: it moves the open valve, never switches the dead zone's side
+        sgn_v = 1.0 if v >= 0.0 else -1.0
+        dp_v = max(p_supply - sgn_v * p_load, p[P_DP_MIN] * p_supply)
+        u += p[P_AREA] * v_pf / (gain * p[P_KQ] * orifice_root(dp_v, p[P_DP_REG]))
     ulim = p[P_ULIM]
     saturated = abs(u) >= ulim
     if u > ulim:
@@ -348,20 +615,23 @@ def servo_step(p, s, meas, dt, report):
         u = -ulim
     s[S_SAT] = 1.0 if saturated else 0.0
     # regressors of the valve estimate for the command actually applied (NaN inside the dead zone: no flow)
-    head = (head + 1) % DELAY_LINE
     xs = np.nan
     ws = np.nan
-    if abs(u) > s[S_DZ_HAT]:
-        sgn_u = 1.0 if u > 0.0 else -1.0
+    zs = np.nan
+    opening = u + o_hat
+    if abs(opening) > s[S_DZ_HAT]:
+        sgn_u = 1.0 if opening > 0.0 else -1.0
         dp = p_supply - sgn_u * p_load
         if dp < p[P_DP_MIN] * p_supply:
             dp = p[P_DP_MIN] * p_supply
-        per_volt = p[P_KQ] * np.sqrt(dp) / p[P_AREA]
+        per_volt = p[P_KQ] * orifice_root(dp, p[P_DP_REG]) / p[P_AREA]
         xs = per_volt * u
         ws = per_volt * sgn_u
-    s[S_LINE_X + head] = xs
-    s[S_LINE_W + head] = ws
-    s[S_HEAD] = head
+        zs = per_volt
+    s[S_LINE_X + head_new] = xs
+    s[S_LINE_W + head_new] = ws
+    s[S_LINE_Z + head_new] = zs
+    s[S_HEAD] = head_new
     # learning update (only on a steady sine and unsaturated), with projection of each coefficient
     if steady and nh >= 1 and not saturated:
         gamma = p[P_GAMMA]
@@ -371,7 +641,7 @@ def servo_step(p, s, meas, dt, report):
         c0 = s[S_C0] + gamma * kp * e * omega * dt / (2.0 * np.pi)
         c0max = p[P_C0MAX]
         s[S_C0] = min(max(c0, -c0max), c0max)
-        tau = p[P_TAU_L]
+        tau = p[P_TAU_L] + p[P_LAT]
         c1 = np.cos(theta)
         s1 = np.sin(theta)
         cl = np.cos(omega * tau)
@@ -380,9 +650,14 @@ def servo_step(p, s, meas, dt, report):
         cd, sd = cl, sl
         for k in range(nh):
             kw = (k + 1) * omega
-            # L_k = (K_p + j k w) exp(j k w tau): inverse of the nominal loop from dv to y
+            # L_k = (K_p + j k w) exp(j k w tau) (1 - (k w / w_h)^2 + 2 j zeta_h k w / w_h): inverse of the nominal
+            # loop from dv to y, the oil column (w_h, damped by the pressure feedback's zeta_h) included
             lr = kp * cd - kw * sd
             li = kp * sd + kw * cd
+            xh = kw / p[P_WH]
+            hr = 1.0 - xh * xh
+            hi = 2.0 * p[P_ZH] * xh
+            lr, li = lr * hr - li * hi, lr * hi + li * hr
             # z = e exp(-j k theta) L_k
             zr = e * (ck * lr + sk * li)
             zi = e * (ck * li - sk * lr)
