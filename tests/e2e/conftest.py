@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from .harness import ARTIFACTS, PageWatch, Server, chromium_available, launch
+from .harness import ARTIFACTS, PageWatch, Server, chromium_available, launch, watch_rejections
 
 try:
     from playwright import sync_api as playwright_api
@@ -68,6 +68,7 @@ def open_page(browser):
     def _open(url: str, width: int = 1500, height: int = 1000, token: str | None = None, viewer: bool = False):
         url += ("&" if "?" in url else "?") + ("viewer=on" if viewer else "viewer=off")
         context = browser.new_context(viewport={"width": width, "height": height}, accept_downloads=True)
+        watch_rejections(context)
         page = context.new_page()
         watch = PageWatch(page)
         if token is not None:

@@ -191,6 +191,17 @@ def launch(playwright):
     return playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
 
 
+# An exception in an async function of the page is an unhandled promise rejection, which the browser does not
+# report as a page error: said as a console error, so that it fails the test as any other error does.
+REJECTIONS = ("window.addEventListener('unhandledrejection', (e) => console.error('unhandled rejection: ' + "
+              "(e.reason && e.reason.stack ? e.reason.stack : e.reason)));")
+
+
+def watch_rejections(context) -> None:
+    """Every page of this browser context reports unhandled promise rejections as console errors."""
+    context.add_init_script(REJECTIONS)
+
+
 class PageWatch:
     """Records every request URL, console error and page error of a page (and its frames)."""
 

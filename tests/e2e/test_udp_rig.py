@@ -1,6 +1,7 @@
 """The rig and its link in the dashboard's top bar: the simulated default, and a real rig over UDP
 (`isorig rig-emulator` in its own process, `isorig serve --rig udp://...`): connected, the link figures of a
-running test, "not connected" once the rig is gone, and a table left off zero that keeps Start disabled.
+running test, "not connected" once the rig is gone, and a table left off zero that keeps Start disabled until the
+console's Zero brings it back.
 """
 
 from __future__ import annotations
@@ -21,6 +22,17 @@ def _shots(page, artifacts, name: str) -> None:
         page.set_viewport_size({"width": width, "height": height})
         time.sleep(0.2)
         page.screenshot(path=str(artifacts / f"{name}_{width}x{height}.png"))
+
+
+def _wait_new_test(srv, known: set, timeout_s: float = 15.0) -> int:
+    """The id of a record created since ``known`` (a test or a manual move)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        new = {t["id"] for t in srv.call("GET", "/api/tests")[1]} - known
+        if new:
+            return max(new)
+        time.sleep(0.1)
+    raise AssertionError(f"no new record within {timeout_s} s")
 
 
 def _link(page) -> dict:
@@ -134,8 +146,9 @@ def test_udp_rig_link_health(open_page, artifacts, tmp_path):
 
 def test_udp_rig_table_off_zero_keeps_start_disabled(open_page, artifacts, tmp_path):
     """An emulated rig restarts mid-test (`--restart-after-s 0.6`) and leaves its table mid-stroke: the strip
-    shows where it rests (the rig's own reading), Start stays disabled saying why (no manual motion in this
-    console), and a start the service refuses (409, nothing moved) is shown in words beside Start."""
+    shows where it rests (the rig's own reading), Start stays disabled saying why, and a start the service refuses
+    (409, nothing moved) is shown in words beside Start; Zero (with its confirmation) moves the table back on the
+    rig, Start comes back and the refusal goes."""
     emulator = RigEmulator("--restart-after-s", "0.6", isolator="IUT_a")
     srv = None
     try:
@@ -164,14 +177,13 @@ def test_udp_rig_table_off_zero_keeps_start_disabled(open_page, artifacts, tmp_p
                                timeout=10000)  # the set-up checked: only the table keeps Start disabled
         assert page.is_disabled("#start")
         why = page.inner_text("#start-why")
-        assert f"Start needs: the table at zero (it rests at {position}, see above)" in why, why
+        assert f"Start needs: the table at zero (it rests at {position}, see above: Zero brings it back)" in why, why
         warning = page.inner_text("#rig-warning")
         assert warning.startswith("Table off zero: Start is disabled until it rests at zero."), warning
         assert f"The table rests at {position} (the rig's reading)" in warning, warning
-        assert "within \u00b12 mm of zero" in warning and "no manual motion" in warning, warning
-        manual = page.inner_text("#manual-motion")  # where a lab would look for it: said plainly
-        assert "Not in this console yet" in manual and "\u00b12 mm" in manual, manual
-        assert page.locator("#manual-motion button, #manual-motion input").count() == 0
+        assert "within \u00b12 mm of zero" in warning, warning
+        assert page.is_enabled("#warning-zero") and page.is_enabled("#mm-zero")  # the way back, at hand
+        assert page.inner_text("#mm-position") == f"{position} \u00b7 the rig's reading"
         _shots(page, artifacts, "dashboard_udp_off_zero")
 
         # the console's view is 2 s old at worst: should a start still reach the service, its refusal is shown
@@ -194,6 +206,27 @@ def test_udp_rig_table_off_zero_keeps_start_disabled(open_page, artifacts, tmp_p
         assert page.inner_text("#setup-message") == message  # the refusal stays: its cause is still there
         page.screenshot(path=str(artifacts / "dashboard_udp_off_zero_refused_1366x768.png"))
         assert rec["status"] == "failed"
+
+        # Zero: the console moves the table back on the rig (POST /api/rig/zero), after a confirmation
+        page.fill("#f-mm_speed", "10")
+        page.click("#warning-zero")
+        page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+        confirm = page.inner_text("#confirm-body")
+        assert position in confirm and "10 mm/s" in confirm, confirm
+        page.click("#confirm-ok")
+        move = _wait_new_test(srv, {first})
+        rec = srv.wait_status(move, {"completed"}, timeout_s=30)
+        assert rec["profile"]["kind"] == "move" and rec["profile"]["end_m"] == 0.0, rec["profile"]
+        assert rec["driver"].startswith("udp://") and rec["profile"]["speed_m_per_s"] == 0.01, rec
+        page.wait_for_selector("#mm-status[data-kind='ok']", timeout=10000)
+        assert page.inner_text("#mm-status").startswith(f"Move #{move} completed"), page.inner_text("#mm-status")
+        _, state = srv.call("GET", "/api/rig/state")
+        assert abs(state["table_position_m"]) < 0.001, state  # the rig's own reading
+        page.wait_for_function("(() => { const w = document.getElementById('rig-warning');"
+                               " return w.dataset.state === 'ok' && w.classList.contains('hidden'); })()",
+                               timeout=10000)
+        wait_start_enabled(page, timeout_ms=10000)
+        page.wait_for_function("document.getElementById('setup-message').textContent === ''", timeout=10000)
     finally:
         emulator.stop()
         if srv is not None:

@@ -9,7 +9,7 @@ import json
 import time
 import urllib.request
 
-from .harness import PageWatch, sine_test
+from .harness import TOKEN, PageWatch, sine_test, watch_rejections
 
 
 def test_3d_view_is_relayed_and_follows_the_rig(server, open_page, artifacts):
@@ -39,9 +39,13 @@ def test_3d_view_is_relayed_and_follows_the_rig(server, open_page, artifacts):
 
 
 def test_reconnects_after_service_restart(server, browser, artifacts):
-    """Stop the service under an open dashboard, start it again: the page reconnects and follows a new test."""
+    """Stop the service under an open dashboard, start it again: the page reconnects, says how the test ended,
+    shows where the table was left (the service keeps it across the restart), brings it back with Zero and
+    follows a new test."""
     srv = server
     context = browser.new_context(viewport={"width": 1400, "height": 900})
+    watch_rejections(context)
+    context.add_init_script(f"localStorage.setItem('isorig.operator_token', {TOKEN!r});")
     try:
         page = context.new_page()
         watch = PageWatch(page)
@@ -70,7 +74,19 @@ def test_reconnects_after_service_restart(server, browser, artifacts):
         page.wait_for_selector(f"#rig-status[data-status='{rec['status']}']", timeout=10000)
         assert rec["status"].upper() in page.inner_text("#alert-text")
         page.screenshot(path=str(artifacts / "dashboard_interrupted.png"))
-        srv.zero_table()  # the interrupted test left the table where it was
+        # the interrupted test left the table where it was, and the restarted service knows where: Zero
+        _, state = srv.call("GET", "/api/rig/state")
+        assert state["position_source"] == f"end of test {running} ({rec['status']})", state
+        source = f"end of test {running} ({rec['status']})"  # the service's figure, not the page's last sample
+        page.wait_for_function(f"document.getElementById('s-position').dataset.source === {source!r}", timeout=10000)
+        page.fill("#f-mm_speed", "50")
+        page.click("#mm-zero")
+        page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+        assert f"{state['table_position_m'] * 1e3:+.2f} mm" in page.inner_text("#confirm-body")
+        page.click("#confirm-ok")
+        page.wait_for_selector("#mm-status[data-kind='ok']:has-text('completed')", timeout=30000)
+        _, state = srv.call("GET", "/api/rig/state")
+        assert abs(state["table_position_m"]) < 0.001, state
         status, rec = srv.call("POST", "/api/tests", sine_test(cycles=2, speed=4.0), token=True)
         assert status == 201, rec
         status, started = srv.call("POST", f"/api/tests/{rec['id']}/start", token=True)

@@ -7,7 +7,7 @@
 
 import { LoopPlot, PlotStack, TimePlot } from "./plots.js";
 import { actionName, actionOf, LIMITS } from "./limits.js";
-import { changed, state } from "./state.js";
+import { changed, isMove, state } from "./state.js";
 import { eventLine, eventWords, fmtDuration, profileText, setStatusBadge, showAlert } from "./ui.js";
 import { factorIn, fmt, fmtU, onUnits, system, toDisplay, unit } from "./units.js";
 
@@ -304,7 +304,11 @@ export class LiveView {
     c.scanned = i1;
     c.yAbs = Math.max(Math.abs(c.yMax), Math.abs(c.yMin));
     c.fAbs = Math.max(Math.abs(c.fMax), Math.abs(c.fMin));
-    if (now - this.readoutAt < READOUT_MS || i1 === 0) return;
+    if (i1 === 0) return;
+    if (now - this.readoutAt < READOUT_MS) {
+      this.dirty = true; // the last samples of a run are shown too, once the 100 ms have passed
+      return;
+    }
     this.readoutAt = now;
     const k = i1 - 1;
     const L = "length";
@@ -576,13 +580,14 @@ export class LiveView {
       $("l-left").textContent = "-";
     }
     if (changedStatus && this.testId !== null) {
+      const what = isMove(this.test) ? "Manual move" : "Test"; // a move of the table (POST /api/rig/move, /zero)
       if (BAD.has(msg.status)) {
         const trip = this.tripText();
         const reason = trip || msg.reason || ""; // the trip in words with its action, not the detector's internals
-        showAlert(`${trip ? "LIMIT TRIP - " : ""}Test ${this.testId} ${msg.status.toUpperCase()}` +
+        showAlert(`${trip ? "LIMIT TRIP - " : ""}${what} ${this.testId} ${msg.status.toUpperCase()}` +
           `${reason ? ": " + reason : ""}`, "bad");
       } else if (FINAL.has(msg.status)) {
-        showAlert(`Test ${this.testId} ${msg.status}`, "info");
+        showAlert(`${what} ${this.testId} ${msg.status}`, "info");
       }
       this.onTest(this.testId, msg.status);
       if (FINAL.has(msg.status)) this.refreshEvents(this.testId);

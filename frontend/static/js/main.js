@@ -6,7 +6,7 @@ import { History } from "./history.js";
 import { LiveView } from "./live.js";
 import { RigLink } from "./rig.js";
 import { runningTestId, SetupPanel } from "./setup.js";
-import { changed, state } from "./state.js";
+import { changed, onState, state } from "./state.js";
 import { StatusStrip } from "./strip.js";
 import { hideAlert, showAlert } from "./ui.js";
 import { onUnits, setSystem, system } from "./units.js";
@@ -183,6 +183,9 @@ async function pollRigState() {
     }
   };
   const timer = setInterval(poll, 2000);
+  onState((what) => { // back in touch with the service (a reconnect, a restart): ask at once
+    if (what === "conn" && state.conn) poll();
+  });
   await poll();
 }
 

@@ -5,13 +5,16 @@
 // console's units (js/units.js); every field shows its unit and range. Start is enabled only when a start can
 // succeed (a UDP rig's table must rest at zero) and asks for a confirmation with the service's figures of the
 // motion. While a test runs the form shows that test (locked), also after a reload or in a second browser.
+// Manual motion (js/manual.js) lives in this panel too: it moves the table with the set-up's conditions and
+// limits, and a sine's offset can be taken from where the table rests.
 
 import { api, ApiError, errorField, operatorPost } from "./api.js";
 import { confirmDialog, summaryTable } from "./dialogs.js";
 import { actionHelp, actionName, actionOf, ACTION_ORDER, DEFAULT_ACTION, LIMITS, limitValue, setActionHelp } from "./limits.js";
+import { ManualMotion } from "./manual.js";
 import { parseNumber } from "./parse.js";
 import { fmtPeriod, rigKind } from "./rig.js";
-import { changed, onState, state, testRunning } from "./state.js";
+import { changed, isMove, onState, runName, sourceWords, state, tablePosition, testRunning } from "./state.js";
 import { el, fmtDuration, showAlert } from "./ui.js";
 import { fmt, fmtU, inputText, onUnits, sigDigits, toSI, unit } from "./units.js";
 
@@ -19,7 +22,7 @@ const $ = (id) => document.getElementById(id);
 const num = (v) => typeof v === "number" && Number.isFinite(v);
 const DRAFT_KEY = "isorig.setup_draft";
 const BAR = 1e5;
-const START_TOLERANCE_M = 0.002; // a UDP rig's table must rest this close to zero for a start (the service's default)
+const START_TOLERANCE_M = 0.002; // the table must rest this close to zero for a start (the service's default)
 
 // Isolator parameters: key, label, quantity
 const ISO_PARAMS = [
@@ -89,6 +92,7 @@ export class SetupPanel {
     this.locked = false;
     this.lockedTestId = null;
     this.fields = this.fieldSpecs();
+    this.manual = new ManualMotion(this);
   }
 
   // ------------------------------------------------------------------------------------------ fields
@@ -112,6 +116,8 @@ export class SetupPanel {
         range: () => [1, env().max_cycles ?? 100000] },
       taper_cycles: { id: "f-taper_cycles", quantity: null, integer: true, required: true, sine: true,
         range: () => [0, num(this.values.cycles) ? Math.floor(this.values.cycles / 2) : 0] },
+      offset: { id: "f-offset", quantity: "length", required: false, sine: true,
+        range: () => [-(env().stroke_m ?? 0.15), env().stroke_m ?? 0.15] },
       lim_displacement: { id: "f-lim_displacement", quantity: "length", required: false, openLow: true, limit: "displacement_m",
         range: () => [0, max().displacement_m ?? 0.15], placeholder: () => def().displacement_m },
       lim_force: { id: "f-lim_force", quantity: "force", required: false, openLow: true, limit: "force_n",
@@ -184,6 +190,7 @@ export class SetupPanel {
         text += `; at this amplitude up to ${fmtU("frequency", this.lastCheck.data.max_frequency_hz, { sig: 3 })}`;
       }
       if (key === "taper_cycles") text += " (at most half the cycles)";
+      if (key === "offset") text += "; empty: 0 (the sine runs about zero); reached during the first cycle";
       if (key === "speed" && this.realTimeOnly) text = "";
       if (key === "vertical_load") {
         const d = this.defaultVerticalLoad();
@@ -262,11 +269,13 @@ export class SetupPanel {
         this.readIsoField(ev.target);
         return;
       }
+      if (ev.target.closest("#manual-motion")) return; // js/manual.js
+      if (ev.target.id === "f-offset") $("offset-note").textContent = "";
       ev.target.dataset.touched = "1";
       this.formChanged();
     });
     form.addEventListener("change", (ev) => {
-      if (ev.target.closest("#iso-form")) return;
+      if (ev.target.closest("#iso-form") || ev.target.closest("#manual-motion")) return;
       if (ev.target.id === "f-isolator") this.showIsolator();
       if (ev.target.id === "f-profile") this.showProfile();
       if (ev.target.id === "f-controller") this.showControllerOptions();
@@ -278,6 +287,7 @@ export class SetupPanel {
       this.start();
     });
     $("stop").addEventListener("click", () => this.stop());
+    $("offset-from-table").addEventListener("click", () => this.offsetFromTable());
     $("iso-save").addEventListener("click", () => this.saveIsolator());
     $("iso-delete").addEventListener("click", () => this.deleteIsolator());
     onUnits(() => this.onUnitsChanged());
@@ -287,6 +297,7 @@ export class SetupPanel {
     this.updateButtons();
     this.scheduleCheck(0);
     this.onStateChanged("test"); // a test the stream announced before this panel was ready
+    this.manual.init();
   }
 
   formChanged() {
@@ -383,8 +394,6 @@ export class SetupPanel {
       ? `the rig ${rig.driver} runs in real time only: speed 1`
       : "simulated rig only: time scale of the run";
     this.renderActions();
-    const tol = this.startTolerance();
-    $("start-tolerance").textContent = `\u00b1${fmtU("length", tol, { sig: 3 })}`;
     changed("rig");
   }
 
@@ -420,6 +429,7 @@ export class SetupPanel {
   showProfile() {
     const p = this.protocol();
     $("sine-fields").classList.toggle("hidden", Boolean(p));
+    $("offset-row").classList.toggle("hidden", Boolean(p));
     const info = $("protocol-info");
     info.classList.toggle("hidden", !p);
     info.innerHTML = "";
@@ -527,22 +537,36 @@ export class SetupPanel {
     const link = this.rigLink;
     const down = Boolean(link && link.kind === "udp" && link.connected() === "false");
     const off = down ? null : this.offZero();
-    box.classList.toggle("hidden", !down && !off);
-    box.dataset.state = down ? "down" : off ? "off-zero" : "ok";
-    box.innerHTML = "";
-    if (down) {
-      const l = link.link || {};
-      const arm = link.info && typeof link.info.arm_timeout_s === "number" ? fmtPeriod(link.info.arm_timeout_s) : "";
-      box.append(el("b", { text: "Rig not connected: Start is disabled until it answers." }),
-        el("div", { text: `${link.name()}: ${l.detail || "no answer"}. The service arms the rig at Start and gives ` +
-          `up${arm ? ` after ${arm}` : ""} without an answer; check that the rig (or isorig rig-emulator) runs ` +
-          "and is reachable." }));
-    } else if (off) {
-      box.append(el("b", { text: "Table off zero: Start is disabled until it rests at zero." }),
-        el("div", { text: `${capitalize(off.text)}, where every test's target begins. Bring it to zero first: ` +
-          "this console has no manual motion yet (the service's POST /api/rig/zero does it, with the operator " +
-          "token; a real rig also has its own controls)." }));
+    const l = (down && link.link) || {};
+    const key = down ? `down|${l.detail}` : off ? `off|${off.text}` : "ok";
+    if (key !== this.warningKey) { // rebuilt only when it says something new (a click is never lost to a redraw)
+      this.warningKey = key;
+      box.classList.toggle("hidden", !down && !off);
+      box.dataset.state = down ? "down" : off ? "off-zero" : "ok";
+      box.innerHTML = "";
+      if (down) {
+        const arm = link.info && typeof link.info.arm_timeout_s === "number" ? fmtPeriod(link.info.arm_timeout_s) : "";
+        box.append(el("b", { text: "Rig not connected: Start is disabled until it answers." }),
+          el("div", { text: `${link.name()}: ${l.detail || "no answer"}. The service arms the rig at Start and gives ` +
+            `up${arm ? ` after ${arm}` : ""} without an answer; check that the rig (or isorig rig-emulator) runs ` +
+            "and is reachable." }));
+      } else if (off) {
+        const zero = el("button", { type: "button", id: "warning-zero", class: "small", text: "Zero the table..." });
+        zero.addEventListener("click", () => this.manual.go("zero"));
+        box.append(el("b", { text: "Table off zero: Start is disabled until it rests at zero." }),
+          el("div", { text: `${capitalize(off.text)}.` }),
+          el("div", { class: "warning-actions" }, zero, el("span", { text: "see Manual motion (end of the set-up)" })));
+      }
     }
+    if (off) this.renderZeroButton(this.manual.blockers("zero"));
+  }
+
+  /** The Zero button of the off-zero warning: as usable as Manual motion's own. */
+  renderZeroButton(blockers) {
+    const button = $("warning-zero");
+    if (!button) return;
+    button.disabled = blockers.length > 0;
+    button.title = blockers.length ? `Zero needs: ${blockers.join("; ")}` : "return the table to zero (asks for a confirmation)";
   }
 
   startTolerance() {
@@ -557,14 +581,13 @@ export class SetupPanel {
    */
   offZero() {
     const rs = state.rigState;
-    if (!rs || rs.status !== "idle" && rs.status !== "faulted" || testRunning()) return null;
-    const source = rs.position_source || "";
-    if (!num(rs.table_position_m) || source === "live" || source === "unknown") return null;
+    if (!rs || rs.status === "not_connected" || testRunning()) return null;
+    const where = tablePosition();
+    if (!where || where.source === "live" || where.source === "unknown") return null;
     const tol = this.startTolerance();
-    if (Math.abs(rs.table_position_m) <= tol) return null;
-    const at = fmtU("length", rs.table_position_m, { sign: true });
-    const where = source === "the rig (probe)" ? "the rig's reading" : source.replace(/^end of test (\d+).*/, "where test $1 left it");
-    return { at, text: `the table rests at ${at} (${where}) and a test starts only within ` +
+    if (Math.abs(where.m) <= tol) return null;
+    const at = fmtU("length", where.m, { sign: true });
+    return { at, text: `the table rests at ${at} (${sourceWords(where.source)}) and a test starts only within ` +
       `\u00b1${fmtU("length", tol, { sig: 3 })} of zero` };
   }
 
@@ -722,6 +745,7 @@ export class SetupPanel {
     const profile = p ? { kind: "protocol", name: p.name } : {
       kind: "sine", amplitude_m: v.amplitude, frequency_hz: v.frequency, cycles: v.cycles, taper_cycles: v.taper_cycles,
     };
+    if (!p && num(v.offset) && v.offset !== 0) profile.offset_m = v.offset;
     const body = {
       isolator: $("f-isolator").value,
       supply_bar: num(v.supply) ? v.supply / BAR : null,
@@ -741,6 +765,40 @@ export class SetupPanel {
     }
     body.limits = { ...limits, actions: this.actions() }; // every action said, the defaults too
     return { body, problems };
+  }
+
+  /** The set-up values a manual move needs that are not valid now (names), [] when all are. */
+  moveProblems() {
+    const v = this.values;
+    const out = [];
+    if (!$("f-isolator").value) out.push("isolator");
+    if (!num(v.supply)) out.push("supply pressure");
+    if (v.vertical_load === undefined) out.push("vertical load");
+    for (const [key, spec] of Object.entries(this.fields)) {
+      if (spec.limit && v[key] === undefined) out.push(key.replace(/^lim_/, "limit "));
+    }
+    return out;
+  }
+
+  /** Where a sine's offset comes from: the table's position now (rounded to 0.01 mm), when it is known. */
+  offsetFromTable() {
+    const where = tablePosition();
+    if (!where || this.locked) return;
+    const m = Math.round(where.m / 1e-5) * 1e-5;
+    this.setField("offset", m === 0 ? 0 : m);
+    $("offset-note").textContent = `set from the table position ${fmtU("length", where.m, { sign: true })} ` +
+      `(${sourceWords(where.source)}). The service's sine starts at zero and reaches the offset during its first ` +
+      "cycle: Start still needs the table at zero.";
+    this.formChanged();
+  }
+
+  /** The "from table position" button: usable when the console knows where the table rests. */
+  renderOffsetButton() {
+    const where = tablePosition();
+    const button = $("offset-from-table");
+    button.disabled = !where || this.locked;
+    button.title = where ? `set the offset to ${fmtU("length", where.m, { sign: true })} (${sourceWords(where.source)})`
+      : "the table position is not known";
   }
 
   /** The limits the next test would get, with their actions: the form's, else the rig's defaults (SI). */
@@ -838,7 +896,10 @@ export class SetupPanel {
       if (testRunning() && t && t.id === state.testId) this.followTest(t);
       else if (!testRunning() && this.locked) this.unlock();
     }
-    if (what === "rigState") this.renderRigWarning();
+    if (what === "rigState" || what === "position" || what === "status") {
+      this.renderRigWarning();
+      this.renderOffsetButton();
+    }
     if (what === "rig" || what === "rigState" || what === "status" || what === "conn" || what === "link" ||
         what === "test" || what === "stopping") {
       this.updateButtons();
@@ -869,6 +930,7 @@ export class SetupPanel {
       this.setField("frequency", p.frequency_hz);
       this.setField("cycles", p.cycles);
       this.setField("taper_cycles", p.taper_cycles);
+      this.setField("offset", num(p.offset_m) && p.offset_m !== 0 ? p.offset_m : null);
     }
     if (t.controller && [...$("f-controller").options].some((o) => o.value === t.controller)) {
       $("f-controller").value = t.controller;
@@ -894,7 +956,9 @@ export class SetupPanel {
     $("setup-fields").disabled = true;
     $("iso-delete").disabled = true;
     const lock = $("form-lock");
-    lock.textContent = `The form shows test #${t.id}, which is running: locked until it ends.`;
+    lock.textContent = isMove(t)
+      ? `Manual move #${t.id} is running: the form is locked until it ends.`
+      : `The form shows test #${t.id}, which is running: locked until it ends.`;
     lock.classList.remove("hidden");
     this.scheduleCheck(0);
   }
@@ -919,11 +983,11 @@ export class SetupPanel {
   startBlockers() {
     const out = [];
     if (!state.conn) out.push("no connection to the service");
-    if (testRunning()) out.push(`test #${state.testId ?? (state.rigState && state.rigState.test_id)} is running`);
+    if (testRunning()) out.push(`${runName(state.test, state.testId ?? (state.rigState && state.rigState.test_id))} is running`);
     if (state.linkConnected === "false") out.push("the rig is not connected");
     else if (!testRunning()) {
       const off = this.offZero();
-      if (off) out.push(`the table at zero (it rests at ${off.at}, see above)`);
+      if (off) out.push(`the table at zero (it rests at ${off.at}, see above: Zero brings it back)`);
     }
     if (!this.locked) {
       const { body, problems } = this.body();
@@ -1093,8 +1157,11 @@ export class SetupPanel {
       ["isolator", body.isolator, `controller ${body.controller}`],
     ];
     if (body.profile.kind === "sine") {
-      rows.push(["motion", `sine ${fmtU("length", body.profile.amplitude_m)} at ${fmtU("frequency", body.profile.frequency_hz)}`,
-        `${body.profile.cycles} cycles, ${body.profile.taper_cycles} taper`]);
+      const off = body.profile.offset_m;
+      rows.push(["motion", `sine ${fmtU("length", body.profile.amplitude_m)} at ${fmtU("frequency", body.profile.frequency_hz)}` +
+        `${num(off) ? ` about ${fmtU("length", off, { sign: true })}` : ""}`,
+        `${body.profile.cycles} cycles, ${body.profile.taper_cycles} taper` +
+        `${num(off) ? "; the target starts at zero and reaches the offset during the first cycle" : ""}`]);
     } else {
       const p = this.protocol() || {};
       rows.push(["motion", `protocol ${body.profile.name}`, Array.isArray(p.levels)
@@ -1120,7 +1187,14 @@ export class SetupPanel {
     const load = body.vertical_load_n ?? this.defaultVerticalLoad().value;
     rows.push(["supply / vertical load", `${fmtU("pressure", body.supply_bar * BAR)} / ${fmtU("force", load, { sig: 4 })}`]);
     const box = el("div", {}, summaryTable(rows));
-    const lim = { ...((this.rig && this.rig.limits_default) || {}), ...(body.limits || {}) };
+    box.append(this.limitsBox(body.limits));
+    return box;
+  }
+
+  /** A table of the limits (the rig's defaults where `limits` names none), each with its action, explained. */
+  limitsBox(limits) {
+    const box = el("div", { class: "limits-box" });
+    const lim = { ...((this.rig && this.rig.limits_default) || {}), ...(limits || {}) };
     const table = el("table", { class: "params summary-table limits-table" });
     table.append(el("tr", {}, el("th", { text: "limit" }), el("th", { text: "value" }), el("th", { text: "when exceeded" })));
     const used = new Set();
@@ -1209,7 +1283,9 @@ export class SetupPanel {
       state.stopping = true;
       state.stoppingReason = state.stoppingReason || "stop requested from this console";
       changed("stopping");
-      this.message(`Test #${id}: stopping with a ramp-out from the next whole cycle.`, "ok");
+      this.message(isMove(state.test) && state.testId === id
+        ? `Manual move #${id}: stopping, the table holds where it is.`
+        : `Test #${id}: stopping with a ramp-out from the next whole cycle.`, "ok");
       this.live.refreshEvents(id);
     } catch (e) {
       this.refuse("form", `Stop refused: ${e.message}`);

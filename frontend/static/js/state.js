@@ -45,3 +45,39 @@ export function testRunning() {
   const s = state.rigState && state.rigState.status;
   return s === "running" || s === "stopping";
 }
+
+/** A record of a manual move (POST /api/rig/move or /zero: profile kind "move"), not a test. */
+export function isMove(t) {
+  return Boolean(t && t.profile && !Array.isArray(t.profile) && t.profile.kind === "move");
+}
+
+/** "manual move #7" or "test #7": what a record is, in words. */
+export function runName(t, id) {
+  return `${isMove(t) ? "manual move" : "test"} #${id ?? (t && t.id)}`;
+}
+
+/**
+ * Where the table is, as far as the console knows: {m, source} or null. Live during a run (the stream's
+ * latest sample); else GET /api/rig/state's figure (the end of the last run, a UDP rig's own reading), unless
+ * the live stream has seen a later run end than that answer knows of (it comes within 2 s).
+ */
+export function tablePosition() {
+  const num = (v) => typeof v === "number" && Number.isFinite(v);
+  const running = testRunning();
+  let rs = state.rigState || {};
+  if (!running && (rs.status === "running" || rs.status === "stopping")) rs = {}; // an answer of before the end
+  const p = state.position;
+  if (running && p && p.live && num(p.m)) return { m: p.m, source: "live" };
+  const ended = /^end of test (\d+)/.exec(rs.position_source || "");
+  const newer = p && num(p.m) && ended && p.testId > Number(ended[1]);
+  if (num(rs.table_position_m) && !newer) return { m: rs.table_position_m, source: rs.position_source || "" };
+  if (p && num(p.m)) return { m: p.m, source: `end of test ${p.testId}` };
+  return null;
+}
+
+/** Where a position figure comes from, in words: "live", "where test 4 left it", "the rig's reading". */
+export function sourceWords(source) {
+  if (source === "the rig (probe)") return "the rig's reading";
+  const m = /^end of test (\d+)/.exec(source || "");
+  return m ? `where test ${m[1]} left it` : source || "unknown";
+}

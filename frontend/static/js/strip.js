@@ -5,7 +5,7 @@
 // what another console did); what the service does not report is said, not guessed.
 
 import { limitsLines, limitsText } from "./limits.js";
-import { onState, state, testRunning } from "./state.js";
+import { isMove, onState, state, tablePosition, testRunning } from "./state.js";
 import { eventLine } from "./ui.js";
 import { fmt, fmtU, onUnits } from "./units.js";
 
@@ -46,7 +46,7 @@ export class StatusStrip {
       if (state.stopping || serviceStopping) {
         return ["STOPPING", "stopping", state.stoppingReason || rs.stopping_reason || "the test is ending"];
       }
-      return ["RUNNING", "running", `test #${id}`];
+      return ["RUNNING", "running", isMove(state.test) ? `manual move #${id}` : `test #${id}`];
     }
     if (rs.status === "faulted") return ["FAULTED", "bad", rs.rig_status ? `the rig reports: ${rs.rig_status}` : "the rig reports a fault"];
     if (state.faulted) return ["FAULTED", "bad", state.faulted];
@@ -66,14 +66,14 @@ export class StatusStrip {
     const cell = $("s-rig-cell");
     cell.dataset.state = word.toLowerCase().replace(/ /g, "-");
     cell.className = `cell cell-rig ${cls}`;
-    const showWhy = ["STOPPING", "NOT CONNECTED", "FAULTED"].includes(word);
+    const showWhy = ["STOPPING", "NOT CONNECTED", "FAULTED"].includes(word) || (word === "RUNNING" && isMove(state.test));
     $("s-rig-why").textContent = showWhy ? why : "";
     $("s-rig-why").title = showWhy ? why : "";
     const running = testRunning();
     const t = state.test || {};
     const rs = this.serviceState();
     this.renderSupply(running, t, rs);
-    this.renderPosition(running, rs);
+    this.renderPosition(rs);
     // vertical load: the running test's, else the last test's condition
     const vl = $("s-vertical");
     const load = running && num(rs.vertical_load_n) ? rs.vertical_load_n : t.vertical_load_n;
@@ -117,34 +117,21 @@ export class StatusStrip {
     }
   }
 
-  /** Table position and where the figure comes from: live, the end of a test, the rig's own answer. */
-  renderPosition(running, rs) {
+  /** Table position and where the figure comes from: live, the end of a test or move, the rig's own answer. */
+  renderPosition(rs) {
     const pos = $("s-position");
-    const p = state.position;
-    let value = null;
-    let source = "";
-    const ended = /^end of test (\d+)/.exec(rs.position_source || "");
-    const newer = p && num(p.m) && ended && p.testId > Number(ended[1]); // the service's answer predates the test in view
-    if (running && p && p.live && num(p.m)) {
-      value = p.m;
-      source = "live";
-    } else if (num(rs.table_position_m) && !newer) {
-      value = rs.table_position_m;
-      source = rs.position_source || "";
-    } else if (p && num(p.m)) {
-      value = p.m;
-      source = `end of test ${p.testId}`;
-    }
-    pos.dataset.source = source;
-    if (value === null) {
+    const where = tablePosition();
+    pos.dataset.source = where ? where.source : "";
+    if (!where) {
       pos.textContent = "unknown";
       pos.title = rs.position_source ? `position source: ${rs.position_source}` : "no sample since this page opened";
       return;
     }
-    pos.textContent = `${fmtU("length", value, { sign: true })} \u00b7 ${source || "?"}`;
+    pos.textContent = `${fmtU("length", where.m, { sign: true })} \u00b7 ${where.source || "?"}`;
     pos.title = {
       live: "measured, live (the running test's latest sample)",
       "the rig (probe)": "the rig's own reading, asked every 2 s while no test runs",
-    }[source] || `the last sample of the last test (${source}); the table may have moved since, by the rig's own controls`;
+    }[where.source] || `the last sample of the last run (${where.source}): the simulated table stays where a test or ` +
+      "move left it (also after a trip, an abort or a restart of the service)";
   }
 }

@@ -24,7 +24,8 @@ export function profileText(t) {
       `at ${fmtU("velocity", p.speed_m_per_s)}`;
   }
   if (p.kind === "sine" || p.amplitude_m !== undefined) {
-    return `sine ${fmtU("length", p.amplitude_m)} at ${fmtU("frequency", p.frequency_hz)} x ${p.cycles}`;
+    const off = typeof p.offset_m === "number" && p.offset_m !== 0 ? ` about ${fmtU("length", p.offset_m, { sign: true })}` : "";
+    return `sine ${fmtU("length", p.amplitude_m)} at ${fmtU("frequency", p.frequency_hz)} x ${p.cycles}${off}`;
   }
   return p.kind || "-";
 }

@@ -1,0 +1,218 @@
+"""Manual motion in the console (issue 17, item 4): Zero and Move to a position at a safe speed when no test
+runs, each after a confirmation, with the set-up's limits; the move followed like a test (strip, form lock,
+progress) and its end said; refusals at the field and by the service; a sine's offset taken from where the
+table rests. The service: POST /api/rig/zero and /api/rig/move (docs/backend.md).
+"""
+
+from __future__ import annotations
+
+import re
+import time
+
+from .harness import TOKEN, fill_identity, record_checks, shots, sine_test, wait_start_enabled
+
+
+def _wait(predicate, timeout_s: float, what: str, interval_s: float = 0.1):
+    deadline = time.monotonic() + timeout_s
+    last = None
+    while time.monotonic() < deadline:
+        last = predicate()
+        if last:
+            return last
+        time.sleep(interval_s)
+    raise AssertionError(f"timed out after {timeout_s} s waiting for {what} (last: {last!r})")
+
+
+def _ids(server) -> set[int]:
+    return {t["id"] for t in server.call("GET", "/api/tests")[1]}
+
+
+def _new_record(server, known: set[int]) -> dict:
+    new = _wait(lambda: _ids(server) - known, 15, "the move's record")
+    return server.call("GET", f"/api/tests/{max(new)}")[1]
+
+
+def _table(server) -> float:
+    return server.call("GET", "/api/rig/state")[1]["table_position_m"]
+
+
+def test_zero_and_move_from_the_console(server, open_page, artifacts):
+    """A trip leaves the table beyond 20 mm: Start is disabled and the warning offers Zero; Cancel sends nothing;
+    Zero brings the table back (the record is a move with the form's isolator, limits and operator); Move to
+    "12,5" mm at the default 5 mm/s runs with the form locked and its progress shown, and leaves the table
+    there, where no test may start."""
+    body = sine_test(amplitude_m=0.03, frequency_hz=0.5, cycles=10, speed=2.0)
+    body["limits"] = {"displacement_m": 0.02}  # valve close (the default action) beyond 20 mm
+    tripped = server.start_test(body)
+    rec = server.wait_status(tripped, {"aborted"}, timeout_s=30)
+    assert rec["reason"].startswith("displacement limit tripped"), rec["reason"]
+    rest = _table(server)
+    assert abs(rest) > 0.015, rest  # the valve closed beyond the limit: the table stays there
+    at = f"{rest * 1e3:+.2f} mm"
+
+    page, _ = open_page(server.url + "/", width=1366, height=768, token=TOKEN)
+    fill_identity(page, "MM-1", "Motion Operator")
+    page.wait_for_selector("#rig-warning[data-state='off-zero']", timeout=10000)
+    warning = page.inner_text("#rig-warning")
+    assert f"The table rests at {at} (where test {tripped} left it)" in warning, warning
+    assert page.is_disabled("#start") and "the table at zero" in page.inner_text("#start-why")
+    assert page.inner_text("#mm-position") == f"{at} \u00b7 where test {tripped} left it"
+    # the field's unit and range: the stroke and the displacement limit in force; the speed the service allows
+    assert page.inner_text("[data-field='mm_target'] .unit") == "(mm)"
+    assert page.inner_text("[data-field='mm_target'] .range").startswith("-150 to 150 mm")
+    assert page.inner_text("[data-field='mm_speed'] .range") == "above 0, up to 50 mm/s"
+    assert page.input_value("#f-mm_speed") == "5"  # the service's default speed
+    assert page.is_enabled("#warning-zero") and page.is_enabled("#mm-zero")
+    assert page.is_disabled("#mm-move") and "Move needs: a position to move to" in page.inner_text("#mm-why")
+    page.locator("#manual-motion").scroll_into_view_if_needed()
+    shots(page, artifacts, "dashboard_off_zero")
+
+    # the confirmation says what will move; Cancel sends nothing
+    page.fill("#f-mm_speed", "50")
+    known = _ids(server)
+    page.click("#warning-zero")
+    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    assert page.inner_text("#confirm-title").startswith("Return the table to zero?")
+    confirm = page.inner_text("#confirm-body")
+    for what in (at, "0.00 mm", "50 mm/s", "minimum-jerk", "s moving, then 0.5 s holding", "IUT_b",
+                 "Motion Operator"):
+        assert what in confirm, (what, confirm)
+    assert re.search(r"displacement \|d\|\s+150 mm\s+valve close", confirm), confirm  # the limits that apply
+    page.screenshot(path=str(artifacts / "dashboard_zero_confirm_1366x768.png"))
+    page.click("#confirm-cancel")
+    assert page.inner_text("#mm-status") == "Zero cancelled: nothing was sent to the rig."
+    time.sleep(0.5)
+    assert _ids(server) == known
+
+    # Zero (the manual-motion block's own button): a move record with the form's conditions and limits
+    page.fill("#f-lim_tracking", "30")
+    page.click("#mm-zero")
+    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    page.click("#confirm-ok")
+    move = _new_record(server, known)
+    assert move["profile"]["kind"] == "move" and move["profile"]["end_m"] == 0.0, move["profile"]
+    assert abs(move["profile"]["start_m"] - rest) < 1e-6 and move["profile"]["speed_m_per_s"] == 0.05, move
+    assert move["isolator"] == "IUT_b" and move["operator_name"] == "Motion Operator", move
+    assert move["limits"]["tracking_error_m"] == 0.03 and move["limits"]["actions"]["force_n"] == "valve_close"
+    server.wait_status(move["id"], {"completed"}, timeout_s=30)
+    page.wait_for_selector("#mm-status[data-kind='ok']", timeout=10000)
+    assert page.inner_text("#mm-status").startswith(f"Move #{move['id']} completed ({at} to 0.00 mm at 50 mm/s)")
+    assert abs(_table(server)) < 0.0005
+    page.wait_for_selector("#rig-warning[data-state='ok']", state="attached", timeout=10000)
+    assert page.is_hidden("#rig-warning")
+    wait_start_enabled(page)  # the table at zero: a test may start
+    assert page.inner_text("#alert-text") == f"Manual move {move['id']} completed"
+
+    # Move to "12,5" mm at the default 5 mm/s: the decimal comma is read as one; the form is locked meanwhile
+    page.fill("#f-mm_speed", "5")
+    page.fill("#f-mm_target", "12,5")
+    assert page.inner_text("[data-field='mm_target'] .msg") == "read as 12.5 mm"
+    known = _ids(server)
+    page.click("#mm-move")
+    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    assert page.inner_text("#confirm-title").startswith("Move the table to +12.50 mm?")
+    confirm = page.inner_text("#confirm-body")
+    assert "12.50 mm" in confirm and "5 mm/s" in confirm and "5.2 s" in confirm, confirm  # 1.875 x 12.5 / 5 + 0.5
+    page.click("#confirm-ok")
+    move = _new_record(server, known)
+    assert move["profile"]["end_m"] == 0.0125 and move["profile"]["speed_m_per_s"] == 0.005, move["profile"]
+    page.wait_for_selector("#s-rig-cell[data-state='running']", timeout=10000)
+    assert page.inner_text("#s-rig-why") == f"manual move #{move['id']}"
+    page.wait_for_selector("#mm-status[data-kind='running']", timeout=5000)
+    _wait(lambda: re.search(r"now \+\d+\.\d\d mm \(\d+ % of the way\)", page.inner_text("#mm-status")), 5,
+          "the move's progress")
+    assert re.match(rf"Moving \(manual move #{move['id']}\) [+-]?\d+\.\d\d mm to \+12\.50 mm at 5 mm/s",
+                    page.inner_text("#mm-status")), page.inner_text("#mm-status")
+    assert page.is_disabled("#mm-zero") and page.is_disabled("#mm-move") and page.is_disabled("#start")
+    assert f"manual move #{move['id']} is running" in page.inner_text("#start-why")
+    assert f"Manual move #{move['id']} is running" in page.inner_text("#form-lock")
+    assert page.is_enabled("#stop")  # a stop holds the table where it is
+    assert re.fullmatch(r"manual move [+-]?\d+\.\d\d mm to \+12\.50 mm at 5\.0 mm/s", page.inner_text("#l-profile"))
+    shots(page, artifacts, "dashboard_manual_move")
+    server.wait_status(move["id"], {"completed"}, timeout_s=30)
+    page.wait_for_selector("#mm-status[data-kind='ok']", timeout=10000)
+    assert abs(_table(server) - 0.0125) < 0.0003
+    page.wait_for_selector("#rig-warning[data-state='off-zero']", timeout=10000)  # no test starts there
+    assert page.is_hidden("#form-lock") and page.input_value("#f-specimen_id") == "MM-1"  # the draft is back
+    _wait(lambda: re.fullmatch(rf"\+12\.\d\d mm \u00b7 end of test {move['id']} \(completed\)",
+                               page.inner_text("#s-position")), 5, "the strip's table position")
+
+
+def test_manual_motion_limits_refusals_units_and_offset(server, open_page, artifacts):
+    """Move follows the displacement limit of the form; the service's own refusal is shown; a running test
+    disables Zero and Move; the fields follow the unit choice; the sine's offset is taken from the table."""
+    page, watch = open_page(server.url + "/", width=1920, height=1080, token=TOKEN)
+    watch.allowed_status.add(422)  # the refusal below
+    fill_identity(page, "MM-2", "Motion Operator")
+    # the same limits as a test: the reach of a move follows the displacement limit of the form
+    page.fill("#f-mm_target", "120")
+    page.wait_for_selector("#mm-move:not([disabled])", timeout=10000)
+    page.fill("#f-lim_displacement", "100")
+    page.fill("#f-mm_target", "120")
+    assert page.inner_text("[data-field='mm_target'] .range").startswith("-100 to 100 mm")
+    assert "outside the allowed range" in page.inner_text("[data-field='mm_target'] .msg")
+    assert page.is_disabled("#mm-move") and "a valid position" in page.inner_text("#mm-why")
+    page.fill("#f-mm_speed", "80")
+    assert "above 0, up to 50 mm/s" in page.inner_text("[data-field='mm_speed'] .msg")
+    assert page.is_disabled("#mm-zero") and "a valid speed" in page.inner_text("#mm-why")
+    page.fill("#f-lim_displacement", "")
+    page.fill("#f-mm_speed", "20")
+
+    # the service checks again: a request it refuses (here altered on its way) is shown with its reason
+    def too_fast(route):
+        route.continue_(post_data=route.request.post_data.replace('"speed_m_per_s":0.02', '"speed_m_per_s":0.2'))
+
+    page.route("**/api/rig/move", too_fast)
+    known = _ids(server)
+    page.fill("#f-mm_target", "10")
+    page.press("#f-mm_target", "Enter")  # Enter in the field asks for this move (not for a test)
+    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    assert page.inner_text("#confirm-title").startswith("Move the table to +10.00 mm?")
+    page.click("#confirm-ok")
+    page.wait_for_selector("#mm-status[data-kind='error']", timeout=10000)
+    status = page.inner_text("#mm-status")
+    assert status.startswith("Not moved, refused by the service: speed_m_per_s = 0.2"), status
+    assert "0.05 m/s" in status, status
+    assert _ids(server) == known  # nothing moved, nothing kept
+    page.unroute("**/api/rig/move")
+
+    # the fields follow the unit choice (values kept in SI)
+    page.select_option("#units", "si")
+    assert page.input_value("#f-mm_target") == "0.01" and page.input_value("#f-mm_speed") == "0.02"
+    assert page.inner_text("[data-field='mm_target'] .unit") == "(m)"
+    assert page.inner_text("[data-field='mm_speed'] .range") == "above 0, up to 0.05 m/s"
+    page.select_option("#units", "lab")
+    assert page.input_value("#f-mm_target") == "10"
+
+    # a test runs: no manual motion
+    running = server.start_test(sine_test(cycles=20, speed=1.0))
+    page.wait_for_selector("#s-rig-cell[data-state='running']", timeout=15000)
+    _wait(lambda: f"no test running (test #{running} runs)" in page.inner_text("#mm-why"), 5, "why not now")
+    assert page.is_disabled("#mm-zero") and page.is_disabled("#mm-move")
+    server.call("POST", f"/api/tests/{running}/stop", token=True)
+    server.wait_status(running, {"stopped"}, timeout_s=60)
+    server.zero_table()
+
+    # the table moved to +12.50 mm elsewhere (a script): the offset of the next sine taken from there
+    code, move = server.call("POST", "/api/rig/move", {"position_m": 0.0125, "speed_m_per_s": 0.05,
+                                                       "isolator": "IUT_b", "supply_bar": 70}, token=True)
+    assert code == 201, move
+    server.wait_status(move["id"], {"completed"}, timeout_s=30)
+    at = _table(server)
+    page.wait_for_selector(f"#s-position[data-source^='end of test {move['id']}']", timeout=10000)
+    record_checks(page)
+    assert page.input_value("#f-offset") == ""
+    page.click("#offset-from-table")
+    offset = round(at * 1e5) / 1e5
+    assert abs(float(page.input_value("#f-offset")) - offset * 1e3) < 1e-9, page.input_value("#f-offset")
+    assert page.inner_text("#offset-note").startswith(f"set from the table position {at * 1e3:+.2f} mm "
+                                                      f"(where test {move['id']} left it)")
+    _wait(lambda: any(abs(c["profile"].get("offset_m", 0) - offset) < 1e-12 for c in page.evaluate("window.__checks")),
+          10, "the envelope check with the offset")
+    page.wait_for_selector("#envelope[data-state='ok']", timeout=10000)
+    # every target of the service begins at zero: Start still needs the table there
+    assert page.is_disabled("#start") and "the table at zero" in page.inner_text("#start-why")
+    page.locator("#offset-row").scroll_into_view_if_needed()
+    page.screenshot(path=str(artifacts / "dashboard_offset_from_table_1920x1080.png"))
+    page.fill("#f-offset", "")
+    assert page.inner_text("#offset-note") == ""
