@@ -72,8 +72,8 @@ MAX_HARMONICS = 24
  P_PL_SHARE, P_DZ_ADAPT, P_DZ_LO, P_DZ_HI) = range(27)
 P_JERK_LEAD, P_INTEGRAL = 27, 28
 (P_RAMP_SHARE, P_RAMP_MIN, P_OFFSET_MAX, P_KPF, P_PF_WC, P_LAT, P_COMPLIANCE, P_WH, P_ZH, P_OFFSET_ADAPT,
- P_OW, P_DP_REG) = range(29, 41)
-N_PARAMS = 41
+ P_OW, P_DP_REG, P_OVMIN, P_OVT) = range(29, 43)
+N_PARAMS = 43
 DELAY_LINE = 256  # periods of regressor and target history kept (valve estimate, position latency)
 
 # State indices; the delay line and the harmonic coefficients (real, imaginary) follow.
@@ -163,6 +163,12 @@ OPTIONS = {
                                    "flow gain and the dead zone (0: the nominal driver_offset_v is kept)"),
     "null_offset_window_s": Option(3.0, 1e-3, 1000.0, "s", meaning="forgetting time of the null-offset estimate (a "
                                    "constant of the valve: longer than the gain's)"),
+    "null_offset_min_velocity_m_per_s": Option(5e-4, 0.0, 1.0, "m/s", meaning="on a sine the learning is locked "
+                                               "to, the offset is estimated once the valve model predicts this RMS "
+                                               "velocity over its window (anywhere else: gain_min_velocity_m_per_s)"),
+    "null_offset_min_target_velocity_m_per_s": Option(1e-3, 0.0, 1.0, "m/s", meaning="... and the sine's peak "
+                                                      "velocity is at least this (below, a millivolt of estimation "
+                                                      "error moves the table more than the target does)"),
     "null_offset_max_v": Option(0.2, 0.0, 5.0, "V", meaning="bound of the estimated valve null offset (0: not "
                                 "estimated)"),
     "pressure_feedback_max_damping": Option(0.5, 0.0, 2.0, "-", meaning="the largest damping ratio the load-pressure "
@@ -230,6 +236,8 @@ def make_servo(rig=None, **options) -> Controller:
     params[P_OFFSET_MAX] = o["null_offset_max_v"]
     params[P_OFFSET_ADAPT] = o["null_offset_adaptive"]
     params[P_OW] = o["null_offset_window_s"]
+    params[P_OVMIN] = o["null_offset_min_velocity_m_per_s"]
+    params[P_OVT] = o["null_offset_min_target_velocity_m_per_s"]
     params[P_DP_REG] = o["orifice_regularisation_pa"]
     # load-pressure feedback, designed on the declared rig (pressure_feedback_design)
     design = pressure_feedback_design(o)
@@ -520,21 +528,24 @@ def servo_step(p, s, meas, dt, report):
         o_hat = s[S_OFFSET]
         qq = (sxx + dz_hat * dz_hat * sww + o_hat * o_hat * szz - 2.0 * dz_hat * sxw + 2.0 * o_hat * sxz
               - 2.0 * dz_hat * o_hat * swz)
+        dzn = p[P_DZ_LO] + 0.5 * (p[P_DZ_HI] - p[P_DZ_LO])
+        if p[P_OFFSET_ADAPT] > 0.5 and p[P_DZ_ADAPT] > 0.5:
+            # the offset, over its long window, when z is not (nearly) a combination of x and w (both directions
+            # of motion in the window): the Schur complement of z in the normal matrix of (x, -w, z). On a steady
+            # sine a lower excitation floor than the gain's: at small amplitudes the offset is what the motion
+            # depends on most
+            lxx, lxw, lww, lxz, lwz, lzz, lxy, lwy, lzy = s[S_LONG:S_LONG + 9]
+            ldet = lxx * lww - lxw * lxw
+            lqq = lxx - 2.0 * dzn * lxw + dzn * dzn * lww
+            excited = lqq > p[P_GVMIN] ** 2 or (omega > 0.0 and v_env >= p[P_OVT] and lqq > p[P_OVMIN] ** 2)
+            if excited and ldet > 0.02 * lqq * lww:
+                res = lzz - (lww * lxz * lxz - 2.0 * lxw * lxz * lwz + lxx * lwz * lwz) / ldet
+                if res > 0.02 * lzz:
+                    g_l, _eta, zeta, det3 = _solve3(lxx, -lxw, lxz, lww, -lwz, lzz, lxy, -lwy, lzy)
+                    if det3 != 0.0 and g_l > 0.0:
+                        s[S_OFFSET] = min(max(zeta / g_l, -p[P_OFFSET_MAX]), p[P_OFFSET_MAX])
+                        o_hat = s[S_OFFSET]
         if qq > p[P_GVMIN] ** 2:
-            dzn = p[P_DZ_LO] + 0.5 * (p[P_DZ_HI] - p[P_DZ_LO])
-            if p[P_OFFSET_ADAPT] > 0.5 and p[P_DZ_ADAPT] > 0.5:
-                # the offset, over its long window, when z is not (nearly) a combination of x and w (both
-                # directions of motion in the window): the Schur complement of z in the normal matrix of (x, -w, z)
-                lxx, lxw, lww, lxz, lwz, lzz, lxy, lwy, lzy = s[S_LONG:S_LONG + 9]
-                ldet = lxx * lww - lxw * lxw
-                lqq = lxx - 2.0 * dzn * lxw + dzn * dzn * lww
-                if ldet > 0.02 * lqq * lww:
-                    res = lzz - (lww * lxz * lxz - 2.0 * lxw * lxz * lwz + lxx * lwz * lwz) / ldet
-                    if res > 0.02 * lzz:
-                        g_l, _eta, zeta, det3 = _solve3(lxx, -lxw, lxz, lww, -lwz, lzz, lxy, -lwy, lzy)
-                        if det3 != 0.0 and g_l > 0.0:
-                            s[S_OFFSET] = min(max(zeta / g_l, -p[P_OFFSET_MAX]), p[P_OFFSET_MAX])
-                            o_hat = s[S_OFFSET]
             det = sxx * sww - sxw * sxw
             # excitation test in the coordinates (x - DZ_n w, w): x alone is nearly collinear with w when the
             # dead zone dominates the command (slow tests); the shear leaves det and the solution unchanged
