@@ -45,8 +45,8 @@ def test_the_cases_cover_the_ranges_of_the_issue():
         assert t_s == pytest.approx(rb.CHANGE_AT_CYCLE / p.frequency_hz) and name == "kd_n_per_m"
         assert value / getattr(p.scenario().isolator, name) in (0.5, 2.0)
     assert all(p.target == rb.TARGETS[p.group] for p in points)
-    assert rb.TARGETS == {"small amplitude": 0.01, "soft oil column": 0.005, "sensor latency": 0.005,
-                          "stiffness change": 0.005}
+    assert {g: rb.TARGETS[g] for g in rb.GROUPS} == {"small amplitude": 0.01, "soft oil column": 0.005,
+                                                     "sensor latency": 0.005, "stiffness change": 0.005}
     rb.check_points(points)  # every case inside its rig's envelope
     with pytest.raises(ValueError, match="unknown robustness group"):
         rb.robustness_points(groups=("big amplitude",))
@@ -141,3 +141,17 @@ def test_an_undeclared_valve_null_offset_is_found_at_small_amplitudes():
     point.options = {"null_offset_adaptive": 0.0}
     row = run_case(point)
     assert not row["met"] and row["limit_cycle"]
+
+
+def test_sensitivity_groups_change_the_plant_only_and_are_not_run_by_default():
+    assert not set(rb.SENSITIVITY_GROUPS) & {p.group for p in rb.robustness_points()}
+    null = rb.robustness_points(groups=("valve null off",))
+    oil = rb.robustness_points(groups=("more oil than declared",))
+    assert len(null) == 24 and len(oil) == 24
+    s = null[0].scenario()
+    assert s.plant_rig.driver_offset_v == pytest.approx(DEFAULT_RIG.driver_offset_v - 0.02)
+    assert s.rig.driver_offset_v == DEFAULT_RIG.driver_offset_v  # the controller assumes the declared null
+    for p in oil:
+        s = p.scenario()
+        assert s.plant_rig.half_volume_m3 == pytest.approx(1.5 * s.rig.half_volume_m3)
+        assert rb.oil_column_hz(s.plant_rig) < 0.83 * rb.oil_column_hz(s.rig)

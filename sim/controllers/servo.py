@@ -282,13 +282,14 @@ def _pade(delay_s: float) -> tuple[np.poly1d, np.poly1d]:
     return np.poly1d([-0.5 * delay_s, 1.0]), np.poly1d([0.5 * delay_s, 1.0])
 
 
-def linearised_poles(o: dict, damping: float) -> np.ndarray:
+def linearised_poles(o: dict, damping: float, compliance_scale: float = 1.0) -> np.ndarray:
     """Closed-loop poles of the servo's loop on the declared rig, eq. (3) linearised: the valve (second order, flow per
     velocity demand 1 after the inverse) with the sampling delay, the oil column (compliance V_0 / (2 beta)) on
     the mass m (isolator and friction left out: the worst case for damping), the position loop K_p on the reading
     (late by the declared latency) and the load-pressure feedback k_pf s / (s + w_c) P_L for the added damping
     ratio ``damping``. The natural damping of the valve's pressure-flow slope is left out too: the inverse with the
-    measured P_L cancels it."""
+    measured P_L cancels it. ``compliance_scale``: the plant's oil compliance over the declared one (the feedback
+    stays designed on the declared rig)."""
     area, mass = o["piston_area_m2"], o["mass_kg"]
     compliance = o["half_volume_m3"] / (2.0 * o["bulk_modulus_pa"])
     wv, xv = o["valve_natural_frequency_rad_s"], o["valve_damping_ratio"]
@@ -296,7 +297,8 @@ def linearised_poles(o: dict, damping: float) -> np.ndarray:
     valve_n, valve_d = np.poly1d([wv * wv]), np.poly1d([1.0, 2.0 * xv * wv, wv * wv])
     dn, dd = _pade(SAMPLING_DELAY_S)
     ln, ld = _pade(o["position_latency_s"])
-    kpf = 2.0 * damping * float(np.sqrt(compliance / mass))
+    kpf = 2.0 * damping * float(np.sqrt(compliance / mass))  # designed on the declared column
+    compliance *= compliance_scale  # the plant's column: softer than declared for a scale above 1
     wc = o["pressure_feedback_corner_share"] * oil_column_rad_s(o)
     hn, hd = np.poly1d([1.0, 0.0]), np.poly1d([1.0, wc])
     # q = V D (-K_p L y - k_pf H P),  C s P = A (q - s y),  m s^2 y = A P
@@ -314,6 +316,9 @@ def smallest_damping_ratio(poles: np.ndarray) -> float:
     return float(np.min(-poles.real / mag))
 
 
+#: the plant's oil compliance (V_0 / beta, or m for the column's frequency) over the declared one that the design
+#: must damp: the declared rig, and one whose column is 1/sqrt(1.5) = 0.82 times as fast
+COMPLIANCE_SCALES = (1.0, 1.5)
 #: what the pressure-feedback design reads of the options
 DESIGN_KEYS = ("piston_area_m2", "mass_kg", "half_volume_m3", "bulk_modulus_pa", "valve_natural_frequency_rad_s",
                "valve_damping_ratio", "position_latency_s", "kp_per_s", "pressure_feedback_max_damping",
@@ -329,7 +334,9 @@ def pressure_feedback_design(o: dict) -> dict:
     frequencies pass. Through the valve the leak lags: where the column lies near or above the valve's frequency
     (the paper's rig: 55 Hz against 40 Hz) it would remove damping. So xi is picked from 0 to
     pressure_feedback_max_damping (11 steps) as the one whose linearised loop has the largest smallest damping
-    ratio (``linearised_poles``), and kept only if it adds at least pressure_feedback_min_improvement to it: the
+    ratio (``linearised_poles``) over the declared column and one 1.5 times as compliant (``COMPLIANCE_SCALES``: a
+    lab's V_0 with hoses, beta with air and m are rough), and kept only if it adds at least
+    pressure_feedback_min_improvement to it: the
     linearised loop leaves out the valve's pressure-flow slope, friction and the isolator, so a smaller gain is
     within its error and not worth the feedback's transients. 0 wins on a stiff column."""
     return dict(_design(tuple(float(o[k]) for k in DESIGN_KEYS)))
@@ -342,11 +349,16 @@ def _design(values: tuple) -> tuple:
     o = dict(zip(DESIGN_KEYS, values, strict=True))
     wh = oil_column_rad_s(o)
     xi_max = o["pressure_feedback_max_damping"]
-    without = smallest_damping_ratio(linearised_poles(o, 0.0))
+    scales = COMPLIANCE_SCALES
+
+    def worst(xi: float) -> float:  # the smallest damping ratio over the plants the declared rig may be
+        return min(smallest_damping_ratio(linearised_poles(o, xi, c)) for c in scales)
+
+    without = worst(0.0)
     best = (without, 0.0)
     if xi_max > 0.0:
         for xi in np.linspace(0.0, xi_max, 11)[1:]:
-            zeta = smallest_damping_ratio(linearised_poles(o, float(xi)))
+            zeta = worst(float(xi))
             if zeta > best[0]:
                 best = (zeta, float(xi))
     if best[0] < without + o["pressure_feedback_min_improvement"]:
