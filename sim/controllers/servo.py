@@ -11,9 +11,9 @@ stability argument: docs/controller.md.
 
 R is the orifice law of the rig model: sqrt(dp), linear below the declared regularisation drop. g is the ratio of
 the true to the nominal flow gain (K_q A_n / (K_qn A_p)), DZ the valve's dead zone and o its null offset (v_e0 of
-eq. 2), estimated by least squares of the flow the valve passed (the table's velocity plus the oil's compression
-(V_0 / (2 beta A_n)) P_L', eq. 3 second line, as a velocity) on what the nominal valve gives for the command sent
-tau_l + L earlier: y' = g (x - DZ w + o z), x = u K_qn R(dp) / A_n, w = sgn(u + o) K_qn R(dp) / A_n,
+eq. 2), estimated by least squares of the table's velocity (optionally plus the oil's compression flow
+(V_0 / (2 beta A_n)) P_L', eq. 3 second line: ``compressibility_share``) on what the nominal valve gives for the
+command sent tau_l + L earlier: y' = g (x - DZ w + o z), x = u K_qn R(dp) / A_n, w = sgn(u + o) K_qn R(dp) / A_n,
 z = K_qn R(dp) / A_n (exponential forgetting, a prior at the nominal values, projection; the offset over a longer
 window); it keeps the loop gain at K_p whatever the valve and the nominal values.
 
@@ -179,8 +179,9 @@ OPTIONS = {
     "pressure_feedback_min_improvement": Option(0.02, 0.0, 1.0, "-", meaning="the pressure feedback is used only "
                                                 "where it raises the smallest damping ratio of the linearised loop "
                                                 "by at least this much"),
-    "compressibility_share": Option(1.0, 0.0, 1.0, "-", meaning="1: the valve estimate counts the flow that "
-                                    "compresses the oil (V_0 / (2 beta)) P_L' with the table's"),
+    "compressibility_share": Option(0.0, 0.0, 1.0, "-", meaning="1: the valve estimate regresses the flow that "
+                                    "compresses the oil, (V_0 / (2 beta)) P_L', with the table's (0, the default: the "
+                                    "table's velocity alone, what the loop gain is about; measured better)"),
 }
 DEFAULTS = {name: spec.default for name, spec in OPTIONS.items()}
 #: what a time history (no repeating cycle to learn) runs with: no harmonic learning; an integral on the position
