@@ -138,34 +138,90 @@ def _read_csv(path, value_names: tuple[str, ...], what: str):
     return t, y, numbers, value_header
 
 
-def _check_values(path, t, y, numbers, what: str, unit: str, step_tolerance: float) -> None:
-    """Finite values, increasing and uniformly sampled time: else a HistoryError naming the line."""
-    for arr, name, u in ((t, "time_s", "s"), (y, what, unit)):
+def _check_values(path, t, y, numbers, what: str, unit: str, step_tolerance: float, *, inline: bool = False,
+                  fields: tuple[str, str] = ("history", "history")) -> None:
+    """Finite values, increasing and uniformly sampled time: else a HistoryError naming the line (or, for arrays
+    given ``inline``, the sample: 0-based index into the arrays; ``fields`` then names the time and value
+    arrays in the error's ``field``)."""
+    def at(k: int) -> str:
+        return f"{path}, sample {k}" if inline else f"{path}, line {numbers[k]}"
+
+    def line(k: int):
+        return None if inline else int(numbers[k])
+
+    for arr, name, u, fld in ((t, "time_s", "s", fields[0]), (y, what, unit, fields[1])):
         bad = np.flatnonzero(~np.isfinite(arr))
         if bad.size:
             k = bad[0]
-            raise HistoryError(f"{path}, line {numbers[k]}: {name} = {arr[k]!r} is not a finite number", path=path,
-                               line=int(numbers[k]), value=float(arr[k]), limit=f"a finite number ({u})")
+            raise HistoryError(f"{at(k)}: {name} = {float(arr[k])!r} is not a finite number", path=path, line=line(k),
+                               field=fld, value=float(arr[k]), limit=f"a finite number ({u})")
     steps = np.diff(t)
     back = np.flatnonzero(steps <= 0.0)
     if back.size:
         k = back[0] + 1
-        raise HistoryError(f"{path}, line {numbers[k]}: time {t[k]:g} s is not after the previous row's "
-                           f"{t[k - 1]:g} s; time must increase", path=path, line=int(numbers[k]),
+        raise HistoryError(f"{at(k)}: time {t[k]:g} s is not after the previous {'sample' if inline else 'row'}'s "
+                           f"{t[k - 1]:g} s; time must increase", path=path, line=line(k), field=fields[0],
                            value=float(t[k]), limit=f"> {t[k - 1]:g} s")
     dt = float(np.median(steps))
     off = np.flatnonzero(np.abs(steps - dt) > step_tolerance * dt)
     if off.size:
         k = off[0] + 1
-        kind = "a gap (missing rows?)" if steps[k - 1] > 1.5 * dt else "a non-uniform step"
-        raise HistoryError(f"{path}, line {numbers[k]}: time steps from {t[k - 1]:g} s to {t[k]:g} s, a step of "
+        kind = ("a gap (missing " + ("samples" if inline else "rows") + "?)") if steps[k - 1] > 1.5 * dt \
+            else "a non-uniform step"
+        raise HistoryError(f"{at(k)}: time steps from {t[k - 1]:g} s to {t[k]:g} s, a step of "
                            f"{steps[k - 1]:.6g} s where the record's step is {dt:.6g} s: {kind}; records must be "
                            f"uniformly sampled (within {100 * step_tolerance:g} %)", path=path,
-                           line=int(numbers[k]), value=float(steps[k - 1]), limit=f"step {dt:.6g} s")
+                           line=line(k), field=fields[0], value=float(steps[k - 1]), limit=f"step {dt:.6g} s")
     if t[-1] - t[0] > MAX_DURATION_S:
         raise HistoryError(f"{path}: the record lasts {t[-1] - t[0]:g} s, longer than {MAX_DURATION_S:g} s",
-                           path=path, line=int(numbers[-1]), value=float(t[-1] - t[0]),
+                           path=path, line=line(t.size - 1), field=fields[0], value=float(t[-1] - t[0]),
                            limit=f"<= {MAX_DURATION_S:g} s")
+
+
+def check_inline_record(time_s, values, *, name: str, what: str, unit: str, fields: tuple[str, str],
+                        max_samples: int = MAX_ROWS, step_tolerance: float = STEP_TOLERANCE
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """A record given as two arrays (e.g. in an API request): the checks of a file (``_check_values``: finite
+    values, increasing and uniform time, at most MAX_DURATION_S), with the sample named by its 0-based index
+    instead of a line; ``name`` (e.g. "profile.ground_motion") starts the messages and ``fields`` (time, values)
+    are the errors' ``field``. Returns float64 arrays."""
+    arrays = []
+    for raw, fld in ((time_s, fields[0]), (values, fields[1])):
+        if not isinstance(raw, (list, tuple, np.ndarray)):
+            raise HistoryError(f"{fld} must be an array of numbers (got {type(raw).__name__})", field=fld,
+                               value=None, limit="an array of numbers")
+        if len(raw) > max_samples:
+            raise HistoryError(f"{fld} has {len(raw)} samples; at most {max_samples} are accepted inline",
+                               field=fld, value=len(raw), limit=f"at most {max_samples} samples")
+        missing = next((k for k, v in enumerate(raw) if v is None or isinstance(v, (bool, str))), None)
+        if missing is not None:
+            raise HistoryError(f"{name}, sample {missing}: {fld.rsplit('.', 1)[-1]} = {raw[missing]!r} is not a "
+                               "number (a missing value?)", field=fld, value=raw[missing], limit="a number")
+        arrays.append(np.asarray(raw, dtype=np.float64))
+    t, y = arrays
+    if t.ndim != 1 or y.ndim != 1 or t.size != y.size:
+        raise HistoryError(f"{name}: {fields[0]} has {t.size} samples but {fields[1]} has {y.size}; give one value "
+                           "per time", field=fields[1], value=y.size, limit=f"{t.size} samples, as {fields[0]}")
+    if t.size < MIN_ROWS:
+        raise HistoryError(f"{name}: only {t.size} sample(s); a record needs at least {MIN_ROWS}", field=fields[0],
+                           value=t.size, limit=f">= {MIN_ROWS} samples")
+    _check_values(name, t, y, np.arange(t.size), what, unit, step_tolerance, inline=True, fields=fields)
+    return t, y
+
+
+def check_acceleration_units(acc, units: str, how: str, *, name: str, field: str) -> None:
+    """The unit check of a ground acceleration record (``_check_units``) for values already read (in
+    ``units``): a peak outside 0.005-3 g is refused, saying what was assumed (``how``) and which unit would be
+    plausible; the error's ``field`` is ``field``."""
+    if units not in UNIT_TO_M_PER_S2:
+        raise HistoryError(f"{name}: units = {units!r}; use one of " + ", ".join(map(repr, UNIT_TO_M_PER_S2)),
+                           field=field, value=units, limit=", ".join(UNIT_TO_M_PER_S2))
+    try:
+        _check_units(name, float(np.max(np.abs(acc))), units, how)
+    except HistoryError as exc:  # said for an API form: set units, or check_units to false
+        text = str(exc).replace("read it with units=", "set units to ").replace(" or units=", " or ")
+        text = text.replace("pass check_units=False", "set check_units to false")
+        raise HistoryError(text, field=field, value=exc.value, limit=exc.limit) from None
 
 
 def read_displacement_csv(path, step_tolerance: float = STEP_TOLERANCE) -> tuple[np.ndarray, np.ndarray]:
@@ -373,6 +429,8 @@ class HistoryTarget:
     source_samples: int
     lowpass_hz: float | None = None
     resampling: str = RESAMPLING
+    #: the scale of the ground acceleration the history was computed from (None: ``scale`` is the history's)
+    ground_motion_scale: float | None = None
 
     @property
     def n_samples(self) -> int:
@@ -387,7 +445,7 @@ class HistoryTarget:
                 "duration_s": self.duration_s, "samples": self.n_samples, "taper_in_s": self.taper_in_s,
                 "taper_out_s": self.taper_out_s, "source_dt_s": self.source_dt_s,
                 "source_samples": self.source_samples, "lowpass_hz": self.lowpass_hz,
-                "resampling": self.resampling,
+                "resampling": self.resampling, "ground_motion_scale": self.ground_motion_scale,
                 "peak_displacement_m": float(np.max(np.abs(self.r_m))),
                 "peak_velocity_m_per_s": float(np.max(np.abs(self.r_dot_m_per_s))),
                 "peak_acceleration_m_per_s2": float(np.max(np.abs(self.r_ddot_m_per_s2)))}
@@ -443,8 +501,8 @@ def prepare_history(time_s, displacement_m, dt_s: float = 1.0e-3, scale: float =
                            limit=f">= {MIN_ROWS} samples")
     if not (np.all(np.isfinite(t)) and np.all(np.isfinite(x))):
         k = int(np.flatnonzero(~(np.isfinite(t) & np.isfinite(x)))[0])
-        raise HistoryError(f"sample {k} (row {k + 1}) is not finite: time {t[k]!r} s, displacement {x[k]!r} m",
-                           value=None, limit="finite numbers")
+        raise HistoryError(f"sample {k} (row {k + 1}) is not finite: time {float(t[k])!r} s, displacement "
+                           f"{float(x[k])!r} m", value=None, limit="finite numbers")
     if np.any(np.diff(t) <= 0):
         k = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
         raise HistoryError(f"sample {k} (row {k + 1}): time {t[k]:g} s is not after {t[k - 1]:g} s", value=t[k],
@@ -514,6 +572,12 @@ def _refusal(target: HistoryTarget, k: int, value: float, limit: str, message: s
     return err
 
 
+def _mm(x_m: float) -> str:
+    """A displacement in mm, to 0.01 mm (in exponent form beyond a metre: a history in the wrong unit)."""
+    x = float(x_m) * 1e3
+    return f"{x:.2f}" if abs(x) < 1e4 else f"{x:.4g}"
+
+
 def history_envelope_problem(target: HistoryTarget, rig: RigParameters, isolator: Isolator,
                              supply_pa: float) -> ProfileError | None:
     """The first envelope limit a history breaks, as a ProfileError naming the sample (time in s), or None.
@@ -532,26 +596,32 @@ def history_envelope_problem(target: HistoryTarget, rig: RigParameters, isolator
     ``time_s`` and ``sample`` are set on it.
     """
     r, v, a = target.r_m, target.r_dot_m_per_s, target.r_ddot_m_per_s2
-    scale_note = f" (scale {target.scale:g})"
+    gm_scale = target.ground_motion_scale
+    scale_note = f" (scale {target.scale:g})" if gm_scale is None else f" (ground-motion scale {gm_scale:g})"
+
+    def fits(ratio: float, what: str = "") -> str:  # what would fit, said in the scale the user chose
+        if gm_scale is None:
+            return f"a scale of at most {ratio * abs(target.scale):.3g} fits{what}"
+        return (f"the history would fit{what} at {ratio:.3g} times its size; lower the ground-motion scale (the "
+                f"isolator is nonlinear: its displacement is not proportional to the ground motion's scale)")
+
     over = np.flatnonzero(np.abs(r) > rig.stroke_m)
     if over.size:
         k = over[0]
-        fit = rig.stroke_m / np.max(np.abs(r)) * abs(target.scale)
         return _refusal(target, k, r[k], f"|r| <= stroke {rig.stroke_m:g} m",
-                        f"r = {r[k] * 1e3:.2f} mm is beyond the rig's stroke of +-{rig.stroke_m * 1e3:g} mm"
-                        f"{scale_note}; the peak is {np.max(np.abs(r)) * 1e3:.2f} mm: a scale of at most {fit:.3g} "
-                        f"fits")
+                        f"r = {_mm(r[k])} mm is beyond the rig's stroke of +-{rig.stroke_m * 1e3:g} mm"
+                        f"{scale_note}; the peak is {_mm(np.max(np.abs(r)))} mm: "
+                        f"{fits(rig.stroke_m / np.max(np.abs(r)))}")
     q_pump = rig.pump_max_flow_m3_per_s
     flow = rig.piston_area_m2 * np.abs(v)
     over = np.flatnonzero(flow > q_pump)
     if over.size:
         k = over[0]
-        fit = q_pump / np.max(flow) * abs(target.scale)
         return _refusal(target, k, v[k], f"A_p |r'| <= pump flow {q_pump / LITRE_PER_MIN_M3_S:.0f} l/min",
                         f"velocity {v[k]:.4g} m/s needs {flow[k] / LITRE_PER_MIN_M3_S:.0f} l/min (A_p = "
                         f"{rig.piston_area_m2:g} m2), more than the pump's {q_pump / LITRE_PER_MIN_M3_S:.0f} l/min "
-                        f"(|r'| <= {q_pump / rig.piston_area_m2:.3g} m/s){scale_note}; a scale of at most "
-                        f"{fit:.3g} fits the pump")
+                        f"(|r'| <= {q_pump / rig.piston_area_m2:.3g} m/s){scale_note}; "
+                        f"{fits(q_pump / np.max(flow), ' the pump')}")
     fixed = isolator.kw_n + rig.friction_force_n
     force = isolator.kd_n_per_m * np.abs(r) + fixed + rig.viscous_n_s_per_m * np.abs(v) + rig.mass_kg * np.abs(a)
     f_max = rig.max_force_n(supply_pa)
@@ -580,3 +650,17 @@ def history_envelope_problem(target: HistoryTarget, rig: RigParameters, isolator
                         f"{p_load[k] / BAR_PA:.0f} bar of {supply_pa / BAR_PA:g} bar supply; 90 % is the limit)"
                         f"{scale_note}; lower the scale or raise supply_bar")
     return None
+
+
+def history_motion_summary(target: HistoryTarget, rig: RigParameters, isolator: Isolator) -> dict:
+    """What a history asks of the rig, for the confirmation before the valve opens (the keys of
+    sim.profiles.motion_summary): peak |r|, peak |r'|, the largest force of the envelope's force check
+    (isolator at |r|, friction at the rig's vertical load, viscous and inertial forces: an upper estimate),
+    duration, and no cycles."""
+    r, v, a = np.abs(target.r_m), np.abs(target.r_dot_m_per_s), np.abs(target.r_ddot_m_per_s2)
+    force = isolator.kd_n_per_m * r + isolator.kw_n + rig.friction_force_n + rig.viscous_n_s_per_m * v \
+        + rig.mass_kg * a
+    return {"peak_displacement_m": float(np.max(r)), "peak_velocity_m_per_s": float(np.max(v)),
+            "peak_force_n": float(np.max(force)), "duration_s": float(target.n_samples * target.dt_s),
+            "cycles_total": 0}
+

@@ -18,6 +18,8 @@ model offline, to measure J4 and J5.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .hybrid_metrics import EnergyMonitor, reference_criteria, tracking_criteria
@@ -25,6 +27,9 @@ from .isolator import Isolator
 from .loop import CONTROL_PERIOD_S, ClosedLoop
 from .measurement import Measurement
 from .structure import CRIntegrator, ShearBuilding, channel_names, reference_response
+
+MIN_CRITERIA_SAMPLES = 4  # the criteria of fewer samples are NaN (a run that ended in its first periods)
+STOP_BRAKE_S = 0.1  # an operator's stop: the table brakes from its speed with this time constant, then fades
 
 
 def ground_at_periods(time_s: np.ndarray, acc_m_per_s2: np.ndarray, dt_s: float = CONTROL_PERIOD_S) -> np.ndarray:
@@ -47,6 +52,7 @@ class HybridSubstructure:
                  monitor: EnergyMonitor | None = None, dt_s: float = CONTROL_PERIOD_S,
                  force_correction: bool = True):
         self.building = building
+        self.isolator = isolator
         self.ag = np.ascontiguousarray(ground_acc_m_per_s2, dtype=float)
         self.dt_s = dt_s
         self.cr = CRIntegrator(building, dt_s, isolator, float(self.ag[0]))
@@ -57,6 +63,9 @@ class HybridSubstructure:
         self.force_correction = force_correction
         self.stiffness_n_per_m = isolator.kd_n_per_m  # the specimen's tangent stiffness, estimated as it runs
         self._previous = None  # (displacement, force) of the previous period
+        self._last_period = -1  # the last period the structure was stepped to
+        self._last_force = 0.0  # the force that closed it (held over lost measurements)
+        self.stopped_period = None  # the period the structure stopped at (a stop, a trip): its record ends there
 
     @property
     def n_periods(self) -> int:
@@ -66,20 +75,90 @@ class HybridSubstructure:
         """The loop's table to start with: at rest; each period writes the next one."""
         return np.zeros((self.n_periods, 3))
 
+    def warm_up(self) -> None:
+        """Run a throwaway copy of this substructure for a few periods, so that the compiled kernels (CR, loaded
+        from numba's cache on their first call: 8-55 ms measured) are loaded before a rig is armed: a first
+        call inside the loop stalls it past a real rig's watchdog. This substructure is not touched."""
+        n = 4
+        spare = HybridSubstructure(self.building, self.isolator, np.zeros(n), EnergyMonitor(),
+                                   self.dt_s, self.force_correction)
+        loop = RecordedLoop(n)
+        for k in range(n):
+            spare.on_measurement(Measurement(k, k * self.dt_s, 0.0, 0.0, math.nan, math.nan), loop)
+        spare.monitor.to_dict()
+
     def on_measurement(self, m: Measurement, loop: ClosedLoop) -> None:
-        """Period k's measurement: close step k with its force, record, predict period k + 1's target."""
+        """Period k's measurement: close step k with its force, record, predict period k + 1's target.
+
+        Periods whose measurement never arrived (k jumps ahead: a lost packet) are stepped first with the last
+        force measured (held, as the loop holds the measurement), so every period the loop runs has the
+        structure's target. Once the loop ramps its command to zero (a limit trip, the stability monitor) the
+        structure no longer drives anything: it stops. An operator's stop (``loop.stopping``) freezes the
+        structure too and brakes the table to rest from where it is (``stop_target``)."""
         k = m.period
         if k >= self.n_periods:
             return
+        if self.stopped_period is not None:  # frozen: during a stop's braking the tracking is still watched
+            if loop.stopping and not loop.ramping:
+                self._watch(m, loop.table[k, 0])
+            return
+        if loop.ramping:  # open loop (a limit trip, this monitor): the structure is no longer in the loop
+            self.stopped_period = loop.period
+            return
+        if loop.stopping:
+            self.stopped_period = loop.period
+            self.stop_target(loop, loop.period)
+            self._watch(m, loop.table[k, 0])
+            return
+        for j in range(self._last_period + 1, k):  # lost measurements: the held force closes their steps
+            self._step(j, self._last_force, loop)
         commanded = loop.table[k, 0]  # the command that was for t_k
-        if k > 0:
-            self.cr.advance(self.corrected_force(m, commanded), float(self.ag[k]))
-        self.cr.write_channels(self.channels[k])
-        if self.monitor.update(m.force_n, commanded, m.position_m, self.cr.input_energy_j, m.time_s):
+        self._step(k, self.corrected_force(m, commanded), loop)
+        self._watch(m, commanded)
+
+    def _watch(self, m: Measurement, commanded_m: float) -> None:
+        if self.monitor.update(m.force_n, commanded_m, m.position_m, self.cr.input_energy_j, m.time_s):
             self.tripped = True
+
+    def _step(self, k: int, force_n: float, loop) -> None:
+        """Close step k with ``force_n`` (k = 0: the start, at rest), record its channels, write the target of
+        period k + 1."""
+        if k > 0:
+            self.cr.advance(force_n, float(self.ag[k]))
+        self.cr.write_channels(self.channels[k])
+        self._last_period = k
+        self._last_force = force_n
         if k + 1 < self.n_periods:
             x_next = self.cr.next_base_displacement()
             loop.set_target(k + 1, x_next, float(self.cr.vp[0]), float(self.cr.a[0]))
+
+    def stop_target(self, loop, k: int, brake_s: float = STOP_BRAKE_S) -> None:
+        """An operator's stop from period k (the first the loop has not run): from the command of period k
+        (r0, v0, written before the stop) the table brakes
+        exponentially, x(t) = r0 + v0 tau (1 - exp(-t / tau)) with tau = ``brake_s``, and the loop's fade
+        (sim.loop.ClosedLoop.ramp_out: a raised cosine to zero over the periods the loop has left) takes it to
+        zero: r = w x, r' = w' x + w x', r'' = w'' x + 2 w' x' + w x''. The structure is frozen; its record ends
+        at k. (The loop's own fade multiplies the table, but a hybrid table holds only the next period.)"""
+        end = min(loop.total_periods, self.n_periods)
+        if k + 1 >= end:
+            return
+        r0, v0 = float(loop.table[k, 0]), float(loop.table[k, 1])
+        dt = self.dt_s
+        j = np.arange(k + 1, end)
+        t = (j - k) * dt
+        decay = np.exp(-t / brake_s)
+        x = r0 + v0 * brake_s * (1.0 - decay)
+        xd = v0 * decay
+        xdd = -v0 / brake_s * decay
+        n = end - k  # as sim.loop.fade_table from period k: exactly 0 at the loop's last period
+        rate = 1.0 / (n * dt)
+        phase = np.pi * (j - k + 1) / n
+        w = 0.5 * (1.0 + np.cos(phase))
+        wd = -0.5 * np.pi * np.sin(phase) * rate
+        wdd = -0.5 * np.pi ** 2 * np.cos(phase) * rate ** 2
+        loop.table[k + 1:end, 0] = w * x
+        loop.table[k + 1:end, 1] = wd * x + w * xd
+        loop.table[k + 1:end, 2] = wdd * x + 2.0 * wd * xd + w * xdd
 
     def corrected_force(self, m: Measurement, commanded_m: float) -> float:
         """The force measured, corrected to the commanded displacement: F + k_t (x_command - y_measured), k_t the
@@ -98,11 +177,20 @@ class HybridSubstructure:
             return f
         return f + self.stiffness_n_per_m * (commanded_m - y)
 
+    @property
+    def periods_run(self) -> int:
+        """How many periods the structure ran in the loop (its record: ``channels[:periods_run]``)."""
+        end = self._last_period + 1
+        return min(end, self.stopped_period) if self.stopped_period is not None else end
+
     def results(self, samples) -> dict:
         """The structure's channels (as recorded) and the tracking criteria J1-J3 of the rig."""
         n = min(len(samples), self.n_periods)
         out = {name: self.channels[:n, j] for j, name in enumerate(self.names)}
-        out["criteria"] = tracking_criteria(samples["target_m"][:n], samples["displacement_m"][:n], self.dt_s)
+        if n >= MIN_CRITERIA_SAMPLES:
+            out["criteria"] = tracking_criteria(samples["target_m"][:n], samples["displacement_m"][:n], self.dt_s)
+        else:  # a run that ended at once (a fault in its first periods): no criteria, but a summary
+            out["criteria"] = {"j1_delay_ms": math.nan, "j2_rms_percent": math.nan, "j3_peak_percent": math.nan}
         out["stability"] = self.monitor.to_dict()
         return out
 
@@ -119,6 +207,8 @@ def compare_with_reference(channels: dict, ref: dict) -> dict:
     x = channels["base_displacement_m"]
     n = min(len(x), len(ref["base_displacement_m"]))
     ok = np.isfinite(x[:n])
+    if np.count_nonzero(ok) < MIN_CRITERIA_SAMPLES:
+        return {"j4_rms_percent": math.nan, "j5_peak_percent": math.nan}
     return reference_criteria(x[:n][ok], ref["base_displacement_m"][:n][ok])
 
 
@@ -139,3 +229,68 @@ def run_virtual(sub: HybridSubstructure, loop: ClosedLoop, plant) -> tuple:
         parts.append(rows)
         plant.advance(u)
     return Samples.concatenate(parts), reason
+
+
+class RecordedLoop:
+    """What ``HybridSubstructure.on_measurement`` needs of a loop, to replay a record: the table, with each
+    period's command set from the record before its measurement is replayed, and what the structure predicted
+    (``predicted``: its target for each period)."""
+
+    def __init__(self, n_periods: int):
+        self.table = np.zeros((n_periods, 3))
+        self.predicted = np.full(n_periods, np.nan)
+        self.total_periods = n_periods
+        self.period = 0
+        self.stopping = False
+        self.ramping = False
+
+    def set_target(self, period: int, r_m: float, r_dot_m_per_s: float, r_ddot_m_per_s2: float = 0.0) -> None:
+        self.predicted[period] = r_m
+        self.table[period] = (r_m, r_dot_m_per_s, r_ddot_m_per_s2)
+
+
+def replay(building: ShearBuilding, isolator: Isolator, ground_acc_m_per_s2: np.ndarray, samples,
+           end_period: int | None = None, monitor: EnergyMonitor | None = None, dt_s: float = CONTROL_PERIOD_S
+           ) -> dict:
+    """The structure's response of a hybrid test rebuilt from its record: the recorded measurements (position
+    and force, ``measured_displacement_m``, ``force_n``) are fed period by period through a new
+    ``HybridSubstructure``, each period's command being the recorded target. The integrator is deterministic,
+    so this is the response the test computed, to the precision the record keeps (7 significant digits);
+    ``command_difference_m`` (the largest |predicted - recorded target|) says how close. Rows whose measurement
+    was lost are skipped (the test held the force over them, as the replay does). The replay ends at
+    ``end_period`` (e.g. an operator's stop: the structure froze there), at the first row without a target (a
+    command ramp: open loop) or at the end of the record.
+
+    Returns ``channels`` (name -> array over the replayed periods), ``periods``, ``time_s``, the monitor's
+    ``added_energy_j`` and ``limit_j`` per period, ``monitor`` (its final state, to_dict) and
+    ``command_difference_m``."""
+    from .measurement import FLAG_LOST, FLAG_OPEN_LOOP
+
+    sub = HybridSubstructure(building, isolator, ground_acc_m_per_s2, monitor=monitor, dt_s=dt_s)
+    n = min(len(samples), sub.n_periods, sub.n_periods if end_period is None else max(0, int(end_period)))
+    loop = RecordedLoop(sub.n_periods)
+    t, y, f = samples["time_s"], samples["measured_displacement_m"], samples["force_n"]
+    target = samples["target_m"]
+    flags = np.nan_to_num(samples["flags"]).astype(np.int64)
+    energy = np.full(n, np.nan)
+    limit = np.full(n, np.nan)
+    done = 0
+    for k in range(n):
+        if not np.isfinite(target[k]) or flags[k] & FLAG_OPEN_LOOP:
+            break
+        done = k + 1
+        if flags[k] & FLAG_LOST:
+            continue
+        loop.table[k, 0] = target[k]
+        loop.period = k
+        sub.on_measurement(Measurement(k, float(t[k]), float(y[k]), float(f[k]), math.nan, math.nan), loop)
+        energy[k] = sub.monitor.added_energy_j
+        limit[k] = sub.monitor.limit_j
+    done = min(done, sub.periods_run)
+    compared = np.abs(loop.predicted[1:done] - target[1:done])
+    compared = compared[np.isfinite(compared)]
+    return {"substructure": sub, "periods": done, "time_s": np.arange(done) * dt_s,
+            "channels": {name: sub.channels[:done, j].copy() for j, name in enumerate(sub.names)},
+            "added_energy_j": energy[:done], "limit_j": limit[:done], "monitor": sub.monitor.to_dict(),
+            "command_difference_m": float(np.max(compared)) if compared.size else None}
+

@@ -130,6 +130,33 @@ def reference_criteria(response_m, reference_m) -> dict:
             "j5_peak_percent": npeak_percent(response_m, reference_m)}
 
 
+#: the issue's targets (upper bounds): J1-J3 on the rig's tracking, J4-J5 of an RTHS against its reference
+CRITERIA = (
+    ("j1_delay_ms", "J1", 1.0, "ms", "time delay of the measured displacement behind the command"),
+    ("j2_rms_percent", "J2", 1.0, "%", "normalised RMS tracking error"),
+    ("j3_peak_percent", "J3", 3.0, "%", "normalised peak tracking error"),
+    ("j4_rms_percent", "J4", 2.0, "%", "normalised RMS error of the base displacement against the reference"),
+    ("j5_peak_percent", "J5", 3.0, "%", "normalised peak error of the base displacement against the reference"),
+)
+
+
+def criteria_verdicts(criteria: dict) -> list[dict]:
+    """One line per criterion present in ``criteria`` (the keys of ``tracking_criteria`` and
+    ``reference_criteria``): name, value, target (an upper bound; J1 on the delay's size), unit, what it
+    measures and ``met`` (None when the value is not a number)."""
+    out = []
+    for key, name, target, unit, meaning in CRITERIA:
+        if key not in criteria:
+            continue
+        value = criteria[key]
+        finite = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+        size = abs(value) if finite and key == "j1_delay_ms" else value
+        out.append({"key": key, "name": name, "value": value if finite else None, "target": target, "unit": unit,
+                    "bound": f"{'|J1|' if key == 'j1_delay_ms' else name} <= {target:g} {unit}",
+                    "meaning": meaning, "met": (size <= target) if finite else None})
+    return out
+
+
 def tracking_error_energy(force_n, command_m, measured_m) -> np.ndarray:
     """E_err(t_k) (J) for whole records: the cumulative sum of 1/2 (F_k + F_k+1) (dx_m - dx_c), E_err(0) = 0."""
     f = np.asarray(force_n, dtype=np.float64)
@@ -170,6 +197,7 @@ class EnergyMonitor:
         self.tripped = False
         self.reason = ""
         self.trip_time_s = None
+        self.at_trip: dict | None = None  # the energies and the limit when it tripped (they go on after)
         self._first = True
         self._f = 0.0
         self._c = 0.0
@@ -178,6 +206,19 @@ class EnergyMonitor:
     @property
     def ratio(self) -> float:
         return self.added_energy_j / self.reference_energy_j if self.reference_energy_j > 0 else 0.0
+
+    @property
+    def indicator(self) -> float:
+        """E_err / the current limit: the monitor trips when this passes 1 (the live indicator to plot)."""
+        return self.added_energy_j / self.limit_j if self.limit_j > 0 else (math.inf if self.added_energy_j > 0
+                                                                              else 0.0)
+
+    def live(self, time_s: float | None = None) -> dict:
+        """The few figures a live display needs: E_err, the limit, the reference energy, ``ratio``,
+        ``indicator`` (E_err / limit: trips at 1) and ``tripped``."""
+        return {"time_s": time_s, "added_energy_j": self.added_energy_j, "limit_j": self.limit_j,
+                "reference_energy_j": self.reference_energy_j, "ratio": self.ratio, "indicator": self.indicator,
+                "tripped": self.tripped}
 
     def update(self, force_n: float, command_m: float, measured_m: float, input_energy_j: float | None = None,
                time_s: float | None = None) -> bool:
@@ -206,6 +247,9 @@ class EnergyMonitor:
         elif not self.tripped and self.added_energy_j > self.limit_j:
             self.tripped = True
             self.trip_time_s = time_s
+            self.at_trip = {"time_s": time_s, "added_energy_j": self.added_energy_j, "limit_j": self.limit_j,
+                            "reference_energy_j": self.reference_energy_j,
+                            "specimen_energy_j": self.specimen_energy_j, "command_energy_j": self.command_energy_j}
             when = f" at t = {time_s:.3f} s" if time_s is not None else ""
             self.reason = (f"RTHS stability monitor: the tracking error added {self.added_energy_j:.4g} J to the "
                            f"loop{when}, above the limit {self.limit_j:.4g} J = max({self.absolute_limit_j:g} J, "
@@ -217,8 +261,10 @@ class EnergyMonitor:
         return {"added_energy_j": self.added_energy_j, "specimen_energy_j": self.specimen_energy_j,
                 "command_energy_j": self.command_energy_j, "reference_energy_j": self.reference_energy_j,
                 "limit_j": self.limit_j, "absolute_limit_j": self.absolute_limit_j,
-                "relative_limit": self.relative_limit, "ratio": self.ratio, "tripped": self.tripped,
-                "reason": self.reason, "trip_time_s": self.trip_time_s}
+                "relative_limit": self.relative_limit, "ratio": self.ratio, "indicator": self.indicator,
+                "tripped": self.tripped,
+                "reason": self.reason, "trip_time_s": self.trip_time_s,
+                "at_trip": dict(self.at_trip) if self.at_trip is not None else None}
 
 
 def _main() -> None:  # python -m sim.hybrid_metrics: virtual RTHS with an ideal delayed actuator

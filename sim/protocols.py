@@ -337,18 +337,30 @@ def sine_from_dict(spec: dict) -> SineProfile:
     )
 
 
-def profile_from_spec(spec: dict) -> tuple[list[SineProfile], Protocol | None]:
-    """Blocks (and the protocol, if any) from an API profile form: {"kind": "sine", ...},
-    {"kind": "protocol", "name": "<shipped>"} or {"kind": "protocol", "protocol": {...}}; a protocol form may
-    add "design_displacement_m" to rescale the levels."""
+def profile_from_spec(spec: dict, isolator=None, vertical_load_n: float | None = None):
+    """The one parser of the API's profile forms.
+
+    {"kind": "sine", ...}, {"kind": "protocol", "name": "<shipped>"} or {"kind": "protocol", "protocol": {...}}
+    (a protocol form may add "design_displacement_m" to rescale the levels) give (sine blocks, the protocol or
+    None). The earthquake kinds {"kind": "history", ...} and {"kind": "hybrid", ...} (sim.earthquake) give
+    ([], the built ``sim.earthquake.EarthquakeProfile``): they need the ``isolator`` and the test's
+    ``vertical_load_n`` (N) to be built (the isolator's demand model, the hybrid reference)."""
     if not isinstance(spec, dict):
-        raise ProtocolError("profile", "profile must be an object with kind 'sine' or 'protocol'")
+        raise ProtocolError("profile", "profile must be an object with kind 'sine', 'protocol', 'history' or "
+                                       "'hybrid'")
     spec = {k: v for k, v in spec.items() if v is not None}  # null = absent (as a JSON API sends it)
     kind = spec.get("kind", "sine")
     if kind == "sine":
         return [sine_from_dict(spec)], None
+    if kind in ("history", "hybrid"):
+        if isolator is None:
+            raise ProtocolError("profile", f"a {kind} profile is built for an isolator and a vertical load: "
+                                           "profile_from_spec(spec, isolator, vertical_load_n)")
+        from .earthquake import earthquake_from_spec
+
+        return [], earthquake_from_spec(spec, isolator, vertical_load_n)
     if kind != "protocol":
-        raise ProtocolError("profile.kind", f"profile kind {kind!r}; allowed: sine, protocol")
+        raise ProtocolError("profile.kind", f"profile kind {kind!r}; allowed: sine, protocol, history, hybrid")
     _unknown("profile", spec, {"kind", "name", "protocol", "design_displacement_m"})
     if ("name" in spec) == ("protocol" in spec):
         raise ProtocolError("profile", "a protocol profile needs exactly one of name (shipped: "
