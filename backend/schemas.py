@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag
 
 from sim.controllers import DEFAULT_CONTROLLER
 
@@ -34,7 +34,91 @@ class ProtocolProfileIn(StrictModel):
                                                 "displacement, m (levels given as fractions)")
 
 
-ProfileIn = Annotated[SineProfileIn | ProtocolProfileIn, Field(discriminator="kind")]
+MAX_INLINE_SAMPLES = 200_000  # sim.earthquake.MAX_INLINE_SAMPLES
+# a sample of an inline record: NaN, infinities and nulls reach sim.earthquake, which names the sample
+# (strict: a string or a boolean is not a number; an integer is)
+Sample = Annotated[float, Field(allow_inf_nan=True, strict=True)] | None
+
+
+class InlineGroundMotionIn(StrictModel):
+    """A ground acceleration record given inline: uniformly sampled, at most 200 000 samples."""
+
+    time_s: list[Sample] = Field(max_length=MAX_INLINE_SAMPLES, description="times in s, increasing, uniform step")
+    acceleration_m_per_s2: list[Sample] = Field(max_length=MAX_INLINE_SAMPLES,
+                                                description="the ground acceleration at each time, in ``units``")
+    units: Literal["m/s2", "g", "cm/s2"] | None = Field(None, description="the values' unit (default m/s2, "
+                                                        "assumed); a peak outside 0.005-3 g in it is refused")
+    check_units: bool = Field(True, strict=True, description="false: accept a peak outside 0.005-3 g")
+
+
+def _ground_motion_tag(value) -> str:
+    return "preset" if isinstance(value, str) else "inline"
+
+
+GroundMotionIn = Annotated[
+    Annotated[str, Tag("preset"), Field(max_length=64, description="a shipped synthetic ground motion: "
+                                                                   "near_field_short, far_field_long, soft_site")]
+    | Annotated[InlineGroundMotionIn, Tag("inline")],
+    Discriminator(_ground_motion_tag)]
+
+
+class InlineDisplacementIn(StrictModel):
+    """A displacement history given inline: uniformly sampled, at most 200 000 samples."""
+
+    time_s: list[Sample] = Field(max_length=MAX_INLINE_SAMPLES, description="times in s, increasing, uniform step")
+    displacement_m: list[Sample] = Field(max_length=MAX_INLINE_SAMPLES, description="the displacement at each "
+                                         "time, m")
+
+
+class HistoryProfileIn(StrictModel):
+    """A time history (sim.earthquake): the isolator's displacement demand under a ground motion, or a
+    displacement history; resampled to the control period, tapered, checked against the envelope."""
+
+    kind: Literal["history"]
+    ground_motion: GroundMotionIn | None = Field(None, description="a preset name or an inline acceleration "
+                                                 "record; the isolator's demand under it is the target")
+    displacement: InlineDisplacementIn | None = Field(None, description="or the displacement history itself")
+    scale: float = Field(1.0, description="scale of the ground acceleration (0 < scale <= 10; the isolator is "
+                                          "nonlinear) or of the displacement (0 < |scale| <= 100)")
+    mass_kg: float | None = Field(None, description="the mass of the demand model (a rigid mass on the "
+                                  "isolator), kg; default: the vertical load / g")
+    taper_in_s: float = Field(0.5, description="raised-cosine taper at the start, s")
+    taper_out_s: float = Field(0.5, description="raised-cosine taper at the end, s")
+
+
+class StructureIn(StrictModel):
+    """The shear building above the isolator (sim.structure.ShearBuilding)."""
+
+    base_mass_kg: float = Field(description="the base slab's mass above the isolator, kg")
+    masses_kg: list[float] = Field(max_length=1000, description="storey masses, kg, bottom up")
+    stiffness_n_per_m: list[float] = Field(max_length=1000, description="storey springs, N/m; the first joins "
+                                           "storey 1 to the base")
+    damping_ratio: float = Field(description="Rayleigh damping at the first two fixed-base modes, 0 < z < 1")
+    name: str = Field("", max_length=64)
+    description: str = Field("", max_length=200)
+
+
+class StabilityIn(StrictModel):
+    """The stability monitor (sim.hybrid_metrics.EnergyMonitor): trips when the energy the tracking error adds
+    exceeds max(limit_j, relative_limit x the structure's input energy)."""
+
+    limit_j: float | None = Field(None, description="absolute floor of the limit, J (default 100)")
+    relative_limit: float | None = Field(None, description="fraction of the input energy (default 0.5)")
+
+
+class HybridProfileIn(StrictModel):
+    """Real-time hybrid simulation (sim.hybrid): the building in the computer, the isolator on the rig."""
+
+    kind: Literal["hybrid"]
+    structure: StructureIn
+    ground_motion: GroundMotionIn
+    scale: float = Field(1.0, description="scale of the ground acceleration, 0 < scale <= 10")
+    stability: StabilityIn | None = None
+
+
+ProfileIn = Annotated[SineProfileIn | ProtocolProfileIn | HistoryProfileIn | HybridProfileIn,
+                      Field(discriminator="kind")]
+EARTHQUAKE_PROFILES = (HistoryProfileIn, HybridProfileIn)
 
 
 LimitAction = Literal["indicate", "controlled_stop", "valve_close"]
@@ -105,7 +189,9 @@ class EnvelopeCheckOut(BaseModel):
     peak_force_n: float | None = Field(None, description="upper estimate of the force the profile needs: isolator, "
                                        "friction at the vertical load, viscous and inertial forces")
     duration_s: float | None = Field(None, description="how long the profile runs (test time)")
-    cycles_total: int | None = Field(None, description="cycles of the profile, tapers included")
+    cycles_total: int | None = Field(None, description="cycles of the profile, tapers included (0: a history)")
+    profile: dict | None = Field(None, description="a history or hybrid profile as built (source, peaks, "
+                                 "duration, the ground motion, the structure): what the record's profile will say")
 
 
 class IsolatorIn(StrictModel):

@@ -89,6 +89,8 @@ class ActiveRun:
         self.last_row: np.ndarray | None = None  # the newest sample (SAMPLE_FIELDS layout)
         self.stopping: str | None = None  # why the test is ending early (a stop, an abort, a limit trip)
         self.vertical_load_n = job["scenario"].get("vertical_load_n")
+        self.stability: dict | None = None  # a hybrid test: the stability monitor as the worker last sent it
+        self.structure: dict | None = None  # ... and the structure's channels for the samples that follow
 
 
 class RigService:
@@ -354,6 +356,8 @@ class RigService:
             msg["reason"] = reason
         if run.link:
             msg["link"] = run.link
+        if run.stability is not None:
+            msg["stability"] = live_stability(run.stability)
         return msg
 
     def _record(self, run: ActiveRun, record: dict) -> None:
@@ -383,9 +387,15 @@ class RigService:
                         run.arrival_ms.append((time.time() - due) * 1e3)
                     run.time_s = float(rows[-1, 0])
                     run.last_row = rows[-1].copy()
-                    self.hub.publish_threadsafe({"type": "samples", "test_id": test_id,
-                                                 "seq": self.hub_seq(test_id), "columns": list(CSV_FIELDS),
-                                                 "rows": rows[:, : len(CSV_FIELDS)].tolist()})
+                    frame = {"type": "samples", "test_id": test_id, "seq": self.hub_seq(test_id),
+                             "columns": list(CSV_FIELDS), "rows": rows[:, : len(CSV_FIELDS)].tolist()}
+                    if run.stability is not None:  # the worker sent it just before these samples
+                        frame["stability"] = live_stability(run.stability)
+                    if run.structure is not None and len(run.structure["rows"]) == len(rows):
+                        frame["structure"] = {"columns": run.structure["columns"],
+                                              "rows": run.structure["rows"].tolist()}
+                    run.structure = None
+                    self.hub.publish_threadsafe(frame)
                     now = time.monotonic()
                     if now - last_status >= STATUS_INTERVAL_S:
                         last_status = now
@@ -395,6 +405,11 @@ class RigService:
                 elif kind == "link":
                     run.link = store.clean_json(payload)
                     continue  # shown live, not stored (the final figures go into the summary)
+                elif kind == "hybrid":  # streamed with the next samples (and the monitor in the status), not
+                    run.stability = store.clean_json({**payload["monitor"], "time_s": payload["time_s"]})  # stored:
+                    run.structure = payload  # the last monitor goes into the summary; the structure is replayed
+                    # from the record (sim.hybrid.replay)
+                    continue
                 elif kind == "cycle":
                     payload = cycle_with_metrics(payload)
                     run.cycles_done = payload["cycle"]
@@ -509,7 +524,7 @@ class RigService:
                 pacing = {**pacing, "server_arrival_p50_ms": float(np.percentile(run.arrival_ms, 50)),
                           "server_arrival_p95_ms": float(np.percentile(run.arrival_ms, 95)),
                           "server_arrival_max_ms": float(np.max(run.arrival_ms))}
-            test.summary = self._summary(session, test, run.job, pacing, run.link, indications)
+            test.summary = self._summary(session, test, run.job, pacing, run.link, indications, run.stability)
             self.last_end = {"test_id": test_id, "status": status, **self._row_state(run.last_row)}
             store.set_status(session, test, status, reason)
             message = f"test {test_id} {status}" + (f": {reason}" if reason else "")
@@ -539,9 +554,11 @@ class RigService:
                                      "message": message, "values": store.clean_json(values)})
 
     def _summary(self, session: Session, test, job: dict, pacing: dict, link: dict,
-                 indications: dict | None = None) -> dict:
+                 indications: dict | None = None, stability: dict | None = None) -> dict:
         """Tracking figures (sim.tracking), loop-metric means over the steady cycles (sim.metrics), pacing, the
-        periods lost on the link and its health, how often each indicating limit was exceeded."""
+        periods lost on the link and its health, how often each indicating limit was exceeded; for a history
+        or hybrid test the J criteria with their targets, and for a hybrid test the structure against its
+        reference and the stability monitor (sim.earthquake.record_figures)."""
         samples = store.load_samples(session, test.id)
         scenario: Scenario = scenario_from_job(job)
         closed = samples[np.isfinite(samples["target_m"])]
@@ -562,4 +579,45 @@ class RigService:
         summary["steady_cycles"] = headline["steady_cycles"]
         summary["excluded_cycles"] = headline["excluded_cycles"]
         summary["loop_metrics_mean"] = headline["means"]  # over the steady cycles only (sim.metrics)
+        if job["scenario"].get("earthquake") is not None:
+            summary.update(self._earthquake_summary(session, test, job, samples, stability))
         return store.clean_json(summary)
+
+    @staticmethod
+    def _earthquake_summary(session: Session, test, job: dict, samples: Samples, stability: dict | None) -> dict:
+        """``criteria`` (J1-J3, J1-J5 for a hybrid test), ``stability`` (hybrid: the live monitor's last state)
+        and ``earthquake`` (verdicts with their targets, what was judged, peaks; hybrid: the structure's peaks
+        beside the reference's, the replay): sim.earthquake.record_figures on the stored samples."""
+        from sim.earthquake import early_end_time_s, record_figures
+
+        from .worker import earthquake_from_job
+
+        try:
+            profile = earthquake_from_job(job)
+            figures = record_figures(profile, scenario_isolator(job), samples,
+                                     end_time_s=early_end_time_s(store.load_events(session, test.id)),
+                                     stability=stability)
+        except Exception as exc:  # never lose the end of a test over its figures
+            log.exception("earthquake figures of test %s", test.id)
+            return {"earthquake": {"error": f"{type(exc).__name__}: {exc}"}}
+        out = {"criteria": figures.pop("criteria")}
+        if "stability" in figures:
+            out["stability"] = figures.pop("stability")
+        out["earthquake"] = figures
+        return out
+
+
+def scenario_isolator(job: dict):
+    from sim.isolator import isolator_from_dict
+
+    return isolator_from_dict(job["scenario"]["isolator"])
+
+
+LIVE_STABILITY_KEYS = ("time_s", "indicator", "ratio", "added_energy_j", "limit_j", "reference_energy_j", "tripped")
+
+
+def live_stability(monitor: dict) -> dict:
+    """What the live stream carries of the stability monitor (sim.hybrid_metrics.EnergyMonitor): ``indicator``
+    (E_err / limit: the monitor trips at 1), ``ratio`` (E_err / the reference energy), E_err, the limit and the
+    reference energy in J, ``tripped`` and the test time it is for."""
+    return {k: monitor.get(k) for k in LIVE_STABILITY_KEYS}

@@ -316,9 +316,16 @@ def add_user_isolator(session: Session, definition: dict) -> None:
 # --- bundle ----------------------------------------------------------------------------------------------
 
 def load_test_bundle(session: Session, test_id: int) -> TestBundle:
-    """Record, samples (``sim.samples.Samples``), cycles (metrics + loop arrays) and events of one test."""
+    """Record, samples (``sim.samples.Samples``), cycles (metrics + loop arrays) and events of one test. The
+    record is ``GET /api/tests/{id}``'s, plus for a history or hybrid test ``earthquake`` (the profile's spec as
+    asked, inline arrays included) and ``earthquake_fingerprint``."""
     test = get_test(session, test_id)
     if test is None:
         raise KeyError(f"test {test_id} does not exist")
-    return TestBundle(record=test_record(session, test), samples=load_samples(session, test_id),
+    record = test_record(session, test)
+    job = (test.request or {}).get("job_scenario") or {}
+    if job.get("earthquake") is not None:  # a history or hybrid test: the spec as asked (arrays included), so a
+        record["earthquake"] = job["earthquake"]  # report rebuilds the ground motion and the reference
+        record["earthquake_fingerprint"] = job.get("earthquake_fingerprint")
+    return TestBundle(record=record, samples=load_samples(session, test_id),
                       cycles=load_cycles(session, test_id), events=load_events(session, test_id))

@@ -15,7 +15,10 @@ once, ``aborted``); a rig fault or a lost link (``failed``: the rig's own watchd
 the link is gone); an error in the worker (``failed``). The driver is disarmed on every path.
 
 Messages to the server (tuples): ``("started", {...})``, ``("samples", rows)`` (an (n, len(SAMPLE_FIELDS))
-array, sim.samples), ``("cycle", {...})`` (the loop of a completed cycle; the service adds its metrics),
+array, sim.samples), ``("hybrid", {...})`` (a hybrid test, just before each chunk's samples: ``monitor``, the
+stability monitor at the chunk's end, sim.hybrid_metrics.EnergyMonitor.to_dict(); ``columns`` and ``rows``,
+the structure's channels for the chunk's periods, sim.structure.channel_names; ``time_s``),
+``("cycle", {...})`` (the loop of a completed cycle; the service adds its metrics),
 ``("event", {...})``, ``("link", stats)``, ``("finished", {"status", "reason", "pacing", "link", "lost_periods"})``.
 Commands from the server: ``"stop"`` and ``"abort"``.
 """
@@ -94,7 +97,9 @@ class Outbox:
 
 def scenario_from_job(job: dict) -> Scenario:
     """The test's scenario; a manual motion (spec["motion"]: start_m, end_m, speed_m_per_s) runs as a time
-    history (sim.motion)."""
+    history (sim.motion); an earthquake profile (spec["earthquake"]: the API's history or hybrid form, as
+    asked) is rebuilt from its spec (sim.earthquake, deterministic) and checked against the fingerprint taken
+    when the test was created (spec["earthquake_fingerprint"])."""
     spec = job["scenario"]
     history = spec.get("history_target")
     motion = spec.get("motion")
@@ -102,11 +107,30 @@ def scenario_from_job(job: dict) -> Scenario:
         from sim.motion import move_target
 
         history = move_target(motion["start_m"], motion["end_m"], motion["speed_m_per_s"])
+    isolator = isolator_from_dict(spec["isolator"])
+    if spec.get("earthquake") is not None:
+        history = earthquake_from_job(job, isolator).target
     rig = DEFAULT_RIG.with_changes(**spec["rig_changes"]) if spec.get("rig_changes") else DEFAULT_RIG
-    return Scenario(isolator_from_dict(spec["isolator"]), spec["supply_pa"], blocks_from_dicts(spec["profile"]),
+    return Scenario(isolator, spec["supply_pa"], blocks_from_dicts(spec["profile"]),
                     spec["controller"],
                     dict(spec.get("controller_options") or {}), rig=rig, vertical_load_n=spec.get("vertical_load_n"),
                     history=history)
+
+
+def earthquake_from_job(job: dict, isolator=None):
+    """The earthquake profile of a job's scenario (sim.earthquake.EarthquakeProfile), rebuilt from the spec the
+    test was created with; a target that differs from the one checked then (another numerical library?) is
+    refused: nothing moves on a target that was not checked."""
+    from sim.earthquake import earthquake_from_spec
+
+    spec = job["scenario"]
+    isolator = isolator or isolator_from_dict(spec["isolator"])
+    profile = earthquake_from_spec(spec["earthquake"], isolator, spec.get("vertical_load_n"))
+    expected = spec.get("earthquake_fingerprint")
+    if expected and profile.fingerprint != expected:
+        raise ValueError("the earthquake target rebuilt from the test's request differs from the one checked "
+                         "against the envelope when the test was created; create the test again")
+    return profile
 
 
 def make_driver(rig: str, scenario: Scenario, link: dict | None = None, table_position_m: float = 0.0) -> RigDriver:
@@ -124,8 +148,12 @@ def make_driver(rig: str, scenario: Scenario, link: dict | None = None, table_po
 
 
 def hybrid_from_job(job: dict, scenario: Scenario):
-    """The numerical substructure of a hybrid test (job["hybrid"]: the building as a dict and the ground
-    acceleration at every control period), or None."""
+    """The numerical substructure of a hybrid test, or None: from the job's earthquake profile of kind hybrid
+    (a service test: building, ground motion and stability monitor rebuilt from the spec) or from job["hybrid"]
+    (the command line: the building as a dict and the ground acceleration at every control period)."""
+    eq_spec = job["scenario"].get("earthquake")
+    if isinstance(eq_spec, dict) and eq_spec.get("kind") == "hybrid":
+        return earthquake_from_job(job, scenario.isolator).substructure(scenario.isolator)
     spec = job.get("hybrid")
     if not spec:
         return None
@@ -192,6 +220,8 @@ class Run:
         controller = make_controller(scenario.controller, rig=scenario.rig, **options)
         limit = min(scenario.rig.command_limit_v, self.rig.command_limit_v)
         self.hybrid = hybrid_from_job(job, scenario)
+        if self.hybrid is not None:  # its compiled kernels load on a first call: before the rig is armed
+            self.hybrid.warm_up()
         table = self.hybrid.target_table() if self.hybrid is not None else scenario.target_table()
         self.loop = ClosedLoop(scenario.profile, controller, limit, table=table)
         if self.rig.realtime:  # load the compiled period before the rig is armed: its watchdog will not wait
@@ -407,6 +437,13 @@ class Run:
         if pace and not self.rig.realtime:  # a real rig paced the chunk itself
             self.pacer.wait_until(self.loop.time_s)
         self.lost_periods += int(np.count_nonzero(np.nan_to_num(rows["flags"]).astype(np.int64) & FLAG_LOST))
+        if self.hybrid is not None:  # the stability monitor and the structure's response, just before the samples
+            k0 = int(round(float(rows["time_s"][0]) / CONTROL_PERIOD_S))
+            structure = np.full((len(rows), len(self.hybrid.names)), np.nan)
+            part = self.hybrid.channels[k0: k0 + len(rows)]
+            structure[: len(part)] = part
+            self.send("hybrid", {"time_s": float(rows["time_s"][-1]), "monitor": self.hybrid.monitor.to_dict(),
+                                 "columns": self.hybrid.names, "rows": structure})
         self.send("samples", rows.array)
         self.collect_cycles(rows)
         if self.loop.time_s >= self.next_link_report_s:

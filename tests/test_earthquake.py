@@ -145,3 +145,185 @@ def test_an_unstable_hybrid_loop_is_stopped_by_the_energy_monitor():
     samples, reason = run_virtual(sub, loop, DelayedActuator(DEFAULT_RIG, PRESETS["IUT_a"], 100e5))
     assert reason is not None and sub.tripped
     assert samples["voltage_v"][-1] == 0.0 and len(samples) < len(ag)  # stopped early, valve ramped to 0 V
+
+
+def _virtual_hybrid(drop_every: int = 0, stop_at_s: float | None = None, duration_s: float = 4.0):
+    """The demo building on IUT_a in the simulated rig, run period by period as the worker does; every
+    ``drop_every``-th measurement is lost (the plant goes on with the held command); an operator's stop at
+    ``stop_at_s``. Returns (substructure, samples, ground acceleration)."""
+    from sim.controllers import make_controller
+    from sim.hybrid import HybridSubstructure, ground_at_periods
+    from sim.loop import ClosedLoop
+    from sim.plant import SimulatedPlant
+    from sim.rig import DEFAULT_RIG
+    from sim.samples import Samples
+    from sim.structure import load_structure
+
+    t = np.arange(0.0, duration_s, 0.005)
+    ag = ground_at_periods(t, 2.0 * np.sin(2 * np.pi * 1.2 * t) * np.exp(-((t - 2.0) / 1.0) ** 2))
+    sub = HybridSubstructure(load_structure(DEMO), PRESETS["IUT_a"], ag)
+    loop = ClosedLoop([], make_controller("servo", learning_gain=0.0, integral_per_s=1.0), 10.0,
+                      table=sub.target_table())
+    plant = SimulatedPlant(DEFAULT_RIG, PRESETS["IUT_a"], 100e5)
+    parts, u = [], 0.0
+    for k in range(loop.total_periods):
+        if loop.done:
+            break
+        if stop_at_s is not None and k == int(round(stop_at_s * 1000)):
+            loop.ramp_out()
+        m = plant.measure()
+        if drop_every and k % drop_every == drop_every // 2 and k + 1 < loop.total_periods:
+            plant.advance(u)  # lost: the rig holds the previous command
+            continue
+        sub.on_measurement(m, loop)
+        u, rows = loop.step(m)
+        parts.append(rows)
+        plant.advance(u)
+    return sub, Samples.concatenate(parts), ag
+
+
+def test_lost_measurements_keep_the_structure_commanding_every_period():
+    sub, s, _ = _virtual_hybrid()
+    lossy, s_lost, _ = _virtual_hybrid(drop_every=97)
+    assert len(s_lost) == len(s)
+    peak = np.max(np.abs(s["target_m"]))
+    # every period has the structure's target (a lost one was stepped with the held force): no drop to zero
+    assert np.max(np.abs(np.diff(s_lost["target_m"]))) < 1.5 * np.max(np.abs(np.diff(s["target_m"])))
+    assert np.max(np.abs(s_lost["target_m"] - s["target_m"])) < 0.02 * peak
+    assert lossy.periods_run == sub.periods_run == len(s)
+
+
+def test_a_skipped_period_number_steps_the_structure_with_the_held_force_before_the_loop_runs_it():
+    """The measurement of period 203 arrives after 200's (201 and 202 lost): the loop will run 201 and 202 on the
+    held measurement, so their rows must hold the structure's targets (never-set rows are zeros: a target spike
+    that the stability monitor trips on). The structure steps 201 and 202 with the force held from 200, exactly
+    as if those measurements had arrived with that force."""
+    from sim.controllers import make_controller
+    from sim.hybrid import HybridSubstructure, ground_at_periods
+    from sim.loop import ClosedLoop
+    from sim.measurement import Measurement
+    from sim.structure import load_structure
+
+    t = np.arange(0.0, 1.0, 0.005)
+    ag = ground_at_periods(t, 3.0 * np.sin(2 * np.pi * 2.0 * t))
+    isolator = PRESETS["IUT_a"]
+
+    def run(lost: tuple[int, ...]):
+        sub = HybridSubstructure(load_structure(DEMO), isolator, ag)
+        loop = ClosedLoop([], make_controller("servo", learning_gain=0.0), 10.0, table=sub.target_table())
+        held = None
+        for k in range(260):
+            # the specimen: a linear spring at the command, read one period late (a deterministic stand-in)
+            x = loop.table[k, 0]
+            m = Measurement(k, k * 1e-3, x, 1.5e6 * x, 0.0, 100e5)
+            if k in lost:
+                continue
+            sub.on_measurement(m, loop)
+            loop.step(m)
+            if k == 200:
+                held = sub._last_force  # the force that closed 200: held over the lost periods
+        return sub, loop, held
+
+    whole, whole_loop, _ = run(())
+    lossy, lossy_loop, held = run((201, 202))
+    r = lossy_loop.table[:261, 0]
+    assert np.all(r[2:261] != 0.0)  # every period the loop ran had the structure's target (r[1] = 0 from rest)
+    assert np.max(np.abs(np.diff(r))) < 1.5 * np.max(np.abs(np.diff(whole_loop.table[:261, 0])))  # no spike
+    assert not lossy.tripped and not lossy.monitor.tripped
+    assert lossy.periods_run == whole.periods_run == 260
+    # 201 and 202 were closed with the force of 200: the same as a loop fed that force in those periods
+    check = HybridSubstructure(load_structure(DEMO), isolator, ag)
+    check_loop = ClosedLoop([], make_controller("servo", learning_gain=0.0), 10.0, table=check.target_table())
+    for k in range(204):
+        x = check_loop.table[k, 0]
+        if k in (201, 202):
+            check._step(k, held, check_loop)
+        else:
+            check._step(k, check.corrected_force(Measurement(k, k * 1e-3, x, 1.5e6 * x, 0.0, 100e5), x), check_loop)
+        check_loop.period = k + 1
+    np.testing.assert_allclose(lossy.channels[:204], check.channels[:204], rtol=1e-8, atol=1e-12)
+
+
+def test_the_structure_is_replayed_from_the_record():
+    from sim.hybrid import replay
+    from sim.structure import load_structure
+
+    sub, s, ag = _virtual_hybrid(drop_every=211)
+    rep = replay(load_structure(DEMO), PRESETS["IUT_a"], ag, s)
+    assert rep["periods"] == len(s) and rep["command_difference_m"] < 1e-12
+    for j, name in enumerate(sub.names):
+        np.testing.assert_allclose(rep["channels"][name], sub.channels[: len(s), j], rtol=0, atol=1e-9)
+    assert rep["monitor"]["added_energy_j"] == pytest.approx(sub.monitor.added_energy_j, abs=1e-9)
+
+
+def test_a_stop_freezes_the_structure_and_brakes_the_table_to_rest():
+    sub, s, _ = _virtual_hybrid(stop_at_s=2.0)
+    r = s["target_m"]
+    assert sub.stopped_period == 2000 and len(s) == 3000 and abs(r[-1]) < 1e-12
+    assert np.all(np.isnan(sub.channels[2000:, 0])) or sub.periods_run == 2000
+    step = np.abs(np.diff(r))
+    assert step[1995:].max() < 1.5 * step[:1995].max()  # braked and faded: no jump
+    assert abs(s["displacement_m"][-1]) < 2e-4
+
+
+def test_earthquake_profiles_are_rebuilt_the_same_and_refusals_name_the_field():
+    from sim import earthquake
+    from sim.history import HistoryError
+    from sim.protocols import ProtocolError, profile_from_spec
+
+    spec = {"kind": "history", "ground_motion": "soft_site", "scale": 0.5, "taper_in_s": 1.0}
+    _, first = profile_from_spec(spec, PRESETS["IUT_b"], 125e3)
+    earthquake._CACHE.clear()
+    _, again = profile_from_spec(json.loads(json.dumps(spec)), PRESETS["IUT_b"], 125e3)
+    assert again is not first and again.fingerprint == first.fingerprint
+    assert first.target.ground_motion_scale == 0.5 and first.description["mass_kg"] == pytest.approx(125e3 / 9.80665)
+    with pytest.raises(ProtocolError):
+        profile_from_spec(spec)  # an earthquake kind needs the isolator
+    for bad, field in (({**spec, "scale": 20}, "profile.scale"), ({**spec, "ground_motio": 1}, "profile.ground_motio"),
+                       ({"kind": "hybrid", "structure": {"base_mass_kg": 1}, "ground_motion": "soft_site"},
+                        "profile.structure.masses_kg"),
+                       ({"kind": "hybrid", "structure": json.loads(open(DEMO).read()), "ground_motion": "soft_site",
+                         "stability": {"limit_j": -1}}, "profile.stability.limit_j")):
+        with pytest.raises(HistoryError) as exc:
+            profile_from_spec(bad, PRESETS["IUT_a"], 125e3)
+        assert exc.value.field == field, (exc.value.field, str(exc.value))
+
+
+def test_the_worker_refuses_a_target_that_is_not_the_one_checked():
+    from backend.worker import earthquake_from_job
+
+    spec = {"kind": "history", "ground_motion": "near_field_short", "scale": 0.2}
+    job = {"scenario": {"isolator": PRESETS["IUT_a"].to_dict(), "vertical_load_n": 125e3, "earthquake": spec}}
+    profile = earthquake_from_job(job)
+    job["scenario"]["earthquake_fingerprint"] = profile.fingerprint
+    assert earthquake_from_job(job) is profile
+    job["scenario"]["earthquake_fingerprint"] = "0" * 64
+    with pytest.raises(ValueError, match="differs from the one checked"):
+        earthquake_from_job(job)
+
+
+def test_the_early_end_of_a_test_is_the_workers_own_event():
+    from sim.earthquake import early_end_time_s
+
+    events = [{"kind": "operator", "actor": "alice", "time_s": 1.40, "values": {"action": "stop"}},
+              {"kind": "operator", "actor": "system", "time_s": 1.45, "values": {"action": "stop", "ends_at_s": 2.45}},
+              {"kind": "operator", "actor": "alice", "time_s": 0.0, "values": {"action": "start"}}]
+    assert early_end_time_s(events) == 1.45
+    assert early_end_time_s(events[:1]) == 1.40  # the request's, when the worker's is missing
+    assert early_end_time_s(events + [{"kind": "limit_trip", "time_s": 1.2, "values": {}}]) == 1.2
+    assert early_end_time_s(events[2:]) is None
+
+
+def test_warm_up_leaves_the_substructure_untouched_and_a_run_that_ended_at_once_still_has_a_summary():
+    import math
+
+    from sim.hybrid import HybridSubstructure, compare_with_reference
+    from sim.samples import N_FIELDS, Samples
+    from sim.structure import load_structure
+
+    sub = HybridSubstructure(load_structure(DEMO), PRESETS["IUT_a"], np.full(50, 0.5))
+    sub.warm_up()  # the worker calls it before the rig is armed (the kernels' first call is slow)
+    assert sub.periods_run == 0 and np.all(np.isnan(sub.channels)) and sub.cr.time_s == 0.0
+    res = sub.results(Samples(np.zeros((2, N_FIELDS))))  # e.g. a watchdog trip in the first periods
+    assert all(math.isnan(v) for v in res["criteria"].values())
+    assert all(math.isnan(v) for v in compare_with_reference(res, {"base_displacement_m": np.zeros(50)}).values())

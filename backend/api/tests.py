@@ -14,7 +14,7 @@ from sim.controllers import CONTROLLER_NAMES, make_controller
 from sim.engine import Scenario
 from sim.errors import FieldError
 from sim.isolator import IsolatorError
-from sim.profiles import SineProfile, max_amplitude_m, max_frequency_hz, motion_summary
+from sim.profiles import ProfileError, SineProfile, max_amplitude_m, max_frequency_hz, motion_summary
 from sim.rig import BAR_PA
 from sim.samples import RECORD_FIELDS, Samples
 from sim.tracking import cycle_windows
@@ -23,6 +23,7 @@ from .. import store
 from ..errors import ApiError, ProtocolError, _jsonable
 from ..safety import make_limits
 from ..schemas import (
+    EARTHQUAKE_PROFILES,
     ERROR_RESPONSES,
     ArchiveIn,
     EnvelopeCheckOut,
@@ -52,8 +53,36 @@ def profile_blocks(profile: SineProfileIn | ProtocolProfileIn) -> list[SineProfi
     return list(blocks)
 
 
+def earthquake_profile(body: TestCreate, isolator, rig):
+    """A history or hybrid profile built by the one profile parser (sim.protocols.profile_from_spec, which hands
+    it to sim.earthquake), with the vertical load it runs under: the request's, else for a hybrid test the
+    building's weight, else the isolator's design load or the rig's default. Refusals name the field."""
+    from sim.earthquake import structure_weight_n
+    from sim.profiles import ProfileError, check_vertical_load
+    from sim.protocols import profile_from_spec
+
+    spec = body.profile.model_dump()  # non-finite samples stay what they are: sim names them
+    load = body.vertical_load_n
+    if load is None:
+        weight = structure_weight_n(spec)
+        if weight is not None:
+            try:
+                check_vertical_load(weight, rig)
+            except ProfileError as exc:
+                raise ApiError(422, f"the building weighs {weight:.6g} N (its total mass x g), the vertical load a "
+                                    f"hybrid test runs under unless vertical_load_n is given: {exc}",
+                               "vertical_load_n", weight, exc.limit) from None
+            load = weight
+        else:
+            load = Scenario(isolator, body.supply_bar * BAR_PA, [], rig=rig).effective_vertical_load_n
+    check_vertical_load(load, rig)
+    _blocks, profile = profile_from_spec(spec, isolator, load)
+    return profile, load
+
+
 def build_test(session, body: TestCreate, request: Request) -> dict:
-    """Everything a test record needs, validated against the rig envelope (errors name field and limit)."""
+    """Everything a test record needs, validated against the rig envelope (errors name field and limit). A
+    history or hybrid test's built profile comes back under ``_earthquake`` (not a record field)."""
     settings = request.app.state.settings
     service = request.app.state.service
     isolator = resolve_isolator(session, body.isolator)
@@ -69,9 +98,16 @@ def build_test(session, body: TestCreate, request: Request) -> dict:
 
     if body.speed != 1.0 and service.driver != SIMULATED:
         raise ApiError(422, f"the rig {service.driver} runs in real time: speed must be 1", "speed", body.speed, "1")
-    blocks = profile_blocks(body.profile)
-    scenario = Scenario(isolator, body.supply_bar * BAR_PA, blocks, body.controller, options,
-                        rig=request.app.state.rig, vertical_load_n=body.vertical_load_n)
+    earthquake = None
+    if isinstance(body.profile, EARTHQUAKE_PROFILES):
+        earthquake, load = earthquake_profile(body, isolator, request.app.state.rig)
+        blocks = []
+        scenario = Scenario(isolator, body.supply_bar * BAR_PA, [], body.controller, options,
+                            rig=request.app.state.rig, vertical_load_n=load, history=earthquake.target)
+    else:
+        blocks = profile_blocks(body.profile)
+        scenario = Scenario(isolator, body.supply_bar * BAR_PA, blocks, body.controller, options,
+                            rig=request.app.state.rig, vertical_load_n=body.vertical_load_n)
     scenario.validate()  # ProfileError -> 422 with field, value, limit (vertical_load_n among them)
     if scenario.duration_s > settings.max_test_duration_s:
         raise ApiError(422, f"the profile lasts {scenario.duration_s:g} s, longer than the allowed "
@@ -82,15 +118,20 @@ def build_test(session, body: TestCreate, request: Request) -> dict:
                     "vertical_load_n": scenario.effective_vertical_load_n,
                     "profile": [b.to_dict() for b in blocks], "controller": body.controller,
                     "controller_options": options, "rig_changes": scenario.describe()["rig_changes"]}
+    asked = body.model_dump(mode="json")
+    if earthquake is not None:  # the spec as asked rebuilds the target (the worker); the record shows it built
+        job_scenario["earthquake"] = asked["profile"]
+        job_scenario["earthquake_fingerprint"] = earthquake.fingerprint
+        asked["profile"] = clean_json(earthquake.description)
     return {
         "label": body.label, "specimen_id": body.specimen_id.strip(), "operator_name": body.operator_name.strip(),
         "notes": body.notes, "isolator": isolator.name, "supply_bar": body.supply_bar,
         "vertical_load_n": scenario.effective_vertical_load_n,
         "controller": body.controller, "speed": body.speed, "driver": service.driver,
-        "request": {**body.model_dump(mode="json"), "job_scenario": job_scenario,
-                    "rig_name": request.app.state.rig_description.name},
+        "request": {**asked, "job_scenario": job_scenario, "rig_name": request.app.state.rig_description.name},
         "scenario": clean_json(scenario.describe()), "limits": limits.to_dict(),
         "duration_s": scenario.duration_s, "cycles_total": len(cycle_windows(scenario)),
+        "_earthquake": earthquake,
     }
 
 
@@ -98,18 +139,30 @@ def build_test(session, body: TestCreate, request: Request) -> dict:
              responses=ERROR_RESPONSES)
 def check_test(body: TestCreate, request: Request, session: SessionDep) -> EnvelopeCheckOut:
     """Answers 200 either way (``ok`` says which), so a form can ask at every keystroke; nothing is stored."""
+    earthquake, load = None, None
     try:
-        build_test(session, body, request)
+        fields = build_test(session, body, request)
+        earthquake, load = fields["_earthquake"], fields["vertical_load_n"]
         refusal = None
     except FieldError as exc:  # the envelope, a controller option
-        refusal = {"detail": str(exc), "field": exc.field, "value": _jsonable(exc.value), "limit": exc.limit}
+        field = exc.field
+        if isinstance(exc, ProfileError) and isinstance(body.profile, EARTHQUAKE_PROFILES) \
+                and field not in ("supply_bar", "vertical_load_n"):
+            field = f"profile.{field}"  # as POST /api/tests names it
+        refusal = {"detail": str(exc), "field": field, "value": _jsonable(exc.value), "limit": exc.limit}
     except ApiError as exc:
         refusal = {"detail": exc.detail, "field": exc.field, "value": _jsonable(exc.value), "limit": exc.limit}
     except (IsolatorError, ProtocolError) as exc:
         refusal = {"detail": str(exc), "field": "profile" if isinstance(exc, ProtocolError) else "isolator"}
     out = {"ok": refusal is None, **(refusal or {"detail": "within the rig envelope"})}
     rig = request.app.state.rig
-    if refusal is None:  # what the motion asks of the rig, for the confirmation before the valve opens
+    if refusal is None and earthquake is not None:  # what the history asks of the rig (hybrid: as predicted)
+        from sim.history import history_motion_summary
+
+        isolator = resolve_isolator(session, body.isolator)
+        out.update(history_motion_summary(earthquake.target, rig.with_changes(vertical_load_n=load), isolator))
+        out["profile"] = clean_json(earthquake.description)
+    elif refusal is None:  # what the motion asks of the rig, for the confirmation before the valve opens
         blocks = profile_blocks(body.profile)
         scenario = Scenario(resolve_isolator(session, body.isolator), body.supply_bar * BAR_PA, blocks, rig=rig,
                             vertical_load_n=body.vertical_load_n)
@@ -136,6 +189,7 @@ def create_test(body: TestCreate, request: Request, session: SessionDep, actor: 
                 start: Annotated[bool, Query(description="start it at once; if the start is refused, nothing "
                                                          "is kept")] = False) -> TestOut:
     fields = build_test(session, body, request)
+    fields.pop("_earthquake")
     test = store.create_test(session, **fields)
     store.add_event(session, test.id, "operator", f"test {test.id} created by {actor}", {"action": "create"},
                     actor=actor)
@@ -298,6 +352,72 @@ def get_csv(test_id: TestId, request: Request, session: SessionDep) -> Streaming
 
     return StreamingResponse(generate(), media_type="text/csv",
                              headers={"Content-Disposition": f'attachment; filename="test-{test_id}.csv"'})
+
+
+def _thinned(values, step: int) -> list:
+    return clean_json(np.asarray(values, dtype=float)[::step].tolist())
+
+
+@router.get("/api/tests/{test_id}/earthquake", summary="A history or hybrid test: the planned target, and once it "
+            "ran the J criteria, command and measurement, the structure beside its reference (thinned)",
+            responses=ERROR_RESPONSES)
+def get_earthquake(test_id: TestId, session: SessionDep,
+                   points: Annotated[int, Query(ge=100, le=200_000, description="at most this many points per "
+                                                                                "series (every k-th sample)")] = 2000
+                   ) -> dict:
+    """``planned``: the target the test runs (a history) or the reference's base displacement it is predicted
+    to command (a hybrid test), with the ground acceleration of a hybrid test, from the spec the test was created
+    with. ``record`` (None before the test ran): sim.earthquake.record_figures on the stored samples (what the
+    summary holds, computed again now) with ``series``: time, command, measurement and, for a hybrid test, the
+    structure's channels replayed from the record and the reference's, every k-th sample so that no series has
+    more than ``points``. Meant for after a test (a running test is better followed on the websocket)."""
+    test = _test_or_404(session, test_id)
+    job_scenario = (test.request or {}).get("job_scenario") or {}
+    if job_scenario.get("earthquake") is None:
+        raise ApiError(422, f"test {test_id} is not a history or hybrid test", "test_id", test_id,
+                       "a test with a profile of kind history or hybrid")
+    from ..worker import earthquake_from_job
+
+    try:
+        profile = earthquake_from_job({"scenario": job_scenario})
+    except ValueError as exc:
+        raise ApiError(409, f"the profile of test {test_id} cannot be rebuilt: {exc}") from None
+    n = profile.target.n_samples
+    step = max(1, -(-n // points))
+    planned = {"time_s": _thinned(profile.target.time_s, step), "target_m": _thinned(profile.target.r_m, step)}
+    if profile.ground_acc_m_per_s2 is not None:
+        planned["ground_acc_m_per_s2"] = _thinned(profile.ground_acc_m_per_s2, step)
+    out = {"test_id": test_id, "kind": profile.kind, "status": test.status, "profile": clean_json(profile.description),
+           "planned": planned, "record": None}
+    if not test.samples_stored:
+        return out
+    from ..reports.content import earthquake_figures
+
+    bundle = store.load_test_bundle(session, test_id)
+    figures = earthquake_figures(bundle)
+    if figures is None:
+        return out
+    record = {k: v for k, v in figures.items() if k not in ("arrays", "profile")}
+    s = bundle.samples
+    step = max(1, -(-len(s) // points))
+    series = {"time_s": _thinned(s["time_s"], step), "target_m": _thinned(s["target_m"], step),
+              "displacement_m": _thinned(s["displacement_m"], step), "force_n": _thinned(s["force_n"], step)}
+    arrays = figures.get("arrays") or {}
+    if arrays.get("structure") is not None:
+        t_s = arrays["structure_time_s"]
+        k = max(1, -(-len(t_s) // points))
+        series["structure"] = {"time_s": _thinned(t_s, k),
+                               **{name: _thinned(v, k) for name, v in arrays["structure"].items()}}
+        whole = arrays["reference_whole"]
+        m = len(next(iter(whole.values())))
+        k = max(1, -(-m // points))
+        series["reference"] = {"time_s": _thinned(np.arange(m) * profile.target.dt_s, k),
+                               **{name: _thinned(v, k) for name, v in whole.items()}}
+        series["stability"] = {"time_s": _thinned(t_s, max(1, -(-len(t_s) // points))),
+                               "added_energy_j": _thinned(arrays["added_energy_j"], max(1, -(-len(t_s) // points))),
+                               "limit_j": _thinned(arrays["limit_j"], max(1, -(-len(t_s) // points)))}
+    out["record"] = {**clean_json(record), "series": series}
+    return out
 
 
 def _reportable(session, test_id: int):
