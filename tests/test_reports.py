@@ -841,3 +841,83 @@ def test_the_decimated_time_histories_keep_every_sample():
     td, yd = _minmax_decimate(t, y)
     assert td[-1] == t[-1] and yd.max() == 7.0 and np.all(np.diff(td) >= 0)
     assert td.size < 3 * 2500
+
+
+def history_run(stop_s: float | None = None):
+    """A time-history test as the service records it (its spec, the profile built, the samples), stopped by the
+    operator at ``stop_s`` if given (the record then goes on for the 1 s of the fade; here the target's own)."""
+    from sim.earthquake import earthquake_from_spec
+
+    t = np.arange(0.0, 4.0, 0.01)
+    d = 0.015 * np.sin(2 * np.pi * 0.7 * t) * np.sin(np.pi * t / 4.0) ** 2
+    spec = {"kind": "history", "displacement": {"time_s": t.tolist(), "displacement_m": d.tolist()},
+            "taper_in_s": 0.5, "taper_out_s": 0.5}
+    profile = earthquake_from_spec(spec, PRESETS["IUT_a"], 125e3)
+    scenario = Scenario(PRESETS["IUT_a"], 100e5, [], vertical_load_n=125e3, history=profile.target)
+    samples = Simulation(scenario).run().samples
+    events = [{"kind": "operator", "actor": "alice", "time_s": 0.0, "message": "test 8 started by alice",
+               "values": {"action": "start"}}]
+    status = "completed"
+    if stop_s is not None:
+        samples = samples[: int(round((stop_s + 1.0) / 1e-3))]
+        events.append({"kind": "operator", "actor": "system", "time_s": stop_s, "message": f"stop at t = {stop_s}",
+                       "values": {"action": "stop", "ends_at_s": stop_s + 1.0}})
+        status = "stopped"
+    record = {"id": 8, "label": "history", "status": status, "isolator": "IUT_a", "supply_bar": 100.0,
+              "vertical_load_n": 125e3, "controller": "servo", "driver": "simulated", "profile": profile.description,
+              "earthquake": spec, "earthquake_fingerprint": profile.fingerprint, "duration_s": scenario.duration_s,
+              "cycles_total": 0, "scenario": scenario.describe(), "time_s": float(samples["time_s"][-1])}
+    return ReportBundle(record, samples, [], events)
+
+
+@pytest.mark.skipif(PDFTOTEXT is None or PDFTOPPM is None, reason="poppler-utils are not installed")
+def test_a_time_history_report_has_its_criteria_and_no_cycle_pages(tmp_path):
+    bundle = history_run()
+    rep = report_json(bundle, identify=False)
+    eq = rep["earthquake"]
+    assert [v["name"] for v in eq["verdicts"]] == ["J1", "J2", "J3"] and eq["judged"]["samples"] == len(bundle.samples)
+    assert all(v["target"] == t for v, t in zip(eq["verdicts"], (1.0, 1.0, 3.0), strict=True))
+    assert "J criteria" in rep["acceptance"]["note"] and rep["headline"]["cycles"] == 0
+    assert "arrays" not in eq and json.dumps(rep)  # plain JSON
+    out = tmp_path / "history.pdf"
+    render_report_pdf(bundle, out, report=rep)
+    pages = pdf_text(out, "-layout")[:-1]
+    text = "\n".join(pages)
+    assert "Results (the J criteria of the RTHS benchmark)" in pages[0] and "|J1| <= 1 ms" in pages[0]
+    assert "an inline displacement history" in pages[0] and "none: an earthquake test has no cycles" in pages[0]
+    criteria_page = next(p for p in pages if "Time history: tracking criteria" in p)
+    for words in ("J2 <= 1 %", "J3 <= 3 %", "Command and measured displacement", "Tracking error",
+                  "Force against displacement (whole test)", "Where the command is fastest"):
+        assert words in criteria_page, words
+    assert "Per-cycle metrics" not in text and "Force-displacement loops" not in text
+    # summary, setup, criteria and overlay, time histories, events and approval
+    images = png_pages(out, tmp_path)
+    assert len(images) == 5 and all(ink(page) > 0.003 for page in images)
+    assert colour(images[2]) > 0.005  # the plotted command, measurement and error
+    # stopped early: the criteria judge the record up to the stop; the banner says it
+    stopped = history_run(stop_s=2.0)
+    rep = report_json(stopped, identify=False)
+    assert rep["earthquake"]["judged"]["samples"] == 2000 and "early end at t = 2.000 s" in rep["earthquake"][
+        "judged"]["what"]
+    out = tmp_path / "stopped.pdf"
+    render_report_pdf(stopped, out, report=rep)
+    first = pdf_text(out)[0]
+    assert "TEST STOPPED BEFORE ITS END" in first and "no cycles (a time history)" in first
+
+
+def test_a_stability_trip_and_a_hybrid_run_are_said_in_words():
+    from backend.reports.data import event_text, run_text
+
+    monitor = {"added_energy_j": 2.0834, "specimen_energy_j": 138.3, "command_energy_j": 136.2,
+               "reference_energy_j": 245.0, "limit_j": 2.0, "absolute_limit_j": 2.0, "relative_limit": 0.002,
+               "ratio": 0.0085, "indicator": 1.04, "tripped": True, "reason": "RTHS stability monitor: ...",
+               "trip_time_s": 0.755, "at_trip": {"time_s": 0.755, "added_energy_j": 2.0151, "limit_j": 2.0,
+                                                 "reference_energy_j": 238.3}}
+    text = event_text({"kind": "limit_trip", "message": "hybrid simulation unstable at t = 0.760 s",
+                       "values": {"detector": "rths_stability", "action": "valve_close", "time_s": 0.76, **monitor}})
+    assert "at the trip (t = 0.755 s): E_err 2.015 J, limit 2 J, reference energy 238.3 J" in text
+    assert "at the end of that block: E_err 2.083 J" in text and "reference energy 245 J" in text
+    assert " j " not in text and "reason" not in text.split("(", 1)[1]  # units, and the reason not said twice
+    run = {"time_run_s": 0.86, "planned_duration_s": 15.001, "cycles_done": 0, "cycles_planned": 0}
+    assert run_text({**run, "kind": "hybrid"}).endswith("no cycles (a hybrid simulation)")
+    assert run_text({**run, "kind": "history"}).endswith("no cycles (a time history)")

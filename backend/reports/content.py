@@ -12,6 +12,8 @@ import numpy as np
 from .data import (
     ESTIMATE_COLUMNS,
     clean_json,
+    earthquake_kind,
+    earthquake_of,
     event_text,
     isolator_of,
     num,
@@ -99,6 +101,10 @@ def acceptance(bundle, run: dict | None = None) -> dict:
     PASSED, FAILED, INCOMPLETE (the test ended before its end: checks without a measured cycle) or NO VERDICT."""
     protocol, note = protocol_of(bundle.record)
     if protocol is None:
+        kind = earthquake_kind(bundle.record)
+        if kind is not None and not note:
+            note = (f"no acceptance rules: a {'time history' if kind == 'history' else 'hybrid simulation'} is "
+                    "judged by the J criteria against their targets (the results and the criteria page)")
         return {"protocol": None, "note": note or "no acceptance rules: the test ran a plain sine profile",
                 "summary": {"passed": None, "verdicts": 0, "failed": 0, "failed_rules": []}, "verdicts": [],
                 "verdict": "NO VERDICT"}
@@ -154,6 +160,57 @@ def tracking(bundle) -> dict:
             "peak_abs_voltage_v": num(float(np.nanmax(np.abs(u)))) if np.isfinite(u).any() else None}
 
 
+REFERENCE_NOTE = ("the reference is computed when this report is made (sim.hybrid.reference: the same building "
+                  "with the isolator's nominal Bouc-Wen model, RK4 offline), not stored with the test")
+_FIGURES: dict = {}  # the last earthquake figures made (the JSON and the PDF of one report share them)
+
+
+def earthquake_figures(bundle) -> dict | None:
+    """A history or hybrid test's figures with the arrays its pages plot (sim.earthquake.record_figures on the
+    samples: J1-J3 and, for a hybrid test, the structure replayed from the record against the reference computed
+    now, J4-J5, the stability monitor), or None for another test. ``note`` says what could not be done."""
+    record = bundle.record
+    kind = earthquake_kind(record)
+    if kind is None or not len(bundle.samples):
+        return None
+    key = (id(bundle.samples), len(bundle.samples), record.get("id"), kind)
+    if _FIGURES.get("key") == key:
+        return _FIGURES["figures"]
+    from sim.earthquake import early_end_time_s, record_figures
+
+    profile, note = earthquake_of(record)
+    summary = record.get("summary") or {}
+    iso = isolator_of(record)
+    if kind == "hybrid" and (profile is None or iso is None):
+        figures = {"kind": kind, "criteria": {}, "verdicts": [], "note": note or "the isolator is not known",
+                   "stored": {k: summary.get(k) for k in ("criteria", "stability") if summary.get(k) is not None}}
+    else:
+        try:
+            figures = record_figures(profile, iso, bundle.samples, kind=kind,
+                                     end_time_s=early_end_time_s(bundle.events), stability=summary.get("stability"),
+                                     arrays=True)
+        except ValueError as exc:  # e.g. too short, non-finite
+            figures = {"kind": kind, "criteria": {}, "verdicts": [], "note": f"no criteria: {exc}"}
+        if note:
+            figures["note"] = note
+        if kind == "hybrid":
+            figures["reference"] = {**figures.get("reference", {}), "note": REFERENCE_NOTE}
+    if profile is not None:
+        figures["profile"] = profile.description
+    elif isinstance(record.get("profile"), dict):
+        figures["profile"] = record["profile"]
+    _FIGURES.update(key=key, figures=figures)
+    return figures
+
+
+def earthquake(bundle) -> dict | None:
+    """report.json's ``earthquake``: the figures of ``earthquake_figures`` without the arrays."""
+    figures = earthquake_figures(bundle)
+    if figures is None:
+        return None
+    return {k: v for k, v in figures.items() if k != "arrays"}
+
+
 def report_json(bundle, identify: bool = True, meta: dict | None = None, identification: dict | None = None,
                 lab=None) -> dict:
     """All metrics of a test: header, what it ran, headline figures, per-cycle metrics, acceptance,
@@ -191,6 +248,7 @@ def report_json(bundle, identify: bool = True, meta: dict | None = None, identif
         "isolator_nominal": iso.to_dict() if iso else None,
         "controller": controller_state(bundle),
         "tracking": tracking(bundle),
+        "earthquake": earthquake(bundle),
         "headline": headline(bundle, protocol),
         "cycles": cycles,
         "acceptance": acceptance(bundle, run),

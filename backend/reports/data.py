@@ -202,6 +202,43 @@ def protocol_of(record: dict):
         return None, f"the test's protocol cannot be rebuilt: {exc}"
 
 
+EARTHQUAKE_KINDS = ("history", "hybrid")
+
+
+def earthquake_kind(record: dict) -> str | None:
+    """``history`` or ``hybrid`` for an earthquake test (the profile's kind; a CSV record of ``isorig simulate
+    --history`` has a history in its scenario), else None."""
+    profile = record.get("profile")
+    kind = profile.get("kind") if isinstance(profile, dict) else None
+    if kind in EARTHQUAKE_KINDS:
+        return kind
+    if kind is None and isinstance((record.get("scenario") or {}).get("history"), dict):
+        return "history"
+    return None
+
+
+def earthquake_of(record: dict):
+    """(the earthquake profile rebuilt from the record's spec: sim.earthquake.EarthquakeProfile, or None; a note
+    when it could not be rebuilt or differs from what the test ran)."""
+    spec = record.get("earthquake")
+    if not isinstance(spec, dict):
+        return None, "the profile's spec is not in this record: the criteria come from the samples alone"
+    iso = isolator_of(record)
+    if iso is None:
+        return None, "the isolator is not known: the profile cannot be rebuilt"
+    try:
+        from sim.earthquake import earthquake_from_spec
+
+        profile = earthquake_from_spec(spec, iso, record.get("vertical_load_n"))
+    except (ImportError, ValueError) as exc:
+        return None, f"the profile cannot be rebuilt from its spec: {exc}"
+    expected = record.get("earthquake_fingerprint")
+    if expected and profile.fingerprint != expected:
+        return profile, ("the target rebuilt from the spec now differs from the one the test ran (another version "
+                         "of the numerics?): the reference may not be the one of the test")
+    return profile, None
+
+
 def isolator_of(record: dict):
     from sim.isolator import PRESETS, isolator_from_dict
 
@@ -266,7 +303,7 @@ def run_of(bundle) -> dict:
     out = {"status": status, "reason": reason, "time_run_s": time_run, "planned_duration_s": planned,
            "cycles_done": cycles_done, "cycles_planned": cycles_total, "samples": n,
            "control_period_s": num((r.get("scenario") or {}).get("control_period_s")),
-           "ended_early": status in STATUS_BANNERS, "banner": None}
+           "ended_early": status in STATUS_BANNERS, "banner": None, "kind": earthquake_kind(r)}
     if status in STATUS_BANNERS:
         title, colour = STATUS_BANNERS[status]
         ran = run_text(out)
@@ -289,7 +326,10 @@ def run_text(run: dict) -> str:
     elif planned is not None:
         parts.append(f"planned {planned:g} s, nothing recorded")
     done, total = run["cycles_done"], run["cycles_planned"]
-    parts.append(f"{done} of {total} cycles completed" if total is not None else f"{done} cycles completed")
+    if total == 0 and not done:
+        parts.append("no cycles (a hybrid simulation)" if run.get("kind") == "hybrid" else "no cycles (a time history)")
+    else:
+        parts.append(f"{done} of {total} cycles completed" if total is not None else f"{done} cycles completed")
     text = "; ".join(parts)
     return text[:1].upper() + text[1:]
 
@@ -419,9 +459,30 @@ def quantity_text(key: str, value) -> str:
     return f"{name} {scaled_text(key, value)}"
 
 
+def stability_trip_text(values: dict) -> str:
+    """The RTHS stability monitor's figures recorded with its trip (sim.hybrid_metrics.EnergyMonitor.to_dict):
+    at the trip (``at_trip``) and at the end of the block that tripped (the energies go on after the trip)."""
+    def figures(v: dict) -> str:
+        return ", ".join(f"{words} {v[k]:.4g} J" for k, words in
+                         (("added_energy_j", "E_err"), ("limit_j", "limit"), ("reference_energy_j", "reference energy"),
+                          ("specimen_energy_j", "work on the specimen"),
+                          ("command_energy_j", "work on the commanded path")) if num(v.get(k)) is not None)
+    parts = []
+    at_trip = values.get("at_trip")
+    if isinstance(at_trip, dict) and figures(at_trip):
+        when = num(at_trip.get("time_s"))
+        parts.append("at the trip" + (f" (t = {when:.3f} s)" if when is not None else "") + ": " + figures(at_trip))
+    if figures(values):
+        parts.append("at the end of that block: " + figures(values))
+    return "; ".join(parts)
+
+
 def limit_trip_text(values: dict) -> str:
     """A limit trip's recorded values in words: what the rig read at the sample that tripped, and the limit."""
     from sim.measurement import describe_status
+
+    if values.get("detector") == "rths_stability":
+        return stability_trip_text(values)
 
     shown = ("displacement_m", "target_m", "tracking_error_m", "velocity_m_per_s", "force_n", "load_pressure_pa",
              "supply_pressure_pa", "voltage_v")

@@ -10,8 +10,9 @@ from __future__ import annotations
 import io
 import re
 
-from .content import report_json
+from .content import earthquake_figures, report_json
 from .data import ReportBundle, isolator_of, protocol_of
+from .earthquake import pages_earthquake
 from .figures import DETAIL_WINDOW_S, page_loops, page_time, page_time_detail, plot_style
 from .header import header_pages, identification_block, page_header
 from .lab import lab_header
@@ -28,7 +29,9 @@ def render_report_pdf(bundle, out, meta: dict | None = None, report: dict | None
     limit trips, notes, rig and sensors, controller with every option and its adapted parameters, identified
     Bouc-Wen parameters), loops and per-cycle K_eff/EDC (scaled to the steady cycles, tapers marked), time
     histories (displacement and target, voltage, tracking error), the per-cycle table, the protocol with every
-    check, the events and the approval block; "page N of M" on every page.
+    check, the events and the approval block; "page N of M" on every page. A history or hybrid test (no cycles)
+    has, instead of the loops and the table, its J criteria with the command against the measurement and, for a
+    hybrid test, the structure beside its full-numerical reference (earthquake.py).
     ``meta`` (rig, operator; lab_name, lab_address, lab_logo_file) fills in what the record does not hold;
     ``lab`` (lab.LabHeader) is the lab already resolved (default: from ``meta`` and the settings); ``report``
     (from report_json) saves computing the metrics twice; ``identify=False`` skips the Bouc-Wen fit.
@@ -87,11 +90,16 @@ def _write_pages(target, plt, bundle, report: dict, lab, identification=None) ->
     else:  # all but the Bouc-Wen table now (with room for it); the table when the fit is there
         flow = header_pages(plt, bundle, report, iso, protocol, lab)
         header = flow.figs
-    figs = [page_loops(plt, bundle, protocol, report), page_time(plt, bundle)]
+    figures = earthquake_figures(bundle) if report.get("earthquake") else None
+    if figures is not None:  # a history or hybrid test: no cycles; the criteria, the overlay, the reference
+        figs = pages_earthquake(plt, bundle, figures) + [page_time(plt, bundle)]
+    else:
+        figs = [page_loops(plt, bundle, protocol, report), page_time(plt, bundle)]
     s = bundle.samples
     if len(s) > 1 and s["time_s"][-1] - s["time_s"][0] > 6 * DETAIL_WINDOW_S:
         figs.append(page_time_detail(plt, bundle))
-    figs += pages_table(plt, bundle, report["acceptance"], protocol, report["headline"])
+    if figures is None or bundle.cycles:
+        figs += pages_table(plt, bundle, report["acceptance"], protocol, report["headline"])
     figs += pages_verdicts_events(plt, bundle, report, protocol)
     total = len(header) + len(figs)
     for page, fig in enumerate(header + figs, start=1):

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from datetime import UTC, datetime
 
-from .data import PHASE_WORDS, num, rig_text
+from .data import PHASE_WORDS, earthquake_kind, num, rig_text
 from .identification import BOUC_WEN_FIELDS
 from .layout import PAGE_BOTTOM, Flow, fmt_num, report_title, rule, wrap_items, wrap_pt
 
@@ -134,7 +134,8 @@ def _banner(flow: Flow, banner: dict) -> None:
     """A coloured box across the page: what happened (ABORTED ...), why, and what ran."""
     from matplotlib.patches import Rectangle
 
-    reason = wrap_pt(banner["reason"], (RIGHT_X - KEY_X - 0.03) * 595.0, 9.5) if banner.get("reason") else []
+    # bold Helvetica is up to 10 % wider than the regular widths wrap_pt measures: wrap as if the text were larger
+    reason = wrap_pt(banner["reason"], (RIGHT_X - KEY_X - 0.04) * 595.0, 9.5 * 1.1) if banner.get("reason") else []
     lines = [(banner["title"], 13, "bold")] + [(r, 9.5, "bold") for r in reason] + [(banner["ran"], 9, "normal")]
     height = 8 + 17 + 12.5 * (len(lines) - 1) + 4
     flow.skip(4)
@@ -204,7 +205,9 @@ def _test_lines(bundle, report, iso) -> list[tuple[str, str]]:
     head = report["headline"]
     parts = [f"{run['cycles_done']} completed" + (f" of {run['cycles_planned']} planned" if run["cycles_planned"]
                                                  else "")]
-    if head.get("phases_known"):
+    if report.get("earthquake") and not run["cycles_done"]:
+        parts = ["none: an earthquake test has no cycles (it is judged by the J criteria)"]
+    elif head.get("phases_known"):
         phases = ", ".join(f"{n} {PHASE_WORDS.get(p, p)}" for p, n in head["excluded_cycles"].items())
         parts.append(f"{head['steady_cycles']} steady" + (f", {phases}" if phases else ""))
     else:
@@ -229,7 +232,7 @@ def _condition_lines(r: dict, protocol) -> list[tuple[str, str]]:
     lines.append(("Supply pressure", f"{sb:g} bar" if sb is not None else "not recorded"))
     load = num(r.get("vertical_load_n", (r.get("scenario") or {}).get("vertical_load_n")))
     lines.append(("Vertical load", f"{load / 1e3:g} kN" if load is not None else "not recorded"))
-    for k, text in enumerate(_profile_text(r, protocol)):
+    for k, text in enumerate(_profile_text(r, protocol) if earthquake_kind(r) is None else earthquake_profile_lines(r)):
         lines.append(("Profile" if k == 0 else "", text))
     limits = r.get("limits") or {}
     if limits:
@@ -325,8 +328,119 @@ def headline_rows(head: dict) -> list[tuple[str, str]]:
     return rows
 
 
+def earthquake_profile_lines(record: dict) -> list[str]:
+    """The profile of a history or hybrid test in words (from the record's ``profile``: sim.earthquake's
+    description)."""
+    prof = record.get("profile") or {}
+    kind = prof.get("kind")
+    lines = []
+    if kind == "hybrid":
+        st = prof.get("structure") or {}
+        masses = ", ".join(f"{m / 1e3:g}" for m in st.get("masses_kg") or [])
+        springs = ", ".join(f"{k / 1e6:g}" for k in st.get("stiffness_n_per_m") or [])
+        periods = ", ".join(f"{p:.3f}" for p in prof.get("fixed_base_periods_s") or [])
+        lines.append(f"real-time hybrid simulation: {st.get('name') or 'a shear building'} above the isolator "
+                     f"(base {num(st.get('base_mass_kg')) or 0:g} kg, storeys {masses} t, springs {springs} MN/m, "
+                     f"{100 * (num(st.get('damping_ratio')) or 0):g} % Rayleigh; fixed-base periods {periods} s)")
+        stab = prof.get("stability") or {}
+        if stab:
+            lines.append(f"stability monitor: trips above max({stab.get('limit_j', 0):g} J, "
+                         f"{100 * stab.get('relative_limit', 0):g} % of the input energy)")
+    elif kind == "history" or kind is None:
+        source = prof.get("source") or ((record.get("scenario") or {}).get("history") or {}).get("source")
+        lines.append(f"time history: {source or 'source not recorded'}")
+    gm = prof.get("ground_motion")
+    if isinstance(gm, dict):
+        if gm.get("preset"):
+            lines.append(f"ground motion {gm['preset']} x {prof.get('scale', 1):g} (synthetic, seed {gm.get('seed')}, "
+                         f"{num(gm.get('duration_s')) or 0:g} s, PGA {num(gm.get('pga_g')) or 0:.3g} g before scaling)")
+        elif gm.get("inline"):
+            lines.append(f"ground motion given inline x {prof.get('scale', 1):g} ({gm.get('samples')} samples at "
+                         f"{num(gm.get('dt_s')) or 0:g} s in {gm.get('units')}, PGA {num(gm.get('pga_g')) or 0:.3g} g)")
+    history = (record.get("scenario") or {}).get("history") or {}
+    dur = num(prof.get("duration_s", history.get("duration_s")))
+    peak = num(prof.get("peak_displacement_m", history.get("peak_displacement_m")))
+    vel = num(prof.get("peak_velocity_m_per_s", history.get("peak_velocity_m_per_s")))
+    what = "predicted (the reference) " if kind == "hybrid" else ""
+    if dur is not None and peak is not None:
+        tapers = (f", tapers {prof.get('taper_in_s', history.get('taper_in_s', 0)):g} s in and "
+                  f"{prof.get('taper_out_s', history.get('taper_out_s', 0)):g} s out") if kind != "hybrid" else ""
+        lines.append(f"{dur:g} s at 1 kHz; {what}peak displacement {peak * 1e3:.2f} mm, peak velocity "
+                     f"{(vel or 0) * 1e3:.1f} mm/s{tapers}")
+    return lines
+
+
+CRITERIA_WORDS = {"j1_delay_ms": "delay of y behind r", "j2_rms_percent": "RMS of y - r / RMS of r",
+                  "j3_peak_percent": "peak |y - r| / peak |r|",
+                  "j4_rms_percent": "base displacement: RMS error / reference RMS",
+                  "j5_peak_percent": "base displacement: peak error / reference peak"}
+
+
+def criteria_rows(eq: dict) -> list[tuple[str, str]]:
+    """The J criteria as monospace lines: criterion, value, target, met or not, what it measures (and the
+    colour: green met, red not met)."""
+    rows = [(f"{'criterion':<10}{'value':>10}  {'target':<15}{'result':<9}what it measures", "black")]
+    for v in eq.get("verdicts") or []:
+        value = "-" if v["value"] is None else f"{v['value']:.3f} {v['unit']}"
+        result = "met" if v["met"] else ("NOT MET" if v["met"] is False else "-")
+        rows.append((f"{v['name']:<10}{value:>10}  {v['bound']:<15}{result:<9}"
+                     f"{CRITERIA_WORDS.get(v['key'], v['meaning'])}",
+                     GREEN if v["met"] else (RED if v["met"] is False else "black")))
+    return rows
+
+
+def _earthquake_results(flow: Flow, report: dict) -> None:
+    eq = report["earthquake"]
+    kind = eq.get("kind")
+    _section(flow, "Results (the J criteria of the RTHS benchmark)")
+    verdicts = eq.get("verdicts") or []
+    if verdicts:
+        for text, colour in criteria_rows(eq):
+            flow.text(KEY_X + 0.02, text, pitch=10.5, fontsize=8.0, family="monospace", color=colour)
+        met = sum(1 for v in verdicts if v["met"])
+        judged = eq.get("judged") or {}
+        note = (f"{met} of {len(verdicts)} targets met. J1-J3: the target against the measured displacement over "
+                f"{judged.get('what', 'the record')} ({judged.get('samples', 0)} samples)")
+        if kind == "hybrid":
+            note += ("; J4-J5: the structure's base displacement against the full-numerical reference; "
+                     + (eq.get("reference") or {}).get("note", ""))
+        for line in wrap_pt(note + ".", (RIGHT_X - KEY_X) * 595.0, 7.8):
+            flow.text(KEY_X + 0.02, line, pitch=10, fontsize=7.8, color="0.35")
+    else:
+        flow.text(KEY_X + 0.02, "no criteria: " + str((eq.get("judged") or {}).get("note") or eq.get("note") or
+                                                        "too few samples"), pitch=PITCH, fontsize=BODY, color=RED)
+    if eq.get("note") and verdicts:
+        _kv(flow, "Note", eq["note"], color=RED)
+    stab = eq.get("stability")
+    if kind == "hybrid" and stab:
+        tripped = bool(stab.get("tripped"))
+        if tripped:  # the reason has the figures at the trip; the others are the monitor's last state
+            text = (f"TRIPPED: {stab.get('reason')}. At the end of the record: E_err = "
+                    f"{fmt_num(stab.get('added_energy_j'), '{:.4g}')} J, reference energy "
+                    f"{fmt_num(stab.get('reference_energy_j'), '{:.4g}')} J")
+        else:
+            text = (f"not tripped: added energy E_err = {fmt_num(stab.get('added_energy_j'), '{:.4g}')} J at the end, "
+                    f"{100 * (num(stab.get('indicator')) or 0):.1f} % of its limit "
+                    f"{fmt_num(stab.get('limit_j'), '{:.4g}')} J (max({fmt_num(stab.get('absolute_limit_j'), '{:g}')}"
+                    f" J, {100 * (num(stab.get('relative_limit')) or 0):g} % of the reference energy "
+                    f"{fmt_num(stab.get('reference_energy_j'), '{:.4g}')} J))")
+            peak = num(stab.get("peak_indicator"))
+            if peak is not None:
+                text += (f"; at most {100 * peak:.1f} % of the limit during the test (t = "
+                         f"{fmt_num(stab.get('peak_indicator_time_s'), '{:.3f}')} s)")
+        _kv(flow, "Stability", text, color=RED if tripped else "black")
+    flow.skip(4)
+
+
 def _results(flow: Flow, report: dict, protocol) -> None:
-    head = report["headline"]
+    if report.get("earthquake"):
+        _earthquake_results(flow, report)
+    else:
+        _headline_results(flow, report["headline"])
+    _acceptance_and_tracking(flow, report)
+
+
+def _headline_results(flow: Flow, head: dict) -> None:
     _section(flow, "Results (from the steady cycles)")
     if head["steady_cycles"]:
         for text, colour in headline_rows(head):
@@ -342,6 +456,8 @@ def _results(flow: Flow, report: dict, protocol) -> None:
                   pitch=PITCH, fontsize=BODY, color=RED)
     flow.skip(4)
 
+
+def _acceptance_and_tracking(flow: Flow, report: dict) -> None:
     acc = report["acceptance"]
     word = acc["verdict"]
     flow.room(14 + 3 * PITCH)

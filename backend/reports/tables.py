@@ -112,7 +112,7 @@ def verdict_lines(acc: dict, protocol) -> list:
     it came from, value, reference and the cycle the reference came from, deviation, tolerance, result."""
     lines: list = []
     if acc["protocol"] is None:
-        lines.append(acc.get("note") or "no acceptance rules")
+        lines.extend(wrap_text(acc.get("note") or "no acceptance rules", 100))
         return lines
     lines.extend(wrap_text(f"Protocol {acc['protocol']}: {acc.get('title', '')}", 100))
     if protocol is not None:
