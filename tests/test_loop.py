@@ -24,7 +24,8 @@ NOISY_RIG = dataclasses.replace(DEFAULT_RIG, position_latency_s=0.0025, position
 
 def per_period(scenario: Scenario, n: int) -> Samples:
     """The scenario's loop around its plant one period at a time (the path of a real rig)."""
-    loop = ClosedLoop(scenario.profile, make_controller(scenario.controller), scenario.rig.command_limit_v)
+    controller = make_controller(scenario.controller, rig=scenario.rig)  # the servo reads the declared latency
+    loop = ClosedLoop(scenario.profile, controller, scenario.rig.command_limit_v)
     plant = SimulatedPlant(scenario.rig, scenario.isolator, scenario.supply_pa, scenario.noise_seed)
     parts = []
     for _ in range(n):

@@ -921,3 +921,20 @@ def test_a_stability_trip_and_a_hybrid_run_are_said_in_words():
     run = {"time_run_s": 0.86, "planned_duration_s": 15.001, "cycles_done": 0, "cycles_planned": 0}
     assert run_text({**run, "kind": "hybrid"}).endswith("no cycles (a hybrid simulation)")
     assert run_text({**run, "kind": "history"}).endswith("no cycles (a time history)")
+
+
+def test_the_controller_options_in_the_report_are_those_of_the_labs_rig():
+    """A test run on a lab's rig file: the servo's rig-declared options are the rig's, not the defaults."""
+    from types import SimpleNamespace
+
+    from backend.reports import controller_state
+    from sim.rig import DEFAULT_RIG
+    from sim.samples import Samples
+
+    def in_force(rig_changes):
+        record = {"controller": "servo", "scenario": {"controller": "servo", "rig_changes": rig_changes}}
+        rows = controller_state(SimpleNamespace(record=record, samples=Samples.empty()))["options_in_force"]
+        return {row["name"]: row["value"] for row in rows}
+
+    assert in_force({})["mass_kg"] == DEFAULT_RIG.mass_kg
+    assert in_force({"mass_kg": 4000.0})["mass_kg"] == 4000.0

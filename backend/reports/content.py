@@ -52,10 +52,12 @@ def controller_state(bundle) -> dict:
     if name:
         try:  # the controller's effective parameters: its defaults overridden by the test's options
             from sim.controllers import ADAPTED, OPTIONS, make_controller
+            from sim.rig import DEFAULT_RIG
 
             specs = OPTIONS.get(name, {})
             declared = ADAPTED.get(name, ())
-            parameters = {k: v for k, v in make_controller(name, **in_force).options.items()
+            rig = DEFAULT_RIG.with_changes(**(scenario.get("rig_changes") or {}))  # the lab's rig, as the test ran
+            parameters = {k: v for k, v in make_controller(name, rig=rig, **in_force).options.items()
                           if isinstance(v, (int, float, str, bool))}
         except (ImportError, ValueError, TypeError):
             parameters = {}
