@@ -28,7 +28,7 @@ import numpy as np
 
 from sim.errors import FieldError
 from sim.loop import CONTROL_PERIOD_S
-from sim.measurement import RIG_FAULT_BITS, describe_status
+from sim.measurement import FLAG_LOST, RIG_FAULT_BITS, describe_status
 from sim.rig import RigParameters
 from sim.samples import Samples
 
@@ -165,9 +165,17 @@ class Trip:
         return self.detector in SENSOR_FAULTS
 
 
+def velocity_readings(rows: Samples) -> np.ndarray:
+    """The position readings for the velocity: NaN in the rows of lost periods, which hold an older reading
+    (a difference across them would divide the motion of more periods by n T)."""
+    lost = (np.nan_to_num(rows["flags"]).astype(np.int64) & FLAG_LOST) != 0
+    return np.where(lost, np.nan, rows["measured_displacement_m"])
+
+
 def measured_velocity(y: np.ndarray, before: np.ndarray | None = None) -> np.ndarray:
     """Table velocity from the measured displacement: (y[k] - y[k - n]) / (n T) with n =
-    ``VELOCITY_SPAN_PERIODS``; ``before``: the readings that came before ``y`` (NaN where there are none)."""
+    ``VELOCITY_SPAN_PERIODS``; ``before``: the readings that came before ``y`` (NaN where there are none).
+    NaN where either reading is missing (``velocity_readings``): not checked there."""
     n = VELOCITY_SPAN_PERIODS
     head = np.full(n, np.nan) if before is None else np.concatenate([np.full(n, np.nan), before])[-n:]
     full = np.concatenate([head, y])
@@ -224,7 +232,7 @@ def check_block(rows: Samples, limits: SafetyLimits, supply_pa: float | None = N
     y, f, pl = rows["measured_displacement_m"], rows["force_n"], rows["load_pressure_pa"]
     ps, u = rows["supply_pressure_pa"], rows["voltage_v"]
     if velocity is None:
-        velocity = measured_velocity(y)
+        velocity = measured_velocity(velocity_readings(rows))
     flags = np.nan_to_num(rows["flags"]).astype(np.int64)
     finite = np.isfinite(y) & np.isfinite(f) & np.isfinite(pl) & np.isfinite(u) & np.isfinite(ps)
     checks = [("non_finite", ~finite), ("rig_fault", (flags & RIG_FAULT_BITS) != 0)]
@@ -283,7 +291,7 @@ class SafetyMonitor:
     def check(self, rows: Samples, valve_close_only: bool = False) -> Trip | None:
         """The first trip in ``rows`` (``valve_close_only``: during a controlled stop, only what closes the
         valve), or None; indications are kept for ``take_indications``."""
-        y = rows["measured_displacement_m"]
+        y = velocity_readings(rows)
         velocity = measured_velocity(y, self._recent)
         self._recent = np.concatenate([self._recent, y])[-VELOCITY_SPAN_PERIODS:]
         self._indicate(rows, velocity)

@@ -230,6 +230,7 @@ class RigService:
                 job = {"test_id": test_id, "rig": test.driver, "link": self.settings.link_settings(),
                        "speed": test.speed, "scenario": test.request["job_scenario"], "limits": test.limits,
                        "realtime": self.settings.worker_realtime,
+                       "start_tolerance_m": self.settings.rig_start_tolerance_m,
                        "table_position_m": self.resting_position_m() or 0.0}
                 ctx = self.context()
                 out_r, out_w = ctx.Pipe(duplex=False)
@@ -540,6 +541,9 @@ class RigService:
             if run.process.is_alive():  # never leave a worker running once its test is closed
                 run.process.terminate()
                 run.process.join(2.0)
+                if run.process.is_alive():  # SIGTERM is handled in Python: a worker stuck below it is killed
+                    run.process.kill()
+                    run.process.join(2.0)
             for conn in (run.out, run.commands):
                 with contextlib.suppress(OSError):
                     conn.close()

@@ -28,6 +28,7 @@ from __future__ import annotations
 import gc
 import os
 import queue
+import signal
 import sys
 import threading
 import time
@@ -45,6 +46,7 @@ from sim.samples import Samples
 from sim.tracking import cycle_phase, cycle_windows
 
 from .drivers import SIMULATED, ArmConditions, RigDriver, RigFault, SimulatedRig
+from .drivers.udp import START_TOLERANCE_M
 from .safety import SafetyLimits, SafetyMonitor, Trip
 
 CHUNK_S = 0.02  # wall time per chunk: samples reach clients at most this much after they are due
@@ -227,7 +229,8 @@ class Run:
         if self.rig.realtime:  # load the compiled period before the rig is armed: its watchdog will not wait
             ClosedLoop(scenario.profile, make_controller(scenario.controller, rig=scenario.rig, **options), limit,
                        table=scenario.target_table()).step(Measurement(0, 0.0, 0.0, 0.0, 0.0, scenario.supply_pa))
-        self.monitor = SafetyMonitor(SafetyLimits.from_dict(job["limits"]), self.scenario.supply_pa)
+        self.monitor = SafetyMonitor(SafetyLimits.from_dict(job["limits"]), self.scenario.supply_pa,
+                                     sensor_range_m=scenario.rig.stroke_m)
         # a hybrid test computes each target from the last measurement: one period at a time on every rig
         self.compiled = getattr(self.driver, "run_compiled", None) if self.hybrid is None else None
         self.windows = cycle_windows(self.scenario)
@@ -304,7 +307,7 @@ class Run:
             return status, reason
         except ServerGone:
             raise
-        except Exception:  # a bug or an unexpected error: keep what was measured, then report it (main)
+        except BaseException:  # a bug, an error, SIGTERM (Terminated): keep what was measured, then report it (main)
             self.release(self.take_produced(), pace=False)
             raise
         finally:
@@ -357,16 +360,16 @@ class Run:
         still closes the valve: ``escalate``)."""
         self.trip = trip
         self.event("limit_trip", trip.message, {"detector": trip.detector, "action": trip.action, **trip.values})
-        if trip.action == "controlled_stop" and not self.loop.stopping:
+        if trip.action == "controlled_stop" and not self.loop.stopping and not self.motion:
             self.ramp_out()
-        else:
-            self.loop.begin_command_ramp()
+        else:  # a manual move stops where it is, as on the operator's stop
+            self.loop.begin_command_ramp(at_once=trip.close_at_once)
 
     def escalate(self, trip: Trip) -> None:
         """A valve_close trip during a controlled stop: the valve closes now."""
         self.event("limit_trip", f"{trip.message}; during the controlled stop: the valve closes",
                    {"detector": trip.detector, "action": trip.action, "escalation": True, **trip.values})
-        self.loop.begin_command_ramp()
+        self.loop.begin_command_ramp(at_once=trip.close_at_once)
 
     def periods(self, n: int) -> Samples:
         """Up to n periods of the loop on the rig: one compiled call, or wait/read/step/write per period.
@@ -384,6 +387,8 @@ class Run:
                 if self.answered:
                     driver.wait_next_period()
                 m = driver.read()
+                if not self.answered:
+                    self.check_start(m)
                 if self.hybrid is not None:
                     self.hybrid.on_measurement(m, loop)
                 u, rows = loop.step(m)
@@ -391,6 +396,15 @@ class Run:
                 driver.write(u)
                 self.answered = True
         return Samples.concatenate(self.produced[first:])
+
+    def check_start(self, m: Measurement) -> None:
+        """The first reading after arming: the table must rest where the target begins (the service and the
+        command line ask the rig before; this is the check that cannot be raced), else no command is sent."""
+        start_m = self.loop.start_target_m
+        tolerance_m = self.job.get("start_tolerance_m", START_TOLERANCE_M)
+        if not abs(m.position_m - start_m) <= tolerance_m:
+            raise RigFault(f"the table reads {m.position_m * 1e3:.2f} mm at arming and the run starts at "
+                           f"{start_m * 1e3:.2f} mm (within +-{tolerance_m * 1e3:g} mm): no command was sent")
 
     def take_produced(self) -> Samples:
         rows, self.produced = Samples.concatenate(self.produced), []
@@ -519,9 +533,22 @@ def raise_priority() -> str:
         return "normal"
 
 
+class Terminated(BaseException):
+    """SIGTERM reached the worker process: the run ends where it is (the driver is disarmed on the way out)."""
+
+
+def _terminated(signum, _frame):
+    raise Terminated(f"the worker process was told to end ({signal.Signals(signum).name})")
+
+
 def main(job: dict, out, commands) -> None:
-    """Process entry point: run the job, always end with a ``finished`` message if the server is there."""
+    """Process entry point: run the job, always end with a ``finished`` message if the server is there.
+
+    Ctrl-C in the service's terminal reaches the whole process group: the worker ignores SIGINT, the service
+    shuts down and aborts the test (``interrupted``). SIGTERM ends the run at once with its reason recorded."""
     run = None
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _terminated)
     # Priority first: threads inherit it, so the outbox thread cannot hold the GIL at a lower priority while
     # the real-time control thread waits for it (a priority inversion). A short GIL switch interval lets
     # the control thread take the GIL back within 0.5 ms when it wakes.
@@ -537,11 +564,15 @@ def main(job: dict, out, commands) -> None:
                               "limit_indications": dict(run.monitor.indication_counts)})
     except ServerGone:
         return
-    except Exception as exc:  # report any failure to the server instead of dying silently
+    except (Exception, Terminated) as exc:  # report any failure to the server instead of dying silently
         pacing = run.pacing() if run is not None else {}
+        if isinstance(exc, Terminated):
+            at = f" at t = {run.loop.time_s:.3f} s" if run is not None else ""
+            status, reason = "aborted", f"{exc}{at}; the valve command was set to zero"
+        else:
+            status, reason = "failed", f"worker error: {type(exc).__name__}: {exc}"
         try:
-            outbox.send(("finished", {"status": "failed", "reason": f"worker error: {type(exc).__name__}: {exc}",
-                                      "pacing": pacing}))
+            outbox.send(("finished", {"status": status, "reason": reason, "pacing": pacing}))
         except ServerGone:
             pass
     finally:

@@ -249,6 +249,13 @@ class ClosedLoop:
         return max(0, min(int(n_periods), self.end_period - self.period))
 
     @property
+    def start_target_m(self) -> float:
+        """Where the target begins (m): where the table must rest when the loop starts."""
+        if self.table.shape[0]:
+            return float(self.table[0, 0])
+        return float(target(0.0, self.blocks)[0]) if self.blocks.shape[0] else 0.0
+
+    @property
     def last_command_v(self) -> float:
         return float(self.state[LS_LAST_U])
 

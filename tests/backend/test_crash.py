@@ -60,6 +60,26 @@ def test_killing_the_worker_aborts_the_test_and_keeps_its_data(client):
     assert wait_for(client, next_id)["status"] == "completed"
 
 
+def test_sigterm_to_the_worker_aborts_with_its_reason_and_ctrl_c_does_not_reach_it(client):
+    """Ctrl-C in the service's terminal reaches the worker too (one process group): it is the service's to
+    handle, the test runs on. SIGTERM ends the run at once, the reason recorded and the samples kept."""
+    test_id = create_and_start(client, **LONG)
+    wait_samples(client.get, test_id, 0.5)
+    pid = client.get("/api/rig").json()["state"]["worker_pid"]
+    os.kill(pid, signal.SIGINT)
+    before = wait_samples(client.get, test_id, 0.5)["time_s"]
+    wait_samples(client.get, test_id, before + 0.5)  # still running after Ctrl-C
+    assert alive(pid) and client.get(f"/api/tests/{test_id}").json()["status"] == "running"
+    os.kill(pid, signal.SIGTERM)
+    rec = wait_for(client, test_id, timeout_s=10)
+    assert rec["status"] == "aborted" and "SIGTERM" in rec["reason"], rec["reason"]
+    assert "valve command was set to zero" in rec["reason"]
+    assert rec["samples_stored"] >= 1000
+    lines = client.get(f"/api/tests/{test_id}/data.csv").text.splitlines()
+    assert len(lines) == 1 + rec["samples_stored"]
+    zero_table(client)
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

@@ -7,7 +7,7 @@ import time
 
 import numpy as np
 import pytest
-from conftest import AUTH, make_settings, sine_test, wait_for
+from conftest import AUTH, make_settings, sine_test, wait_for, zero_table
 from fastapi.testclient import TestClient
 
 from backend.app import create_app
@@ -100,3 +100,24 @@ def test_moves_are_refused_while_a_test_runs_and_beyond_the_limits(client):
     assert r.status_code == 422 and r.json()["field"] == "speed_m_per_s" and "50 mm/s" in r.json()["detail"]
     r = client.post("/api/rig/move", json={"position_m": 0.01, "isolator": "IUT_a", "supply_bar": 100})
     assert r.status_code == 401  # the operator token moves the table, nobody else
+
+
+def test_a_controlled_stop_trip_during_a_move_holds_the_table_where_it_is(client):
+    """A limit whose action is a controlled stop ends a move as the operator's stop does: where the table is,
+    never by driving it back to where the move began."""
+    limits = {"force_n": 20000.0, "actions": {"force_n": "controlled_stop"}}
+    r = move(client, 0.06, speed=0.02, limits=limits)
+    assert r.status_code == 201, r.text
+    rec = wait_for(client, r.json()["id"])
+    assert rec["status"] == "aborted" and "force limit tripped (controlled stop)" in rec["reason"], rec["reason"]
+    trip = next(e for e in rec["events"] if e["kind"] == "limit_trip")
+    y_trip = trip["values"]["displacement_m"]
+    rows = [r.split(",") for r in client.get(f"/api/tests/{rec['id']}/data.csv").text.splitlines()[1:]]
+    t = np.array([float(r[0]) for r in rows])
+    y = np.array([float(r[3]) for r in rows])
+    after = t >= trip["time_s"]
+    assert 0.005 < y_trip < 0.055
+    assert y[after].min() > y_trip - 0.001 and abs(y[-1] - y_trip) < 0.005  # held there, not back to 0
+    assert np.max(np.abs(np.diff(y[after]))) / 1e-3 < 0.05  # never faster than manual motion allows
+    assert float(rows[-1][4]) == 0.0
+    zero_table(client)

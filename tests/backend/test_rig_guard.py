@@ -6,10 +6,13 @@ test or a move while the rig says it is armed or does not answer (where its tabl
 
 from __future__ import annotations
 
+import os
+import signal
 import socket
 import subprocess
 import time
 
+import pytest
 from emulator import ISORIG, Emulator, simulate_on
 
 from backend.drivers.udp import start_position_problem
@@ -68,3 +71,50 @@ def test_a_rig_that_does_not_answer_starts_nothing(tmp_path):
     assert problem is not None and "unknown" in problem and "nothing moved" in problem
     code, summary, out = simulate_on(url, tmp_path / "run", cycles=2)
     assert code == 2 and summary is None and "unknown" in out and "Traceback" not in out, out
+
+
+def test_the_first_reading_after_arming_sends_no_command_to_a_table_off_zero(tmp_path):
+    """The probe before a start can be raced (a lost answer, another host): the worker's own check on the
+    first armed reading is the one that holds. Run past the probe, straight to the worker."""
+    from isorig.commands.rig_run import rig_job, run_job
+    from sim.engine import Scenario
+
+    emulator = Emulator(tmp_path)
+    try:
+        moved = subprocess.run([*ISORIG, "move", "--rig", emulator.url, "--position-m", "0.01",
+                                "--speed-m-per-s", "0.02"], capture_output=True, text=True, timeout=60)
+        assert moved.returncode == 0, moved.stdout + moved.stderr
+        at = emulator.fresh_status()["position_m"]
+        assert abs(at - 0.01) < 1e-3
+        _run, sent, status, reason, _wall = run_job(rig_job(emulator.url, Scenario.sine("IUT_a", 100, 0.01, 1.0, 3)))
+        assert status == "failed" and "at arming" in reason and "no command was sent" in reason, reason
+        assert len(sent.samples()) == 0
+        after = emulator.fresh_status()
+        assert after["position_m"] == pytest.approx(at, abs=2e-5) and not after["armed"]
+        assert after["counters"]["disarms"] == 2  # the move's and this run's
+    finally:
+        emulator.stop()
+
+
+def test_sigterm_to_the_worker_disarms_the_rig_before_the_watchdog_has_to(tmp_path):
+    from conftest import create_and_start, make_settings, wait_for
+    from fastapi.testclient import TestClient
+
+    from backend.app import create_app
+
+    emulator = Emulator(tmp_path)
+    try:
+        with TestClient(create_app(make_settings(tmp_path, rig=emulator.url))) as client:
+            test_id = create_and_start(client, speed=1.0, profile={"frequency_hz": 1.0, "cycles": 10})
+            deadline = time.monotonic() + 30
+            while client.get(f"/api/tests/{test_id}").json()["samples_stored"] < 500:
+                assert time.monotonic() < deadline
+                time.sleep(0.05)
+            os.kill(client.get("/api/rig").json()["state"]["worker_pid"], signal.SIGTERM)
+            rec = wait_for(client, test_id)
+            assert rec["status"] == "aborted" and "SIGTERM" in rec["reason"], rec["reason"]
+            assert rec["samples_stored"] >= 500
+        status = emulator.fresh_status()
+        assert status["counters"]["disarms"] == 1 and not status["watchdog_trips"] and not status["armed"]
+    finally:
+        emulator.stop()

@@ -15,7 +15,7 @@ from backend.safety import (
     check_block,
     make_limits,
 )
-from sim.measurement import STATUS_ARMED, STATUS_SENSOR_FAULT, STATUS_WATCHDOG
+from sim.measurement import FLAG_LOST, STATUS_ARMED, STATUS_SENSOR_FAULT, STATUS_WATCHDOG
 from sim.rig import DEFAULT_RIG
 from sim.samples import Samples
 
@@ -163,3 +163,22 @@ def test_limit_trip_stops_the_test(client, limits, detector):
     assert np.all(np.abs(np.diff(voltage)) < 0.2)  # ... without a step
     assert all(r[1] == "" for r in last)  # open loop: no target during the ramp
     assert float(data[-1].split(",")[0]) < 1.45  # the test ended early
+
+
+def test_lost_periods_do_not_fake_a_velocity():
+    """Six lost periods hold an older reading; the next fresh one is 7 periods of motion later. Read across
+    the held rows, 0.28 m/s would look like 0.39 m/s (the burst the emulator test tripped on)."""
+    limits = SafetyLimits(displacement_m=0.1, force_n=1e5, load_pressure_pa=2e7, tracking_error_m=0.05,
+                          velocity_m_per_s=0.35)
+    r = rows(40)
+    true_y = 0.28 * r["time_s"]
+    r["target_m"] = true_y
+    lost = np.zeros(40, dtype=bool)
+    lost[20:26] = True
+    r["measured_displacement_m"] = np.where(lost, true_y[19], true_y)
+    r["flags"] = np.where(lost, STATUS_ARMED | FLAG_LOST, STATUS_ARMED)
+    assert SafetyMonitor(limits, 100e5).check(r) is None
+    assert check_block(r, limits, 100e5) is None
+    r["measured_displacement_m"][32:] += 0.002  # a real jump of 2 mm in one period is still seen
+    trip = SafetyMonitor(limits, 100e5).check(r)
+    assert trip is not None and trip.detector == "velocity" and trip.index == 32
