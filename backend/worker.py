@@ -26,7 +26,6 @@ Commands from the server: ``"stop"`` and ``"abort"``.
 from __future__ import annotations
 
 import gc
-import os
 import queue
 import signal
 import sys
@@ -41,6 +40,7 @@ from sim.isolator import isolator_from_dict
 from sim.loop import CONTROL_PERIOD_S, ClosedLoop
 from sim.measurement import FLAG_LOST, Measurement
 from sim.profiles import B_CYCLES, B_TAPER, blocks_from_dicts
+from sim.realtime import raise_priority
 from sim.rig import DEFAULT_RIG
 from sim.samples import Samples
 from sim.tracking import cycle_phase, cycle_windows
@@ -50,6 +50,7 @@ from .drivers.udp import START_TOLERANCE_M
 from .safety import SafetyLimits, SafetyMonitor, Trip
 
 CHUNK_S = 0.02  # wall time per chunk: samples reach clients at most this much after they are due
+WORKER_RR_PRIORITY = 10  # below the rig emulator's 20 when both run on one machine
 CHECK_PERIODS = 10  # safety detectors run every 10 control periods (10 ms of test time)
 GIL_SWITCH_INTERVAL_S = 0.0005  # CPython's default is 5 ms, longer than the 2 ms lateness budget
 SPIN_S = 0.001  # the pacer sleeps until this long before a chunk is due, then polls the clock (~5 % of one CPU)
@@ -510,27 +511,9 @@ def run_here(job: dict, commands: AbortSwitch | None = None) -> tuple[Run, Colle
     the service's worker. Returns the run, what it sent, the final status and its reason."""
     out = Collector()
     run = Run(job, out, commands or AbortSwitch())
-    run.priority = raise_priority() if job.get("realtime", True) else "normal"
+    run.priority = raise_priority(WORKER_RR_PRIORITY) if job.get("realtime", True) else "normal"
     status, reason = run.execute()
     return run, out, status, reason
-
-
-def raise_priority() -> str:
-    """Ask the OS to schedule the control loop ahead of ordinary processes, as far as it allows.
-
-    Round-robin real-time priority if permitted (root or CAP_SYS_NICE), else a lower nice value, else
-    nothing. The loop sleeps between chunks, so a real-time priority cannot starve the machine.
-    """
-    try:
-        os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(10))
-        return "SCHED_RR 10"
-    except (AttributeError, OSError):
-        pass
-    try:
-        os.nice(-10)
-        return "nice -10"
-    except OSError:
-        return "normal"
 
 
 class Terminated(BaseException):
@@ -552,7 +535,7 @@ def main(job: dict, out, commands) -> None:
     # Priority first: threads inherit it, so the outbox thread cannot hold the GIL at a lower priority while
     # the real-time control thread waits for it (a priority inversion). A short GIL switch interval lets
     # the control thread take the GIL back within 0.5 ms when it wakes.
-    priority = raise_priority() if job.get("realtime", True) else "normal"
+    priority = raise_priority(WORKER_RR_PRIORITY) if job.get("realtime", True) else "normal"
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
     outbox = Outbox(out)
     try:

@@ -41,6 +41,7 @@ def run(args) -> int:
 
     from sim.emulator.server import EmulatorConfig, Faults, RigEmulator
     from sim.isolator import load_isolator
+    from sim.realtime import raise_priority
 
     faults = Faults(args.packet_loss_pct, args.latency_ms, args.jitter_ms, args.drop_link_after_s,
                     args.restart_after_s, args.sensor_fault, args.sensor_fault_after_s, args.supply_loss_after_s)
@@ -51,7 +52,7 @@ def run(args) -> int:
         emulator = RigEmulator(config)
     except OSError as exc:
         raise UsageError(f"isorig rig-emulator: cannot listen on {args.host}:{args.port}: {exc.strerror}") from None
-    priority = _raise_priority()
+    priority = raise_priority(20)  # above the worker's: the rig is the real-time target
     stop = lambda *_: emulator.stop()  # noqa: E731
     signal.signal(signal.SIGTERM, stop)
     signal.signal(signal.SIGINT, stop)
@@ -68,17 +69,3 @@ def run(args) -> int:
     return 0
 
 
-def _raise_priority() -> str:
-    """Round-robin real-time priority if allowed, else nice -10, else nothing: a real-time target's place."""
-    import os
-
-    try:
-        os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(20))
-        return "SCHED_RR 20"
-    except (AttributeError, OSError):
-        pass
-    try:
-        os.nice(-10)
-        return "nice -10"
-    except OSError:
-        return "normal"
