@@ -21,7 +21,9 @@ class SineProfileIn(StrictModel):
     frequency_hz: float = Field(description="frequency in Hz")
     cycles: int = Field(description="number of cycles, taper included")
     taper_cycles: int = Field(1, description="cycles of ramp-in and of ramp-out")
-    offset_m: float = Field(0.0, description="mean displacement in m")
+    offset_m: float = Field(0.0, description="mean displacement in m, approached from start_m over the first cycle")
+    start_m: float = Field(0.0, description="where the target begins, m: the table must rest there (a test about "
+                                          "the table's present position: start_m = offset_m = that position)")
 
 
 class ProtocolProfileIn(StrictModel):
@@ -184,6 +186,8 @@ class EnvelopeCheckOut(BaseModel):
     max_frequency_hz: float | None = Field(None, description="highest frequency at this amplitude (sine only)")
     max_force_n: float | None = Field(None, description="A_p P_s at this supply pressure")
     max_vertical_load_n: float | None = Field(None, description="the vertical jack's capacity, N")
+    start_position_m: float | None = Field(None, description="where the target begins: the table must rest there "
+                                           "(within the rig's start tolerance) for the test to start")
     peak_displacement_m: float | None = Field(None, description="the largest |offset| + amplitude of the profile")
     peak_velocity_m_per_s: float | None = Field(None, description="the largest 2 pi f A of the profile")
     peak_force_n: float | None = Field(None, description="upper estimate of the force the profile needs: isolator, "

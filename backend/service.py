@@ -57,6 +57,16 @@ def cycle_with_metrics(payload: dict) -> dict:
     return {**payload, "metrics": metrics, "displacement_m": d[::step].copy(), "force_n": f[::step].copy()}
 
 
+def start_position_m(job_scenario: dict) -> float:
+    """Where a job's target begins, m: a manual move's start, else the first sine block's ``start_m`` (0 for
+    every other test)."""
+    motion = job_scenario.get("motion")
+    if motion:
+        return float(motion["start_m"])
+    profile = job_scenario.get("profile") or []
+    return float(profile[0].get("start_m", 0.0)) if profile else 0.0
+
+
 def lost_periods(samples: Samples) -> int:
     """Periods whose measurement never arrived (flagged by the loop, sim.measurement.FLAG_LOST)."""
     from sim.measurement import FLAG_LOST
@@ -225,8 +235,7 @@ class RigService:
                 if test.status != "ready":
                     raise Conflict(f"test {test_id} is {test.status}; only a test with status 'ready' can start "
                                    "(create a new test to run it again)")
-                motion = test.request["job_scenario"].get("motion")
-                self._check_start_position(motion["start_m"] if motion else 0.0, test_id)
+                self._check_start_position(start_position_m(test.request["job_scenario"]), test_id)
                 job = {"test_id": test_id, "rig": test.driver, "link": self.settings.link_settings(),
                        "speed": test.speed, "scenario": test.request["job_scenario"], "limits": test.limits,
                        "realtime": self.settings.worker_realtime,
@@ -255,22 +264,21 @@ class RigService:
         self._publish_event(test_id, 0.0, "operator", f"test {test_id} started by {actor}", {"action": "start"})
 
     def _check_start_position(self, start_m: float, test_id: int) -> None:
-        """The table must rest where the target begins (0 for a test, the start of a manual move), within
-        ``rig_start_tolerance_m``: else the controller would drive it there at full flow. A UDP rig is asked
-        (one probe); the simulated rig's table is where the last test or move left it."""
+        """The table must rest where the target begins (``start_position_m``: 0 for most tests, a sine's
+        ``start_m``, the start of a manual move), within ``rig_start_tolerance_m``: else the controller would
+        drive it there at full flow. A UDP rig is asked (one probe); the simulated rig's table is where the
+        last test or move left it."""
         from .drivers import SIMULATED
+        from .drivers.udp import move_first, start_position_problem
 
         tolerance = self.settings.rig_start_tolerance_m
         if self.driver != SIMULATED:
-            from .drivers.udp import start_position_problem
-
             problem = start_position_problem(self.driver, tolerance, expected_m=start_m)
         else:
             y = self.resting_position_m() or 0.0
             problem = None if abs(y - start_m) <= tolerance else (
                 f"the table is at {y * 1e3:.2f} mm and test {test_id} starts at {start_m * 1e3:.2f} mm (within "
-                f"+-{tolerance * 1e3:g} mm): move the table to zero first (POST /api/rig/zero, the console's "
-                "Zero button); nothing moved")
+                f"+-{tolerance * 1e3:g} mm): {move_first(start_m)}; nothing moved")
         if problem is not None:
             raise Conflict(problem)
 

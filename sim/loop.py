@@ -37,7 +37,17 @@ from .controllers.base import (
     N_REPORT,
 )
 from .measurement import FLAG_LOST, FLAG_OPEN_LOOP, Measurement
-from .profiles import B_CYCLES, B_FREQUENCY, B_START, B_TAPER, SineProfile, pack_profile, profile_duration_s, target
+from .profiles import (
+    B_CYCLES,
+    B_FREQUENCY,
+    B_START,
+    B_TAPER,
+    N_BLOCK_COLUMNS,
+    SineProfile,
+    pack_profile,
+    profile_duration_s,
+    target,
+)
 from .samples import (
     _AR,
     _AS,
@@ -64,7 +74,7 @@ CONTROL_PERIOD_S = 1.0e-3
 COMMAND_RAMP_S = 0.1  # controlled stop: the valve command ramps from its last value to zero in this time
 FADE_S = 1.0  # an operator's stop of a time history: the target fades to zero over this time
 NO_TABLE = np.zeros((0, 3))
-NO_BLOCKS = np.zeros((1, 6))
+NO_BLOCKS = np.zeros((1, N_BLOCK_COLUMNS))
 
 # Loop parameters and state (packed for compiled code).
 L_DT, L_ULIM = range(2)

@@ -1,9 +1,10 @@
 """Target displacement profiles: tapered sines (and sequences of them), checked against the rig envelope.
 
 A sine block of ``cycles`` cycles has its first and last ``taper_cycles`` cycles ramped in and out
-with a raised-cosine envelope (so the target and its velocity start and end at zero). ``offset_m``
-is approached smoothly over the first cycle and then held. A profile is packed into an array of
-blocks for the compiled engine.
+with a raised-cosine envelope (so the target and its velocity start and end at zero). The target begins
+at the first block's ``start_m`` (0 by default: where the table must rest when the test starts); ``offset_m``
+is approached smoothly from it over the first cycle and then held (a test about the table's present
+position: ``start_m = offset_m``). A profile is packed into an array of blocks for the compiled engine.
 """
 
 from __future__ import annotations
@@ -28,13 +29,20 @@ class ProfileError(FieldError):
 
 @dataclass(frozen=True)
 class SineProfile:
-    """Sine displacement target: r(t) = offset + A env(t) sin(2 pi f t)."""
+    """Sine displacement target: r(t) = start + (offset - start) ramp(t) + A env(t) sin(2 pi f t), the ramp
+    raised-cosine over the first cycle (``start_m`` of the first block only: where the table rests)."""
 
     amplitude_m: float
     frequency_hz: float
     cycles: int
     taper_cycles: int = 1
     offset_m: float = 0.0
+    start_m: float = 0.0
+
+    @property
+    def reach_m(self) -> float:
+        """The largest |r| the block can ask: max(|start|, |offset|) + A."""
+        return max(abs(self.start_m), abs(self.offset_m)) + self.amplitude_m
 
     @property
     def duration_s(self) -> float:
@@ -50,20 +58,21 @@ class SineProfile:
 def blocks_from_dicts(blocks: list[dict]) -> list[SineProfile]:
     """Sine blocks from their stored form (``SineProfile.to_dict()``: a record's scenario, a job)."""
     return [SineProfile(float(b["amplitude_m"]), float(b["frequency_hz"]), int(b["cycles"]),
-                        int(b.get("taper_cycles", 0)), float(b.get("offset_m", 0.0))) for b in blocks]
+                        int(b.get("taper_cycles", 0)), float(b.get("offset_m", 0.0)), float(b.get("start_m", 0.0)))
+            for b in blocks]
 
 
 # Packed block columns.
-B_START, B_AMPLITUDE, B_FREQUENCY, B_CYCLES, B_TAPER, B_OFFSET = range(6)
-N_BLOCK_COLUMNS = 6
+B_START, B_AMPLITUDE, B_FREQUENCY, B_CYCLES, B_TAPER, B_OFFSET, B_START_M = range(7)
+N_BLOCK_COLUMNS = 7
 
 
 def pack_profile(blocks: list[SineProfile]) -> np.ndarray:
-    """One row per block: start time, amplitude, frequency, cycles, taper cycles, offset."""
+    """One row per block: start time, amplitude, frequency, cycles, taper cycles, offset, start position."""
     rows = np.zeros((len(blocks), N_BLOCK_COLUMNS))
     start = 0.0
     for i, b in enumerate(blocks):
-        rows[i] = (start, b.amplitude_m, b.frequency_hz, b.cycles, b.taper_cycles, b.offset_m)
+        rows[i] = (start, b.amplitude_m, b.frequency_hz, b.cycles, b.taper_cycles, b.offset_m, b.start_m)
         start += b.duration_s
     return rows
 
@@ -109,11 +118,12 @@ def target(t, blocks):
     amp = blocks[i, B_AMPLITUDE]
     r = amp * env * np.sin(phase)
     rdot = amp * (denv * np.sin(phase) + env * omega * np.cos(phase))
-    # offset: approached over the first cycle of the first block, then held
+    # offset: approached from the start position over the first cycle of the first block, then held
     f0 = blocks[0, B_FREQUENCY]
     ramp, dramp = _raised_cosine(t * f0)
-    r += blocks[0, B_OFFSET] * ramp
-    rdot += blocks[0, B_OFFSET] * dramp * f0
+    start = blocks[0, B_START_M]
+    r += start + (blocks[0, B_OFFSET] - start) * ramp
+    rdot += (blocks[0, B_OFFSET] - start) * dramp * f0
     return r, rdot
 
 
@@ -143,15 +153,17 @@ def force_estimate_n(block: SineProfile, rig: RigParameters, isolator: Isolator)
     friction at the test's vertical load (mu N + F_c, eq. 1), viscous force at the peak velocity and the
     table's inertia at the peak acceleration (each at its own peak, so never an underestimate)."""
     omega = 2 * math.pi * block.frequency_hz
-    reach = abs(block.offset_m) + block.amplitude_m
+    reach = block.reach_m
     return (isolator.peak_force_n(reach) + rig.friction_force_n + rig.viscous_n_s_per_m * omega * block.amplitude_m
             + rig.mass_kg * omega ** 2 * block.amplitude_m)
 
 
 def motion_summary(blocks: list[SineProfile], rig: RigParameters, isolator: Isolator) -> dict:
     """What a profile asks of the rig, for a confirmation before the valve opens: peak displacement
-    (|offset| + A), peak velocity (2 pi f A), the force estimate (``force_estimate_n``), duration and cycles."""
-    return {"peak_displacement_m": max(abs(b.offset_m) + b.amplitude_m for b in blocks),
+    (|offset| + A, or |start| + A), peak velocity (2 pi f A), the force estimate (``force_estimate_n``),
+    duration, cycles, and where the target begins (``start_position_m``: the table must rest there)."""
+    return {"start_position_m": blocks[0].start_m if blocks else 0.0,
+            "peak_displacement_m": max(b.reach_m for b in blocks),
             "peak_velocity_m_per_s": max(2 * math.pi * b.frequency_hz * b.amplitude_m for b in blocks),
             "peak_force_n": max(force_estimate_n(b, rig, isolator) for b in blocks),
             "duration_s": sum(b.duration_s for b in blocks),
@@ -166,10 +178,11 @@ def envelope_problem(block: SineProfile, rig: RigParameters, isolator: Isolator,
     the load pressure of the peak-velocity point. ``rig`` carries the test's vertical load.
     """
     a, f = block.amplitude_m, block.frequency_hz
-    reach = abs(block.offset_m) + a
+    reach = block.reach_m
     if reach > rig.stroke_m:
-        return ProfileError("amplitude_m", a, f"|offset_m| + amplitude_m <= stroke {rig.stroke_m:g} m",
-                            f"amplitude_m = {a:g} m with offset_m = {block.offset_m:g} m reaches {reach:g} m, "
+        start = f" and start_m = {block.start_m:g} m" if block.start_m else ""
+        return ProfileError("amplitude_m", a, f"max(|offset_m|, |start_m|) + amplitude_m <= stroke {rig.stroke_m:g} m",
+                            f"amplitude_m = {a:g} m with offset_m = {block.offset_m:g} m{start} reaches {reach:g} m, "
                             f"beyond the rig's stroke of +-{rig.stroke_m:g} m")
     omega = 2 * math.pi * f
     v_peak = omega * a
@@ -216,7 +229,11 @@ def validate_profile(blocks: list[SineProfile], rig: RigParameters, isolator: Is
     check_vertical_load(rig.vertical_load_n, rig)
     if not blocks:
         raise ProfileError("profile", [], "at least one block", "the profile has no sine block")
-    for b in blocks:
+    for i, b in enumerate(blocks):
+        _number("start_m", b.start_m, -rig.stroke_m, rig.stroke_m, "m")
+        if i and b.start_m:
+            raise ProfileError("start_m", b.start_m, "0 after the first block", f"start_m = {b.start_m:g} m on "
+                               f"block {i + 1}: only the first block says where the test starts")
         _number("amplitude_m", b.amplitude_m, 1e-5, rig.stroke_m, "m")
         _number("frequency_hz", b.frequency_hz, 1e-3, MAX_FREQUENCY_HZ, "Hz")
         _number("cycles", b.cycles, 1, MAX_CYCLES, "cycles", integer=True)

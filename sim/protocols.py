@@ -321,9 +321,9 @@ def load_protocol(name_or_path: str | Path) -> Protocol:
 
 
 def sine_from_dict(spec: dict) -> SineProfile:
-    """A sine block from the API form {"kind": "sine", amplitude_m, frequency_hz, cycles, taper_cycles, offset_m}
-    (numbers checked here; the rig envelope is checked by sim.profiles.validate_profile)."""
-    allowed = {"kind", "amplitude_m", "frequency_hz", "cycles", "taper_cycles", "offset_m"}
+    """A sine block from the API form {"kind": "sine", amplitude_m, frequency_hz, cycles, taper_cycles, offset_m,
+    start_m} (numbers checked here; the rig envelope is checked by sim.profiles.validate_profile)."""
+    allowed = {"kind", "amplitude_m", "frequency_hz", "cycles", "taper_cycles", "offset_m", "start_m"}
     _unknown("profile", spec, allowed)
     for key in ("amplitude_m", "frequency_hz", "cycles"):
         if key not in spec:
@@ -334,6 +334,7 @@ def sine_from_dict(spec: dict) -> SineProfile:
         cycles=_number("cycles", spec["cycles"], 1, 100_000, "cycles", integer=True),
         taper_cycles=_number("taper_cycles", spec.get("taper_cycles", 1), 0, 100_000, "cycles", integer=True),
         offset_m=_number("offset_m", spec.get("offset_m", 0.0), -1.0, 1.0, "m"),
+        start_m=_number("start_m", spec.get("start_m", 0.0), -1.0, 1.0, "m"),
     )
 
 

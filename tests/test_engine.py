@@ -25,6 +25,25 @@ def test_offset_is_held_after_first_cycle():
     assert target(2.0, blocks)[0] == pytest.approx(0.02, abs=1e-9)
 
 
+def test_a_test_can_start_where_the_table_rests():
+    """start_m: the target begins there and moves to the offset over the first cycle; start_m = offset_m runs
+    about the table's present position from the first period, velocity continuous."""
+    blocks = pack_profile([SineProfile(0.01, 1.0, 3, 1, offset_m=0.03, start_m=0.012)])
+    assert target(0.0, blocks) == (pytest.approx(0.012), pytest.approx(0.0))
+    assert target(2.0, blocks)[0] == pytest.approx(0.03, abs=1e-9)
+    held = pack_profile([SineProfile(0.01, 1.0, 3, 1, offset_m=0.012, start_m=0.012)])
+    t = np.arange(0, 3.0, 1e-3)
+    r = target_series(held, t)
+    assert r[0] == pytest.approx(0.012) and r[-1] == pytest.approx(0.012, abs=1e-6)
+    np.testing.assert_allclose(r - 0.012, target_series(pack_profile([SineProfile(0.01, 1.0, 3, 1)]), t), atol=1e-15)
+    scenario = Scenario.sine("IUT_a", 100.0, 0.01, 1.0, 3, offset_m=0.012)
+    with pytest.raises(ProfileError, match="only the first block"):
+        Scenario(scenario.isolator, scenario.supply_pa, [SineProfile(0.01, 1.0, 2, 1),
+                                                         SineProfile(0.01, 1.0, 2, 1, start_m=0.01)]).validate()
+    with pytest.raises(ProfileError, match="start_m = 0.12 m reaches 0.16 m"):
+        Scenario(scenario.isolator, scenario.supply_pa, [SineProfile(0.04, 0.1, 2, 1, start_m=0.12)]).validate()
+
+
 @pytest.mark.parametrize("kwargs, field", [
     (dict(amplitude_m=0.1, frequency_hz=1.0), "frequency_hz"),  # pump flow
     (dict(amplitude_m=0.12, frequency_hz=0.1, supply_bar=30), "amplitude_m"),  # force A_p P_s

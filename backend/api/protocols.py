@@ -20,7 +20,7 @@ def describe_protocol(name: str) -> dict:
     out["levels"] = [{**level, "amplitude_m": b.amplitude_m, "duration_s": b.duration_s,
                       "peak_velocity_m_per_s": 2 * math.pi * b.frequency_hz * b.amplitude_m}
                      for level, b in zip(out["levels"], blocks, strict=True)]
-    out["peak_displacement_m"] = max(abs(b.offset_m) + b.amplitude_m for b in blocks)
+    out["peak_displacement_m"] = max(b.reach_m for b in blocks)
     out["peak_velocity_m_per_s"] = max(level["peak_velocity_m_per_s"] for level in out["levels"])
     out["cycles_total"] = sum(b.cycles for b in blocks)
     out["duration_s"] = protocol.duration_s

@@ -290,5 +290,12 @@ def start_position_problem(url: str, tolerance_m: float = START_TOLERANCE_M, tim
     if abs(y - expected_m) <= tolerance_m:
         return None
     return (f"the table is at {y * 1e3:.2f} mm and the run starts at {expected_m * 1e3:.2f} mm (within "
-            f"+-{tolerance_m * 1e3:g} mm): move the table to zero first (POST /api/rig/zero, the console's Zero "
-            "button, or isorig move); nothing moved")
+            f"+-{tolerance_m * 1e3:g} mm): {move_first(expected_m)}; nothing moved")
+
+
+def move_first(start_m: float) -> str:
+    """What to do when the table is not where a run starts."""
+    if start_m == 0.0:
+        return "move the table to zero first (POST /api/rig/zero, the console's Zero button, or isorig move)"
+    return (f"move the table to {start_m * 1e3:.2f} mm first (POST /api/rig/move, the console's Move button, or "
+            "isorig move)")

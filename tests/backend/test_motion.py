@@ -121,3 +121,30 @@ def test_a_controlled_stop_trip_during_a_move_holds_the_table_where_it_is(client
     assert np.max(np.abs(np.diff(y[after]))) / 1e-3 < 0.05  # never faster than manual motion allows
     assert float(rows[-1][4]) == 0.0
     zero_table(client)
+
+
+def test_a_sine_can_run_about_where_the_table_rests(client):
+    """The console's offset from the table position: start_m = offset_m = where the table is. The test starts
+    there (not from zero), runs about it and ends there; the start check compares with start_m."""
+    assert wait_for(client, move(client, 0.012).json()["id"])["status"] == "completed"
+    at = client.get("/api/rig/state").json()["table_position_m"]
+    assert abs(at - 0.012) < 2e-4
+    here = {"offset_m": at, "start_m": at}
+    check = client.post("/api/tests/check", json=sine_test(profile=here)).json()
+    assert check["ok"] and check["start_position_m"] == pytest.approx(at)
+    assert check["peak_displacement_m"] == pytest.approx(at + 0.01)
+    r = client.post("/api/tests?start=true", json=sine_test(), headers=AUTH)  # from zero: refused, with what to do
+    assert r.status_code == 409 and "move the table to zero first" in r.json()["detail"]
+    r = client.post("/api/tests?start=true", json=sine_test(profile=here), headers=AUTH)
+    assert r.status_code == 201, r.text
+    rec = wait_for(client, r.json()["id"])
+    assert rec["status"] == "completed" and rec["profile"]["start_m"] == pytest.approx(at)
+    rows = [r.split(",") for r in client.get(f"/api/tests/{rec['id']}/data.csv").text.splitlines()[1:]]
+    target = np.array([float(r[1]) for r in rows])
+    assert target[0] == pytest.approx(at, abs=1e-8) and target.min() == pytest.approx(at - 0.01, abs=2e-4)
+    assert abs(client.get("/api/rig/state").json()["table_position_m"] - at) < 5e-4  # ends where it began
+    zero_table(client)
+    r = client.post("/api/tests?start=true", json=sine_test(profile=here), headers=AUTH)
+    assert r.status_code == 409 and f"move the table to {at * 1e3:.2f} mm first" in r.json()["detail"]
+    r = client.post("/api/tests?start=true", json=sine_test(profile={"start_m": 0.2}), headers=AUTH)
+    assert r.status_code == 422 and r.json()["field"].endswith("start_m")
