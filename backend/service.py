@@ -153,14 +153,15 @@ class RigService:
         """Which rig this service drives and with which link settings (what the dashboard shows)."""
         from .drivers import SIMULATED
 
+        tolerance = {"start_tolerance_m": self.settings.rig_start_tolerance_m}  # the table within this of the start
         if self.driver == SIMULATED:
-            return {"kind": "simulated", "name": "simulated rig", "url": SIMULATED,
+            return {"kind": "simulated", "name": "simulated rig", "url": SIMULATED, **tolerance,
                     "detail": "the fifth-order rig model runs in the worker, faster than real time if asked"}
         from .drivers.udp import parse_udp_url
 
         host, port = parse_udp_url(self.driver)
         link = self.settings.link_settings()
-        return {"kind": "udp", "name": self.driver, "url": self.driver, "host": host, "port": port,
+        return {"kind": "udp", "name": self.driver, "url": self.driver, "host": host, "port": port, **tolerance,
                 "control_period_s": link["period_s"], "link_timeout_s": link["timeout_s"],
                 "arm_timeout_s": link["arm_timeout_s"], "protocol": "isorig rig protocol v1 (docs/rig-protocol.md)"}
 
