@@ -5,6 +5,7 @@
 // asked from any console arrives as an event), the trip banner with the action taken, and what the console
 // knows of the test (js/state.js) for the strip and the form.
 
+import { EarthquakeLive } from "./eqlive.js";
 import { LoopPlot, PlotStack, TimePlot } from "./plots.js";
 import { actionName, actionOf, LIMITS } from "./limits.js";
 import { changed, isMove, state } from "./state.js";
@@ -124,6 +125,7 @@ export class LiveView {
     this.cyc = emptyExtremes(0);
     this.readoutAt = 0;
     this.events = []; // [{key, e}] in order
+    this.eq = new EarthquakeLive(); // a time-history or hybrid test: the whole record, drifts, stability
     onUnits(() => this.onUnitsChanged());
   }
 
@@ -169,6 +171,7 @@ export class LiveView {
     window.__isorigPlots = () => ({
       disp: p.disp.describe(), volt: p.volt.describe(), err: p.err.describe(), adapt: p.adapt.describe(),
       adaptNote: $("adapt-note").textContent, loop: { x: p.loop.xLabel, y: p.loop.yLabel },
+      earthquake: this.eq.describe(),
     });
     this.dirty = true;
   }
@@ -214,6 +217,7 @@ export class LiveView {
       [toDisplay("length", 1e-3), toDisplay("force", 1e3)]);
     this.cyc = emptyExtremes(this.cycleStart);
     this.createPlots();
+    this.eq.onUnitsChanged();
     this.renderHead();
     this.renderMargins(true);
     this.renderEvents();
@@ -265,6 +269,7 @@ export class LiveView {
     p.err.update(a.t, this.modelIsTarget ? [a.e_r] : [a.e_ym, a.e_r], i0, i1, xMin, xMax);
     p.loop.setCurrent(a.y, a.f, Math.min(this.cycleStart, i1), i1);
     p.loop.draw();
+    this.eq.render(this.tDisp, now, FINAL.has(this.status));
     this.readouts(i1, now);
     metrics.loopCycles = p.loop.past.length;
     metrics.loopPoints = Math.max(0, i1 - Math.min(this.cycleStart, i1));
@@ -492,6 +497,7 @@ export class LiveView {
   }
 
   setProfile(test) {
+    this.eq.setTest(this.testId, test);
     let profile = test && (test.profile || (test.scenario && test.scenario.profile));
     if (Array.isArray(profile)) profile = profile[0];
     this.offset = profile && profile.offset_m ? toDisplay("length", profile.offset_m) : 0;
@@ -510,6 +516,7 @@ export class LiveView {
     const ff = factorIn("force", this.sys);
     const fp = factorIn("pressure", this.sys);
     const sc = this.adaptScale;
+    this.eq.onSamples(msg, this.lastT);
     for (const row of msg.rows) {
       const t = row[it];
       if (!(t > this.lastT)) continue; // history replay after a reconnect: skip what we have
@@ -566,7 +573,10 @@ export class LiveView {
     }
     if (msg.status === "failed") state.faulted = msg.reason || "the test failed";
     setStatusBadge(state.stopping && msg.status === "running" ? "stopping" : msg.status);
-    if (msg.cycle !== undefined && msg.cycle !== null) {
+    if (msg.stability) this.eq.onStability(msg.stability);
+    if (this.eq.kind) {
+      $("l-cycle").textContent = `none (${this.eq.kind === "hybrid" ? "a hybrid simulation" : "a time history"})`;
+    } else if (msg.cycle !== undefined && msg.cycle !== null) {
       $("l-cycle").textContent = msg.cycles_total ? `${msg.cycle} / ${msg.cycles_total}` : String(msg.cycle);
     }
     if (typeof msg.progress === "number") {
@@ -620,6 +630,7 @@ export class LiveView {
     if (this.events.length > 300) this.events.shift();
     this.noteEnding(e);
     if (e.kind === "rig_fault") state.faulted = e.message || "rig fault";
+    this.eq.onEvent(e);
     this.renderEvents();
     if (e.kind === "limit_indicate") this.renderMargins(false);
     if (e.kind === "limit_trip" && alert) showAlert(`LIMIT TRIP (test ${e.test_id ?? this.testId}): ${this.tripText()}`, "bad");
@@ -667,7 +678,10 @@ export class LiveView {
     const keys = new Set(fromRecord.map((x) => x.key));
     const live = this.events.filter((x) => !keys.has(x.key));
     this.events = [...fromRecord, ...live].slice(-300);
-    for (const { e } of fromRecord) this.noteEnding(e);
+    for (const { e } of fromRecord) {
+      this.noteEnding(e);
+      this.eq.onEvent(e);
+    }
     this.renderEvents();
     this.renderMargins(false);
   }
@@ -699,6 +713,7 @@ export class LiveView {
       if (!rec || this.testId !== testId) return;
       this.test = { ...this.test, ...rec };
       state.test = this.test;
+      this.eq.onRecord(rec);
       this.mergeEvents(rec.events);
       this.renderHead();
       changed("test");

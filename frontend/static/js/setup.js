@@ -10,13 +10,14 @@
 
 import { api, ApiError, errorField, operatorPost } from "./api.js";
 import { confirmDialog, summaryTable } from "./dialogs.js";
+import { EarthquakeForm, G } from "./earthquake.js";
 import { actionHelp, actionName, actionOf, ACTION_ORDER, DEFAULT_ACTION, LIMITS, limitValue, setActionHelp } from "./limits.js";
 import { ManualMotion } from "./manual.js";
 import { parseNumber } from "./parse.js";
 import { fmtPeriod, rigKind } from "./rig.js";
 import { changed, isMove, onState, runName, sourceWords, state, tablePosition, testRunning } from "./state.js";
 import { el, fmtDuration, showAlert } from "./ui.js";
-import { fmt, fmtU, inputText, onUnits, sigDigits, toSI, unit } from "./units.js";
+import { fmt, fmtU, inputText, onUnits, sigDigits, toDisplay, toSI, unit } from "./units.js";
 
 const $ = (id) => document.getElementById(id);
 const num = (v) => typeof v === "number" && Number.isFinite(v);
@@ -91,7 +92,8 @@ export class SetupPanel {
     this.refusal = null; // {cause, text}: a refused action, cleared when its cause is gone
     this.locked = false;
     this.lockedTestId = null;
-    this.fields = this.fieldSpecs();
+    this.eq = new EarthquakeForm(this); // time history and hybrid simulation (js/earthquake.js)
+    this.fields = { ...this.fieldSpecs(), ...this.eq.fieldSpecs() };
     this.manual = new ManualMotion(this);
   }
 
@@ -135,6 +137,12 @@ export class SetupPanel {
     return $("f-profile").value === "sine";
   }
 
+  /** Does a field apply to the motion chosen (a sine's fields to a sine, a hybrid test's to a hybrid test)? */
+  applies(spec) {
+    if (spec.sine) return this.isSine();
+    return spec.when ? spec.when() : true;
+  }
+
   /** Parse one field: updates this.values[key] and its message; returns the problem text or "". */
   readField(key) {
     const spec = this.fields[key];
@@ -147,7 +155,7 @@ export class SetupPanel {
     let si;
     if (r.empty) {
       si = null;
-      if (spec.required && !(spec.sine && !this.isSine())) problem = "required";
+      if (spec.required && this.applies(spec)) problem = "required";
     } else if (!r.ok) {
       si = undefined;
       problem = r.error;
@@ -192,9 +200,24 @@ export class SetupPanel {
       if (key === "taper_cycles") text += " (at most half the cycles)";
       if (key === "offset") text += "; empty: 0 (the sine runs about zero); reached during the first cycle";
       if (key === "speed" && this.realTimeOnly) text = "";
+      if (key === "eq_scale") {
+        text = this.eq.fromGroundMotion() ? `${text} (times the ground acceleration)` : `${text} (times the displacement)`;
+      }
+      if (spec.quantity === "mass" || (spec.storey !== undefined && spec.quantity === "stiffness")) {
+        const shown = toDisplay(spec.quantity, hi);
+        text = `above 0, at most ${shown >= 1e5 ? shown.toExponential(0).replace("+", "") : fmt(spec.quantity, hi)} ${unit(spec.quantity)}`;
+      }
+      if (key === "eq_mass") {
+        const load = num(this.values.vertical_load) ? this.values.vertical_load : this.defaultVerticalLoad().value;
+        text += `; empty: the vertical load / g = ${fmtU("mass", load / G)}`;
+      }
+      if (spec.when && !spec.limit && spec.placeholder) {
+        input.placeholder = fmt(spec.quantity, spec.placeholder(), { sig: 6 });
+        text += `; empty: ${fmtU(spec.quantity, spec.placeholder(), { sig: 6 })}`;
+      }
       if (key === "vertical_load") {
         const d = this.defaultVerticalLoad();
-        text += `; empty: ${fmtU("force", d.value, { sig: 6 })}${d.iso ? " (the isolator's design load)" : ""}`;
+        text += `; empty: ${fmtU("force", d.value, { sig: 6 })}${d.iso ? " (the isolator's design load)" : d.building ? " (the building's weight)" : ""}`;
         input.placeholder = fmt("force", d.value, { sig: 6 });
       }
       if (spec.limit) {
@@ -215,6 +238,8 @@ export class SetupPanel {
 
   defaultVerticalLoad() {
     const env = (this.rig && this.rig.envelope) || {};
+    const building = this.eq.totalMass(this.values); // a hybrid test runs under the building's weight
+    if (num(building)) return { value: building * G, building: true };
     const iso = this.isolators.find((i) => i.name === $("f-isolator").value) || {};
     if (num(iso.design_vertical_load_n)) return { value: iso.design_vertical_load_n, iso: true };
     return { value: num(env.vertical_load_n_default) ? env.vertical_load_n_default : 125e3, iso: false };
@@ -246,8 +271,9 @@ export class SetupPanel {
     const problems = {};
     for (const key of Object.keys(this.fields)) {
       const p = this.readField(key);
-      if (p && !(this.fields[key].sine && !this.isSine())) problems[key] = p;
+      if (p && this.applies(this.fields[key])) problems[key] = p;
     }
+    Object.assign(problems, this.eq.problems()); // a record file that could not be read, its unit
     for (const input of document.querySelectorAll("#controller-options-fields input[data-option]")) {
       const p = this.readOption(input);
       if (p) problems[`option ${input.dataset.option}`] = p;
@@ -259,6 +285,7 @@ export class SetupPanel {
 
   async init() {
     await Promise.all([this.loadRig(), this.loadIsolators(), this.loadProtocols()]);
+    this.eq.init();
     this.renderFieldMeta();
     this.restoreDraft();
     this.readAll();
@@ -278,6 +305,8 @@ export class SetupPanel {
       if (ev.target.closest("#iso-form") || ev.target.closest("#manual-motion")) return;
       if (ev.target.id === "f-isolator") this.showIsolator();
       if (ev.target.id === "f-profile") this.showProfile();
+      if (["f-eq_source", "f-eq_acc_unit", "f-eq_preset"].includes(ev.target.id)) this.eq.show();
+      if (ev.target.type === "file") return; // read first (js/earthquake.js), then formChanged
       if (ev.target.id === "f-controller") this.showControllerOptions();
       if (ev.target.dataset.limit) this.showActionHelp();
       this.formChanged();
@@ -416,6 +445,8 @@ export class SetupPanel {
       sel.append(el("option", { value: `protocol:${p.name}`,
         text: `protocol ${p.name} (${figures.filter(Boolean).join(", ") || "duration not given"})` }));
     }
+    sel.append(el("option", { value: "history", text: "time history (earthquake: ground motion or displacement record)" }));
+    sel.append(el("option", { value: "hybrid", text: "hybrid simulation (RTHS: a building on the isolator, a ground motion)" }));
     if ([...sel.options].some((o) => o.value === keep)) sel.value = keep;
     $("profile-note").textContent = this.protocolError;
   }
@@ -428,8 +459,9 @@ export class SetupPanel {
   /** The chosen protocol: its title, what it is for, every level and the whole (duration, cycles, peaks). */
   showProfile() {
     const p = this.protocol();
-    $("sine-fields").classList.toggle("hidden", Boolean(p));
-    $("offset-row").classList.toggle("hidden", Boolean(p));
+    $("sine-fields").classList.toggle("hidden", !this.isSine());
+    $("offset-row").classList.toggle("hidden", !this.isSine());
+    this.eq.show();
     const info = $("protocol-info");
     info.classList.toggle("hidden", !p);
     info.innerHTML = "";
@@ -742,10 +774,10 @@ export class SetupPanel {
     const problems = this.readAll();
     const v = this.values;
     const p = this.protocol();
-    const profile = p ? { kind: "protocol", name: p.name } : {
+    const profile = this.eq.kind() ? this.eq.profile(v) : p ? { kind: "protocol", name: p.name } : {
       kind: "sine", amplitude_m: v.amplitude, frequency_hz: v.frequency, cycles: v.cycles, taper_cycles: v.taper_cycles,
     };
-    if (!p && num(v.offset) && v.offset !== 0) profile.offset_m = v.offset;
+    if (this.isSine() && num(v.offset) && v.offset !== 0) profile.offset_m = v.offset;
     const body = {
       isolator: $("f-isolator").value,
       supply_bar: num(v.supply) ? v.supply / BAR : null,
@@ -815,7 +847,7 @@ export class SetupPanel {
   /** The part of the body the envelope depends on (who and notes are not checked against the rig). */
   static checkKey(body) {
     const { specimen_id: _s, operator_name: _o, notes: _n, ...rest } = body;
-    return JSON.stringify(rest);
+    return JSON.stringify(rest, (k, v) => (Array.isArray(v) && v.length > 64 ? `[record ${recordId(v)}]` : v));
   }
 
   scheduleCheck(delay = 250) {
@@ -884,7 +916,8 @@ export class SetupPanel {
       isolator: "f-isolator", controller: "f-controller", displacement_m: "f-lim_displacement",
       force_n: "f-lim_force", tracking_error_m: "f-lim_tracking", load_pressure_pa: "f-lim_pressure",
       velocity_m_per_s: "f-lim_velocity", name: "f-profile", profile: "f-profile" };
-    const target = /(^|\.)actions\./.test(String(field)) ? this.actionSelect(key) : $(map[key]);
+    const target = this.eq.fieldInput(field) ||
+      (/(^|\.)actions\./.test(String(field)) ? this.actionSelect(key) : $(map[key]));
     if (target) target.classList.add("invalid", "service-invalid");
   }
 
@@ -924,6 +957,8 @@ export class SetupPanel {
         $("f-profile").append(el("option", { value: `protocol:${p.name}`, text: `protocol ${p.name}` }));
       }
       $("f-profile").value = `protocol:${p.name}`;
+    } else if (p.kind === "history" || p.kind === "hybrid") {
+      this.eq.follow(p);
     } else if (p.kind === "sine") {
       $("f-profile").value = "sine";
       this.setField("amplitude", p.amplitude_m);
@@ -1056,7 +1091,9 @@ export class SetupPanel {
     if (this.locked) return;
     const draft = { values: {}, isolator: $("f-isolator").value, profile: $("f-profile").value,
       controller: $("f-controller").value, specimen_id: $("f-specimen_id").value,
-      operator_name: $("f-operator_name").value, notes: $("f-notes").value, actions: this.actions() };
+      operator_name: $("f-operator_name").value, notes: $("f-notes").value, actions: this.actions(),
+      eq: { source: $("f-eq_source").value, preset: $("f-eq_preset").value, unit: $("f-eq_acc_unit").value,
+        storeys: this.eq.storeys } }; // a record file is not kept: it is chosen again after a reload
     for (const [key, v] of Object.entries(this.values)) if (num(v) || v === null) draft.values[key] = v;
     try { localStorage.setItem(DRAFT_KEY, JSON.stringify(draft)); } catch { /* not kept */ }
   }
@@ -1072,6 +1109,11 @@ export class SetupPanel {
       this.showControllerOptions();
     }
     for (const k of ["specimen_id", "operator_name", "notes"]) if (typeof draft[k] === "string") $(`f-${k}`).value = draft[k];
+    const eq = draft.eq || {};
+    for (const [id, v] of [["f-eq_source", eq.source], ["f-eq_preset", eq.preset], ["f-eq_acc_unit", eq.unit]]) {
+      if (v && [...$(id).options].some((o) => o.value === v)) $(id).value = v;
+    }
+    if (Number.isInteger(eq.storeys) && eq.storeys > 0) this.eq.setStoreys(eq.storeys);
     for (const [key, v] of Object.entries(draft.values || {})) {
       if (this.fields[key] && !(key === "speed" && this.realTimeOnly)) this.setField(key, v);
     }
@@ -1162,6 +1204,9 @@ export class SetupPanel {
         `${num(off) ? ` about ${fmtU("length", off, { sign: true })}` : ""}`,
         `${body.profile.cycles} cycles, ${body.profile.taper_cycles} taper` +
         `${num(off) ? "; the target starts at zero and reaches the offset during the first cycle" : ""}`]);
+    } else if (this.eq.kind()) {
+      const check = this.lastCheck.key === SetupPanel.checkKey(body) ? this.lastCheck.data : null;
+      rows.push(...this.eq.summaryRows(body, check));
     } else {
       const p = this.protocol() || {};
       rows.push(["motion", `protocol ${body.profile.name}`, Array.isArray(p.levels)
@@ -1172,14 +1217,16 @@ export class SetupPanel {
       const maxF = this.lastCheck.data && this.lastCheck.data.max_force_n;
       const by = m.source === "service" ? "" : " (worked out in this console from the motion: the service's check gave no figures)";
       rows.push(["peak displacement", `\u00b1${fmtU("length", m.d)}`, `stroke \u00b1${fmtU("length", this.rig.envelope.stroke_m, { sig: 4 })}${by}`]);
-      rows.push(["peak velocity", fmtU("velocity", m.v), `2 pi f A${by}`]);
+      const eq = Boolean(this.eq.kind());
+      if (eq) rows[rows.length - 1][2] = `the target's largest |r|, sample by sample (${rows[rows.length - 1][2]})`;
+      rows.push(["peak velocity", fmtU("velocity", m.v), eq ? "the target's largest |r'|" : `2 pi f A${by}`]);
       rows.push(num(m.f)
         ? ["peak force (estimate)", `about ${fmtU("force", m.f, { sig: 3 })}`, "the service's upper estimate: isolator, " +
           "guide friction at the vertical load, viscous and inertia forces" +
           (num(maxF) ? `; the actuator gives ${fmtU("force", maxF, { sig: 3 })} at this pressure` : "")]
         : ["peak force (estimate)", "not available", "the service's check gave no force estimate"]);
       const wall = m.duration / (body.speed || 1);
-      rows.push(["duration", fmtDuration(m.duration), `${num(m.cycles) ? `${m.cycles} cycles, ` : ""}` +
+      rows.push(["duration", fmtDuration(m.duration), `${num(m.cycles) && m.cycles > 0 ? `${m.cycles} cycles, ` : ""}` +
         (body.speed !== 1 ? `test time; ${fmtDuration(wall)} wall time at ${body.speed}x` : "real time")]);
     } else {
       rows.push(["peak figures", "not available", "the service gave none and this console cannot work them out"]);
@@ -1291,6 +1338,13 @@ export class SetupPanel {
       this.refuse("form", `Stop refused: ${e.message}`);
     }
   }
+}
+
+const RECORD_IDS = new WeakMap(); // an inline record (array) of a file read: one id per array, for checkKey
+let recordSeq = 0;
+function recordId(array) {
+  if (!RECORD_IDS.has(array)) RECORD_IDS.set(array, ++recordSeq);
+  return RECORD_IDS.get(array);
 }
 
 /** The id of the test the rig runs now: from the live stream, else asked from the API. */

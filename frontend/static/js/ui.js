@@ -23,11 +23,26 @@ export function profileText(t) {
     return `manual move ${fmtU("length", p.start_m, { sign: true })} to ${fmtU("length", p.end_m, { sign: true })} ` +
       `at ${fmtU("velocity", p.speed_m_per_s)}`;
   }
+  if (p.kind === "history" || p.kind === "hybrid") return earthquakeText(p);
   if (p.kind === "sine" || p.amplitude_m !== undefined) {
     const off = typeof p.offset_m === "number" && p.offset_m !== 0 ? ` about ${fmtU("length", p.offset_m, { sign: true })}` : "";
     return `sine ${fmtU("length", p.amplitude_m)} at ${fmtU("frequency", p.frequency_hz)} x ${p.cycles}${off}`;
   }
   return p.kind || "-";
+}
+
+/** An earthquake test's profile (the record's description) in words: "time history: near_field_short x 0.5 (0:15)". */
+function earthquakeText(p) {
+  const gm = p.ground_motion || {};
+  const scale = typeof p.scale === "number" ? ` x ${p.scale}` : "";
+  const dur = typeof p.duration_s === "number" ? ` (${fmtDuration(p.duration_s)})` : "";
+  const motion = gm.preset ? gm.preset : gm.inline ? `a ground motion record (${gm.samples} samples, ${gm.units})` : "a ground motion";
+  if (p.kind === "hybrid") {
+    const n = p.structure && Array.isArray(p.structure.masses_kg) ? p.structure.masses_kg.length : "?";
+    return `hybrid (RTHS): ${n}-storey building, ${motion}${scale}${dur}`;
+  }
+  if (p.displacement) return `time history: a displacement record (${p.displacement.samples} samples)${scale}${dur}`;
+  return `time history: ${motion}${scale}${dur}`;
 }
 
 export function setStatusBadge(status) {

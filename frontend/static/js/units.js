@@ -23,6 +23,9 @@ const QUANTITIES = {
   ratio: { lab: ["-", 1], si: ["-", 1], sig: 4 },
   percent: { lab: ["%", 100], si: ["%", 100], res: 1e-4 },
   angle: { lab: ["deg", 1], si: ["deg", 1], res: 0.01 },
+  // an earthquake test's building and ground motion: kg and m/s2 in both systems (no lab unit of its own)
+  mass: { lab: ["kg", 1], si: ["kg", 1], sig: 5 },
+  acceleration: { lab: ["m/s2", 1], si: ["m/s2", 1], sig: 3 },
 };
 
 export const SYSTEMS = {
