@@ -206,13 +206,24 @@ def test_manual_motion_limits_refusals_units_and_offset(server, open_page, artif
     offset = round(at * 1e5) / 1e5
     assert abs(float(page.input_value("#f-offset")) - offset * 1e3) < 1e-9, page.input_value("#f-offset")
     assert page.inner_text("#offset-note").startswith(f"set from the table position {at * 1e3:+.2f} mm "
-                                                      f"(where test {move['id']} left it)")
-    _wait(lambda: any(abs(c["profile"].get("offset_m", 0) - offset) < 1e-12 for c in page.evaluate("window.__checks")),
-          10, "the envelope check with the offset")
+                                                      f"(where test {move['id']} left it): the test starts there")
+
+    def taken(c):
+        p = c["profile"]
+        return abs(p.get("offset_m", 0) - offset) < 1e-12 and abs(p.get("start_m", 0) - offset) < 1e-12
+
+    _wait(lambda: any(taken(c) for c in page.evaluate("window.__checks")), 10,
+          "the envelope check with the offset and the start where the table rests")
     page.wait_for_selector("#envelope[data-state='ok']", timeout=10000)
-    # every target of the service begins at zero: Start still needs the table there
-    assert page.is_disabled("#start") and "the table at zero" in page.inner_text("#start-why")
+    # the test starts where the table rests (start_m): the table is where it must be, so Start is not held
+    # back by it
+    _wait(lambda: "the table at" not in page.inner_text("#start-why"), 10, "Start no longer waiting for the table")
+    assert page.get_attribute("#rig-warning", "data-state") == "ok" and not page.is_visible("#rig-warning")
     page.locator("#offset-row").scroll_into_view_if_needed()
     page.screenshot(path=str(artifacts / "dashboard_offset_from_table_1920x1080.png"))
-    page.fill("#f-offset", "")
+    # a typed offset is reached from zero: Start needs the table at zero again
+    page.fill("#f-offset", "10")
     assert page.inner_text("#offset-note") == ""
+    _wait(lambda: "the table at zero" in page.inner_text("#start-why"), 10, "Start waiting for the table at zero")
+    assert page.get_attribute("#rig-warning", "data-state") == "off-zero"
+    page.fill("#f-offset", "")

@@ -85,6 +85,7 @@ export class SetupPanel {
     this.rig = null;
     this.protocols = []; // GET /api/protocols: [{name, title, description, levels, duration_s, ...}]
     this.protocolError = "";
+    this.offsetTakenM = null; // the sine's offset taken from the table: the test starts there (start_m)
     this.checkSeq = 0;
     this.checkTimer = null;
     this.lastCheck = { ok: null, key: "", data: null };
@@ -297,7 +298,10 @@ export class SetupPanel {
         return;
       }
       if (ev.target.closest("#manual-motion")) return; // js/manual.js
-      if (ev.target.id === "f-offset") $("offset-note").textContent = "";
+      if (ev.target.id === "f-offset") {
+        $("offset-note").textContent = "";
+        this.offsetTakenM = null; // a typed offset is reached from zero
+      }
       ev.target.dataset.touched = "1";
       this.formChanged();
     });
@@ -334,6 +338,7 @@ export class SetupPanel {
     else if (!this.refusal) this.message("", ""); // "cancelled", "saved": said once, gone at the next change
     const { body, problems } = this.body();
     this.saveDraft();
+    this.renderRigWarning(); // where the test starts follows the offset (taken from the table or typed)
     // a value that is not valid is said at once (no request); who and notes do not change the envelope; an
     // unchanged set-up is not asked again (a blur's change event)
     if (Object.keys(problems).length) {
@@ -617,10 +622,19 @@ export class SetupPanel {
     const where = tablePosition();
     if (!where || where.source === "live" || where.source === "unknown") return null;
     const tol = this.startTolerance();
-    if (Math.abs(where.m) <= tol) return null;
+    const start = this.startPositionM();
+    if (Math.abs(where.m - start) <= tol) return null;
     const at = fmtU("length", where.m, { sign: true });
-    return { at, text: `the table rests at ${at} (${sourceWords(where.source)}) and a test starts only within ` +
-      `\u00b1${fmtU("length", tol, { sig: 3 })} of zero` };
+    const of = start === 0 ? "zero" : `where this test starts, ${fmtU("length", start, { sign: true })}`;
+    return { at, startM: start, text: `the table rests at ${at} (${sourceWords(where.source)}) and a test starts only within ` +
+      `\u00b1${fmtU("length", tol, { sig: 3 })} of ${of}` };
+  }
+
+  /** Where the test in the form begins (m): the table position its offset was taken from, else zero. */
+  startPositionM() {
+    const v = this.values || {};
+    const taken = this.offsetTakenM;
+    return this.isSine() && taken !== null && num(v.offset) && Math.abs(v.offset - taken) < 1e-9 ? taken : 0;
   }
 
   // ------------------------------------------------------------------------------------------ isolators
@@ -778,6 +792,10 @@ export class SetupPanel {
       kind: "sine", amplitude_m: v.amplitude, frequency_hz: v.frequency, cycles: v.cycles, taper_cycles: v.taper_cycles,
     };
     if (this.isSine() && num(v.offset) && v.offset !== 0) profile.offset_m = v.offset;
+    if (this.isSine() && profile.offset_m !== undefined && this.startPositionM() !== 0) {
+      profile.start_m = this.offsetTakenM; // taken from the table: the test starts where the table rests
+      profile.offset_m = this.offsetTakenM;
+    }
     const body = {
       isolator: $("f-isolator").value,
       supply_bar: num(v.supply) ? v.supply / BAR : null,
@@ -818,9 +836,10 @@ export class SetupPanel {
     if (!where || this.locked) return;
     const m = Math.round(where.m / 1e-5) * 1e-5;
     this.setField("offset", m === 0 ? 0 : m);
+    this.offsetTakenM = m === 0 ? null : m;
     $("offset-note").textContent = `set from the table position ${fmtU("length", where.m, { sign: true })} ` +
-      `(${sourceWords(where.source)}). The service's sine starts at zero and reaches the offset during its first ` +
-      "cycle: Start still needs the table at zero.";
+      `(${sourceWords(where.source)}): the test starts there and runs about it (a typed offset is reached ` +
+      "from zero during the first cycle).";
     this.formChanged();
   }
 
@@ -966,6 +985,7 @@ export class SetupPanel {
       this.setField("cycles", p.cycles);
       this.setField("taper_cycles", p.taper_cycles);
       this.setField("offset", num(p.offset_m) && p.offset_m !== 0 ? p.offset_m : null);
+      this.offsetTakenM = num(p.start_m) && p.start_m !== 0 && p.start_m === p.offset_m ? p.start_m : null;
     }
     if (t.controller && [...$("f-controller").options].some((o) => o.value === t.controller)) {
       $("f-controller").value = t.controller;
@@ -1022,7 +1042,8 @@ export class SetupPanel {
     if (state.linkConnected === "false") out.push("the rig is not connected");
     else if (!testRunning()) {
       const off = this.offZero();
-      if (off) out.push(`the table at zero (it rests at ${off.at}, see above: Zero brings it back)`);
+      if (off && off.startM === 0) out.push(`the table at zero (it rests at ${off.at}, see above: Zero brings it back)`);
+      else if (off) out.push(`the table at ${fmtU("length", off.startM, { sign: true })}, where this test starts (it rests at ${off.at})`);
     }
     if (!this.locked) {
       const { body, problems } = this.body();
@@ -1200,10 +1221,12 @@ export class SetupPanel {
     ];
     if (body.profile.kind === "sine") {
       const off = body.profile.offset_m;
+      const from = num(body.profile.start_m) ? `the table's ${fmtU("length", body.profile.start_m, { sign: true })}` : "zero";
       rows.push(["motion", `sine ${fmtU("length", body.profile.amplitude_m)} at ${fmtU("frequency", body.profile.frequency_hz)}` +
         `${num(off) ? ` about ${fmtU("length", off, { sign: true })}` : ""}`,
         `${body.profile.cycles} cycles, ${body.profile.taper_cycles} taper` +
-        `${num(off) ? "; the target starts at zero and reaches the offset during the first cycle" : ""}`]);
+        `${num(off) ? (off === body.profile.start_m ? "; the target starts where the table rests"
+          : `; the target starts at ${from} and reaches the offset during the first cycle`) : ""}`]);
     } else if (this.eq.kind()) {
       const check = this.lastCheck.key === SetupPanel.checkKey(body) ? this.lastCheck.data : null;
       rows.push(...this.eq.summaryRows(body, check));
