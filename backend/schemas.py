@@ -244,6 +244,7 @@ class TestOut(BaseModel):
     controller: str
     speed: float
     driver: str
+    rig: str | None = None  # the rig description the service ran with (settings.rig_file), None before they existed
     profile: dict | None
     limits: dict
     duration_s: float

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from conftest import AUTH, sine_test
+from conftest import AUTH, create_and_start, sine_test, wait_for
 
 USER_ISOLATOR = {"name": "my_lrb", "rho_bw_per_m": 200.0, "sigma_bw": 0.5, "n": 1.0, "kd_n_per_m": 9e5,
                  "kw_n": 2e4, "description": "test"}
@@ -235,3 +235,15 @@ def test_who_and_what_travel_with_the_test(client):
     assert client.get(f"/api/tests/{rec['id']}").json()["notes"] == "bearing 3 of 4, as delivered"
     r = client.post("/api/tests", json=sine_test(specimen_id="x" * 65), headers=AUTH)
     assert r.status_code == 422
+
+
+def test_the_api_schema_of_a_test_declares_every_field_of_the_record(client):
+    """One test record: store.test_record builds it for the API, the export and the report; TestOut (the
+    OpenAPI schema) must name each of its fields, so neither can grow without the other."""
+    from backend.schemas import TestOut
+
+    test_id = create_and_start(client)
+    record = wait_for(client, test_id)
+    assert set(record) == set(TestOut.model_fields)
+    documented = client.get("/openapi.json").json()["components"]["schemas"]["TestOut"]["properties"]
+    assert set(documented) == set(record)
