@@ -65,6 +65,18 @@ def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(x * x))) if x.size else float("nan")
 
 
+def closed_loop_error(samples) -> dict:
+    """RMS and peak |y - r| over the rows run in closed loop (those with a target: an open-loop valve ramp has
+    none), and the peak |valve command| there (None if unknown); {} when no row has a target."""
+    closed = np.isfinite(samples["target_m"])  # three columns only: copying whole rows of a long test is slow
+    if not closed.any():
+        return {}
+    e = samples["displacement_m"][closed] - samples["target_m"][closed]
+    u_peak = _peak_abs(samples["voltage_v"][closed])
+    return {"rms_y_minus_r_m": _rms(e), "peak_abs_y_minus_r_m": float(np.max(np.abs(e))),
+            "peak_abs_voltage_v": u_peak if math.isfinite(u_peak) else None}
+
+
 def tracking_summary(samples, scenario) -> dict:
     """Per-cycle RMS of y - y_m and y - r, and figures over the last two full-amplitude cycles.
 

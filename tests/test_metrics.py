@@ -299,3 +299,21 @@ def test_cycle_metrics_can_skip_a_cycle_with_a_failed_sensor():
     cycles = cycle_metrics(t, d, f, [0.0, 1.0, 2.0], 3.0, skip_bad=True)
     assert [("error" in c) for c in cycles] == [False, True, False]
     assert cycles[0]["k_eff_n_per_m"] == pytest.approx(1e5, rel=1e-3)
+
+
+def test_closed_loop_error_leaves_out_the_open_loop_ramp():
+    """|y - r| over the rows with a target; the valve ramp after a trip has none and is not judged."""
+    import numpy as np
+
+    from sim.samples import Samples
+    from sim.tracking import closed_loop_error
+
+    rows = Samples(np.zeros((6, len(Samples.empty().fields))))
+    rows["target_m"] = [0.0, 0.001, 0.002, 0.003, np.nan, np.nan]
+    rows["displacement_m"] = [0.0, 0.002, 0.002, 0.002, 0.05, 0.05]
+    rows["voltage_v"] = [0.0, 1.0, -2.0, 0.5, 9.0, 9.0]
+    err = closed_loop_error(rows)
+    assert err["peak_abs_y_minus_r_m"] == 0.001 and err["peak_abs_voltage_v"] == 2.0
+    assert abs(err["rms_y_minus_r_m"] - np.sqrt(2 * 0.001 ** 2 / 4)) < 1e-15
+    rows["target_m"] = np.nan
+    assert closed_loop_error(rows) == {}
