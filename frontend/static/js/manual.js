@@ -17,13 +17,12 @@ import { fmt, fmtU, inputText, onUnits, toSI, unit } from "./units.js";
 const $ = (id) => document.getElementById(id);
 const num = (v) => typeof v === "number" && Number.isFinite(v);
 const BAR = 1e5;
-// The service's manual motion (sim/motion.py): peak speed at most 50 mm/s, 5 mm/s by default; a minimum-jerk
-// move lasts 1.875 distance / peak speed (at least 0.2 s), then holds the new position for 0.5 s.
-export const MAX_SPEED_M_PER_S = 0.05;
-const DEFAULT_SPEED_M_PER_S = 0.005;
+// The service's manual motion (sim/motion.py, GET /api/rig's manual_motion): a peak speed up to a maximum, a
+// default speed, and a hold at the new position; these are what the console assumes until the rig is read.
+// A minimum-jerk move lasts 1.875 distance / peak speed (at least 0.2 s).
+const MANUAL_MOTION = { max_speed_m_per_s: 0.05, default_speed_m_per_s: 0.005, hold_s: 0.5 };
 const PEAK_VELOCITY_FACTOR = 1.875;
 const MIN_MOVE_S = 0.2;
-const HOLD_S = 0.5;
 const SPEED_KEY = "isorig.move_speed_m_per_s";
 const FINAL = new Set(["completed", "stopped", "aborted", "interrupted", "failed"]);
 
@@ -36,17 +35,24 @@ export function moveSeconds(fromM, toM, speed) {
 export class ManualMotion {
   constructor(setup) {
     this.setup = setup; // the set-up panel: isolator, supply, vertical load, limits, operator
-    this.values = { target: null, speed: DEFAULT_SPEED_M_PER_S }; // SI; null: empty, undefined: not valid
+    this.values = { target: null, speed: MANUAL_MOTION.default_speed_m_per_s }; // SI; null: empty, undefined: not valid
     this.busy = false; // a request on its way
     this.note = null; // {text, kind}: what this console last did (cancelled, refused, started)
     this.endedShown = null; // the move whose end was last said
   }
 
+  /** The service's manual-motion figures (GET /api/rig), else the console's assumption. */
+  motion() {
+    const served = (this.setup.rig && this.setup.rig.manual_motion) || {};
+    const pick = (key) => (num(served[key]) && served[key] > 0 ? served[key] : MANUAL_MOTION[key]);
+    return { max: pick("max_speed_m_per_s"), default: pick("default_speed_m_per_s"), hold: pick("hold_s") };
+  }
+
   init() {
-    let speed = DEFAULT_SPEED_M_PER_S;
+    let speed = this.motion().default;
     try {
       const stored = Number(localStorage.getItem(SPEED_KEY));
-      if (stored > 0 && stored <= MAX_SPEED_M_PER_S) speed = stored;
+      if (stored > 0 && stored <= this.motion().max) speed = stored;
     } catch { /* the default */ }
     $("f-mm_speed").value = inputText("velocity", speed);
     for (const id of ["f-mm_target", "f-mm_speed"]) {
@@ -104,7 +110,7 @@ export class ManualMotion {
       si = toSI(quantity, r.value);
       if (key === "target" && Math.abs(si) > this.reach() * (1 + 1e-12)) {
         problem = `outside the allowed range: ${this.rangeText("target")}`;
-      } else if (key === "speed" && (si <= 0 || si > MAX_SPEED_M_PER_S * (1 + 1e-12))) {
+      } else if (key === "speed" && (si <= 0 || si > this.motion().max * (1 + 1e-12))) {
         problem = `outside the allowed range: ${this.rangeText("speed")}`;
       } else if (r.comma) {
         note = `read as ${fmtU(quantity, si, { sig: 8 })}`;
@@ -119,7 +125,7 @@ export class ManualMotion {
   }
 
   rangeText(key) {
-    if (key === "speed") return `above 0, up to ${fmtU("velocity", MAX_SPEED_M_PER_S, { sig: 3 })}`;
+    if (key === "speed") return `above 0, up to ${fmtU("velocity", this.motion().max, { sig: 3 })}`;
     const reach = this.reach();
     return `${fmt("length", -reach, { sig: 6 })} to ${fmtU("length", reach, { sig: 6 })} (stroke and displacement limit)`;
   }
@@ -246,9 +252,10 @@ export class ManualMotion {
     if (where) rows.push(["distance", fmtU("length", Math.abs(target - where.m))]);
     rows.push(["peak speed", fmtU("velocity", body.speed_m_per_s, { sig: 3 }),
       "minimum-jerk: the table starts and ends at rest"]);
-    rows.push(["duration", move === null ? "not known" : move + HOLD_S < 60 ? `${(move + HOLD_S).toFixed(1)} s`
-      : fmtDuration(move + HOLD_S),
-      move === null ? "" : `${move.toFixed(1)} s moving, then ${HOLD_S} s holding the position; the valve closes at the end`]);
+    const hold = this.motion().hold;
+    rows.push(["duration", move === null ? "not known" : move + hold < 60 ? `${(move + hold).toFixed(1)} s`
+      : fmtDuration(move + hold),
+      move === null ? "" : `${move.toFixed(1)} s moving, then ${hold} s holding the position; the valve closes at the end`]);
     const load = body.vertical_load_n ?? this.setup.defaultVerticalLoad().value;
     rows.push(["isolator", body.isolator, `supply ${fmtU("pressure", body.supply_bar * BAR)}, vertical load ` +
       `${fmtU("force", load, { sig: 4 })}`]);
