@@ -246,6 +246,18 @@ class PageWatch:
 VIEWPORTS = [(1366, 768), (1920, 1080)]
 
 
+def poll(predicate, timeout_s: float, what: str, interval_s: float = 0.1):
+    """Poll ``predicate`` until it returns something true (returned), else fail saying what was awaited."""
+    deadline = time.monotonic() + timeout_s
+    last = None
+    while time.monotonic() < deadline:
+        last = predicate()
+        if last:
+            return last
+        time.sleep(interval_s)
+    raise AssertionError(f"timed out after {timeout_s} s waiting for {what} (last: {last!r})")
+
+
 def fill_identity(page, specimen: str = "E2E-SPEC-1", operator: str = "e2e operator") -> None:
     """Who and what: the console's Start needs a specimen id and the operator's name."""
     page.fill("#f-specimen_id", specimen)

@@ -10,18 +10,16 @@ import json
 import re
 import time
 
-from .harness import TOKEN, fill_identity, record_checks, shots, sine_test, start_from_form, wait_start_enabled
-
-
-def _wait(predicate, timeout_s: float, what: str, interval_s: float = 0.1):
-    deadline = time.monotonic() + timeout_s
-    last = None
-    while time.monotonic() < deadline:
-        last = predicate()
-        if last:
-            return last
-        time.sleep(interval_s)
-    raise AssertionError(f"timed out after {timeout_s} s waiting for {what} (last: {last!r})")
+from .harness import (
+    TOKEN,
+    fill_identity,
+    poll,
+    record_checks,
+    shots,
+    sine_test,
+    start_from_form,
+    wait_start_enabled,
+)
 
 
 def _checks(page) -> list[dict]:
@@ -101,7 +99,7 @@ def test_numbers_cannot_be_misread(server, open_page, artifacts):
     assert page.input_value("#f-supply") == "7"
     assert page.inner_text("[data-field='amplitude'] .unit") == "(m)"
     assert page.inner_text("[data-field='supply'] .range") == "1 to 21 MPa"
-    _wait(lambda: "(m)" in json.dumps(page.evaluate("window.__isorigPlots()")["disp"]), 5, "the plot axes in m")
+    poll(lambda: "(m)" in json.dumps(page.evaluate("window.__isorigPlots()")["disp"]), 5, "the plot axes in m")
     assert "N" in page.inner_text("#s-limits")
     page.fill("#f-amplitude", "0,02")
     assert page.inner_text("[data-field='amplitude'] .msg") == "read as 0.02 m"
@@ -147,7 +145,7 @@ def test_state_follows_the_running_test(server, open_page, browser, artifacts):
     assert re.fullmatch(r"70\.0 bar set|\d+\.\d bar \(set 70\.0\)", supply), supply
     assert page.inner_text("#s-vertical") == "125 kN"
     assert "|y-r| 20 mm" in page.inner_text("#s-limits")
-    _wait(lambda: re.fullmatch(r"[+-]?\d+\.\d\d mm \u00b7 live", page.inner_text("#s-position")), 5,
+    poll(lambda: re.fullmatch(r"[+-]?\d+\.\d\d mm \u00b7 live", page.inner_text("#s-position")), 5,
           "the table position, live")
     assert "started" in page.inner_text("#s-event").lower()
     assert page.inner_text("#l-specimen") == "B-2024-017" and page.inner_text("#l-operator") == "Ann Operator"
@@ -162,7 +160,7 @@ def test_state_follows_the_running_test(server, open_page, browser, artifacts):
     assert page.get_attribute(".margin[data-limit='tracking_error_m']", "data-max") == "20"  # the test's own limit
     assert page.get_attribute(".margin[data-limit='displacement_m']", "data-max") == "150"
     # the velocity of the current cycle: 2 pi f A = 94.2 mm/s at full amplitude (3rd of 12 cycles and on)
-    _wait(lambda: 80 < float(page.get_attribute(".margin[data-limit='velocity_m_per_s']", "data-peak")) < 110, 10,
+    poll(lambda: 80 < float(page.get_attribute(".margin[data-limit='velocity_m_per_s']", "data-peak")) < 110, 10,
           "the cycle's peak velocity near 94 mm/s")
     assert page.is_disabled("#start") and f"test #{test_id} is running" in page.inner_text("#start-why")
     assert page.is_enabled("#stop")
@@ -205,8 +203,8 @@ def test_state_follows_the_running_test(server, open_page, browser, artifacts):
     server.wait_status(test_id, {"stopped"}, timeout_s=30)
     page.wait_for_selector("#rig-status[data-status='stopped']", timeout=10000)
     page.wait_for_selector("#s-rig-cell[data-state='idle']", timeout=5000)
-    _wait(lambda: re.search(r"\u00b7 end of test \d+", page.inner_text("#s-position")), 5, "where the table stopped")
-    _wait(lambda: "stopped" in page.inner_text("#s-event").lower(), 10, "the end in the strip's last event")
+    poll(lambda: re.search(r"\u00b7 end of test \d+", page.inner_text("#s-position")), 5, "where the table stopped")
+    poll(lambda: "stopped" in page.inner_text("#s-event").lower(), 10, "the end in the strip's last event")
     assert page.is_enabled("#f-amplitude") and page.is_hidden("#form-lock")
     wait_start_enabled(page)
 

@@ -9,22 +9,11 @@ import csv
 import io
 import time
 
-from .harness import TOKEN, fill_identity, sine_test, start_from_form, wait_start_enabled
+from .harness import TOKEN, fill_identity, poll, sine_test, start_from_form, wait_start_enabled
 
 
 def _metrics(page) -> dict:
     return page.evaluate("() => ({...window.__isorig})")
-
-
-def _wait(predicate, timeout_s: float, what: str, interval_s: float = 0.1):
-    deadline = time.monotonic() + timeout_s
-    last = None
-    while time.monotonic() < deadline:
-        last = predicate()
-        if last:
-            return last
-        time.sleep(interval_s)
-    raise AssertionError(f"timed out after {timeout_s} s waiting for {what} (last: {last!r})")
 
 
 def test_operator_flow(server, open_page, artifacts):
@@ -60,9 +49,9 @@ def test_operator_flow(server, open_page, artifacts):
     assert page.evaluate("localStorage.getItem('isorig.operator_token')") == TOKEN
 
     known = {t["id"] for t in before}
-    new = _wait(lambda: {t["id"] for t in server.call("GET", "/api/tests")[1]} - known, 15, "the new test")
+    new = poll(lambda: {t["id"] for t in server.call("GET", "/api/tests")[1]} - known, 15, "the new test")
     test_id = max(new)
-    _wait(lambda: _metrics(page).get("testId") == test_id, 15, "the live view to pick up the new test")
+    poll(lambda: _metrics(page).get("testId") == test_id, 15, "the live view to pick up the new test")
     page.wait_for_selector("#rig-status[data-status='running']", timeout=15000)
     points = []
     for _ in range(6):  # the loop grows: more points in the current cycle or more finished cycles
@@ -156,7 +145,7 @@ def test_live_view_follows_test_started_through_api(server, open_page, artifacts
     page.wait_for_function(f"window.__isorig.testId === {test_id} && window.__isorig.samples > 500",
                            timeout=15000)
     assert page.inner_text("#l-test") == f"#{test_id}"
-    _wait(lambda: page.inner_text("#l-isolator") == "IUT_a", 5, "the isolator in the header")
+    poll(lambda: page.inner_text("#l-isolator") == "IUT_a", 5, "the isolator in the header")
     page.wait_for_selector("#rig-status[data-status='running']", timeout=10000)
     server.wait_status(test_id, {"completed"}, timeout_s=60)
     page.wait_for_selector("#rig-status[data-status='completed']", timeout=10000)
@@ -311,12 +300,12 @@ def test_vertical_load_is_entered_in_kn_within_the_jacks_range(server, open_page
     before = {t["id"] for t in server.call("GET", "/api/tests")[1]}
     summary = start_from_form(page)
     assert "300 kN" in summary, summary
-    _wait(lambda: {t["id"] for t in server.call("GET", "/api/tests")[1]} - before, 15, "the new test")
+    poll(lambda: {t["id"] for t in server.call("GET", "/api/tests")[1]} - before, 15, "the new test")
     test_id = max({t["id"] for t in server.call("GET", "/api/tests")[1]} - before)
     assert server.call("GET", f"/api/tests/{test_id}")[1]["vertical_load_n"] == 300e3
-    _wait(lambda: page.inner_text("#l-vertical-load") == "300 kN", 15, "the load in the live header")
+    poll(lambda: page.inner_text("#l-vertical-load") == "300 kN", 15, "the load in the live header")
     # the adapted parameters under the names and units the servo declares (GET /api/rig), one axis each
-    _wait(lambda: "flow gain ratio g (-)" in page.inner_text("#plot-adapt"), 10, "the servo's adapted names")
+    poll(lambda: "flow gain ratio g (-)" in page.inner_text("#plot-adapt"), 10, "the servo's adapted names")
     assert "learned frequency (Hz)" in page.inner_text("#plot-adapt")
     assert "valve's true flow gain" in page.inner_text("#plot-adapt")
     page.screenshot(path=str(artifacts / "dashboard_vertical_load.png"))

@@ -8,20 +8,8 @@ from __future__ import annotations
 
 import math
 import re
-import time
 
-from .harness import TOKEN, fill_identity, shots, start_from_form, wait_start_enabled
-
-
-def _wait(predicate, timeout_s: float, what: str, interval_s: float = 0.1):
-    deadline = time.monotonic() + timeout_s
-    last = None
-    while time.monotonic() < deadline:
-        last = predicate()
-        if last:
-            return last
-        time.sleep(interval_s)
-    raise AssertionError(f"timed out after {timeout_s} s waiting for {what} (last: {last!r})")
+from .harness import TOKEN, fill_identity, poll, shots, start_from_form, wait_start_enabled
 
 
 def _earthquake_plots(page) -> dict:
@@ -31,7 +19,7 @@ def _earthquake_plots(page) -> dict:
 def _envelope(page, state: str, contains: str = "", timeout_s: float = 20) -> str:
     """The envelope box once it says `state` (and `contains`): the service's answer for the set-up now."""
     page.wait_for_selector(f"#envelope[data-state='{state}']", timeout=timeout_s * 1000)
-    return _wait(lambda: (lambda t: t if contains in t else None)(page.inner_text("#envelope")), timeout_s,
+    return poll(lambda: (lambda t: t if contains in t else None)(page.inner_text("#envelope")), timeout_s,
                  f"the envelope box saying {contains!r}")
 
 
@@ -80,9 +68,9 @@ def test_time_history_from_a_preset_runs_to_completion(server, open_page, artifa
     test_id = page.evaluate("window.__isorig.testId")
     page.wait_for_selector("#eq-panel:not(.hidden)", timeout=10000)  # once the record of the running test came
     assert page.is_hidden("#stab-card") and page.is_hidden("#hy-drift-panel")
-    _wait(lambda: page.inner_text("#l-cycle") == "none (a time history)", 10, "the header saying there are no cycles")
+    poll(lambda: page.inner_text("#l-cycle") == "none (a time history)", 10, "the header saying there are no cycles")
     assert "time history: near_field_short x 0.5" in page.inner_text("#l-profile")
-    plots = _wait(lambda: (lambda d: d if d["plannedLoaded"] and d["filled"] > 100 else None)(_earthquake_plots(page)),
+    plots = poll(lambda: (lambda d: d if d["plannedLoaded"] and d["filled"] > 100 else None)(_earthquake_plots(page)),
                   20, "the planned target and measured samples in the whole-record plot")
     assert [s["label"] for s in plots["plots"]["overview"]["series"]] == ["planned target", "measured y"], plots
     assert plots["plots"]["overview"]["x"] == "test time (s)" and plots["plots"]["overview"]["y"] == "displacement (mm)"
@@ -95,7 +83,7 @@ def test_time_history_from_a_preset_runs_to_completion(server, open_page, artifa
     assert rec["specimen_id"] == "EQ-SPEC-1" and rec["speed"] == 10
     page.wait_for_selector("#rig-status[data-status='completed']", timeout=15000)
     # the whole record was drawn, to its end
-    plots = _wait(lambda: (lambda d: d if d["filled"] >= 0.97 * d["points"] else None)(_earthquake_plots(page)),
+    plots = poll(lambda: (lambda d: d if d["filled"] >= 0.97 * d["points"] else None)(_earthquake_plots(page)),
                   10, "the whole record drawn")
     assert page.evaluate("window.__isorig.loopPoints") > 0 or page.evaluate("window.__isorig.loopCycles") > 0
 
@@ -132,7 +120,7 @@ def test_hybrid_simulation_shows_drifts_and_the_stability_monitor(server, open_p
     # a bad storey mass is refused at the field, Start says which
     page.fill("#f-hy_m_1", "-5")
     assert "outside the allowed range" in page.inner_text("[data-field='hy_m_1'] .msg")
-    _wait(lambda: "hy m 1" in page.inner_text("#start-why"), 5, "Start naming the storey mass")
+    poll(lambda: "hy m 1" in page.inner_text("#start-why"), 5, "Start naming the storey mass")
     assert page.is_disabled("#start")
     page.fill("#f-hy_m_1", "3000")
     assert "Within the rig envelope" in _envelope(page, "ok")
@@ -147,7 +135,7 @@ def test_hybrid_simulation_shows_drifts_and_the_stability_monitor(server, open_p
     test_id = page.evaluate("window.__isorig.testId")
     page.wait_for_selector("#stab-card:not(.hidden)", timeout=10000)
     assert page.is_visible("#hy-drift-panel") and page.is_visible("#hy-stab-panel")
-    plots = _wait(lambda: (lambda d: d if d["drifts"] > 50 and d["stabilityPoints"] > 3 else None)(
+    plots = poll(lambda: (lambda d: d if d["drifts"] > 50 and d["stabilityPoints"] > 3 else None)(
         _earthquake_plots(page)), 20, "drifts and the monitor's indicator")
     assert plots["driftNames"] == ["drift_1_m", "drift_2_m", "drift_3_m"], plots
     assert [s["label"] for s in plots["plots"]["drift"]["series"]] == ["storey 1", "storey 2", "storey 3"]
@@ -218,13 +206,13 @@ def test_refusals_and_records_are_said_in_words(server, open_page, artifacts, tm
     assert page.is_visible("#eq-unit-row")
     page.set_input_files("#f-eq_file", str(cms))
     note = page.locator("#eq-file-note")
-    _wait(lambda: "1001 rows" in note.inner_text(), 5, "the file read")
+    poll(lambda: "1001 rows" in note.inner_text(), 5, "the file read")
     assert "read as m/s2 (assumed: the header names no unit" in note.inner_text(), note.inner_text()
     assert "the wrong unit?" in note.inner_text() and note.get_attribute("class") == "msg warn"
     text = _envelope(page, "refused", "beyond any recorded ground motion")
     assert "Refused: " in text and "cm/s2" in text and "(assumed: no units given)" in text, text
     page.select_option("#f-eq_acc_unit", "cm/s2")
-    _wait(lambda: "read as cm/s2 (chosen)" in note.inner_text(), 5, "the unit chosen")
+    poll(lambda: "read as cm/s2 (chosen)" in note.inner_text(), 5, "the unit chosen")
     _envelope(page, "ok")
 
     # the header says g, the operator chose m/s2: refused, nothing guessed
@@ -233,7 +221,7 @@ def test_refusals_and_records_are_said_in_words(server, open_page, artifacts, tm
                                                             for k in range(200)))
     page.select_option("#f-eq_acc_unit", "m/s2")
     page.set_input_files("#f-eq_file", str(g_file))
-    _wait(lambda: "the file's header names g" in note.inner_text(), 5, "the unit conflict")
+    poll(lambda: "the file's header names g" in note.inner_text(), 5, "the unit conflict")
     assert page.is_disabled("#start") and "ground motion file" in page.inner_text("#start-why")
 
     # a displacement history with a gap: refused with its line
@@ -243,7 +231,7 @@ def test_refusals_and_records_are_said_in_words(server, open_page, artifacts, tm
     page.select_option("#f-eq_source", "disp_csv")
     assert page.is_hidden("#eq-unit-row") and page.is_hidden("#eq-mass-row")
     page.set_input_files("#f-eq_file", str(gap))
-    _wait(lambda: "a gap" in note.inner_text(), 5, "the gap")
+    poll(lambda: "a gap" in note.inner_text(), 5, "the gap")
     assert "line 22: time steps from 0.19 s to 0.23 s" in note.inner_text(), note.inner_text()
     assert page.is_disabled("#start")
 
@@ -252,7 +240,7 @@ def test_refusals_and_records_are_said_in_words(server, open_page, artifacts, tm
     semi.write_text("time_s;displacement_m\n" + "\n".join(
         f"{k * 0.01:.2f};{0.01 * math.sin(math.pi * k / 200) ** 2:.5f}".replace(".", ",") for k in range(401)))
     page.set_input_files("#f-eq_file", str(semi))
-    _wait(lambda: "401 rows" in note.inner_text(), 5, "the semicolon file")
+    poll(lambda: "401 rows" in note.inner_text(), 5, "the semicolon file")
     read = note.inner_text()
     assert "decimal commas read as decimals" in read and "peak 10.00 mm" in read, read
     page.fill("#f-eq_scale", "2")

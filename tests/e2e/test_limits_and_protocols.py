@@ -8,20 +8,17 @@ from __future__ import annotations
 
 import json
 import re
-import time
 
-from .harness import TOKEN, fill_identity, record_checks, shots, sine_test, start_from_form, wait_start_enabled
-
-
-def _wait(predicate, timeout_s: float, what: str, interval_s: float = 0.1):
-    deadline = time.monotonic() + timeout_s
-    last = None
-    while time.monotonic() < deadline:
-        last = predicate()
-        if last:
-            return last
-        time.sleep(interval_s)
-    raise AssertionError(f"timed out after {timeout_s} s waiting for {what} (last: {last!r})")
+from .harness import (
+    TOKEN,
+    fill_identity,
+    poll,
+    record_checks,
+    shots,
+    sine_test,
+    start_from_form,
+    wait_start_enabled,
+)
 
 
 def _confirmation(page) -> str:
@@ -79,7 +76,7 @@ def test_limits_with_actions_reach_the_record_and_indications_show(server, open_
 
     # indications while the test goes on: counted near the margins, in words in the events
     count = page.locator(".margin[data-limit='velocity_m_per_s'] .ma")
-    _wait(lambda: int(count.get_attribute("data-count") or 0) >= 2, 10, "two indications counted")
+    poll(lambda: int(count.get_attribute("data-count") or 0) >= 2, 10, "two indications counted")
     assert re.fullmatch(r"indicated \d+\+?\u00d7", count.inner_text()), count.inner_text()
     assert page.get_attribute(".margin[data-limit='tracking_error_m']", "data-action") == "controlled_stop"
     events = page.inner_text("#live-events")
@@ -95,7 +92,7 @@ def test_limits_with_actions_reach_the_record_and_indications_show(server, open_
     kept = [e for e in rec["events"] if e["kind"] == "limit_indicate"]
     assert total >= 2 and len(kept) == min(total, 10), (total, len(kept))
     # once ended, the count is the record's (every excursion, also those beyond the 10 kept as events)
-    _wait(lambda: count.inner_text() == f"indicated {total}\u00d7", 10, f"the record's count {total}")
+    poll(lambda: count.inner_text() == f"indicated {total}\u00d7", 10, f"the record's count {total}")
     assert page.locator("#live-events li.limit_indicate").count() == len(kept)
 
     # the test page: limits grouped by action, how often each indicating limit was exceeded, the events
@@ -174,7 +171,7 @@ def test_protocols_listed_and_the_confirmation_uses_the_services_figures(server,
     # the confirmation: the service's figures for exactly this set-up
     record_checks(page)
     page.fill("#f-supply", "80")  # a change: a new check, recorded
-    _wait(lambda: page.evaluate("window.__checkAnswers.length") >= 1, 10, "the envelope check's answer")
+    poll(lambda: page.evaluate("window.__checkAnswers.length") >= 1, 10, "the envelope check's answer")
     answer = page.evaluate("window.__checkAnswers[window.__checkAnswers.length - 1]")
     assert answer["ok"] and answer["duration_s"] == 10.0, answer
     summary = _confirmation(page)

@@ -9,18 +9,7 @@ from __future__ import annotations
 import re
 import time
 
-from .harness import TOKEN, fill_identity, record_checks, shots, sine_test, wait_start_enabled
-
-
-def _wait(predicate, timeout_s: float, what: str, interval_s: float = 0.1):
-    deadline = time.monotonic() + timeout_s
-    last = None
-    while time.monotonic() < deadline:
-        last = predicate()
-        if last:
-            return last
-        time.sleep(interval_s)
-    raise AssertionError(f"timed out after {timeout_s} s waiting for {what} (last: {last!r})")
+from .harness import TOKEN, fill_identity, poll, record_checks, shots, sine_test, wait_start_enabled
 
 
 def _ids(server) -> set[int]:
@@ -28,7 +17,7 @@ def _ids(server) -> set[int]:
 
 
 def _new_record(server, known: set[int]) -> dict:
-    new = _wait(lambda: _ids(server) - known, 15, "the move's record")
+    new = poll(lambda: _ids(server) - known, 15, "the move's record")
     return server.call("GET", f"/api/tests/{max(new)}")[1]
 
 
@@ -119,7 +108,7 @@ def test_zero_and_move_from_the_console(server, open_page, artifacts):
     page.wait_for_selector("#s-rig-cell[data-state='running']", timeout=10000)
     assert page.inner_text("#s-rig-why") == f"manual move #{move['id']}"
     page.wait_for_selector("#mm-status[data-kind='running']", timeout=5000)
-    _wait(lambda: re.search(r"now \+\d+\.\d\d mm \(\d+ % of the way\)", page.inner_text("#mm-status")), 5,
+    poll(lambda: re.search(r"now \+\d+\.\d\d mm \(\d+ % of the way\)", page.inner_text("#mm-status")), 5,
           "the move's progress")
     assert re.match(rf"Moving \(manual move #{move['id']}\) [+-]?\d+\.\d\d mm to \+12\.50 mm at 5 mm/s",
                     page.inner_text("#mm-status")), page.inner_text("#mm-status")
@@ -134,7 +123,7 @@ def test_zero_and_move_from_the_console(server, open_page, artifacts):
     assert abs(_table(server) - 0.0125) < 0.0003
     page.wait_for_selector("#rig-warning[data-state='off-zero']", timeout=10000)  # no test starts there
     assert page.is_hidden("#form-lock") and page.input_value("#f-specimen_id") == "MM-1"  # the draft is back
-    _wait(lambda: re.fullmatch(rf"\+12\.\d\d mm \u00b7 end of test {move['id']} \(completed\)",
+    poll(lambda: re.fullmatch(rf"\+12\.\d\d mm \u00b7 end of test {move['id']} \(completed\)",
                                page.inner_text("#s-position")), 5, "the strip's table position")
 
 
@@ -187,7 +176,7 @@ def test_manual_motion_limits_refusals_units_and_offset(server, open_page, artif
     # a test runs: no manual motion
     running = server.start_test(sine_test(cycles=20, speed=1.0))
     page.wait_for_selector("#s-rig-cell[data-state='running']", timeout=15000)
-    _wait(lambda: f"no test running (test #{running} runs)" in page.inner_text("#mm-why"), 5, "why not now")
+    poll(lambda: f"no test running (test #{running} runs)" in page.inner_text("#mm-why"), 5, "why not now")
     assert page.is_disabled("#mm-zero") and page.is_disabled("#mm-move")
     server.call("POST", f"/api/tests/{running}/stop", token=True)
     server.wait_status(running, {"stopped"}, timeout_s=60)
@@ -212,18 +201,18 @@ def test_manual_motion_limits_refusals_units_and_offset(server, open_page, artif
         p = c["profile"]
         return abs(p.get("offset_m", 0) - offset) < 1e-12 and abs(p.get("start_m", 0) - offset) < 1e-12
 
-    _wait(lambda: any(taken(c) for c in page.evaluate("window.__checks")), 10,
+    poll(lambda: any(taken(c) for c in page.evaluate("window.__checks")), 10,
           "the envelope check with the offset and the start where the table rests")
     page.wait_for_selector("#envelope[data-state='ok']", timeout=10000)
     # the test starts where the table rests (start_m): the table is where it must be, so Start is not held
     # back by it
-    _wait(lambda: "the table at" not in page.inner_text("#start-why"), 10, "Start no longer waiting for the table")
+    poll(lambda: "the table at" not in page.inner_text("#start-why"), 10, "Start no longer waiting for the table")
     assert page.get_attribute("#rig-warning", "data-state") == "ok" and not page.is_visible("#rig-warning")
     page.locator("#offset-row").scroll_into_view_if_needed()
     page.screenshot(path=str(artifacts / "dashboard_offset_from_table_1920x1080.png"))
     # a typed offset is reached from zero: Start needs the table at zero again
     page.fill("#f-offset", "10")
     assert page.inner_text("#offset-note") == ""
-    _wait(lambda: "the table at zero" in page.inner_text("#start-why"), 10, "Start waiting for the table at zero")
+    poll(lambda: "the table at zero" in page.inner_text("#start-why"), 10, "Start waiting for the table at zero")
     assert page.get_attribute("#rig-warning", "data-state") == "off-zero"
     page.fill("#f-offset", "")
