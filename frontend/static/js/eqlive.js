@@ -8,7 +8,7 @@
 //   the detector rths_stability) turns it red with its reason.
 // Data are kept in SI and converted when drawn (a few thousand points, five times a second).
 
-import { TimePlot } from "./plots.js";
+import { lowerBound, TimePlot } from "./plots.js";
 import { fmtU, toDisplay, unit } from "./units.js";
 
 const $ = (id) => document.getElementById(id);
@@ -39,15 +39,7 @@ class Ring {
   }
 
   lowerBound(time) {
-    const t = this.a.t;
-    let lo = 0;
-    let hi = this.len;
-    while (lo < hi) {
-      const mid = (lo + hi) >> 1;
-      if (t[mid] < time) lo = mid + 1;
-      else hi = mid;
-    }
-    return lo;
+    return lowerBound(this.a.t, this.len, time);
   }
 }
 

@@ -6,7 +6,7 @@
 // knows of the test (js/state.js) for the strip and the form.
 
 import { EarthquakeLive } from "./eqlive.js";
-import { LoopPlot, PlotStack, TimePlot } from "./plots.js";
+import { LoopPlot, lowerBound, PlotStack, TimePlot } from "./plots.js";
 import { actionName, actionOf, LIMITS } from "./limits.js";
 import { changed, isMove, state } from "./state.js";
 import { eventLine, eventWords, fmtDuration, profileText, setStatusBadge, showAlert } from "./ui.js";
@@ -74,15 +74,7 @@ class Buffer {
 
   /** Index of the first sample with t >= time (binary search). */
   lowerBound(time) {
-    const t = this.a.t;
-    let lo = 0;
-    let hi = this.len;
-    while (lo < hi) {
-      const mid = (lo + hi) >> 1;
-      if (t[mid] < time) lo = mid + 1;
-      else hi = mid;
-    }
-    return lo;
+    return lowerBound(this.a.t, this.len, time);
   }
 }
 

@@ -5,6 +5,18 @@ import uPlot from "../vendor/uplot/uPlot.esm.js";
 const AXIS = "#8d99a6";
 const GRID = "#2a323b";
 
+/** Index of the first of the first len sorted times t that is >= time (binary search). */
+export function lowerBound(t, len, time) {
+  let lo = 0;
+  let hi = len;
+  while (lo < hi) {
+    const mid = (lo + hi) >> 1;
+    if (t[mid] < time) lo = mid + 1;
+    else hi = mid;
+  }
+  return lo;
+}
+
 /** "Nice" tick values covering [lo, hi] (about n ticks). */
 export function niceTicks(lo, hi, n = 6) {
   if (!(hi > lo)) return [lo];
