@@ -151,10 +151,14 @@ class Server:
 class RigEmulator:
     """`isorig rig-emulator` (an emulated real-time rig on UDP) on a free loopback port; ``url`` is its address."""
 
-    def __init__(self, *flags: str, isolator: str = "IUT_a", port: int = 0):
-        """``flags``: more options of ``isorig rig-emulator`` (e.g. ``--restart-after-s 0.6``)."""
+    def __init__(self, *flags: str, isolator: str = "IUT_a", port: int = 0, watchdog_ms: float = 100.0):
+        """``flags``: more options of ``isorig rig-emulator`` (e.g. ``--restart-after-s 0.6``). The watchdog is
+        longer than the rig's 18 ms default: these tests look at the console, with chromium, the service, its
+        worker and the emulator sharing two cores, where a host stall of 18 ms ends a run; the watchdog itself
+        is tested in tests/backend (test_udp_rig.py)."""
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "isorig", "rig-emulator", "--port", str(port), "--isolator", isolator, *flags],
+            [sys.executable, "-m", "isorig", "rig-emulator", "--port", str(port), "--isolator", isolator,
+             "--watchdog-ms", f"{watchdog_ms:g}", *flags],
             cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
         line = self.proc.stderr.readline()  # "isorig rig-emulator: udp://127.0.0.1:PORT, ..."
         match = re.search(r"udp://([\d.]+):(\d+)", line)
