@@ -98,15 +98,7 @@ def table_at_zero(request):
         return
     srv = request.getfixturevalue("server")
     deadline = time.monotonic() + 60
-    while True:
-        _, state = srv.call("GET", "/api/rig/state")
-        if state.get("status") == "idle" or time.monotonic() > deadline:
-            break
+    while srv.call("GET", "/api/rig/state")[1].get("status") != "idle" and time.monotonic() < deadline:
         time.sleep(0.2)
-    position = state.get("table_position_m")
-    if state.get("status") == "idle" and position is not None and abs(position) > 0.001:
-        code, move = srv.call("POST", "/api/rig/zero", {"speed_m_per_s": 0.05, "isolator": "IUT_b",
-                                                        "supply_bar": 70}, token=True)
-        assert code == 201, (code, move)
-        srv.wait_status(move["id"], {"completed"})
+    srv.zero_table()
     yield
