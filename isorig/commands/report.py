@@ -310,9 +310,6 @@ def _make_parallel(args, meta, out, lab):
         return bundle, report, times
     finally:
         _restore_sigterm(on_term)
-        os.close(shared)
-        data_r.close()
-        fit_r.close()
         for child in children:
             if failed:  # an error (e.g. no such test) is told at once, not after the identifier's warm-up
                 child.terminate()
@@ -320,6 +317,12 @@ def _make_parallel(args, meta, out, lab):
             if child.is_alive():
                 child.kill()
                 child.join()
+        # the receiver may still wait in recv (a SIGTERM during its join): with the loader gone it reads EOF; a
+        # pipe closed under it would end it with a traceback instead
+        receiver.join(timeout=10.0)
+        os.close(shared)
+        data_r.close()
+        fit_r.close()
 
 
 LOOP_KEYS = ("displacement_m", "force_n")
