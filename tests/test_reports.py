@@ -466,6 +466,36 @@ def test_killing_the_report_process_ends_its_children_quietly(tmp_path):
         assert not os.path.exists(f"/proc/{pid}") or open(f"/proc/{pid}/stat").read().split()[2] == "Z"
 
 
+def test_the_receiving_thread_is_never_cut_off_by_a_stop(tmp_path, capsys, monkeypatch):
+    """A stop of the report while the test is on its way (SIGTERM raises SystemExit in the main thread): the
+    children end first and the receiving thread reads to the end of its pipe before the pipe is closed; a pipe
+    closed under a half-read message ended that thread with a TypeError traceback (a CI run saw it)."""
+    import backend.reports as reports_module
+    import isorig.commands.report as report_cmd
+    from isorig.cli import main
+
+    if not report_cmd._parallel():
+        pytest.skip("one process only here")
+    seen = {}
+    receive = report_cmd._receive
+
+    def watched_receive(conn, received):
+        receive(conn, received)
+        seen["pipe_open_at_end"] = not conn.closed
+
+    def stopped():
+        raise SystemExit(143)
+
+    monkeypatch.setattr(report_cmd, "_receive", watched_receive)
+    monkeypatch.setattr(reports_module, "plot_style", stopped)
+    scenario = Scenario.sine("IUT_a", 100.0, 0.02, 1.0, 3, controller="pid", taper_cycles=1)
+    write_csv(tmp_path / "timeseries.csv", Simulation(scenario).run().samples)
+    with pytest.raises(SystemExit):
+        main(["report", "--csv", str(tmp_path / "timeseries.csv"), "--out", str(tmp_path / "r.pdf")])
+    assert seen == {"pipe_open_at_end": True}
+    assert "Traceback" not in capsys.readouterr().err
+
+
 def test_a_report_goes_on_when_the_identifier_dies_early(tmp_path, capsys, monkeypatch):
     """An identifier killed before it reads its task (out of memory, a failed import): the loader's hand-over
     fails, and the report is made without the fit, saying why."""
