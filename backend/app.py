@@ -18,7 +18,7 @@ from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
 
 from . import db, errors, store
-from .api import isolators, meta, motion, protocols, tests, ws
+from .api import ground_motions, isolators, meta, motion, protocols, tests, ws
 from .auth import load_or_create_token
 from .service import RigService
 from .settings import Settings
@@ -69,6 +69,7 @@ def create_app(settings: Settings | None = None, driver: str | None = None) -> F
     app.include_router(isolators.router)
     app.include_router(tests.router)
     app.include_router(protocols.router)
+    app.include_router(ground_motions.router)
     app.include_router(motion.router)
     app.include_router(ws.router)
     try:

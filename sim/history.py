@@ -295,8 +295,31 @@ def read_acceleration_csv(path, units: str | None = None, check_units: bool = Tr
     return t, y * UNIT_TO_M_PER_S2[chosen]
 
 
+@dataclass(frozen=True)
+class At2Record:
+    """A PEER NGA ``.AT2`` record as read: the values in the file's unit (``units``: g, or cm/s2 when the header
+    says CM/S), how that unit was known, and the header lines above the NPTS, DT line (title, event, ...)."""
+
+    time_s: np.ndarray
+    values: np.ndarray
+    units: str
+    units_how: str
+    header: tuple[str, ...]
+    dt_s: float
+
+    @property
+    def acceleration_m_per_s2(self) -> np.ndarray:
+        return self.values * UNIT_TO_M_PER_S2[self.units]
+
+
 def read_at2(path, check_units: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """(time_s, acceleration_m_per_s2) from a PEER NGA ``.AT2`` file.
+    """(time_s, acceleration_m_per_s2) from a PEER NGA ``.AT2`` file (``parse_at2`` on its text)."""
+    record = parse_at2(_read_lines(path), path, check_units)
+    return record.time_s, record.acceleration_m_per_s2
+
+
+def parse_at2(lines: list[str] | str, path="record.AT2", check_units: bool = True) -> At2Record:
+    """A PEER NGA ``.AT2`` record from its text (or its lines); ``path`` names it in the messages.
 
     Format: header lines (title, event, "ACCELERATION TIME HISTORY IN UNITS OF G"), a line with NPTS and
     DT (``NPTS=  3900, DT=   .0050 SEC``; also the older ``3900  .0050  NPTS, DT``, any order or
@@ -304,7 +327,8 @@ def read_at2(path, check_units: bool = True) -> tuple[np.ndarray, np.ndarray]:
     line with NPTS and DT is searched in the first 10 lines. Values are in g unless the header says CM/S
     (then cm/s2). Extra trailing values are accepted only if zero (padding of the last line).
     """
-    lines = _read_lines(path)
+    if isinstance(lines, str):
+        lines = lines.lstrip("\ufeff").splitlines()
     head = None
     for number, line in enumerate(lines[:10], start=1):
         up = line.upper()
@@ -370,7 +394,8 @@ def read_at2(path, check_units: bool = True) -> tuple[np.ndarray, np.ndarray]:
                            limit=f"NPTS = {npts} values")
     if check_units:
         _check_units(path, float(np.max(np.abs(values))), units, how)
-    return np.arange(npts) * dt, values * UNIT_TO_M_PER_S2[units]
+    return At2Record(time_s=np.arange(npts) * dt, values=values, units=units, units_how=how,
+                     header=tuple(line.strip() for line in lines[:head_line - 1] if line.strip()), dt_s=dt)
 
 
 def read_ground_motion(path, units: str | None = None, check_units: bool = True):
