@@ -9,11 +9,30 @@ from __future__ import annotations
 import math
 import re
 
+import pytest
+
 from .harness import TOKEN, fill_identity, poll, shots, start_from_form, wait_start_enabled
 
 
 def _earthquake_plots(page) -> dict:
     return page.evaluate("window.__isorigPlots().earthquake")
+
+
+def _criteria_on_the_test_page(server, page, test_id: int) -> dict:
+    """The test page's J criteria: one row per verdict of GET /api/tests/{id}/earthquake, its value (3 digits),
+    bound and verdict; returns that answer."""
+    page.wait_for_selector("#t-eq:not(.hidden) #t-eq-criteria tbody tr", timeout=10000)
+    eq = server.call("GET", f"/api/tests/{test_id}/earthquake?points=200")[1]
+    verdicts = eq["record"]["verdicts"]
+    rows = page.locator("#t-eq-criteria tbody tr")
+    assert rows.count() == len(verdicts)
+    for k, v in enumerate(verdicts):
+        cells = [rows.nth(k).locator("td").nth(c).inner_text() for c in range(5)]
+        assert cells[0] == v["name"] and cells[1] == v["meaning"] and cells[3] == v["bound"], cells
+        value, unit = cells[2].split()
+        assert unit == v["unit"] and float(value) == pytest.approx(v["value"], rel=0.006, abs=1e-9), (cells, v)
+        assert cells[4] == ("met" if v["met"] else "NOT met"), cells
+    return eq
 
 
 def _envelope(page, state: str, contains: str = "", timeout_s: float = 20) -> str:
@@ -96,6 +115,16 @@ def test_time_history_from_a_preset_runs_to_completion(server, open_page, artifa
     page.wait_for_selector("#t-summary .kv", timeout=10000)
     assert "time history: near_field_short x 0.5" in page.inner_text("#t-summary")
     assert page.is_visible("#t-pdf") and page.get_attribute("#t-pdf", "href") == f"/api/tests/{test_id}/report.pdf"
+    # its J criteria with their verdicts, and the measured displacement over the target
+    eq = _criteria_on_the_test_page(server, page, test_id)
+    assert [v["name"] for v in eq["record"]["verdicts"]] == ["J1", "J2", "J3"]
+    assert "judged on the whole record" in page.inner_text("#t-eq-judged")
+    plot = page.evaluate("window.__isorigEqRecord()")
+    assert [s["label"] for s in plot["series"]] == ["target r", "measured y"] and plot["y"] == "displacement (mm)"
+    assert [s["label"] for s in plot["difference"]["series"]] == ["y - r"]
+    assert "no cycles: an earthquake test is judged by its J criteria" in page.inner_text("#t-cycles")
+    assert page.is_hidden("#t-eq-peaks")
+    shots(page, artifacts, "dashboard_earthquake_test_page", full_page=True)
 
 
 def test_hybrid_simulation_shows_drifts_and_the_stability_monitor(server, open_page, artifacts):
@@ -174,6 +203,21 @@ def test_hybrid_simulation_shows_drifts_and_the_stability_monitor(server, open_p
     shots(page, artifacts, "dashboard_earthquake_hybrid_trip")
     server.zero_table()
 
+    # the completed test's page: J1-J5, each channel's peak against the reference, the reference overlay
+    page.goto(f"{server.url}/?viewer=off#/tests/{test_id}")
+    eq = _criteria_on_the_test_page(server, page, test_id)
+    assert [v["name"] for v in eq["record"]["verdicts"]] == ["J1", "J2", "J3", "J4", "J5"]
+    peaks = page.locator("#t-eq-peaks tbody tr")
+    assert peaks.count() == len(eq["record"]["structure"]["peaks"])
+    first = peaks.nth(0).inner_text()
+    assert first.startswith("base displacement") and first.count("mm") == 2 and first.endswith("%"), first
+    plot = page.evaluate("window.__isorigEqRecord()")
+    assert [s["label"] for s in plot["series"]] == ["reference base displacement (full-numerical)",
+                                                    "command r (the hybrid test's base)", "measured y"], plot
+    assert [s["label"] for s in plot["difference"]["series"]] == ["y - r", "r - reference (base displacement)"]
+    assert plot["difference"]["y"] == "difference (mm)"
+    shots(page, artifacts, "dashboard_earthquake_hybrid_test_page", full_page=True)
+
 
 def test_refusals_and_records_are_said_in_words(server, open_page, artifacts, tmp_path):
     """1366x768: near_field_short x 1 on IUT_b at 100 bar is beyond the pump: the envelope box names the sample, its
@@ -222,6 +266,32 @@ def test_refusals_and_records_are_said_in_words(server, open_page, artifacts, tm
     page.select_option("#f-eq_acc_unit", "m/s2")
     page.set_input_files("#f-eq_file", str(g_file))
     poll(lambda: "the file's header names g" in note.inner_text(), 5, "the unit conflict")
+    assert page.is_disabled("#start") and "ground motion file" in page.inner_text("#start-why")
+
+    # a PEER .AT2 file: read by the service's reader, in g; a truncated one is refused with its line
+    at2 = tmp_path / "burst.AT2"
+    values = [0.15 * math.sin(2 * math.pi * k * 0.01) * math.sin(math.pi * k / 300) ** 2 for k in range(300)]
+    body = "\n".join("".join(f"{v:15.7E}" for v in values[i:i + 5]) for i in range(0, 300, 5))
+    head = "PEER NGA STRONG MOTION DATABASE RECORD\nSYNTHETIC BURST, 1/1/2000, ISORIG, 000\n" \
+           "ACCELERATION TIME HISTORY IN UNITS OF G\nNPTS=  {n}, DT=   .0100 SEC\n"
+    at2.write_text(head.format(n=300) + body + "\n")
+    page.set_input_files("#f-eq_file", str(at2))  # the unit chosen is still m/s2
+    poll(lambda: "a PEER .AT2 file is in g" in note.inner_text(), 5, "the .AT2 unit conflict")
+    assert page.is_disabled("#start")
+    page.select_option("#f-eq_acc_unit", "auto")
+    poll(lambda: "300 values at 0.01 s" in note.inner_text(), 5, "the .AT2 file read")
+    read = note.inner_text()
+    assert "burst.AT2 (PEER .AT2: PEER NGA STRONG MOTION DATABASE RECORD, SYNTHETIC BURST" in read, read
+    assert f"; peak {max(abs(v) for v in values):.4f} g, read as g (the .AT2 file's unit)" in read, read
+    _envelope(page, "ok")
+    shots(page, artifacts, "dashboard_earthquake_at2")
+    cut = tmp_path / "cut.AT2"
+    cut.write_text(head.format(n=400) + body + "\n")
+    watch.allowed_status.add(422)
+    page.set_input_files("#f-eq_file", str(cut))
+    poll(lambda: "a truncated record" in note.inner_text(), 5, "the truncated .AT2 file")
+    assert note.inner_text().startswith("cut.AT2: line 64: the file ends after 300 values but NPTS = 400"), \
+        note.inner_text()
     assert page.is_disabled("#start") and "ground motion file" in page.inner_text("#start-why")
 
     # a displacement history with a gap: refused with its line

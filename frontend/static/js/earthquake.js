@@ -10,6 +10,7 @@
 // {time_s, displacement_m}); a file that cannot be read is refused with its line, never reinterpreted. The
 // service checks everything again (POST /api/tests/check; POST /api/tests).
 
+import { api } from "./api.js";
 import { parseNumber } from "./parse.js";
 import { el, fmtDuration } from "./ui.js";
 import { fmtU, sigDigits, unit } from "./units.js";
@@ -27,14 +28,10 @@ const PLAUSIBLE_G = [0.005, 3]; // the service refuses a peak ground acceleratio
 export const UNIT_TO_SI = { "m/s2": 1, g: G, "cm/s2": 0.01 };
 
 /**
- * The synthetic ground motions the service ships (sim/ground_motion.py GROUND_MOTIONS, docs/earthquake.md
- * section 5). The service does not list them (no route): written here, its check names anything unknown.
+ * The synthetic ground motions the service ships (GET /api/ground-motions: sim/ground_motion.py GROUND_MOTIONS,
+ * docs/earthquake.md section 5), loaded once by loadPresets: {name, duration_s, pga_g (measured), words}.
  */
-export const PRESETS = [
-  { name: "near_field_short", duration_s: 15, pga_g: 0.45, words: "strong, near-field, 1.2 s velocity pulse" },
-  { name: "far_field_long", duration_s: 45, pga_g: 0.15, words: "moderate, long far-field shaking" },
-  { name: "soft_site", duration_s: 30, pga_g: 0.2, words: "soft soil, long-period content" },
-];
+let presets = [];
 
 /** The demo building (docs/examples/structure_3_storey.json): 12.75 t in all, the rig's default load. */
 export const DEMO_BUILDING = { base_mass_kg: 4000, masses_kg: [3000, 3000, 2750],
@@ -144,6 +141,22 @@ export function parseRecordCsv(text, kind) {
     sep: { ",": "comma", ";": "semicolon (decimal comma)", "\t": "tab", " ": "spaces" }[sep], commas };
 }
 
+/**
+ * A PEER NGA .AT2 file, read by the service (POST /api/ground-motions/read-at2: the CLI's reader) into the same
+ * record as parseRecordCsv gives, its unit (g, or cm/s2 if the header says so) as the header's.
+ */
+export async function readAt2(name, text) {
+  try {
+    const r = await api.postQuiet("/api/ground-motions/read-at2", { filename: name, text });
+    return { ok: true, time_s: r.time_s, values: r.acceleration, rows: r.rows, dt: r.dt_s, duration: r.duration_s,
+      peak: r.peak, header: r.header.join(" / "), valueName: "PEER .AT2 header", timeName: "NPTS, DT",
+      headerUnit: r.units, headerLength: "", sep: "PEER .AT2", commas: false, at2: true, title: r.header.slice(0, 2).join(", ") };
+  } catch (e) {
+    const msg = e.message || String(e);
+    return { ok: false, error: msg.startsWith(name) ? msg.slice(name.length).replace(/^[:,]\s*/, "") : msg };
+  }
+}
+
 // ------------------------------------------------------------------------------------------------ the form
 
 /** Field specs of the earthquake part, merged into the set-up's (js/setup.js readField, renderFieldMeta). */
@@ -241,11 +254,17 @@ export class EarthquakeForm {
     this.setup.setField("hy_damping", b.damping_ratio);
   }
 
+  /** The shipped ground motions from the service (before init). */
+  async loadPresets() {
+    const list = await api.get("/api/ground-motions");
+    presets = list.map((g) => ({ name: g.name, duration_s: g.duration_s, pga_g: g.measured.pga_g, words: g.description }));
+  }
+
   init() {
     const sel = $("f-eq_preset");
     sel.innerHTML = "";
-    for (const p of PRESETS) {
-      sel.append(el("option", { value: p.name, text: `${p.name} (${fmtDuration(p.duration_s)}, PGA ${p.pga_g} g: ${p.words})` }));
+    for (const p of presets) {
+      sel.append(el("option", { value: p.name, text: `${p.name} (${fmtDuration(p.duration_s)}, PGA ${sigDigits(p.pga_g, 2)} g: ${p.words})` }));
     }
     this.setBuilding(DEMO_BUILDING);
     this.setup.setField("eq_scale", 0.5);
@@ -314,10 +333,19 @@ export class EarthquakeForm {
       return;
     }
     const reader = new FileReader();
-    reader.onload = () => {
-      this.files[kind] = { name: file.name, record: parseRecordCsv(reader.result, kind), seq: (this.seq = (this.seq || 0) + 1) };
+    const seq = (this.seq = (this.seq || 0) + 1);
+    const done = (record) => {
+      if (seq !== this.seq) return; // another file was chosen meanwhile
+      this.files[kind] = { name: file.name, record, seq };
       this.renderFileNote();
       this.changed();
+    };
+    reader.onload = () => {
+      if (kind === "acceleration" && /\.at2$/i.test(file.name)) {
+        this.files[kind] = { name: file.name, record: { ok: false, pending: true, error: "being read by the service..." }, seq };
+        this.renderFileNote();
+        readAt2(file.name, reader.result).then(done);
+      } else done(parseRecordCsv(reader.result, kind));
     };
     reader.onerror = () => {
       this.files[kind] = { name: file.name, record: { ok: false, error: `${file.name} could not be read` } };
@@ -371,13 +399,17 @@ export class EarthquakeForm {
     const chosen = $("f-eq_acc_unit").value;
     const header = record && record.headerUnit;
     if (chosen !== "auto") {
+      if (header && header !== chosen && record.at2) {
+        return { problem: `a PEER .AT2 file is in ${header} (its header says so) but the unit chosen is ${chosen}: ` +
+          "choose 'as the file's header says'" };
+      }
       if (header && header !== chosen) {
         return { problem: `the file's header names ${header} ('${record.valueName}') but the unit chosen is ${chosen}: ` +
           "choose the header's unit, or correct the file" };
       }
       return { units: chosen, how: "chosen" };
     }
-    if (header) return { units: header, how: `from the header '${record.valueName}'` };
+    if (header) return { units: header, how: record.at2 ? "the .AT2 file's unit" : `from the header '${record.valueName}'` };
     return { units: null, how: "assumed: the header names no unit; choose the unit if it is another" };
   }
 
@@ -405,7 +437,7 @@ export class EarthquakeForm {
     const kind = source === "disp_csv" ? "displacement" : "acceleration";
     const f = this.files[kind];
     $("eq-file-label").textContent = kind === "displacement"
-      ? "CSV file: time_s, displacement_m (m)" : "CSV file: time_s, acceleration (unit below)";
+      ? "CSV file: time_s, displacement_m (m)" : "CSV file (time_s, acceleration; unit below) or PEER .AT2 file (in g)";
     if (!f) {
       note.textContent = "no file chosen: the file is read in this browser and sent with the test";
       note.className = "msg";
@@ -414,10 +446,11 @@ export class EarthquakeForm {
     const r = f.record;
     if (!r.ok) {
       note.textContent = `${f.name}: ${r.error}`;
-      note.className = "msg bad";
+      note.className = r.pending ? "msg" : "msg bad";
       return;
     }
-    const base = `${f.name}: ${r.rows} rows at ${sigDigits(r.dt, 4)} s, ${sigDigits(r.duration, 4)} s` +
+    const base = r.at2 ? `${f.name} (PEER .AT2${r.title ? `: ${r.title}` : ""}): ${r.rows} values at ` +
+      `${sigDigits(r.dt, 4)} s, ${sigDigits(r.duration, 4)} s` : `${f.name}: ${r.rows} rows at ${sigDigits(r.dt, 4)} s, ${sigDigits(r.duration, 4)} s` +
       `${r.header ? `; columns '${r.timeName}', '${r.valueName}'` : "; no header (first two columns)"}` +
       `${r.commas ? "; decimal commas read as decimals" : ""}`;
     if (kind === "displacement") {
@@ -435,7 +468,7 @@ export class EarthquakeForm {
     const read = u.units || "m/s2";
     const g = (r.peak * UNIT_TO_SI[read]) / G;
     const plausible = g >= PLAUSIBLE_G[0] && g <= PLAUSIBLE_G[1];
-    note.textContent = `${base}; peak ${sigDigits(r.peak, 4)} ${read} = ${sigDigits(g, 3)} g, read as ${read} ` +
+    note.textContent = `${base}; peak ${sigDigits(r.peak, 4)} ${read}${read === "g" ? "" : ` = ${sigDigits(g, 3)} g`}, read as ${read} ` +
       `(${u.how})${plausible ? "" : `: a peak of ${sigDigits(g, 3)} g is outside what ground motions have ` +
       `(${PLAUSIBLE_G[0]} to ${PLAUSIBLE_G[1]} g): the wrong unit? The service will refuse it`}`;
     note.className = `msg ${plausible ? "info" : "warn"}`;
@@ -560,7 +593,7 @@ export class EarthquakeForm {
     const rows = [];
     const gmWords = () => {
       if (typeof p.ground_motion === "string") {
-        const preset = PRESETS.find((x) => x.name === p.ground_motion) || {};
+        const preset = presets.find((x) => x.name === p.ground_motion) || {};
         const info = built.ground_motion || {};
         const pga = num(info.pga_g) ? info.pga_g : preset.pga_g;
         const dur = num(info.duration_s) ? info.duration_s : preset.duration_s;

@@ -6,6 +6,7 @@
 import { api, askToken, getToken } from "./api.js";
 import { confirmDialog, summaryTable } from "./dialogs.js";
 import { indicationsText, limitsText } from "./limits.js";
+import { EarthquakeRecord } from "./eqrecord.js";
 import { LoopPlot } from "./plots.js";
 import { el, eventLine, fmtTime, profileText } from "./ui.js";
 import { factorIn, fmt, fmtU, onUnits, system, unit } from "./units.js";
@@ -62,6 +63,7 @@ export function recordAction(t) {
 export class History {
   constructor() {
     this.loopPlot = null;
+    this.eqRecord = new EarthquakeRecord(); // an earthquake test's J criteria and reference (js/eqrecord.js)
     this.current = null; // the test page's record
     $("history-filter").addEventListener("submit", (ev) => {
       ev.preventDefault();
@@ -260,6 +262,12 @@ export class History {
     } catch { /* no cycles yet */ }
     this.renderCycles(cycles);
     this.renderLoops(cycles);
+    const eqSeries = await this.eqRecord.show(t);
+    if (eqSeries && !cycles.length) { // an earthquake test has no cycles: its whole F-d history, thinned
+      this.renderLoops([{ displacement_m: eqSeries.displacement_m, force_n: eqSeries.force_n }]);
+      $("t-cycles").querySelector("tbody").append(el("tr", {}, el("td", { colspan: "10", class: "muted",
+        text: "no cycles: an earthquake test is judged by its J criteria (above); the loop plot shows its whole force-displacement history" })));
+    }
   }
 
   /** The whole test as one zip, where the service offers it (GET /api/tests/{id}/bundle.zip). */

@@ -285,7 +285,7 @@ export class SetupPanel {
   // ------------------------------------------------------------------------------------------ init
 
   async init() {
-    await Promise.all([this.loadRig(), this.loadIsolators(), this.loadProtocols()]);
+    await Promise.all([this.loadRig(), this.loadIsolators(), this.loadProtocols(), this.eq.loadPresets()]);
     this.eq.init();
     this.renderFieldMeta();
     this.restoreDraft();
