@@ -103,6 +103,11 @@ class ActiveRun:
         self.structure: dict | None = None  # ... and the structure's channels for the samples that follow
 
 
+def _what(test) -> str:
+    """What a record is, in its events' words: "manual move" (a move of the table) or "test"."""
+    return "manual move" if ((test.request or {}).get("profile") or {}).get("kind") == "move" else "test"
+
+
 class RigService:
     """Runs tests on one rig through a worker process; records them in the store and streams them."""
 
@@ -253,8 +258,10 @@ class RigService:
                 out_w.close()
                 cmd_r.close()
                 store.set_status(session, test, "running")
-                store.add_event(session, test_id, "operator", f"test {test_id} started by {actor}",
-                                {"action": "start", "worker_pid": process.pid}, actor=actor, time_s=0.0)
+                started = f"{_what(test)} {test_id} started by {actor}"
+                start_values = {"action": "start", **({"move": True} if _what(test) == "manual move" else {})}
+                store.add_event(session, test_id, "operator", started, {**start_values, "worker_pid": process.pid},
+                                actor=actor, time_s=0.0)
                 session.commit()
                 record = store.test_record(session, test, with_events=False)
             run = ActiveRun(test_id, process, out_r, cmd_w, job)
@@ -262,7 +269,7 @@ class RigService:
             run.thread = threading.Thread(target=self._record, args=(run, record), daemon=True,
                                           name=f"isorig-reader-{test_id}")
             run.thread.start()
-        self._publish_event(test_id, 0.0, "operator", f"test {test_id} started by {actor}", {"action": "start"})
+        self._publish_event(test_id, 0.0, "operator", started, start_values)
 
     def _check_start_position(self, start_m: float, test_id: int) -> None:
         """The table must rest where the target begins (``start_position_m``: 0 for most tests, a sine's
@@ -537,7 +544,7 @@ class RigService:
             test.summary = self._summary(session, test, run.job, pacing, run.link, indications, run.stability)
             self.last_end = {"test_id": test_id, "status": status, **self._row_state(run.last_row)}
             store.set_status(session, test, status, reason)
-            message = f"test {test_id} {status}" + (f": {reason}" if reason else "")
+            message = f"{_what(test)} {test_id} {status}" + (f": {reason}" if reason else "")
             store.add_event(session, test_id, "status", message, {"status": status, "time_s": run.time_s},
                             time_s=run.time_s)
             session.commit()

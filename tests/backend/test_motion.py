@@ -51,6 +51,10 @@ def test_a_test_starts_only_with_the_table_at_zero_and_zero_brings_it_back(tmp_p
         assert moved["status"] == "completed" and moved["profile"]["kind"] == "move"
         assert moved["label"].startswith("manual move 0.00 mm -> 10.00 mm at 20 mm/s")
         assert moved["cycles_total"] == 0 and moved["operator_name"] == "A. Rossi"
+        events = client.get(f"/api/tests/{moved['id']}").json()["events"]  # said as a move, not as a test
+        start = next(e for e in events if (e["values"] or {}).get("action") == "start")
+        assert start["message"] == f"manual move {moved['id']} started by operator" and start["values"]["move"] is True
+        assert events[-1]["message"] == f"manual move {moved['id']} completed"
         state = client.get("/api/rig/state").json()
         assert state["table_position_m"] == pytest.approx(0.01, abs=2e-4)
         at = f"the table is at {state['table_position_m'] * 1e3:.2f} mm"  # where the move left it, near 10 mm
@@ -68,6 +72,10 @@ def test_a_test_starts_only_with_the_table_at_zero_and_zero_brings_it_back(tmp_p
         assert abs(client.get("/api/rig/state").json()["table_position_m"]) < 2e-4
         r = client.post("/api/tests?start=true", json=sine_test(), headers=AUTH)
         assert r.status_code == 201 and wait_for(client, r.json()["id"])["status"] == "completed"
+        events = client.get(f"/api/tests/{r.json()['id']}").json()["events"]
+        started = next(e for e in events if (e["values"] or {}).get("action") == "start")
+        assert started["message"] == f"test {r.json()['id']} started by operator" and "move" not in started["values"]
+        assert events[-1]["message"] == f"test {r.json()['id']} completed"
 
 
 def test_a_stopped_move_holds_the_table_where_it_is(client):

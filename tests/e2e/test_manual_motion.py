@@ -91,6 +91,15 @@ def test_zero_and_move_from_the_console(server, open_page, artifacts):
     assert page.is_hidden("#rig-warning")
     wait_start_enabled(page)  # the table at zero: a test may start
     assert page.inner_text("#alert-text") == f"Manual move {move['id']} completed"
+    # the move's events say it was a move, not a test
+    poll(lambda: page.inner_text("#s-event").endswith("Manual move completed"), 10, "the strip's last event")
+    page.goto(f"{server.url}/?viewer=off#/tests/{move['id']}")
+    page.wait_for_selector("#t-events li", timeout=10000)
+    events = page.inner_text("#t-events")
+    assert "Move started: the valve opens" in events and "Manual move completed" in events, events
+    assert "Test started" not in events and "Test completed" not in events, events
+    page.goto(f"{server.url}/?viewer=off#/live")
+    fill_identity(page, "MM-1", "Motion Operator")
 
     # Move to "12,5" mm at the default 5 mm/s: the decimal comma is read as one; the form is locked meanwhile
     page.fill("#f-mm_speed", "5")

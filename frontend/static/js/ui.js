@@ -141,13 +141,13 @@ export function eventWords(e) {
         : `Abort requested by ${who || "an operator"}: valve command to 0 V`;
     } else {
       const words = {
-        create: "Test created", start: "Test started: the valve opens",
+        create: "Test created", start: v.move ? "Move started: the valve opens" : "Test started: the valve opens",
         discard: "Start refused: the test was not kept", delete: "Test deleted (it never ran)",
       }[v.action];
       text = words ? `${words}${who && who !== "operator" ? ` (${who})` : ""}` : capital(text);
     }
   } else if (kind === "status") {
-    text = capital(text.replace(/^test \d+ /, "test "));
+    text = capital(text.replace(/^(test|manual move) \d+ /, "$1 "));
   } else {
     text = capital(text);
   }
