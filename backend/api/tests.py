@@ -370,7 +370,8 @@ def get_earthquake(test_id: TestId, session: SessionDep,
     with. ``record`` (None before the test ran): sim.earthquake.record_figures on the stored samples (what the
     summary holds, computed again now) with ``series``: time, command, measurement and, for a hybrid test, the
     structure's channels replayed from the record and the reference's, every k-th sample so that no series has
-    more than ``points``. Meant for after a test (a running test is better followed on the websocket)."""
+    more than ``points``. While the test runs: ``so_far``, the stored samples' time, target and measurement at the
+    planned series' step (what a page that joins late draws before the websocket's rows), and no figures."""
     test = _test_or_404(session, test_id)
     job_scenario = (test.request or {}).get("job_scenario") or {}
     if job_scenario.get("earthquake") is None:
@@ -390,6 +391,11 @@ def get_earthquake(test_id: TestId, session: SessionDep,
     out = {"test_id": test_id, "kind": profile.kind, "status": test.status, "profile": clean_json(profile.description),
            "planned": planned, "record": None}
     if not test.samples_stored:
+        return out
+    if test.status == "running":  # the record so far (a page that joins late), no figures: the worker has the CPU
+        s = store.load_samples(session, test_id)
+        out["so_far"] = {"time_s": _thinned(s["time_s"], step), "target_m": _thinned(s["target_m"], step),
+                         "displacement_m": _thinned(s["displacement_m"], step)}
         return out
     from ..reports.content import earthquake_figures
 

@@ -320,3 +320,29 @@ def test_refusals_and_records_are_said_in_words(server, open_page, artifacts, tm
     shots(page, artifacts, "dashboard_earthquake_csv")
     assert len(server.call("GET", "/api/tests")[1]) == before  # nothing was created
     watch.allowed_status.add(422)
+
+
+def test_a_page_that_joins_a_running_history_late_draws_it_from_its_start(server, open_page):
+    """A time history started by a script 12 s ago (speed 1): a page opened now draws the whole record so far,
+    from t = 0 (the stored samples, GET /api/tests/{id}/earthquake `so_far`), not only the stream's last 10 s."""
+    server.zero_table()
+    body = {"isolator": "IUT_a", "supply_bar": 100, "speed": 1.0,
+            "profile": {"kind": "history", "ground_motion": "far_field_long", "scale": 0.3}}
+    test_id = server.start_test(body)
+    try:
+        poll(lambda: server.call("GET", f"/api/tests/{test_id}")[1]["samples_stored"] > 12000, 30,
+             "12 s of the record stored")
+        so_far = server.call("GET", f"/api/tests/{test_id}/earthquake?points=500")[1]
+        assert so_far["status"] == "running" and so_far["record"] is None
+        t = so_far["so_far"]["time_s"]
+        assert t[0] == 0.0 and t[-1] > 11.9 and all(b > a for a, b in zip(t[:-1], t[1:], strict=True))
+        assert len(t) <= 500 * t[-1] / 45 + 2  # at the planned series' step
+        page, _ = open_page(server.url + "/", width=1366, height=768, token=TOKEN)
+        plots = poll(lambda: (lambda d: d if d["plannedLoaded"] and d["firstMeasuredS"] is not None
+                              and d["firstMeasuredS"] < 0.5 else None)(_earthquake_plots(page)),
+                     15, "the record drawn from its start")
+        assert plots["filled"] > 0.25 * plots["points"], plots  # beyond 12 s of 45 s
+    finally:
+        server.call("POST", f"/api/tests/{test_id}/abort", token=True)
+        server.wait_status(test_id, {"aborted", "completed"}, timeout_s=30)
+        server.zero_table()

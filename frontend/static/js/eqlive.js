@@ -108,8 +108,23 @@ export class EarthquakeLive {
         g.planned[k] = rs[j] + w * (rs[j + 1] - rs[j]);
       }
       this.plannedLoaded = true;
+      if (data.so_far) this.fillSoFar(data.so_far);
       this.drawnAt = 0;
     }).catch(() => {});
+  }
+
+  /** A page that joined a running test late: the stored record so far where the stream's rows left gaps. */
+  fillSoFar(soFar) {
+    const g = this.grid;
+    const { time_s: ts, target_m: rs, displacement_m: ys } = soFar;
+    if (!Array.isArray(ts)) return;
+    ts.forEach((t, k) => {
+      const j = Math.round(t / this.dtGrid);
+      if (!(j >= 0 && j < g.t.length) || !Number.isNaN(g.y[j])) return;
+      if (ys[k] !== null) g.y[j] = ys[k];
+      if (rs[k] !== null) g.r[j] = rs[k];
+      this.filled = Math.max(this.filled, j);
+    });
   }
 
   createPlots() {
@@ -273,7 +288,10 @@ export class EarthquakeLive {
   describe() {
     const out = {};
     for (const [k, p] of Object.entries(this.plots)) out[k] = p.describe();
-    return { kind: this.kind, plots: out, filled: this.filled, points: this.grid ? this.grid.t.length : 0,
+    const g = this.grid;
+    const measured = g ? g.y.findIndex((v) => !Number.isNaN(v)) : -1;
+    return { kind: this.kind, plots: out, filled: this.filled, points: g ? g.t.length : 0,
+      firstMeasuredS: measured >= 0 ? g.t[measured] : null,
       plannedLoaded: Boolean(this.plannedLoaded), drifts: this.drifts ? this.drifts.len : 0, driftNames: this.driftNames,
       stabilityPoints: this.stab ? this.stab.len : 0 };
   }
