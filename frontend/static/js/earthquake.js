@@ -418,7 +418,7 @@ export class EarthquakeForm {
     if (source === "preset") return "";
     const kind = source === "disp_csv" ? "displacement" : "acceleration";
     const f = this.files[kind];
-    if (!f) return `a CSV file (time_s, ${kind === "displacement" ? "displacement_m" : "acceleration"})`;
+    if (!f) return kind === "displacement" ? "a CSV file (time_s, displacement_m)" : "a CSV file (time_s, acceleration) or a PEER .AT2 file";
     if (!f.record.ok) return `${f.name}: ${f.record.error}`;
     if (kind === "acceleration") return this.accelerationUnit(f.record).problem || "";
     if (f.record.headerLength === "mm") {
@@ -449,10 +449,12 @@ export class EarthquakeForm {
       note.className = r.pending ? "msg" : "msg bad";
       return;
     }
-    const base = r.at2 ? `${f.name} (PEER .AT2${r.title ? `: ${r.title}` : ""}): ${r.rows} values at ` +
-      `${sigDigits(r.dt, 4)} s, ${sigDigits(r.duration, 4)} s` : `${f.name}: ${r.rows} rows at ${sigDigits(r.dt, 4)} s, ${sigDigits(r.duration, 4)} s` +
-      `${r.header ? `; columns '${r.timeName}', '${r.valueName}'` : "; no header (first two columns)"}` +
-      `${r.commas ? "; decimal commas read as decimals" : ""}`;
+    const span = `${sigDigits(r.dt, 4)} s, ${sigDigits(r.duration, 4)} s`;
+    const base = r.at2
+      ? `${f.name} (PEER .AT2${r.title ? `: ${r.title}` : ""}): ${r.rows} values at ${span}`
+      : `${f.name}: ${r.rows} rows at ${span}` +
+        `${r.header ? `; columns '${r.timeName}', '${r.valueName}'` : "; no header (first two columns)"}` +
+        `${r.commas ? "; decimal commas read as decimals" : ""}`;
     if (kind === "displacement") {
       const problem = this.fileProblem();
       note.textContent = problem || `${base}; peak ${fmtU("length", r.peak)} (read in m${r.valueName ? "" : ", assumed"})`;
