@@ -91,6 +91,7 @@ def test_zero_and_move_from_the_console(server, open_page, artifacts):
     assert page.is_hidden("#rig-warning")
     wait_start_enabled(page)  # the table at zero: a test may start
     assert page.inner_text("#alert-text") == f"Manual move {move['id']} completed"
+    assert page.inner_text("#l-cycle") == "none (a manual move)"
     # the move's events say it was a move, not a test
     poll(lambda: page.inner_text("#s-event").endswith("Manual move completed"), 10, "the strip's last event")
     page.goto(f"{server.url}/?viewer=off#/tests/{move['id']}")

@@ -568,6 +568,8 @@ export class LiveView {
     if (msg.stability) this.eq.onStability(msg.stability);
     if (this.eq.kind) {
       $("l-cycle").textContent = `none (${this.eq.kind === "hybrid" ? "a hybrid simulation" : "a time history"})`;
+    } else if (isMove(this.test)) {
+      $("l-cycle").textContent = "none (a manual move)";
     } else if (msg.cycle !== undefined && msg.cycle !== null) {
       $("l-cycle").textContent = msg.cycles_total ? `${msg.cycle} / ${msg.cycles_total}` : String(msg.cycle);
     }
