@@ -25,8 +25,21 @@ def operator(request: Request,
     return require_operator(request, credentials)
 
 
+def anyone(request: Request,
+           credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)]) -> str:
+    """Who asks to end a test (stop, abort): the operator with the token, else anyone at a console, named by
+    address. Ending a test only takes energy out of the rig, like an emergency stop button: it is never refused
+    for a missing or stale token."""
+    try:
+        return require_operator(request, credentials)
+    except ApiError:
+        host = request.client.host if request.client else "unknown address"
+        return f"a console without the token ({host})"
+
+
 SessionDep = Annotated[Session, Depends(get_session)]
 OperatorDep = Annotated[str, Depends(operator)]
+AnyoneDep = Annotated[str, Depends(anyone)]
 TestId = Annotated[int, Path(ge=1, le=MAX_ID, description="test id")]
 
 

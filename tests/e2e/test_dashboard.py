@@ -9,6 +9,8 @@ import csv
 import io
 import time
 
+import pytest
+
 from .harness import TOKEN, fill_identity, poll, sine_test, start_from_form, wait_start_enabled
 
 
@@ -175,28 +177,27 @@ def test_live_view_follows_test_started_through_api(server, open_page, artifacts
     late.screenshot(path=str(artifacts / "dashboard_aborted.png"))
 
 
-def test_abort_button_stops_the_rig(server, open_page):
-    """Abort ends a running test at once; a wrong stored token is refused and the operator is asked again."""
-    page, watch = open_page(server.url + "/", token="not-the-token")
-    watch.allowed_status.add(401)  # the wrong token's refusal
+@pytest.mark.parametrize("token", [None, "not-the-token"])
+def test_abort_button_stops_the_rig(server, open_page, token):
+    """ABORT ends a running test at once from any console, like an emergency stop: no token asked for, none needed
+    (a second console without one, a stale one), no dialog in the way; the events say who asked."""
+    page, _ = open_page(server.url + "/", token=token)
     test_id = server.start_test(sine_test(cycles=20, speed=1.0))
     page.wait_for_selector("#rig-status[data-status='running']", timeout=15000)
     page.click("#abort")
-    page.wait_for_selector("#token-dialog[open]", timeout=5000)
-    assert "refused" in page.inner_text("#token-reason")
-    assert server.call("GET", f"/api/tests/{test_id}")[1]["status"] == "running"  # nothing moved yet
-    page.fill("#token-input", TOKEN)
-    page.click("#token-ok")
     rec = server.wait_status(test_id, {"aborted"}, timeout_s=15)
     assert rec["status"] == "aborted"
+    assert not page.is_visible("#token-dialog")
     page.wait_for_selector("#rig-status[data-status='aborted']", timeout=10000)
     assert "ABORTED" in page.inner_text("#alert-text")
-    assert page.evaluate("localStorage.getItem('isorig.operator_token')") == TOKEN
+    asked = [e for e in rec["events"] if (e["values"] or {}).get("action") == "abort"]
+    assert asked[0]["actor"] == "a console without the token (127.0.0.1)", asked
+    assert page.evaluate("localStorage.getItem('isorig.operator_token')") == token  # left as it was
 
 
 def test_stop_button_ramps_out(server, open_page):
-    """Stop finishes the running test with a ramp-out: status 'stopped'."""
-    page, _ = open_page(server.url + "/", token=TOKEN)
+    """Stop finishes the running test with a ramp-out: status 'stopped'; a console without the token may stop."""
+    page, _ = open_page(server.url + "/")
     test_id = server.start_test(sine_test(cycles=30, speed=1.0))
     page.wait_for_function(f"window.__isorig.testId === {test_id}", timeout=15000)
     page.wait_for_selector("#rig-status[data-status='running']", timeout=15000)

@@ -114,6 +114,9 @@ export const api = {
   post: (path, body) => request("POST", path, body, { auth: true }),
   /** POST that never asks for the token (read-only checks). */
   postQuiet: (path, body) => request("POST", path, body),
+  /** Stop and abort: the token goes along if this browser has one, but is never asked for: the service ends a
+   * test for anyone (like an emergency stop) and records who asked. */
+  endTest: (path) => request("POST", path, undefined, { auth: true, retryAuth: false }),
   del: (path) => request("DELETE", path, undefined, { auth: true }),
 };
 

@@ -1,7 +1,7 @@
 // Dashboard entry point: views (live, history, one test), the status strip, the always-visible Abort, the
 // token, the unit choice, the 3D view.
 
-import { api, askToken, getToken, operatorPost } from "./api.js";
+import { api, askToken, getToken } from "./api.js";
 import { History } from "./history.js";
 import { LiveView } from "./live.js";
 import { RigLink } from "./rig.js";
@@ -56,7 +56,7 @@ async function abort() {
       showAlert("Abort: no test is running.", "warn");
       return;
     }
-    await operatorPost(`/api/tests/${id}/abort`);
+    await api.endTest(`/api/tests/${id}/abort`);
     showAlert(`Test #${id} ABORTED by the operator.`, "bad");
   } catch (e) {
     showAlert(`Abort failed: ${e.message}`, "bad");

@@ -1349,7 +1349,7 @@ export class SetupPanel {
       return;
     }
     try {
-      await operatorPost(`/api/tests/${id}/stop`);
+      await api.endTest(`/api/tests/${id}/stop`);
       state.stopping = true;
       state.stoppingReason = state.stoppingReason || "stop requested from this console";
       changed("stopping");
