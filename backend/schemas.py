@@ -183,7 +183,8 @@ class EnvelopeCheckOut(BaseModel):
     value: Any = None
     limit: str | None = None
     max_amplitude_m: float | None = Field(None, description="largest amplitude at this frequency (sine only)")
-    max_frequency_hz: float | None = Field(None, description="highest frequency at this amplitude (sine only)")
+    max_frequency_hz: float | None = Field(None, description="highest frequency at this amplitude (sine only; "
+                                           "null when no frequency fits the amplitude)")
     max_force_n: float | None = Field(None, description="A_p P_s at this supply pressure")
     max_vertical_load_n: float | None = Field(None, description="the vertical jack's capacity, N")
     start_position_m: float | None = Field(None, description="where the target begins: the table must rest there "

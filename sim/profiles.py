@@ -10,7 +10,7 @@ position: ``start_m = offset_m``). A profile is packed into an array of blocks f
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 from numba import njit
@@ -170,12 +170,30 @@ def motion_summary(blocks: list[SineProfile], rig: RigParameters, isolator: Isol
             "cycles_total": sum(b.cycles for b in blocks)}
 
 
-def envelope_problem(block: SineProfile, rig: RigParameters, isolator: Isolator, supply_pa: float):
+def _advice(block: SineProfile, rig: RigParameters, isolator: Isolator, supply_pa: float) -> str:
+    """What would fit, checked against every limit: the highest frequency at this amplitude, else the largest
+    amplitude at this frequency, else none (the block's offset and start kept)."""
+    def fits(**change) -> bool:
+        return envelope_problem(replace(block, **change), rig, isolator, supply_pa, advise=False) is None
+
+    f_ok = _largest_allowed(lambda f: fits(frequency_hz=max(f, 1e-9)), MAX_FREQUENCY_HZ)
+    if f_ok > 1e-6:
+        return f"at this amplitude frequency_hz must be <= {f_ok:.3g} Hz"
+    a_ok = _largest_allowed(lambda a: fits(amplitude_m=max(a, 1e-9)), rig.stroke_m)
+    if a_ok > 1e-6:
+        return (f"no frequency fits amplitude_m = {block.amplitude_m:g} m; at this frequency amplitude_m must be "
+                f"<= {a_ok:.3g} m")
+    return "no amplitude fits at this offset, vertical load and supply pressure"
+
+
+def envelope_problem(block: SineProfile, rig: RigParameters, isolator: Isolator, supply_pa: float,
+                     advise: bool = True):
     """The first envelope limit a sine block violates, as a ProfileError, or None.
 
     Limits: stroke; pump flow A_p * 2 pi f A <= Q_pump; force kd (|offset| + A) + kw + friction at the
     test's vertical load (mu N + F_c, eq. 1) + viscous and inertial forces <= A_p P_s; valve flow capacity at
-    the load pressure of the peak-velocity point. ``rig`` carries the test's vertical load.
+    the load pressure of the peak-velocity point. ``rig`` carries the test's vertical load. ``advise``: the
+    message ends with what would fit, checked against every limit (``_advice``).
     """
     a, f = block.amplitude_m, block.frequency_hz
     reach = block.reach_m
@@ -187,22 +205,24 @@ def envelope_problem(block: SineProfile, rig: RigParameters, isolator: Isolator,
     omega = 2 * math.pi * f
     v_peak = omega * a
     flow = rig.piston_area_m2 * v_peak
+    def then(text: str) -> str:
+        return f"{text}; {_advice(block, rig, isolator, supply_pa)}" if advise else text
+
     if flow > rig.pump_max_flow_m3_per_s:
-        f_max = rig.pump_max_flow_m3_per_s / (rig.piston_area_m2 * 2 * math.pi * a)
         return ProfileError("frequency_hz", f, f"pump flow {rig.pump_max_flow_m3_per_s / LITRE_PER_MIN_M3_S:.0f} l/min",
-                            f"peak flow demand {flow / LITRE_PER_MIN_M3_S:.0f} l/min (amplitude_m = {a:g} m at "
-                            f"frequency_hz = {f:g} Hz) exceeds the pump's "
-                            f"{rig.pump_max_flow_m3_per_s / LITRE_PER_MIN_M3_S:.0f} l/min; at this amplitude "
-                            f"frequency_hz must be <= {f_max:.3g} Hz")
+                            then(f"peak flow demand {flow / LITRE_PER_MIN_M3_S:.0f} l/min (amplitude_m = {a:g} m at "
+                                 f"frequency_hz = {f:g} Hz) exceeds the pump's "
+                                 f"{rig.pump_max_flow_m3_per_s / LITRE_PER_MIN_M3_S:.0f} l/min"))
     force = force_estimate_n(block, rig, isolator)
     f_max = rig.max_force_n(supply_pa)
     if force > f_max:
         at = f"amplitude_m = {a:g} m" + (f" about offset_m = {block.offset_m:g} m" if block.offset_m else "")
-        return ProfileError("amplitude_m", a, f"A_p P_s = {f_max:.4g} N",
-                            f"the test needs up to {force:.4g} N (isolator {isolator.name} at {at}, friction "
-                            f"{rig.friction_force_n:.4g} N at a vertical load of {rig.vertical_load_n / 1e3:g} kN) "
-                            f"but the rig can push at most A_p P_s = {f_max:.4g} N at {supply_pa / BAR_PA:g} bar; "
-                            f"lower the amplitude, the offset or the vertical load, or raise supply_bar")
+        return ProfileError("amplitude_m", a, f"A_p P_s = {f_max / 1e3:.1f} kN",
+                            then(f"the test needs up to {force / 1e3:.1f} kN (isolator {isolator.name} at {at}, "
+                                 f"friction {rig.friction_force_n / 1e3:.1f} kN at a vertical load of "
+                                 f"{rig.vertical_load_n / 1e3:g} kN) but the rig can push at most A_p P_s = "
+                                 f"{f_max / 1e3:.1f} kN at {supply_pa / BAR_PA:g} bar; lower the amplitude, the "
+                                 f"offset or the vertical load, or raise supply_bar"))
     # valve capacity where the velocity peaks (d = 0): load pressure from hysteretic + friction forces
     p_load = (isolator.kw_n + rig.friction_force_n + rig.viscous_n_s_per_m * v_peak) / rig.piston_area_m2
     opening = rig.driver_gain_positive * rig.command_limit_v - rig.dead_zone_v
@@ -211,9 +231,9 @@ def envelope_problem(block: SineProfile, rig: RigParameters, isolator: Isolator,
     if flow > 0.9 * valve_flow:
         capacity = f"90 % of the valve capacity {valve_flow / LITRE_PER_MIN_M3_S:.0f} l/min"
         return ProfileError("frequency_hz", f, capacity,
-                            f"peak flow demand {flow / LITRE_PER_MIN_M3_S:.0f} l/min exceeds 90 % of what the valve "
-                            f"passes at {supply_pa / BAR_PA:g} bar ({valve_flow / LITRE_PER_MIN_M3_S:.0f} l/min); "
-                            f"lower amplitude_m or frequency_hz, or raise supply_bar")
+                            then(f"peak flow demand {flow / LITRE_PER_MIN_M3_S:.0f} l/min exceeds 90 % of what the "
+                                 f"valve passes at {supply_pa / BAR_PA:g} bar ({valve_flow / LITRE_PER_MIN_M3_S:.0f} "
+                                 f"l/min); lower amplitude_m or frequency_hz, or raise supply_bar"))
     return None
 
 
@@ -262,12 +282,14 @@ def _largest_allowed(fits, hi: float) -> float:
 def max_amplitude_m(frequency_hz: float, rig: RigParameters, isolator: Isolator, supply_pa: float) -> float:
     """Largest amplitude the envelope allows at this frequency."""
     return _largest_allowed(
-        lambda a: envelope_problem(SineProfile(a, frequency_hz, 1, 0), rig, isolator, supply_pa) is None,
+        lambda a: envelope_problem(SineProfile(a, frequency_hz, 1, 0), rig, isolator, supply_pa,
+                                   advise=False) is None,
         rig.stroke_m)
 
 
 def max_frequency_hz(amplitude_m: float, rig: RigParameters, isolator: Isolator, supply_pa: float) -> float:
-    """Highest frequency the envelope allows at this amplitude (0 if the amplitude itself is refused)."""
+    """Highest frequency the envelope allows at this amplitude (0 if no frequency fits it)."""
     return _largest_allowed(
-        lambda f: envelope_problem(SineProfile(amplitude_m, max(f, 1e-9), 1, 0), rig, isolator, supply_pa) is None,
+        lambda f: envelope_problem(SineProfile(amplitude_m, max(f, 1e-9), 1, 0), rig, isolator, supply_pa,
+                                   advise=False) is None,
         MAX_FREQUENCY_HZ)

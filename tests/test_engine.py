@@ -61,6 +61,41 @@ def test_envelope_refuses_with_field_and_limit(kwargs, field):
     assert field in str(exc.value)
 
 
+def test_a_refusal_advises_only_what_fits_every_limit():
+    """The advice at the end of a refusal is checked against every limit, not only the one that failed: the
+    suggested frequency (or, when no frequency fits, the suggested amplitude) is accepted. 100 mm at 1 Hz on
+    IUT_a at 100 bar broke the pump and was told 0.622 Hz, where the cylinder's force refuses it at any frequency."""
+    import re
+
+    from sim.isolator import PRESETS
+    from sim.profiles import envelope_problem
+    from sim.rig import DEFAULT_RIG
+
+    iso = PRESETS["IUT_a"]
+    advised = {"frequency": 0, "amplitude": 0}
+    for a in (0.01, 0.03, 0.05, 0.08, 0.1, 0.14):
+        for f in (0.2, 0.6, 1.0, 2.0, 5.0):
+            block = SineProfile(a, f, 5, 1)
+            problem = envelope_problem(block, DEFAULT_RIG, iso, 100e5)
+            if problem is None:
+                continue
+            text = str(problem)
+            m = re.search(r"frequency_hz must be <= ([\d.e+-]+) Hz", text)
+            if m:
+                advised["frequency"] += 1
+                fitted = SineProfile(a, 0.999 * float(m.group(1)), 5, 1)
+            else:
+                m = re.search(r"no frequency fits amplitude_m = [\d.]+ m; at this frequency amplitude_m must be "
+                              r"<= ([\d.e+-]+) m", text)
+                assert m, text
+                advised["amplitude"] += 1
+                fitted = SineProfile(0.999 * float(m.group(1)), f, 5, 1)
+            assert envelope_problem(fitted, DEFAULT_RIG, iso, 100e5) is None, (block, text)
+    assert advised["frequency"] >= 3 and advised["amplitude"] >= 3, advised
+    hundred = str(envelope_problem(SineProfile(0.1, 1.0, 5, 1), DEFAULT_RIG, iso, 100e5))
+    assert "no frequency fits amplitude_m = 0.1 m" in hundred and "0.622" not in hundred, hundred
+
+
 def test_chunks_equal_one_run_and_are_deterministic():
     s = Scenario.sine("IUT_b", 70.0, 0.03, 1.0, 3)
     whole = Simulation(s).run().samples

@@ -179,7 +179,8 @@ def check_test(body: TestCreate, request: Request, session: SessionDep) -> Envel
                 isolator = None
             if isolator is not None:
                 out["max_amplitude_m"] = max_amplitude_m(body.profile.frequency_hz, rig, isolator, supply_pa)
-                out["max_frequency_hz"] = max_frequency_hz(body.profile.amplitude_m, rig, isolator, supply_pa)
+                f_max = max_frequency_hz(body.profile.amplitude_m, rig, isolator, supply_pa)
+                out["max_frequency_hz"] = f_max if f_max > 0 else None  # None: no frequency fits this amplitude
     return EnvelopeCheckOut(**out)
 
 

@@ -176,6 +176,10 @@ def test_envelope_check_explains_without_creating(client):
     assert r["ok"] is False and r["field"] == "frequency_hz" and "l/min" in r["detail"] and r["limit"]
     assert 0 < r["max_frequency_hz"] < 1.0
     assert r["max_amplitude_m"] < 0.1
+    # beyond the cylinder's force at any frequency: no highest frequency (null), and the refusal says so
+    r = client.post("/api/tests/check", json=sine_test(profile={"amplitude_m": 0.1, "frequency_hz": 1.0})).json()
+    assert r["ok"] is False and r["max_frequency_hz"] is None and 0 < r["max_amplitude_m"] < 0.1
+    assert "no frequency fits amplitude_m = 0.1 m" in r["detail"], r["detail"]
     # an unknown isolator or a bad protocol name is a refusal too, never a 500
     assert client.post("/api/tests/check", json=sine_test(isolator="nope")).json()["ok"] is False
     proto = client.post("/api/tests/check", json=sine_test(profile={"kind": "protocol", "name": "/etc/passwd"}))

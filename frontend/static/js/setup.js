@@ -197,6 +197,9 @@ export class SetupPanel {
       }
       if (key === "frequency" && this.lastCheck.data && num(this.lastCheck.data.max_frequency_hz)) {
         text += `; at this amplitude up to ${fmtU("frequency", this.lastCheck.data.max_frequency_hz, { sig: 3 })}`;
+      } else if (key === "frequency" && this.lastCheck.data && this.lastCheck.data.max_frequency_hz === null &&
+        num(this.lastCheck.data.max_amplitude_m)) {
+        text += "; no frequency fits this amplitude (lower the amplitude)";
       }
       if (key === "taper_cycles") text += " (at most half the cycles)";
       if (key === "offset") text += "; empty: 0 (the sine runs about zero); reached during the first cycle";
