@@ -279,6 +279,14 @@ def test_limit_trip_is_shown_prominently(server, open_page, artifacts):
     assert "valve close: the valve command ramps to 0 V" in page.inner_text("#alert-text")
     assert "pid" not in events and "worker" not in events, events  # no internals
     page.screenshot(path=str(artifacts / "dashboard_limit_trip.png"))
+    # dismissed, then the page reloaded: the old trip is no news (the badge and the strip still say how it ended)
+    page.click("#alert-close")
+    page.reload()
+    page.wait_for_selector("body[data-ready='1']", timeout=15000)
+    page.wait_for_selector("#rig-status[data-status='aborted']", timeout=10000)
+    time.sleep(1.0)  # the stream's hello and the record have come
+    assert page.is_hidden("#alert"), page.inner_text("#alert-text")
+    assert "LIMIT TRIP" in page.inner_text("#live-events")
 
 
 def test_vertical_load_is_entered_in_kn_within_the_jacks_range(server, open_page, artifacts):

@@ -555,6 +555,7 @@ export class LiveView {
 
   onStatus(msg) {
     const changedStatus = msg.status !== this.status;
+    const firstLook = this.status === null; // this page's first status: how a test ended before it looked is no news
     this.status = msg.status;
     state.status = msg.status;
     state.reason = msg.reason || "";
@@ -585,7 +586,9 @@ export class LiveView {
     }
     if (changedStatus && this.testId !== null) {
       const what = isMove(this.test) ? "Manual move" : "Test"; // a move of the table (POST /api/rig/move, /zero)
-      if (BAD.has(msg.status)) {
+      if (firstLook) {
+        // no banner: the strip's last event and the status badge say how the last test ended
+      } else if (BAD.has(msg.status)) {
         const trip = this.tripText();
         const reason = trip || msg.reason || ""; // the trip in words with its action, not the detector's internals
         showAlert(`${trip ? "LIMIT TRIP - " : ""}${what} ${this.testId} ${msg.status.toUpperCase()}` +
