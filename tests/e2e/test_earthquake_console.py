@@ -105,6 +105,12 @@ def test_time_history_from_a_preset_runs_to_completion(server, open_page, artifa
     plots = poll(lambda: (lambda d: d if d["filled"] >= 0.97 * d["points"] else None)(_earthquake_plots(page)),
                   10, "the whole record drawn")
     assert page.evaluate("window.__isorig.loopPoints") > 0 or page.evaluate("window.__isorig.loopCycles") > 0
+    # a page opened after the end draws the whole record too, not only what the stream still holds
+    late, _ = open_page(server.url + "/", width=1366, height=768, token=TOKEN)
+    poll(lambda: (lambda d: d if d["plannedLoaded"] and d["firstMeasuredS"] is not None and d["firstMeasuredS"] < 0.5
+                  and d["filled"] >= 0.97 * d["points"] else None)(_earthquake_plots(late)),
+         15, "the whole record drawn on a page opened after the end")
+    late.close()
 
     # History: the kind of test; its page: the profile, the report link
     page.goto(f"{server.url}/?viewer=off#/history")

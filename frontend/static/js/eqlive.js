@@ -109,11 +109,13 @@ export class EarthquakeLive {
       }
       this.plannedLoaded = true;
       if (data.so_far) this.fillSoFar(data.so_far);
+      else if (data.record && data.record.series) this.fillSoFar(data.record.series); // it ended before the page came
       this.drawnAt = 0;
     }).catch(() => {});
   }
 
-  /** A page that joined a running test late: the stored record so far where the stream's rows left gaps. */
+  /** A page that joined a running test late, or came after it ended: the stored record where the stream's rows
+   * left gaps. */
   fillSoFar(soFar) {
     const g = this.grid;
     const { time_s: ts, target_m: rs, displacement_m: ys } = soFar;
