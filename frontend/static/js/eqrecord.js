@@ -160,14 +160,14 @@ export class EarthquakeRecord {
     this.plot.update(xs, ys, 0, xs.length, xs[0], xs[xs.length - 1]);
     // the differences, which the overlay cannot show at this scale
     const diff = (a, b) => Float64Array.from(a, (v, i) => v - b[i]);
-    const errDefs = [{ label: "y - r", stroke: "#ff4d4f", width: 1.5 }];
+    const errDefs = [{ label: "y - r", stroke: "#ff4d4f", width: 1.5, legend: true }];
     const errs = [diff(ys[ys.length - 1], ys[ys.length - 2])];
     if (hybrid) {
       errDefs.push({ label: "r - reference (base displacement)", stroke: "#f0b429", width: 1.5 });
       errs.push(diff(ys[1], ys[0]));
     }
     this.errPlot = new TimePlot($("t-eq-err"), { yLabel: `difference (${L})`, minSpan: toDisplay("length", 1e-4),
-      series: errDefs });
+      series: errDefs, height: 200 });
     this.errPlot.update(xs, errs, 0, xs.length, xs[0], xs[xs.length - 1]);
   }
 
