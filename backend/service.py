@@ -98,6 +98,7 @@ class ActiveRun:
         self.link: dict = {}  # the latest link health a real rig's driver reported
         self.last_row: np.ndarray | None = None  # the newest sample (SAMPLE_FIELDS layout)
         self.stopping: str | None = None  # why the test is ending early (a stop, an abort, a limit trip)
+        self.ends_at_s: float | None = None  # a stop's ramp-out: the test time it ends at (the worker says)
         self.vertical_load_n = job["scenario"].get("vertical_load_n")
         self.stability: dict | None = None  # a hybrid test: the stability monitor as the worker last sent it
         self.structure: dict | None = None  # ... and the structure's channels for the samples that follow
@@ -365,10 +366,11 @@ class RigService:
     def _status_message(self, run: ActiveRun, record: dict, status: str, reason: str | None = None) -> dict:
         cycles_total, duration_s = record["cycles_total"], record["duration_s"]
         cycle = run.cycles_done if status != "running" else min(run.cycles_done + 1, cycles_total)
+        end_s = run.ends_at_s if run.ends_at_s is not None else duration_s  # a stop's ramp-out ends it sooner
         msg = {"type": "status", "test_id": run.test_id, "status": status, "time_s": run.time_s,
                "progress": min(1.0, run.time_s / duration_s) if duration_s else 0.0, "cycle": cycle,
                "cycles_total": cycles_total,
-               "time_left_s": max(0.0, duration_s - run.time_s) / record["speed"] if status == "running" else 0.0}
+               "time_left_s": max(0.0, end_s - run.time_s) / record["speed"] if status == "running" else 0.0}
         if reason:
             msg["reason"] = reason
         if run.link:
@@ -438,6 +440,8 @@ class RigService:
                 elif kind == "event":
                     if payload["kind"] == "limit_trip" and run.stopping is None:
                         run.stopping = payload["message"]
+                    if (payload["values"] or {}).get("ends_at_s") is not None:
+                        run.ends_at_s = float(payload["values"]["ends_at_s"])
                     self._publish_event(test_id, payload["time_s"], payload["kind"], payload["message"],
                                         payload["values"])
                 writes.put((kind, payload))

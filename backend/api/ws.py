@@ -29,11 +29,14 @@ def _record(app, test_id: int | None) -> dict | None:
 
 def _status_from_record(record: dict) -> dict:
     running = record["status"] == "running"
+    stops = [e["values"]["ends_at_s"] for e in record.get("events") or []
+             if (e.get("values") or {}).get("ends_at_s") is not None]
+    end_s = stops[-1] if stops else record["duration_s"]  # a stop's ramp-out ends the test sooner
     return {"v": SCHEMA_VERSION, "type": "status", "test_id": record["id"], "status": record["status"],
             "time_s": record["time_s"], "progress": record["progress"],
             "cycle": min(record["cycles_done"] + (1 if running else 0), record["cycles_total"]),
             "cycles_total": record["cycles_total"],
-            "time_left_s": max(0.0, record["duration_s"] - record["time_s"]) / record["speed"] if running else 0.0,
+            "time_left_s": max(0.0, end_s - record["time_s"]) / record["speed"] if running else 0.0,
             **({"reason": record["reason"]} if record.get("reason") else {})}
 
 

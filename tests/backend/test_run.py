@@ -193,3 +193,34 @@ def test_user_isolators_can_be_deleted_presets_not(client):
     assert client.delete("/api/isolators/LRB_tmp", headers=AUTH).status_code == 404
     r = client.delete("/api/isolators/IUT_a", headers=AUTH)
     assert r.status_code == 409 and "preset" in r.json()["detail"]
+
+
+def test_time_left_counts_to_the_end_of_a_stops_ramp_out(client):
+    """After Stop the test ends where the ramp-out ends, not at its planned duration: the status's time_left_s
+    says so, live and to a client that joins while it ramps out."""
+    test_id = create_and_start(client, speed=1.0, profile={"frequency_hz": 0.5, "cycles": 10})  # 20 s planned
+    with client.websocket_connect(f"/ws/tests/{test_id}") as ws:
+        ws.receive_json()  # hello
+        m = ws.receive_json()
+        while not (m["type"] == "status" and m["time_s"] > 1.0):
+            m = ws.receive_json()
+        assert m["time_left_s"] > 15.0  # the planned 20 s
+        assert client.post(f"/api/tests/{test_id}/stop", headers=AUTH).status_code == 200
+        ends_at = None
+        while True:
+            m = ws.receive_json()
+            if m["type"] == "event" and (m.get("values") or {}).get("ends_at_s") is not None:
+                ends_at = m["values"]["ends_at_s"]
+            if m["type"] == "status" and ends_at is not None and m["status"] == "running":
+                assert m["time_left_s"] == pytest.approx(ends_at - m["time_s"], abs=0.05), (m, ends_at)
+                assert m["time_left_s"] < 6.0
+                break
+    with client.websocket_connect(f"/ws/tests/{test_id}") as ws:  # joining during the ramp-out
+        hello = ws.receive_json()
+        if hello["test"]["status"] == "running":
+            m = ws.receive_json()
+            while m["type"] != "status":
+                m = ws.receive_json()
+            if m["status"] == "running":
+                assert m["time_left_s"] <= ends_at - m["time_s"] + 0.05, (m, ends_at)
+    assert wait_for(client, test_id)["status"] == "stopped"
