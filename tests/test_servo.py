@@ -263,3 +263,54 @@ def test_the_valve_null_offset_is_estimated(plant_offset_v):
     sim = Simulation(s)
     sim.run()
     assert sim.loop.controller_state[sv.S_OFFSET] == pytest.approx(DEFAULT_RIG.driver_offset_v)
+
+
+def burst_history(ringing_m=0.0, amplitude_m=0.003, burst_s=3.0, rest_s=2.0):
+    """A 3 mm burst (two sines under a sin^2 window, 3 s) that ends at rest for 2 s; with ``ringing_m`` the target
+    goes on with a slow 2 Hz oscillation of that amplitude, faded in over 0.5 s (what a hybrid test's structure does
+    once the ground motion has died out)."""
+    from sim.history import prepare_history
+
+    t = np.arange(0.0, burst_s + rest_s, 0.01)
+    window = np.where(t < burst_s, np.sin(np.pi * np.minimum(t, burst_s) / burst_s) ** 2, 0.0)
+    d = amplitude_m * window * (np.sin(2 * np.pi * 0.9 * t) + 0.3 * np.sin(2 * np.pi * 2.3 * t))
+    after = np.maximum(t - burst_s, 0.0)
+    d += ringing_m * 0.5 * (1.0 - np.cos(np.pi * np.minimum(after / 0.5, 1.0))) * np.sin(2 * np.pi * 2.0 * t) \
+        * np.exp(-after / 3.0)
+    return prepare_history(t, d, taper_in_s=0.5, taper_out_s=0.0, require_rest=False, source="test burst")
+
+
+def quiet_tail(history, from_s=3.5):
+    """(RMS of y - r in m, std of the valve command in V, the times the command crosses the dead zone) after
+    ``from_s``, on IUT_a at 100 bar in the servo's time-history mode."""
+    samples = Simulation(Scenario(load_isolator("IUT_a"), 100 * BAR_PA, [], history=history)).run().samples
+    quiet = samples["time_s"] >= from_s
+    error = (samples["displacement_m"] - samples["target_m"])[quiet]
+    u = samples["voltage_v"][quiet]
+    crossings = np.count_nonzero(np.diff(np.sign(u[np.abs(u) > 0.5])) != 0)  # from one edge to the other
+    return float(np.sqrt(np.mean(error ** 2))), float(np.std(u)), crossings
+
+
+def test_a_time_history_ending_at_rest_leaves_the_valve_closed():
+    """The target at rest: the table stays put and the valve closed. It chattered: the dead-zone inverse's ramp,
+    narrowed to the target's (vanishing) velocity, threw the spool across the whole dead zone at every sign of a
+    micrometre of error, and with friction and the oil's give that relay kept a limit cycle near 20 Hz (before
+    the fix: 25 um RMS, command std 0.88 V, 57 crossings of the dead zone in 1.5 s; after: 5 um, 0.000 V, 0)."""
+    rms, std, crossings = quiet_tail(burst_history())
+    assert rms < 10e-6 and std < 0.05 and crossings == 0
+
+
+def test_a_slow_small_motion_is_followed_without_chatter():
+    """A +-20 um oscillation at 2 Hz after the burst (a hybrid test's tail): the table follows it, and the valve
+    crosses its dead zone at the target's reversals only (6 in 1.5 s). Before the fix: 25 um RMS and 58 crossings
+    (the same 20 Hz limit cycle); after: 3 um and 6."""
+    rms, _std, crossings = quiet_tail(burst_history(ringing_m=20e-6))
+    assert rms < 6e-6 and crossings <= 8
+
+
+def test_the_rest_logic_is_the_time_histories_only():
+    """The feedback's wider dead-zone ramp (and with it the integral's pause and the edge trim) is on with the
+    integral, i.e. in the time-history mode; the sine tests run the law they always ran."""
+    assert make_controller("servo").params[sv.P_FB_RAMP] == 0.0
+    history = make_controller("servo", **sv.HISTORY_MODE)
+    assert history.params[sv.P_FB_RAMP] == sv.OPTIONS["dead_zone_feedback_ramp_v"].default

@@ -7,6 +7,7 @@ stability argument: docs/controller.md.
     dv   = c_0 + V_env Re sum_k c_k exp(j k theta)              learned periodic feed-forward
     u_l  = A_n (v / g) / (K_qn R(P_s - sgn(v) P_L))             inverse of the valve flow law, eq. (3) second line
     u    = u_l + DZ ramp(u_l / delta) - o + u_pf                dead-zone inverse (ramp over +-delta), null offset
+           (time histories: ramp((u_l - u_fb) / delta + u_fb / delta_fb), u_fb the command of K_p e + c_0)
     u_pf = -A_n k_pf HP(P_L) / (g K_qn R(P_s - sgn(v) P_L))     load-pressure feedback (soft oil columns only)
 
 R is the orifice law of the rig model: sqrt(dp), linear below the declared regularisation drop. g is the ratio of
@@ -34,6 +35,12 @@ the command saturates (the error then says nothing about the feed-forward) and e
 bound. Only the measured position, the load pressure, the supply pressure setting and declared rig values (A_p,
 K_q, dead zone, null offset, orifice regularisation, command limit; m, V_0, beta and the valve's frequency and
 damping for the pressure feedback; the position sensor's latency) are used; never the isolator's parameters.
+
+Time histories (the integral on, HISTORY_MODE): where the target is slow, the feedback's correction ramps in the
+dead zone over at least delta_fb (dead_zone_feedback_ramp_v), so the dead zone's side follows the target's motion
+and a table at rest holds its valve closed; the integral pauses while it does; and the error with the sign of the
+opening trims the compensated dead zone down (never up) by what the estimate has too much (docs/controller.md,
+"Time histories at rest").
 
 Report: model_m = r (the feed-forward removes the reference lag: the reference model is the target itself);
 ar_hat = g, the estimated ratio of the true to the nominal flow gain; ay_hat = the estimated dead zone in V;
@@ -73,15 +80,17 @@ MAX_HARMONICS = 24
 P_JERK_LEAD, P_INTEGRAL = 27, 28
 (P_RAMP_SHARE, P_RAMP_MIN, P_OFFSET_MAX, P_KPF, P_PF_WC, P_LAT, P_COMPLIANCE, P_WH, P_ZH, P_OFFSET_ADAPT,
  P_OW, P_DP_REG, P_OVMIN, P_OVT) = range(29, 43)
-N_PARAMS = 43
+P_FB_RAMP, P_EDGE_TRIM = 43, 44
+N_PARAMS = 45
 DELAY_LINE = 256  # periods of regressor and target history kept (valve estimate, position latency)
 
 # State indices; the delay line and the harmonic coefficients (real, imaginary) follow.
 (S_STARTED, S_RD1, S_RD2, S_NUM, S_DEN, S_OMEGA_LEARNED, S_C0, S_SAT, S_VENV, S_YPREV, S_GXY, S_GXX,
  S_GAIN, S_HEAD, S_STEADY_S, S_GXW, S_GWW, S_GWY, S_DZ_HAT, S_NEW_FREQ_S) = range(20)
 (S_OFFSET, S_GZZ, S_GXZ, S_GWZ, S_GZY, S_PL_PREV, S_PL_HP) = range(20, 27)
+S_EDGE = 27  # trim of the compensated dead zone, V (<= 0; time histories, slow motions)
 # the same sums over the offset's longer window: xx, xw, ww, xz, wz, zz, xy, wy, zy
-S_LONG = 27
+S_LONG = 28
 S_LINE_X = S_LONG + 9
 S_LINE_W = S_LINE_X + DELAY_LINE
 S_LINE_Z = S_LINE_W + DELAY_LINE
@@ -159,6 +168,10 @@ OPTIONS = {
     "dead_zone_ramp_share": Option(0.05, 0.0, 1.0, "-", meaning="the dead-zone ramp shrinks to this share of the "
                                    "target's peak velocity (0: always dead_zone_ramp_v)"),
     "dead_zone_ramp_min_v": Option(1e-4, 1e-6, 2.0, "V", meaning="the narrowest dead-zone ramp"),
+    "dead_zone_feedback_ramp_v": Option(2e-3, 0.0, 2.0, "V", meaning="the narrowest dead-zone ramp of the position "
+                                        "feedback's correction (0: the feed-forward's)"),
+    "dead_zone_edge_trim": Option(1.0, 0.0, 1.0, "-", meaning="1: on slow motions of a time history the integral "
+                                  "trims the compensated dead zone too"),
     "null_offset_adaptive": Option(1.0, 0.0, 1.0, "-", meaning="1: the valve's null offset is estimated with the "
                                    "flow gain and the dead zone (0: the nominal driver_offset_v is kept)"),
     "null_offset_window_s": Option(3.0, 1e-3, 1000.0, "s", meaning="forgetting time of the null-offset estimate (a "
@@ -234,6 +247,10 @@ def make_servo(rig=None, **options) -> Controller:
     params[P_INTEGRAL] = o["integral_per_s"]
     params[P_RAMP_SHARE] = o["dead_zone_ramp_share"]
     params[P_RAMP_MIN] = min(o["dead_zone_ramp_min_v"], o["dead_zone_ramp_v"])
+    # the feedback's ramp, the integral's pause inside it and the edge trim belong to the integral's mode (time
+    # histories): on sines the learning removes what the narrow ramp leaves, and a sine test never rests
+    params[P_FB_RAMP] = min(o["dead_zone_feedback_ramp_v"], o["dead_zone_ramp_v"]) if o["integral_per_s"] > 0 else 0.0
+    params[P_EDGE_TRIM] = o["dead_zone_edge_trim"]
     params[P_OFFSET_MAX] = o["null_offset_max_v"]
     params[P_OFFSET_ADAPT] = o["null_offset_adaptive"]
     params[P_OW] = o["null_offset_window_s"]
@@ -383,18 +400,33 @@ def orifice_root(dp, dp_reg):
 @njit(cache=True)
 def valve_inverse(v, p_load, p_supply, area, kq, dz, dz_ramp, dp_min_share, dp_reg=0.0):
     """Command u that makes the nominal valve pass the flow area * v: inverse of eq. (3) with the dead zone."""
+    u_lin, ramp = valve_inverse_ramp(v, p_load, p_supply, area, kq, dz_ramp, dp_min_share, dp_reg, 0.0, 0.0)
+    return u_lin + dz * ramp
+
+
+@njit(cache=True)
+def valve_inverse_ramp(v, p_load, p_supply, area, kq, dz_ramp, dp_min_share, dp_reg, v_fb, fb_ramp):
+    """The two parts of ``valve_inverse``: the command u_l of the valve without dead zone, and the share (-1..1)
+    of the dead zone added to it (the ramp; -1 or 1: the whole dead zone, the valve opens). Where ``fb_ramp`` is
+    wider than ``dz_ramp``, the part ``v_fb`` of ``v`` (the position feedback's correction) ramps in over
+    ``fb_ramp``, the rest over ``dz_ramp``."""
     sgn = 1.0 if v >= 0.0 else -1.0
     dp = p_supply - sgn * p_load
     dp_min = dp_min_share * p_supply
     if dp < dp_min:
         dp = dp_min
-    u_lin = area * v / (kq * orifice_root(dp, dp_reg))
-    ramp = u_lin / dz_ramp
+    flow_per_volt = kq * orifice_root(dp, dp_reg)
+    u_lin = area * v / flow_per_volt
+    if fb_ramp > dz_ramp:
+        u_fb = area * v_fb / flow_per_volt
+        ramp = (u_lin - u_fb) / dz_ramp + u_fb / fb_ramp
+    else:
+        ramp = u_lin / dz_ramp
     if ramp > 1.0:
         ramp = 1.0
     elif ramp < -1.0:
         ramp = -1.0
-    return u_lin + dz * ramp
+    return u_lin, ramp
 
 
 @njit(cache=True)
@@ -590,11 +622,9 @@ def servo_step(p, s, meas, dt, report):
     e = r_seen - y
     kp = p[P_KP]
     v = rd + p[P_TAU_V] * rdd + kp * e + s[S_C0]
+    v_fb = kp * e + s[S_C0]  # the part of v that corrects the position error
     if p[P_JERK_LEAD] > 0.0:
         v += p[P_JERK_LEAD] * rddd
-    if p[P_INTEGRAL] > 0.0 and not s[S_SAT] > 0.5:  # the constant velocity a null offset asks, integrated
-        c0max = p[P_C0MAX]
-        s[S_C0] = min(max(s[S_C0] + p[P_INTEGRAL] * kp * e * dt, -c0max), c0max)
     theta = 0.0
     if omega > 0.0 and nh >= 1:
         theta = np.arctan2(-rdd / omega, rd_mid) + 0.5 * omega * dt
@@ -624,20 +654,46 @@ def servo_step(p, s, meas, dt, report):
         ramp_fit = p[P_RAMP_SHARE] * p[P_AREA] * v_est / (gain * p[P_KQ] * np.sqrt(max(p_supply, 1.0)))
         ramp = min(max(ramp_fit, p[P_RAMP_MIN]), ramp)
     o_hat = s[S_OFFSET]
-    u = valve_inverse(v / gain, p_load, p_supply, p[P_AREA], p[P_KQ], p[P_DZ_FRAC] * s[S_DZ_HAT], ramp,
-                      p[P_DP_MIN], p[P_DP_REG]) - o_hat
+    # with the integral on (time histories) the position feedback's correction v_fb ramps in over at least
+    # dead_zone_feedback_ramp_v: where the target is slow (the ramp above narrower than that), the side of the dead
+    # zone follows the target's own motion, and an error of a few micrometres with the target (nearly) at rest no
+    # longer throws the spool across the whole dead zone (a relay that, with friction and the oil's give, made a
+    # limit cycle of about 20 Hz and tens of micrometres)
+    u_lin, ramp_at = valve_inverse_ramp(v / gain, p_load, p_supply, p[P_AREA], p[P_KQ], ramp, p[P_DP_MIN],
+                                        p[P_DP_REG], v_fb / gain, p[P_FB_RAMP])
+    # the estimated dead zone, trimmed (time histories, slow motions: below)
+    dz_c = p[P_DZ_FRAC] * max(s[S_DZ_HAT] + s[S_EDGE], p[P_DZ_LO])
+    u = u_lin + dz_c * ramp_at - o_hat
     if v_pf != 0.0:
         # added after the dead-zone inverse, linearly: it moves the open valve, never switches the dead zone's side
         sgn_v = 1.0 if v >= 0.0 else -1.0
         dp_v = max(p_supply - sgn_v * p_load, p[P_DP_MIN] * p_supply)
         u += p[P_AREA] * v_pf / (gain * p[P_KQ] * orifice_root(dp_v, p[P_DP_REG]))
     ulim = p[P_ULIM]
+    was_saturated = s[S_SAT] > 0.5
     saturated = abs(u) >= ulim
     if u > ulim:
         u = ulim
     elif u < -ulim:
         u = -ulim
     s[S_SAT] = 1.0 if saturated else 0.0
+    # the constant velocity a null offset asks, integrated: not while the command saturates, nor, on slow motions
+    # (the feedback's own dead-zone ramp), while the valve is held inside its dead zone: the table at rest, where
+    # the error says nothing about a velocity offset and integrating it would walk the command across the ramp
+    slow = p[P_FB_RAMP] > ramp
+    valve_open = abs(ramp_at) >= 1.0
+    if p[P_INTEGRAL] > 0.0 and not was_saturated and (valve_open or not slow):
+        c0max = p[P_C0MAX]
+        s[S_C0] = min(max(s[S_C0] + p[P_INTEGRAL] * kp * e * dt, -c0max), c0max)
+        if slow and valve_open and p[P_EDGE_TRIM] > 0.5:
+            # on slow motions the velocity hinges on the dead zone's edge, and a few millivolts too much of it (the
+            # estimate leans high: friction and the oil's give hold the table at its first millivolts of opening)
+            # make the table run ahead of the target: with the side locked by the target's motion the feedback
+            # then holds it K_p^-1 times that velocity ahead. The error on that side takes the excess off, with
+            # the integral's gain (never adds: too little dead zone is a lag the feedback closes, not a relay)
+            per_v = p[P_AREA] / (gain * p[P_KQ] * np.sqrt(max(p_supply, 1.0)))
+            trim = s[S_EDGE] + p[P_INTEGRAL] * kp * e * ramp_at * dt * per_v
+            s[S_EDGE] = min(max(trim, p[P_DZ_LO] - s[S_DZ_HAT]), 0.0)
     # regressors of the valve estimate for the command actually applied (NaN inside the dead zone: no flow)
     xs = np.nan
     ws = np.nan
