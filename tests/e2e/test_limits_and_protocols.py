@@ -164,7 +164,9 @@ def test_protocols_listed_and_the_confirmation_uses_the_services_figures(server,
     assert quick["title"] in info and quick["description"] in info, info
     rows = page.locator("#protocol-info .protocol-levels tr")
     assert rows.count() == 1 + len(quick["levels"])  # a header and one row per level
-    assert re.search(r"10\.00 mm\s+1 Hz\s+3 \(\+1\+1\)\s+0:05", rows.nth(1).inner_text()), rows.nth(1).inner_text()
+    assert re.search(r"10\.00 mm\s+1 Hz\s+3 \+1\+1\s+0:05", rows.nth(1).inner_text()), rows.nth(1).inner_text()
+    box = page.locator("#protocol-info")  # the whole table in view, no column cut (the panel does not scroll it)
+    assert box.evaluate("e => e.scrollWidth <= e.clientWidth + 1"), box.evaluate("e => [e.scrollWidth, e.clientWidth]")
     assert "duration 0:10 (test time)" in info and "peak \u00b120.00 mm, 125.7 mm/s" in info, info
     page.locator("#protocol-info").screenshot(path=str(artifacts / "dashboard_protocol_1920x1080.png"))
 

@@ -226,3 +226,18 @@ def test_manual_motion_limits_refusals_units_and_offset(server, open_page, artif
     poll(lambda: "the table at zero" in page.inner_text("#start-why"), 10, "Start waiting for the table at zero")
     assert page.get_attribute("#rig-warning", "data-state") == "off-zero"
     page.fill("#f-offset", "")
+
+    # the offset taken from the table, then the table zeroed elsewhere: the warning names the test's start and
+    # offers the way out (start from zero) instead of Zero, which would not help
+    page.click("#offset-from-table")
+    page.wait_for_selector("#envelope[data-state='ok']", timeout=10000)
+    server.zero_table()
+    page.wait_for_selector("#rig-warning[data-state='off-zero']", timeout=10000)
+    warning = page.inner_text("#rig-warning")
+    assert f"Table not where this test starts ({offset * 1e3:+.2f} mm)" in warning, warning
+    assert page.is_visible("#warning-from-zero") and page.locator("#warning-zero").count() == 0
+    page.click("#warning-from-zero")
+    page.wait_for_selector("#rig-warning[data-state='ok']", state="attached", timeout=10000)
+    assert page.inner_text("#offset-note") == ""
+    assert abs(float(page.input_value("#f-offset")) - offset * 1e3) < 1e-9  # the offset stays, reached from zero
+    poll(lambda: "the table at" not in page.inner_text("#start-why"), 10, "Start no longer waiting for the table")

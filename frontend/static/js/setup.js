@@ -118,7 +118,8 @@ export class SetupPanel {
       cycles: { id: "f-cycles", quantity: null, integer: true, required: true, sine: true,
         range: () => [1, env().max_cycles ?? 100000] },
       taper_cycles: { id: "f-taper_cycles", quantity: null, integer: true, required: true, sine: true,
-        range: () => [0, num(this.values.cycles) ? Math.floor(this.values.cycles / 2) : 0] },
+        // no number of cycles yet (or a wrong one): the taper is not judged against it
+        range: () => [0, Math.floor((num(this.values.cycles) ? this.values.cycles : env().max_cycles ?? 100000) / 2)] },
       offset: { id: "f-offset", quantity: "length", required: false, sine: true,
         range: () => [-(env().stroke_m ?? 0.15), env().stroke_m ?? 0.15] },
       lim_displacement: { id: "f-lim_displacement", quantity: "length", required: false, openLow: true, limit: "displacement_m",
@@ -483,7 +484,7 @@ export class SetupPanel {
     const table = el("table", { class: "params protocol-levels" });
     table.append(el("tr", {}, ...["level", "amplitude", "freq.", "cycles", "time"].map((h) => el("th", { text: h }))));
     for (const l of p.levels) {
-      const taper = num(l.taper_cycles) && l.taper_cycles > 0 ? ` (+${l.taper_cycles}+${l.taper_cycles})` : "";
+      const taper = num(l.taper_cycles) && l.taper_cycles > 0 ? ` +${l.taper_cycles}+${l.taper_cycles}` : "";
       table.append(el("tr", {},
         el("td", { text: l.label || "" }),
         el("td", { text: fmtU("length", l.amplitude_m) }),
@@ -492,7 +493,7 @@ export class SetupPanel {
         el("td", { text: fmtDuration(l.duration_s) })));
     }
     info.append(table);
-    info.append(el("div", { class: "muted", text: "cycles: test cycles (+ ramp-in + ramp-out cycles)" }));
+    info.append(el("div", { class: "muted", text: "cycles: test cycles +ramp-in +ramp-out cycles" }));
     info.append(el("div", { class: "protocol-total", text: `${p.levels.length} levels, ${p.cycles_total} cycles, ` +
       `duration ${fmtDuration(p.duration_s)} (test time); peak \u00b1${fmtU("length", p.peak_displacement_m)}, ` +
       `${fmtU("velocity", p.peak_velocity_m_per_s)}; design displacement ${fmtU("length", p.design_displacement_m)}` }));
@@ -593,9 +594,20 @@ export class SetupPanel {
       } else if (off) {
         const zero = el("button", { type: "button", id: "warning-zero", class: "small", text: "Zero the table..." });
         zero.addEventListener("click", () => this.manual.go("zero"));
-        box.append(el("b", { text: "Table off zero: Start is disabled until it rests at zero." }),
-          el("div", { text: `${capitalize(off.text)}.` }),
-          el("div", { class: "warning-actions" }, zero, el("span", { text: "see Manual motion (end of the set-up)" })));
+        const actions = el("div", { class: "warning-actions" });
+        if (off.startM !== 0) { // the offset was taken from the table, which has moved since
+          const fromZero = el("button", { type: "button", id: "warning-from-zero", class: "small",
+            text: "Start from zero instead" });
+          fromZero.title = "the test starts at zero and reaches its offset during the first cycle";
+          fromZero.addEventListener("click", () => this.startFromZero());
+          actions.append(fromZero);
+          if (!off.nearZero) actions.append(zero);
+        } else actions.append(zero);
+        actions.append(el("span", { text: "see Manual motion (end of the set-up)" }));
+        box.append(el("b", { text: off.startM !== 0
+          ? `Table not where this test starts (${fmtU("length", off.startM, { sign: true })}): Start is disabled until it rests there.`
+          : "Table off zero: Start is disabled until it rests at zero." }),
+        el("div", { text: `${capitalize(off.text)}.` }), actions);
       }
     }
     if (off) this.renderZeroButton(this.manual.blockers("zero"));
@@ -629,8 +641,24 @@ export class SetupPanel {
     if (Math.abs(where.m - start) <= tol) return null;
     const at = fmtU("length", where.m, { sign: true });
     const of = start === 0 ? "zero" : `where this test starts, ${fmtU("length", start, { sign: true })}`;
-    return { at, startM: start, text: `the table rests at ${at} (${sourceWords(where.source)}) and a test starts only within ` +
+    return { at, startM: start, nearZero: Math.abs(where.m) <= tol,
+      text: `the table rests at ${at} (${sourceWords(where.source)}) and a test starts only within ` +
       `\u00b1${fmtU("length", tol, { sig: 3 })} of ${of}` };
+  }
+
+  /** The sine's offset no longer taken from the table: the test starts at zero and reaches it in the first cycle. */
+  startFromZero() {
+    this.offsetTakenM = null;
+    this.renderOffsetNote();
+    this.formChanged();
+  }
+
+  /** Under the offset: where the test starts (the table position it was taken from, or zero). */
+  renderOffsetNote(how = "") {
+    const taken = this.offsetTakenM;
+    $("offset-note").textContent = taken === null ? "" : `set from the table position ${fmtU("length", taken, { sign: true })}` +
+      `${how ? ` (${how})` : ""}: the test starts there and runs about it (a typed offset is reached from zero during ` +
+      "the first cycle).";
   }
 
   /** Where the test in the form begins (m): the table position its offset was taken from, else zero. */
@@ -840,9 +868,7 @@ export class SetupPanel {
     const m = Math.round(where.m / 1e-5) * 1e-5;
     this.setField("offset", m === 0 ? 0 : m);
     this.offsetTakenM = m === 0 ? null : m;
-    $("offset-note").textContent = `set from the table position ${fmtU("length", where.m, { sign: true })} ` +
-      `(${sourceWords(where.source)}): the test starts there and runs about it (a typed offset is reached ` +
-      "from zero during the first cycle).";
+    this.renderOffsetNote(sourceWords(where.source));
     this.formChanged();
   }
 
@@ -989,6 +1015,7 @@ export class SetupPanel {
       this.setField("taper_cycles", p.taper_cycles);
       this.setField("offset", num(p.offset_m) && p.offset_m !== 0 ? p.offset_m : null);
       this.offsetTakenM = num(p.start_m) && p.start_m !== 0 && p.start_m === p.offset_m ? p.start_m : null;
+      this.renderOffsetNote(`where test #${t.id} started`);
     }
     if (t.controller && [...$("f-controller").options].some((o) => o.value === t.controller)) {
       $("f-controller").value = t.controller;
