@@ -548,6 +548,9 @@ class RigService:
             test.summary = self._summary(session, test, run.job, pacing, run.link, indications, run.stability)
             self.last_end = {"test_id": test_id, "status": status, **self._row_state(run.last_row)}
             store.set_status(session, test, status, reason)
+            verdict = protocol_verdict(session, test)  # once the status is final (an early end: INCOMPLETE)
+            if verdict is not None:
+                test.summary = {**test.summary, "acceptance": verdict}
             message = f"{_what(test)} {test_id} {status}" + (f": {reason}" if reason else "")
             store.add_event(session, test_id, "status", message, {"status": status, "time_s": run.time_s},
                             time_s=run.time_s)
@@ -629,6 +632,26 @@ class RigService:
             out["stability"] = figures.pop("stability")
         out["earthquake"] = figures
         return out
+
+
+def protocol_verdict(session: Session, test) -> dict | None:
+    """A protocol test's verdict for its summary (the word, how many checks, how many failed), from its stored
+    cycles (backend.reports.content.protocol_acceptance); None for another test or without reports."""
+    if ((test.request or {}).get("profile") or {}).get("kind") != "protocol":
+        return None
+    try:
+        from .reports.content import protocol_acceptance
+
+        out = protocol_acceptance(store.test_record(session, test, with_events=False),
+                                  store.load_cycles(session, test.id, arrays=False))
+    except ImportError:
+        return None
+    except Exception:  # never lose the end of a test over its verdict
+        log.exception("acceptance of test %s", test.id)
+        return None
+    if out is None:
+        return None
+    return store.clean_json({"verdict": out["verdict"], **{k: out["summary"][k] for k in ("verdicts", "failed")}})
 
 
 def scenario_isolator(job: dict):

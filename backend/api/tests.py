@@ -427,6 +427,26 @@ def get_earthquake(test_id: TestId, session: SessionDep,
     return out
 
 
+@router.get("/api/tests/{test_id}/acceptance", summary="A protocol test: its acceptance verdict, the verdict of "
+            "each rule and cycle, and the figures of each level (steady cycles)", responses=ERROR_RESPONSES)
+def get_acceptance(test_id: TestId, session: SessionDep) -> dict:
+    """What the report's acceptance page says, without the report: ``verdict`` (PASSED, FAILED, INCOMPLETE or
+    NO VERDICT), ``summary`` (verdicts, failed, the failing rules with their cycles), ``verdicts``, ``rules`` and
+    ``levels`` (each level's amplitude, frequency and means of K_eff, EDC, xi_eff over its steady cycles), from
+    the stored cycles (sim.protocols.evaluate_acceptance via backend.reports.content). 422 for a test that did not
+    run a protocol."""
+    test = _test_or_404(session, test_id)
+    _reports()
+    from ..reports.content import protocol_acceptance
+
+    out = protocol_acceptance(store.test_record(session, test, with_events=False),
+                              store.load_cycles(session, test_id, arrays=False))
+    if out is None:
+        raise ApiError(422, f"test {test_id} did not run a protocol: it has no acceptance rules", "test_id",
+                       test_id, "a test with a protocol profile")
+    return clean_json(out)
+
+
 def _reportable(session, test_id: int):
     """The test, if a report can be made of it (404 unknown; 422 for a manual move, which has none)."""
     test = _test_or_404(session, test_id)

@@ -30,6 +30,20 @@ def _last_finite(column: np.ndarray):
     return float(column[finite[-1]]) if finite.size else None
 
 
+def protocol_acceptance(record: dict, cycles: list[dict]) -> dict | None:
+    """A protocol test's acceptance (``acceptance``) and each level's figures (``levels``, from ``headline``) from
+    its record and stored cycles alone (no samples needed), or None for a test that did not run a protocol."""
+    from .data import ReportBundle
+
+    protocol, _note = protocol_of(record)
+    if protocol is None:
+        return None
+    bundle = ReportBundle(record=record, samples=np.empty((0, 0)), cycles=cycles)
+    out = acceptance(bundle, run_of(bundle))
+    out["levels"] = headline(bundle, protocol)["levels"]
+    return out
+
+
 def controller_state(bundle) -> dict:
     """Controller name, the options the test set, every option in force (value, unit, meaning: sim.controllers
     OPTIONS) and what it adapts under the names and units it declares (sim.controllers ADAPTED) with the final

@@ -50,3 +50,36 @@ def test_the_bundle_of_a_test_that_ran(tmp_path):
     assert "no such file" in report["lab"]["logo_warning"]  # the report is made all the same
     assert report["approval"]["tested_by"] == "A. Rossi"
     assert pdf[:5] == b"%PDF-"
+
+
+def test_a_protocol_tests_acceptance_without_the_report(client):
+    """GET .../acceptance: the report's verdicts of a protocol test, per rule and cycle, and each level's means;
+    the summary keeps the verdict word; a sine test has none (422, said)."""
+    from conftest import AUTH, sine_test
+
+    from backend.reports.content import acceptance, headline
+    from backend.store import load_test_bundle
+
+    body = {**sine_test(speed=20.0), "profile": {"kind": "protocol", "name": "quick_check"}}
+    test_id = client.post("/api/tests?start=true", json=body, headers=AUTH).json()["id"]
+    record = wait_for(client, test_id)
+    assert record["status"] == "completed"
+    r = client.get(f"/api/tests/{test_id}/acceptance")
+    assert r.status_code == 200, r.text
+    got = r.json()
+    with client.app.state.sessions() as session:  # the report's own computation on the whole bundle
+        bundle = load_test_bundle(session, test_id)
+    from backend.reports.data import protocol_of, run_of
+
+    full = acceptance(bundle, run_of(bundle))
+    assert got["verdict"] == full["verdict"] == "PASSED"
+    assert [v["value"] for v in got["verdicts"]] == pytest.approx([v["value"] for v in full["verdicts"]])
+    assert len(got["verdicts"]) == got["summary"]["verdicts"] == 8
+    levels = headline(bundle, protocol_of(bundle.record)[0])["levels"]
+    assert [lv["amplitude_m"] for lv in got["levels"]] == [0.01, 0.02]
+    assert got["levels"][1]["means"]["k_eff_n_per_m"] == pytest.approx(levels[1]["means"]["k_eff_n_per_m"])
+    assert record["summary"]["acceptance"] == {"verdict": "PASSED", "verdicts": 8, "failed": 0}
+    sine = create_and_start(client, speed=20.0)
+    assert "acceptance" not in wait_for(client, sine)["summary"]
+    r = client.get(f"/api/tests/{sine}/acceptance")
+    assert r.status_code == 422 and "did not run a protocol" in r.json()["detail"]

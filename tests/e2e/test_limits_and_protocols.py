@@ -218,3 +218,52 @@ def test_protocols_listed_and_the_confirmation_uses_the_services_figures(server,
     page.click("#confirm-cancel")
     page.unroute("**/api/tests/check")
     assert not watch.unexpected_errors()
+
+
+def test_a_protocol_tests_page_says_its_verdict_and_its_levels(server, open_page, artifacts):
+    """quick_check run to its end: History shows PASSED beside the status and no mean over the levels; the test
+    page has the verdict, the checks, the rules and one row per level (amplitude, steady cycles, K_eff) as
+    GET .../acceptance gives them. The same protocol with a tolerance no isolator keeps (0.001 %) FAILS, naming
+    the rule and its cycles."""
+    import json
+    from pathlib import Path
+
+    strict = json.loads(Path("sim/protocol_data/quick_check.json").read_text())
+    strict["name"] = "quick_check_strict"
+    for rule in strict["acceptance"]:
+        rule["tolerance_fraction"] = 1e-5
+    ids = {}
+    for name, profile in (("passed", {"kind": "protocol", "name": "quick_check"}),
+                          ("failed", {"kind": "protocol", "protocol": strict})):
+        server.zero_table()
+        ids[name] = server.start_test({"isolator": "IUT_b", "supply_bar": 100, "speed": 10.0, "profile": profile})
+        server.wait_status(ids[name], {"completed"}, timeout_s=60)
+    page, _ = open_page(server.url + "/#/history", width=1366, height=768)
+    row = page.locator(f"#history-table tr[data-id='{ids['passed']}']")
+    row.wait_for(timeout=10000)
+    assert "PASSED" in row.inner_text() and "by level (test page)" in row.inner_text(), row.inner_text()
+    assert "FAILED" in page.locator(f"#history-table tr[data-id='{ids['failed']}']").inner_text()
+
+    acc = server.call("GET", f"/api/tests/{ids['passed']}/acceptance")[1]
+    page.goto(f"{server.url}/?viewer=off#/tests/{ids['passed']}")
+    page.wait_for_selector("#t-acc:not(.hidden) #t-acc-levels tbody tr", timeout=10000)
+    assert page.inner_text("#t-acc-verdict") == "PASSED" and acc["verdict"] == "PASSED"
+    assert page.inner_text("#t-acc-note").startswith(f"{acc['summary']['verdicts']} checks on ")
+    assert page.locator("#t-acc-rules li").count() == len(acc["rules"]) == 2
+    levels = page.locator("#t-acc-levels tbody tr")
+    assert levels.count() == 2
+    first = levels.nth(0).inner_text()
+    k_eff = acc["levels"][0]["means"]["k_eff_n_per_m"]
+    assert "10.00 mm" in first and f"{k_eff / 1e6:.3f} kN/mm"[:5] in first, (first, k_eff)
+    assert "mean K_eff" not in page.inner_text("#t-summary") and "PASSED (0 of" in page.inner_text("#t-summary")
+    cycles = page.locator("#t-cycles tbody tr")  # ramp cycles marked (quick_check: 1 + 3 + 1 per level)
+    assert cycles.nth(0).inner_text().startswith("1 (ramp-in)")
+    assert cycles.nth(4).inner_text().startswith("5 (ramp-out)")
+    assert cycles.nth(1).inner_text().split()[0] == "2" and "ramp-cycle" in cycles.nth(0).get_attribute("class")
+    page.screenshot(path=str(artifacts / "dashboard_protocol_test_page_1366x768.png"), full_page=True)
+
+    page.goto(f"{server.url}/?viewer=off#/tests/{ids['failed']}")
+    page.wait_for_selector("#t-acc-verdict.unmet", timeout=10000)
+    assert page.inner_text("#t-acc-verdict") == "FAILED"
+    failed = page.inner_text("#t-acc-failed")
+    assert "keff_vs_3rd_cycle:" in failed and "cycle(s)" in failed, failed

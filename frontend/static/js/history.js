@@ -6,6 +6,7 @@
 import { api, askToken, getToken } from "./api.js";
 import { confirmDialog, summaryTable } from "./dialogs.js";
 import { indicationsText, limitsText } from "./limits.js";
+import { isProtocol, ProtocolAcceptance, VERDICT_CLASS } from "./acceptance.js";
 import { EarthquakeRecord } from "./eqrecord.js";
 import { LoopPlot } from "./plots.js";
 import { el, eventLine, fmtTime, profileText } from "./ui.js";
@@ -19,6 +20,16 @@ function listOf(data, key) {
   if (data && Array.isArray(data[key])) return data[key];
   if (data && Array.isArray(data.items)) return data.items;
   return [];
+}
+
+const PHASE_WORDS = { taper_in: "ramp-in", taper_out: "ramp-out", ramp_out: "stop ramp-out" }; // sim.tracking PHASES
+
+/** A protocol test's verdict as a pill after its status (the summary's acceptance), or nothing. */
+function verdictPill(t) {
+  const a = t.summary && t.summary.acceptance;
+  if (!a || !a.verdict) return [];
+  return [" ", el("span", { class: `pill verdict ${VERDICT_CLASS[a.verdict] || ""}`, text: a.verdict,
+    title: `${a.failed} of ${a.verdicts} acceptance checks failed` })];
 }
 
 export function isolatorName(t) {
@@ -64,6 +75,7 @@ export class History {
   constructor() {
     this.loopPlot = null;
     this.eqRecord = new EarthquakeRecord(); // an earthquake test's J criteria and reference (js/eqrecord.js)
+    this.acceptance = new ProtocolAcceptance(); // a protocol test's verdict and levels (js/acceptance.js)
     this.current = null; // the test page's record
     $("history-filter").addEventListener("submit", (ev) => {
       ev.preventDefault();
@@ -128,9 +140,10 @@ export class History {
         el("td", { text: profileText(t) }),
         el("td", { text: controllerName(t) }),
         el("td", { text: num(t.vertical_load_n) ? fmtU("force", t.vertical_load_n, { sig: 4 }) : "-" }),
-        el("td", {}, statusPill(t.status), ...(t.archived ? [el("small", { class: "muted", text: ` archived by ${t.archived.by}: ${t.archived.reason}` })] : [])),
-        el("td", { text: fmtU("stiffness", s.k_eff_n_per_m) }),
-        el("td", { text: fmtU("energy", s.edc_j) }),
+        el("td", {}, statusPill(t.status), ...verdictPill(t),
+          ...(t.archived ? [el("small", { class: "muted", text: ` archived by ${t.archived.by}: ${t.archived.reason}` })] : [])),
+        ...(isProtocol(t) ? [el("td", { class: "muted", colspan: "2", text: "by level (test page)" })]
+          : [el("td", { text: fmtU("stiffness", s.k_eff_n_per_m) }), el("td", { text: fmtU("energy", s.edc_j) })]),
         actions);
       tr.addEventListener("click", () => { location.hash = `#/tests/${t.id}`; });
       tbody.append(tr);
@@ -223,9 +236,12 @@ export class History {
     if (indicated) summary.append(kv("limits indicated", indicated, "wide"));
     if (t.label) summary.append(kv("label", t.label));
     if (t.notes) summary.append(kv("notes", t.notes, "wide notes"));
+    const protocol = isProtocol(t); // a mean over a protocol's levels mixes amplitudes: the levels are below
+    const verdict = t.summary && t.summary.acceptance;
+    if (verdict) summary.append(kv("acceptance", `${verdict.verdict} (${verdict.failed} of ${verdict.verdicts} checks failed)`));
     for (const [key, label, quantity, opts] of [
-      ["k_eff_n_per_m", "mean K_eff", "stiffness"], ["edc_j", "mean EDC", "energy"],
-      ["xi_eff", "mean xi_eff", "percent"], ["qd_n", "mean Q_d", "force", { sig: 4 }],
+      ...(protocol ? [] : [["k_eff_n_per_m", "mean K_eff", "stiffness"], ["edc_j", "mean EDC", "energy"],
+        ["xi_eff", "mean xi_eff", "percent"], ["qd_n", "mean Q_d", "force", { sig: 4 }]]),
       ["rms_y_minus_r_m", "RMS y - r (test)", "length"], ["last_rms_y_minus_r_m", "RMS y - r (last 2 cycles)", "length"],
       ["amplitude_error", "amplitude error", "percent"], ["phase_error_deg", "phase error", "angle"],
       ["saturated_share", "command saturated", "percent"], ["peak_flow_l_per_min", "peak flow", null],
@@ -262,6 +278,7 @@ export class History {
     } catch { /* no cycles yet */ }
     this.renderCycles(cycles);
     this.renderLoops(cycles);
+    this.acceptance.show(t);
     const eqSeries = await this.eqRecord.show(t);
     if (eqSeries && !cycles.length) { // an earthquake test has no cycles: its whole F-d history, thinned
       this.renderLoops([{ displacement_m: eqSeries.displacement_m, force_n: eqSeries.force_n }]);
@@ -344,11 +361,13 @@ export class History {
     tbody.innerHTML = "";
     for (const c of cycles) {
       const m = c.metrics ? { ...c.metrics, cycle: c.cycle } : c;
-      tbody.append(el("tr", {}, ...cols.map(([key, , quantity]) => {
-        const v = m[key];
-        const text = !num(v) ? "-" : quantity === null ? String(v) : fmt(quantity, v);
-        return el("td", { text });
-      })));
+      const ramp = PHASE_WORDS[c.phase]; // a ramp cycle: shown, marked, left out of the headline figures
+      tbody.append(el("tr", ramp ? { class: "ramp-cycle", title: "a ramp cycle: not in the headline figures" } : {},
+        ...cols.map(([key, , quantity]) => {
+          const v = m[key];
+          const text = !num(v) ? "-" : quantity === null ? `${v}${key === "cycle" && ramp ? ` (${ramp})` : ""}` : fmt(quantity, v);
+          return el("td", { text });
+        })));
     }
   }
 
