@@ -52,6 +52,11 @@ DEFAULT_ACTION = "valve_close"
 LIMIT_KEYS = ("displacement_m", "force_n", "velocity_m_per_s", "load_pressure_pa", "tracking_error_m")
 UNITS = {"displacement_m": "m", "force_n": "N", "velocity_m_per_s": "m/s", "load_pressure_pa": "Pa",
          "tracking_error_m": "m"}
+#: how a trip's message names each quantity and writes its value (the values themselves stay SI in the event)
+QUANTITY_WORDS = {"displacement_m": "|displacement|", "force_n": "|force|", "velocity_m_per_s": "|velocity|",
+                  "load_pressure_pa": "|load pressure|", "tracking_error_m": "|y - r|"}
+READABLE = {"displacement_m": ("mm", 1e3), "force_n": ("kN", 1e-3), "velocity_m_per_s": ("mm/s", 1e3),
+            "load_pressure_pa": ("bar", 1e-5), "tracking_error_m": ("mm", 1e3)}
 DETECTORS = {"displacement": "displacement_m", "force": "force_n", "velocity": "velocity_m_per_s",
              "load_pressure": "load_pressure_pa", "tracking_error": "tracking_error_m"}
 
@@ -207,13 +212,15 @@ def limit_masks(rows: Samples, limits: SafetyLimits, velocity: np.ndarray) -> di
 
 def _limit_trip(rows: Samples, i: int, detector: str, limits: SafetyLimits, velocity: np.ndarray) -> Trip:
     key = DETECTORS[detector]
-    limit, action, unit = getattr(limits, key), limits.action(key), UNITS[key]
+    limit, action = getattr(limits, key), limits.action(key)
     values = _values(rows, i, velocity)
     values.update(limit=limit, limit_name=key, action=action)
     t = values["time_s"]
     verb = "exceeded (indicated)" if action == "indicate" else f"tripped ({action.replace('_', ' ')})"
-    message = (f"{detector.replace('_', ' ')} limit {verb} at t = {t:.3f} s: |{key}| = {abs(values[key]):.6g} {unit} "
-               f"> limit {limit:.6g} {unit}")
+    shown = READABLE[key]  # SI with a prefix a person reads at a glance: mm, kN, mm/s, bar
+    value, bound = abs(values[key]) * shown[1], limit * shown[1]
+    message = (f"{detector.replace('_', ' ')} limit {verb} at t = {t:.3f} s: {QUANTITY_WORDS[key]} {value:.4g} "
+               f"{shown[0]} beyond the limit of {bound:.4g} {shown[0]}")
     return Trip(detector, i, t, message, values, action)
 
 

@@ -55,7 +55,11 @@ def test_velocity_limit_trips_at_the_first_sample_beyond_it():
     trip = check_block(sine_rows(0, 200), lim)
     assert trip is not None and trip.detector == "velocity" and trip.action == "valve_close"
     assert abs(trip.values["velocity_m_per_s"]) > 0.1 and trip.values["limit_name"] == "velocity_m_per_s"
-    assert "velocity limit tripped (valve close)" in trip.message and "m/s" in trip.message
+    assert "velocity limit tripped (valve close)" in trip.message
+    # in words and readable units, no API names: "|velocity| 100.3 mm/s beyond the limit of 100 mm/s"
+    seen = abs(trip.values["velocity_m_per_s"]) * 1e3
+    assert trip.message.endswith(f": |velocity| {seen:.4g} mm/s beyond the limit of 100 mm/s"), trip.message
+    assert "velocity_m_per_s" not in trip.message
     assert check_block(sine_rows(0, 200), limits(velocity_m_per_s=0.13)) is None
 
 

@@ -155,7 +155,8 @@ def test_limit_trip_stops_the_test(client, limits, detector):
     assert values["detector"] == detector
     key = values["limit_name"]
     assert abs(values[key]) > values["limit"] == limits[key]
-    assert rec["reason"] == trip[0]["message"] and key in rec["reason"]
+    assert rec["reason"] == trip[0]["message"] and key not in rec["reason"]  # in words, not the API's names
+    assert rec["reason"].startswith(f"{detector.replace('_', ' ')} limit tripped (valve close) at t = ")
     data = client.get(f"/api/tests/{test_id}/data.csv").text.splitlines()[1:]
     last = [r.split(",") for r in data[-100:]]
     voltage = np.array([float(r[4]) for r in last])
