@@ -453,7 +453,7 @@ def _reportable(session, test_id: int):
     if (test.request.get("profile") or {}).get("kind") == "move":
         raise ApiError(422, f"test {test_id} is a manual move of the table: it has no report; its record "
                             f"(GET /api/tests/{test_id}) and samples (data.csv) are kept", "test_id", test_id,
-                       "a test with a sine or protocol profile")
+                       "a test that is not a manual move")
     return test
 
 

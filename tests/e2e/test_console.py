@@ -62,6 +62,15 @@ def test_numbers_cannot_be_misread(server, open_page, artifacts):
     assert "\u00b13.50 mm" in page.inner_text("#confirm-body")
     page.screenshot(path=str(artifacts / "dashboard_confirm_1366x768.png"))
     page.click("#confirm-cancel")
+    # about an offset, the confirmation gives the range the table covers, not a +- peak
+    page.fill("#f-offset", "10")
+    wait_start_enabled(page)
+    page.click("#start")
+    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    confirm = page.inner_text("#confirm-body")
+    assert "+6.50 mm to +13.50 mm" in confirm and "\u00b113.50 mm" not in confirm, confirm
+    page.click("#confirm-cancel")
+    page.fill("#f-offset", "")
 
     page.fill("#f-amplitude", "1,000")  # a thousand or one? refused, never guessed
     msg = page.inner_text("[data-field='amplitude'] .msg")

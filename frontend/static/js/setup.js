@@ -1269,7 +1269,12 @@ export class SetupPanel {
     if (m) {
       const maxF = this.lastCheck.data && this.lastCheck.data.max_force_n;
       const by = m.source === "service" ? "" : " (worked out in this console from the motion: the service's check gave no figures)";
-      rows.push(["peak displacement", `\u00b1${fmtU("length", m.d)}`, `stroke \u00b1${fmtU("length", this.rig.envelope.stroke_m, { sig: 4 })}${by}`]);
+      const v = this.values || {};
+      const about = this.isSine() && num(v.offset) && v.offset !== 0 && num(v.amplitude) ? v.offset : null;
+      rows.push(about === null
+        ? ["peak displacement", `\u00b1${fmtU("length", m.d)}`, `stroke \u00b1${fmtU("length", this.rig.envelope.stroke_m, { sig: 4 })}${by}`]
+        : ["displacement range", `${fmtU("length", about - v.amplitude, { sign: true })} to ${fmtU("length", about + v.amplitude, { sign: true })}`,
+          `the sine about ${fmtU("length", about, { sign: true })}; largest |r| ${fmtU("length", m.d)}; stroke \u00b1${fmtU("length", this.rig.envelope.stroke_m, { sig: 4 })}${by}`]);
       const eq = Boolean(this.eq.kind());
       if (eq) rows[rows.length - 1][2] = `the target's largest |r|, sample by sample (${rows[rows.length - 1][2]})`;
       rows.push(["peak velocity", fmtU("velocity", m.v), eq ? "the target's largest |r'|" : `2 pi f A${by}`]);

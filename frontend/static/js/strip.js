@@ -87,7 +87,8 @@ export class StatusStrip {
     // limits: the running test's (with their actions), else those the next test would get
     const lim = running ? t.limits || rs.limits : this.nextLimits ? this.nextLimits() : null;
     const id = state.testId ?? rs.test_id;
-    $("s-limits-label").textContent = running ? `limits of test #${id}, action when exceeded` : "limits of the next test, action when exceeded";
+    const what = isMove(state.test) ? "move" : "test";
+    $("s-limits-label").textContent = running ? `limits of ${what} #${id}, action when exceeded` : "limits of the next test, action when exceeded";
     $("s-limits").textContent = limitsText(lim);
     $("s-limits").title = limitsLines(lim);
     // the last event: this page's (the test in view), else the service's latest
