@@ -45,7 +45,7 @@ function channelWords(name) {
 
 function fmtChannel(quantity, value) {
   if (!num(value)) return "-";
-  return quantity ? fmtU(quantity, value, { sig: 3 }) : sigDigits(value, 3);
+  return quantity ? fmtU(quantity, value) : sigDigits(value, 3); // the console's digits for each quantity
 }
 
 export class EarthquakeRecord {
@@ -109,7 +109,7 @@ export class EarthquakeRecord {
     const tbody = $("t-eq-criteria").querySelector("tbody");
     tbody.innerHTML = "";
     for (const v of rec.verdicts) {
-      const value = num(v.value) ? `${sigDigits(v.value, 3)} ${v.unit}` : "-";
+      const value = num(v.value) ? `${sigDigits(v.value, 4)} ${v.unit}` : "-"; // as the PDF report gives it
       const verdict = v.met === true ? "met" : v.met === false ? "NOT met" : "not judged";
       tbody.append(el("tr", { "data-key": v.key },
         el("td", { text: v.name }), el("td", { text: v.meaning }), el("td", { class: "num", text: value }),
@@ -131,7 +131,7 @@ export class EarthquakeRecord {
     for (const [name, p] of Object.entries(peaks)) {
       const [words, quantity] = channelWords(name);
       const diff = num(p.rths) && num(p.reference) && p.reference !== 0
-        ? `${sigDigits((100 * (p.rths - p.reference)) / Math.abs(p.reference), 2)} %` : "-";
+        ? `${((100 * (p.rths - p.reference)) / Math.abs(p.reference)).toFixed(2)} %` : "-";
       tbody.append(el("tr", {}, el("td", { text: words }), el("td", { class: "num", text: fmtChannel(quantity, p.rths) }),
         el("td", { class: "num", text: fmtChannel(quantity, p.reference) }), el("td", { class: "num", text: diff })));
     }
