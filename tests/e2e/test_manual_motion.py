@@ -67,6 +67,7 @@ def test_zero_and_move_from_the_console(server, open_page, artifacts):
                  "Motion Operator"):
         assert what in confirm, (what, confirm)
     assert re.search(r"displacement \|d\|\s+150 mm\s+valve close", confirm), confirm  # the limits that apply
+    assert "the move ends aborted" in confirm and "the test ends" not in confirm, confirm
     page.screenshot(path=str(artifacts / "dashboard_zero_confirm_1366x768.png"))
     page.click("#confirm-cancel")
     assert page.inner_text("#mm-status") == "Zero cancelled: nothing was sent to the rig."

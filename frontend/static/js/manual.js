@@ -261,7 +261,7 @@ export class ManualMotion {
       `${fmtU("force", load, { sig: 4 })}`]);
     if (body.operator_name) rows.push(["operator", body.operator_name]);
     const box = el("div", {}, summaryTable(rows));
-    box.append(this.setup.limitsBox(body.limits));
+    box.append(this.setup.limitsBox(body.limits, "move"));
     return box;
   }
 

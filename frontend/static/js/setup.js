@@ -1297,7 +1297,8 @@ export class SetupPanel {
   }
 
   /** A table of the limits (the rig's defaults where `limits` names none), each with its action, explained. */
-  limitsBox(limits) {
+  /** The limits in force and what each action does; `what`: "test" or "move" (the record that ends aborted). */
+  limitsBox(limits, what = "test") {
     const box = el("div", { class: "limits-box" });
     const lim = { ...((this.rig && this.rig.limits_default) || {}), ...(limits || {}) };
     const table = el("table", { class: "params summary-table limits-table" });
@@ -1313,7 +1314,7 @@ export class SetupPanel {
     }
     box.append(table);
     box.append(el("p", { class: "actions-help" }, ...ACTION_ORDER.filter((a) => used.has(a))
-      .map((a) => el("span", {}, el("b", { text: actionName(a) }), `: ${actionHelp(a)}. `))));
+      .map((a) => el("span", {}, el("b", { text: actionName(a) }), `: ${actionHelp(a).replace("the test ends", `the ${what} ends`)}. `))));
     return box;
   }
 
