@@ -8,7 +8,7 @@
 //   the detector rths_stability) turns it red with its reason.
 // Data are kept in SI and converted when drawn (a few thousand points, five times a second).
 
-import { lowerBound, TimePlot } from "./plots.js";
+import { lowerBound, resampleOnto, TimePlot } from "./plots.js";
 import { fmtU, toDisplay, unit } from "./units.js";
 
 const $ = (id) => document.getElementById(id);
@@ -96,17 +96,7 @@ export class EarthquakeLive {
       if (!data || testId !== this.testId || !data.planned) return;
       const { time_s: ts, target_m: rs } = data.planned;
       if (!Array.isArray(ts) || !Array.isArray(rs) || ts.length < 2) return;
-      const g = this.grid;
-      let j = 0;
-      for (let k = 0; k < g.t.length; k++) { // linear interpolation onto the overview's grid
-        const t = g.t[k];
-        while (j < ts.length - 2 && ts[j + 1] < t) j++;
-        const t0 = ts[j];
-        const t1 = ts[j + 1];
-        if (t < t0 || t > ts[ts.length - 1] || rs[j] === null || rs[j + 1] === null) continue;
-        const w = t1 > t0 ? Math.min(1, Math.max(0, (t - t0) / (t1 - t0))) : 0;
-        g.planned[k] = rs[j] + w * (rs[j + 1] - rs[j]);
-      }
+      this.grid.planned = resampleOnto(ts, rs, this.grid.t); // linearly onto the overview's grid
       this.plannedLoaded = true;
       if (data.so_far) this.fillSoFar(data.so_far);
       else if (data.record && data.record.series) this.fillSoFar(data.record.series); // it ended before the page came

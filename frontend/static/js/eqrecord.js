@@ -7,30 +7,12 @@
 //   peak, hybrid test against reference.
 // Data stay in SI and are converted when drawn; the page is drawn again when the unit choice changes.
 
-import { TimePlot } from "./plots.js";
+import { resampleOnto, TimePlot } from "./plots.js";
 import { el } from "./ui.js";
 import { fmtU, sigDigits, toDisplay, unit } from "./units.js";
 
 const $ = (id) => document.getElementById(id);
 const num = (v) => typeof v === "number" && Number.isFinite(v);
-
-/** ys (sampled at xs, increasing) at the times `at`, linearly; NaN outside xs. For plotting on one time axis. */
-export function resampleOnto(xs, ys, at) {
-  const out = new Float64Array(at.length);
-  let j = 0;
-  for (let i = 0; i < at.length; i++) {
-    const t = at[i];
-    if (!(t >= xs[0] && t <= xs[xs.length - 1])) {
-      out[i] = NaN;
-      continue;
-    }
-    while (j < xs.length - 2 && xs[j + 1] < t) j++;
-    const span = xs[j + 1] - xs[j];
-    const w = span > 0 ? (t - xs[j]) / span : 0;
-    out[i] = ys[j] + w * (ys[j + 1] - ys[j]);
-  }
-  return out;
-}
 
 /** A channel name of the structure in words: "drift_2_m" -> "storey 2 drift". */
 function channelWords(name) {

@@ -17,6 +17,28 @@ export function lowerBound(t, len, time) {
   return lo;
 }
 
+/**
+ * ys (sampled at xs, increasing) at the times `at` (increasing), linearly; NaN outside xs and where a neighbour is
+ * missing (null or NaN, as a JSON series gives them). For plotting series of different steps on one time axis.
+ */
+export function resampleOnto(xs, ys, at) {
+  const out = new Float64Array(at.length).fill(NaN);
+  const last = xs.length - 1;
+  let j = 0;
+  for (let i = 0; i < at.length; i++) {
+    const t = at[i];
+    if (!(last >= 1 && t >= xs[0] && t <= xs[last])) continue;
+    while (j < last - 1 && xs[j + 1] < t) j++;
+    const a = ys[j];
+    const b = ys[j + 1];
+    if (a === null || b === null) continue;
+    const span = xs[j + 1] - xs[j];
+    const w = span > 0 ? Math.min(1, Math.max(0, (t - xs[j]) / span)) : 0;
+    out[i] = a + w * (b - a);
+  }
+  return out;
+}
+
 /** "Nice" tick values covering [lo, hi] (about n ticks). */
 export function niceTicks(lo, hi, n = 6) {
   if (!(hi > lo)) return [lo];
