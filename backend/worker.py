@@ -117,7 +117,7 @@ def scenario_from_job(job: dict) -> Scenario:
     return Scenario(isolator, spec["supply_pa"], blocks_from_dicts(spec["profile"]),
                     spec["controller"],
                     dict(spec.get("controller_options") or {}), rig=rig, vertical_load_n=spec.get("vertical_load_n"),
-                    history=history)
+                    history=history, plant_changes=dict(spec.get("plant_changes") or {}))
 
 
 def earthquake_from_job(job: dict, isolator=None):
@@ -141,10 +141,11 @@ def make_driver(rig: str, scenario: Scenario, link: dict | None = None, table_po
 
     The simulated rig is built with the test's isolator mounted, as a real rig has its specimen mounted, and
     its table where the last test left it (``table_position_m``); no driver receives the isolator through
-    the protocol.
+    the protocol. It is the scenario's plant: the rig the controller is told of, with the plant's changes (a
+    simulated lab rig that differs from its rig file, ``plant_changes``).
     """
     if rig == SIMULATED:
-        return SimulatedRig(scenario.isolator, scenario.rig, scenario.noise_seed, table_position_m)
+        return SimulatedRig(scenario.plant_isolator, scenario.plant_rig, scenario.noise_seed, table_position_m)
     from .drivers.udp import UdpRig
 
     return UdpRig.from_url(rig, **(link or {}))

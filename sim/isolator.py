@@ -114,13 +114,17 @@ def isolator_from_dict(data: dict) -> Isolator:
                                 f"[{lo:g}, {hi:g}] N (or absent)")
         load = float(load)
     return Isolator(name=name, description=description[:200], design_vertical_load_n=load, **values)
+#: no specimen mounted (commissioning a bare rig): no restoring force, a valid isolator all the same
+NO_SPECIMEN = Isolator("none", 1.0, 0.5, 1.0, 0.0, 0.0, "no specimen mounted", 0.0)
 
 
 def load_isolator(spec: str | Path) -> Isolator:
-    """A preset by name (``IUT_a``) or a user isolator from a JSON file path."""
+    """A preset by name (``IUT_a``), ``none`` (no specimen) or a user isolator from a JSON file path."""
     key = str(spec)
     if key in PRESETS:
         return PRESETS[key]
+    if key == NO_SPECIMEN.name:
+        return NO_SPECIMEN
     path = Path(key)
     if not path.suffix == ".json" and not path.exists():
         raise IsolatorError(f"unknown isolator {key!r}: use one of {', '.join(PRESETS)} or a path to a .json file")

@@ -1,7 +1,9 @@
 """A lab's own rig: a rig file (JSON or TOML) over the defaults, and NAME=VALUE changes from the command line.
 
 A rig file holds any subset of the ``RigParameters`` field names with SI values (the unit is in each name:
-``piston_area_m2``, ``dead_zone_v``, ``position_latency_s`` ...), optionally ``name`` and ``description``:
+``piston_area_m2``, ``dead_zone_v``, ``position_latency_s`` ...), optionally ``name``, ``description`` and
+``commissioning`` (where the values came from: written by ``isorig identify rig``, sim.commission, with the
+date, the conditions and the fit's quality; kept as it is and shown with the rig):
 
     {"name": "Lab B rig", "piston_area_m2": 0.02, "half_volume_m3": 0.006, "position_latency_s": 0.002}
 
@@ -14,6 +16,7 @@ cannot be a rig (a dead zone as wide as the command range, a minimum supply abov
 from __future__ import annotations
 
 import difflib
+import json
 import math
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -24,6 +27,8 @@ from .rig import DEFAULT_RIG, RigError, RigParameters
 
 RIG_FIELDS = tuple(f.name for f in fields(RigParameters))
 TEXT_FIELDS = ("name", "description")
+METADATA_FIELDS = (*TEXT_FIELDS, "commissioning")
+MAX_COMMISSIONING_CHARS = 200_000  # a commissioning section is a summary, not a record
 
 
 @dataclass(frozen=True)
@@ -34,6 +39,8 @@ class RigDescription:
     name: str = "isorig default rig (sim.rig)"
     description: str = ""
     source: str = "sim.rig defaults"
+    #: how the values were measured (``isorig identify rig``), None for a rig file written by hand
+    commissioning: dict | None = None
 
     def changed(self) -> dict:
         """The parameters that differ from the defaults."""
@@ -42,7 +49,19 @@ class RigDescription:
 
     def to_dict(self) -> dict:
         return {"name": self.name, "description": self.description, "source": self.source,
-                "changed": self.changed()}
+                "changed": self.changed(), "commissioning": commissioning_summary(self.commissioning)}
+
+
+def commissioning_summary(commissioning: dict | None) -> dict | None:
+    """What a page or a report says of a rig's commissioning: when, on what, how well the fit explained it."""
+    if not commissioning:
+        return None
+    c = commissioning
+    keys = ("date", "rig", "supply_pa", "vertical_load_n", "specimen", "rig_time_s", "trusted")
+    out = {k: c.get(k) for k in keys if k in c}
+    fit = c.get("fit") if isinstance(c.get("fit"), dict) else {}
+    out.update({k: fit.get(k) for k in ("flow_r2", "force_r2", "velocity_nrmse") if k in fit})
+    return out
 
 
 def suggestion(name: str, allowed) -> str:
@@ -64,7 +83,7 @@ def rig_from_mapping(data: dict, base: RigParameters = DEFAULT_RIG, where: str =
                        "parameter names and values")
     changes = {}
     for key, value in data.items():
-        if key in TEXT_FIELDS:
+        if key in METADATA_FIELDS:
             continue
         if key not in RIG_FIELDS:
             raise _unknown(key, where)
@@ -88,7 +107,38 @@ def load_rig_file(path: str | Path, base: RigParameters = DEFAULT_RIG) -> RigDes
     description = data.get("description", "")
     if not isinstance(name, str) or not isinstance(description, str):
         raise RigError("name", name, "text", f"rig file {path}: name and description must be text")
-    return RigDescription(parameters, name[:100], description[:400], str(path))
+    commissioning = data.get("commissioning")
+    if commissioning is not None and (not isinstance(commissioning, dict)
+                                      or len(json.dumps(commissioning, default=str)) > MAX_COMMISSIONING_CHARS):
+        raise RigError("commissioning", None, "an object (what isorig identify rig wrote)",
+                       f"rig file {path}: commissioning must be an object of at most {MAX_COMMISSIONING_CHARS} "
+                       "characters, as `isorig identify rig` writes it")
+    return RigDescription(parameters, name[:100], description[:400], str(path), commissioning)
+
+
+def rig_file_data(rig: RigParameters, name: str, description: str = "", commissioning: dict | None = None,
+                  always: tuple[str, ...] = ()) -> dict:
+    """A rig file's contents: the parameters that differ from the defaults (and those named in ``always``),
+    with its name, description and commissioning."""
+    data = {"name": name, "description": description}
+    for f in RIG_FIELDS:
+        value = getattr(rig, f)
+        if f in always or value != getattr(DEFAULT_RIG, f):
+            data[f] = value
+    if commissioning is not None:
+        data["commissioning"] = commissioning
+    return data
+
+
+def write_rig_file(path: str | Path, data: dict) -> Path:
+    """Write a rig file (JSON) atomically: a temporary file beside it, renamed into place once complete."""
+    path = Path(path)
+    if path.suffix.lower() != ".json":
+        raise RigError("out", str(path), "a .json file", f"a rig file is written as JSON: {path} must end in .json")
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(data, indent=2, default=float) + "\n")
+    tmp.replace(path)
+    return path
 
 
 def parse_assignment(text: str, allowed: tuple[str, ...] = RIG_FIELDS,
