@@ -1,4 +1,5 @@
-"""`isorig identify`: step-test fits of eq. (7) (Tables III/IV) and Bouc-Wen fits of eq. (4) from records."""
+"""`isorig identify`: step-test fits of eq. (7) (Tables III/IV), Bouc-Wen fits of eq. (4) from records, and the
+commissioning of a rig (`identify rig`, isorig/commands/identify_rig.py)."""
 
 from __future__ import annotations
 
@@ -48,6 +49,10 @@ def register(sub) -> None:
                    help="save the identified isolator for `isorig simulate --isolator OUT.json`")
     b.add_argument("--name", default=None, help="name of the saved isolator (default: from the file name)")
     b.set_defaults(func=run_bouc_wen)
+
+    from . import identify_rig
+
+    identify_rig.register(isub, type(p))
 
 
 # ---------------------------------------------------------------------------------------------------

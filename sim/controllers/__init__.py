@@ -4,8 +4,9 @@ from __future__ import annotations
 
 from numba import njit
 
-from . import mrac, pid, servo
+from . import excitation, mrac, pid, servo
 from .base import Adapted, Controller, ControllerOptionError, Option
+from .excitation import excitation_step, make_excitation
 from .mrac import make_mrac, mrac_step
 from .pid import make_pid, pid_step
 from .servo import make_servo, servo_step
@@ -13,6 +14,8 @@ from .servo import make_servo, servo_step
 FACTORIES = {"mrac": make_mrac, "pid": make_pid, "servo": make_servo}
 CONTROLLER_NAMES = tuple(FACTORIES)
 DEFAULT_CONTROLLER = "servo"  # what `isorig simulate` and the dashboard use when none is chosen
+#: controllers the loop runs that no test may choose: the commissioning excitation (sim.commission)
+INTERNAL_FACTORIES = {"excitation": make_excitation}
 
 OPTIONS: dict[str, dict[str, Option]] = {"mrac": mrac.OPTIONS, "pid": pid.OPTIONS, "servo": servo.OPTIONS}
 #: what each controller reports in the model_m, ar_hat, ay_hat, as_hat columns: name, unit, meaning
@@ -32,9 +35,10 @@ def describe_controllers() -> list[dict]:
 def make_controller(name: str, rig=None, **options) -> Controller:
     """A controller by name with its defaults, overridden by ``options``; ``rig`` (RigParameters) is the rig the
     controller may assume (its nominal values), never the isolator."""
-    if name not in FACTORIES:
+    factory = FACTORIES.get(name) or INTERNAL_FACTORIES.get(name)
+    if factory is None:
         raise ValueError(f"unknown controller {name!r}; allowed: {', '.join(CONTROLLER_NAMES)}")
-    return FACTORIES[name](rig=rig, **options)
+    return factory(rig=rig, **options)
 
 
 @njit(cache=True)
@@ -46,6 +50,8 @@ def controller_step(kind, params, state, meas, dt, report):
         return pid_step(params, state, meas, dt, report)
     if kind == servo.KIND:
         return servo_step(params, state, meas, dt, report)
+    if kind == excitation.KIND:
+        return excitation_step(params, state, meas, dt, report)
     return 0.0
 
 

@@ -1,0 +1,275 @@
+"""Commissioning: from a run of the excitation to a rig file the lab can trust, or a refusal that says why.
+
+``excitation_scenario`` is the run (sim.controllers.excitation around the table's resting position, within
+the operator's stroke and velocity bounds); any driver runs it through the same loop and detectors as a test.
+``identify(samples, declared, conditions)`` fits the record (sim.commission.fit), builds the commissioned rig
+(the declared rig with every fitted value), replays the commands on it (sim.commission.response) and judges
+the result (``trust_problems``): a rig file is written only from a fit that explains the record, whose
+uncertainties are small enough for the controller, and whose values are a rig.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from ..controllers.excitation import dither_lines, excitation_duration_s
+from ..errors import FieldError
+from ..history import HistoryTarget
+from ..isolator import Isolator
+from ..loop import CONTROL_PERIOD_S
+from ..rig import RigError, RigParameters
+from ..samples import Samples
+from .fit import LOWER, UPPER, FitError, RigFit, fit_rig, signals_from_samples
+from .response import FrequencyResponse, dither_response
+
+DEFAULT_MAX_STROKE_M = 0.002
+DEFAULT_MAX_VELOCITY_M_PER_S = 0.02
+STROKE_RANGE_M = (2e-4, 0.01)
+VELOCITY_RANGE_M_PER_S = (0.01, 0.1)  # below 10 mm/s a sticking table breaks away faster than the bound
+GUARD_SHARE = 0.75  # the excitation's own guard: this share of the stroke bound (the detector sits at the bound)
+MAX_RIG_TIME_S = 60.0
+
+#: what a fit must reach before its rig file is written (docs/commissioning.md, "When a fit is refused")
+MIN_FLOW_R2 = 0.98
+MIN_FORCE_R2 = 0.9
+MAX_VELOCITY_NRMSE = 0.2
+#: largest one-sigma uncertainty of each value the controller relies on: relative, or absolute (V, s)
+MAX_RELATIVE_STD = {"flow_gain_m3_per_s_v_sqrt_pa": 0.05, "driver_gain_negative": 0.05, "mass_kg": 0.2,
+                    "bulk_modulus_pa": 0.2, "valve_natural_frequency_rad_s": 0.2}
+MAX_ABSOLUTE_STD = {"dead_zone_v": 0.03, "driver_offset_v": 0.03, "position_latency_s": 3e-4}
+#: systematic allowance added to the jackknife's spread (what the fit's model leaves out; measured on 200
+#: simulated plants by scripts/commissioning_targets.py): relative share of the value, or absolute
+SYSTEMATIC_RELATIVE = {"flow_gain_m3_per_s_v_sqrt_pa": 0.005, "driver_gain_negative": 0.005, "mass_kg": 0.02,
+                       "bulk_modulus_pa": 0.02, "valve_natural_frequency_rad_s": 0.01, "valve_damping_ratio": 0.02,
+                       "friction_force_n": 0.02, "viscous_n_s_per_m": 0.3}
+SYSTEMATIC_ABSOLUTE = {"dead_zone_v": 0.002, "driver_offset_v": 0.002, "position_latency_s": 5e-5}
+
+
+class CommissioningError(FieldError):
+    """Bounds or conditions a commissioning run cannot take; names the field, the value and what is allowed."""
+
+
+@dataclass(frozen=True)
+class Conditions:
+    """Where and how the rig was commissioned (the rig file's provenance)."""
+
+    rig: str  # "simulated" or udp://HOST:PORT
+    supply_pa: float
+    vertical_load_n: float
+    specimen: str  # the isolator mounted, or "none"
+    start_m: float
+    max_stroke_m: float = DEFAULT_MAX_STROKE_M
+    max_velocity_m_per_s: float = DEFAULT_MAX_VELOCITY_M_PER_S
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def check_bounds(max_stroke_m: float, max_velocity_m_per_s: float, rig: RigParameters, start_m: float) -> None:
+    """A clear CommissioningError for bounds outside what commissioning takes or the rig allows."""
+    lo, hi = STROKE_RANGE_M
+    if not (isinstance(max_stroke_m, (int, float)) and math.isfinite(max_stroke_m) and lo <= max_stroke_m <= hi):
+        raise CommissioningError("max_stroke_m", max_stroke_m, f"[{lo:g}, {hi:g}] m",
+                                 f"max_stroke_m = {max_stroke_m!r} m is outside [{lo * 1e3:g}, {hi * 1e3:g}] mm")
+    lo, hi = VELOCITY_RANGE_M_PER_S
+    if not (isinstance(max_velocity_m_per_s, (int, float)) and math.isfinite(max_velocity_m_per_s)
+            and lo <= max_velocity_m_per_s <= hi):
+        raise CommissioningError("max_velocity_m_per_s", max_velocity_m_per_s, f"[{lo:g}, {hi:g}] m/s",
+                                 f"max_velocity_m_per_s = {max_velocity_m_per_s!r} m/s is outside "
+                                 f"[{lo * 1e3:g}, {hi * 1e3:g}] mm/s")
+    if abs(start_m) + max_stroke_m > rig.stroke_m:
+        raise CommissioningError("max_stroke_m", max_stroke_m, f"<= {rig.stroke_m - abs(start_m):g} m",
+                                 f"the table rests at {start_m * 1e3:.2f} mm: +-{max_stroke_m * 1e3:g} mm around it "
+                                 f"passes the rig's stroke of +-{rig.stroke_m * 1e3:g} mm; move it towards zero first")
+
+
+def excitation_options(max_stroke_m: float, max_velocity_m_per_s: float) -> dict:
+    """The excitation controller's options for these bounds."""
+    return {"guard_m": GUARD_SHARE * max_stroke_m, "max_velocity_m_per_s": max_velocity_m_per_s}
+
+
+def excitation_target(start_m: float, options: dict) -> HistoryTarget:
+    """The run's target: the table's resting position, held for the excitation's whole length."""
+    n = int(math.ceil(excitation_duration_s(options) / CONTROL_PERIOD_S))
+    return HistoryTarget(np.full(n, float(start_m)), np.zeros(n), np.zeros(n), CONTROL_PERIOD_S,
+                         source=f"commissioning excitation about {start_m * 1e3:.3f} mm", scale=1.0, taper_in_s=0.0,
+                         taper_out_s=0.0, duration_s=n * CONTROL_PERIOD_S, source_dt_s=CONTROL_PERIOD_S,
+                         source_samples=n)
+
+
+def excitation_scenario(isolator: Isolator, conditions: Conditions, declared: RigParameters,
+                        plant_changes: dict | None = None):
+    """The commissioning run as a sim.engine.Scenario (``plant_changes``: a simulated rig unlike the declared)."""
+    from ..engine import Scenario
+
+    check_bounds(conditions.max_stroke_m, conditions.max_velocity_m_per_s, declared, conditions.start_m)
+    options = excitation_options(conditions.max_stroke_m, conditions.max_velocity_m_per_s)
+    return Scenario(isolator, conditions.supply_pa, [], "excitation", controller_options=options, rig=declared,
+                    vertical_load_n=conditions.vertical_load_n, plant_changes=dict(plant_changes or {}),
+                    history=excitation_target(conditions.start_m, options))
+
+
+def excitation_limits(conditions: Conditions) -> dict:
+    """Operator limits of the run (backend.safety): the stroke and velocity bounds, each closing the valve."""
+    return {"displacement_m": abs(conditions.start_m) + conditions.max_stroke_m,
+            "velocity_m_per_s": conditions.max_velocity_m_per_s,
+            "tracking_error_m": 2.0 * conditions.max_stroke_m,
+            "actions": {"displacement_m": "valve_close", "velocity_m_per_s": "valve_close",
+                        "tracking_error_m": "valve_close"}}
+
+
+def commissioned_rig(fit: RigFit, declared: RigParameters, vertical_load_n: float) -> RigParameters:
+    """The declared rig with every fitted value. The friction fitted at one vertical load is F_f = mu N + F_c:
+    the declared mu is kept and F_c takes the rest (mu is lowered when F_f is below mu N)."""
+    friction = fit.value("friction_force_n")
+    mu = declared.friction_coefficient
+    if friction < mu * vertical_load_n:
+        mu = max(friction, 0.0) / vertical_load_n if vertical_load_n > 0 else 0.0
+    coulomb = max(0.0, friction - mu * vertical_load_n)
+    return declared.with_changes(
+        mass_kg=fit.value("mass_kg"), friction_coefficient=mu, coulomb_force_n=coulomb,
+        viscous_n_s_per_m=max(0.0, fit.value("viscous_n_s_per_m")),
+        flow_gain_m3_per_s_v_sqrt_pa=fit.value("flow_gain_m3_per_s_v_sqrt_pa"),
+        driver_gain_positive=1.0, driver_gain_negative=fit.value("driver_gain_negative"),
+        dead_zone_v=max(0.0, fit.value("dead_zone_v")), driver_offset_v=fit.value("driver_offset_v"),
+        valve_natural_frequency_rad_s=fit.value("valve_natural_frequency_rad_s"),
+        valve_damping_ratio=fit.value("valve_damping_ratio"), bulk_modulus_pa=fit.value("bulk_modulus_pa"),
+        position_latency_s=max(0.0, fit.value("position_latency_s")))
+
+
+def with_systematic(fit: RigFit) -> None:
+    """Add the fit model's systematic allowance to each estimate's spread (in place)."""
+    for name, e in fit.estimates.items():
+        floor = SYSTEMATIC_RELATIVE.get(name, 0.0) * abs(e.value) + SYSTEMATIC_ABSOLUTE.get(name, 0.0)
+        e.std = math.hypot(e.std, floor)
+
+
+def response_problems(response: FrequencyResponse | None) -> list[str]:
+    """Why the fitted rig's replay of the dither says it is not the rig (empty: it may be)."""
+    if response is not None and response.velocity_nrmse > MAX_VELOCITY_NRMSE:
+        return [f"the fitted rig, given the same commands, reproduces the table's velocity to "
+                f"{100 * response.velocity_nrmse:.0f} % RMS; at most {100 * MAX_VELOCITY_NRMSE:g} % is needed"]
+    return []
+
+
+def trust_problems(fit: RigFit) -> list[str]:
+    """Why the fit may not become a rig file (empty: it may), from the fit alone."""
+    problems = []
+    if fit.flow_r2 < MIN_FLOW_R2:
+        problems.append(f"the flow balance (eq. 3, second line) explains {100 * fit.flow_r2:.1f} % of the table's "
+                        f"motion; at least {100 * MIN_FLOW_R2:g} % is needed")
+    if fit.force_r2 < MIN_FORCE_R2:
+        problems.append(f"the force balance (eq. 3, first line) explains {100 * fit.force_r2:.1f} % of the measured "
+                        f"forces; at least {100 * MIN_FORCE_R2:g} % is needed")
+    for name, limit in MAX_RELATIVE_STD.items():
+        e = fit.estimates[name]
+        if not (math.isfinite(e.value) and e.value > 0):
+            problems.append(f"{name} = {e.value:.4g} {e.unit} is not a positive value")
+        elif e.relative > limit:
+            problems.append(f"{name} is uncertain by +-{100 * e.relative:.0f} % (one sigma); at most "
+                            f"+-{100 * limit:g} % is needed")
+    for name, limit in MAX_ABSOLUTE_STD.items():
+        e = fit.estimates[name]
+        if e.std > limit:
+            problems.append(f"{name} is uncertain by +-{e.std:.3g} {e.unit} (one sigma); at most +-{limit:g} "
+                            f"{e.unit} is needed")
+    bounds = {"valve_natural_frequency_rad_s": (2 * math.pi * LOWER[2], 2 * math.pi * UPPER[2]),
+              "valve_damping_ratio": (LOWER[3], UPPER[3]), "position_latency_s": (LOWER[4] * 1e-3, UPPER[4] * 1e-3),
+              "driver_gain_negative": (LOWER[5], UPPER[5])}
+    for name, (lo, hi) in bounds.items():
+        value = fit.value(name)
+        if value <= lo * 1.001 or value >= hi * 0.999:
+            problems.append(f"{name} = {value:.4g} ended on the fit's bound ([{lo:.4g}, {hi:.4g}]): the record does "
+                            "not show it")
+    return problems
+
+
+@dataclass
+class Identification:
+    """The outcome of a commissioning: the fit, the commissioned rig (None when refused), the frequency
+    response, why it was refused (``problems``), the conditions and the record's figures."""
+
+    conditions: Conditions
+    declared: RigParameters
+    fit: RigFit | None = None
+    rig: RigParameters | None = None
+    response: FrequencyResponse | None = None
+    problems: list[str] = field(default_factory=list)
+    record: dict = field(default_factory=dict)  # rig time, peaks of the motion, phases reached
+
+    @property
+    def trusted(self) -> bool:
+        return self.rig is not None and not self.problems
+
+    def changed(self) -> dict:
+        """The commissioned values that differ from the declared rig, by name."""
+        if self.rig is None:
+            return {}
+        return {name: getattr(self.rig, name) for name in RigParameters.__dataclass_fields__
+                if getattr(self.rig, name) != getattr(self.declared, name)}
+
+    def to_dict(self) -> dict:
+        return {"trusted": self.trusted, "problems": list(self.problems), "conditions": self.conditions.to_dict(),
+                "record": dict(self.record), "fit": self.fit.to_dict() if self.fit else None,
+                "response": self.response.to_dict() if self.response else None, "changed": self.changed()}
+
+
+def record_figures(samples: Samples, conditions: Conditions) -> dict:
+    """What the excitation did: its length, how far and how fast the table went, the phases it reached."""
+    y = np.asarray(samples["measured_displacement_m"], dtype=float)
+    v5 = np.zeros_like(y)
+    v5[5:] = (y[5:] - y[:-5]) / (5 * CONTROL_PERIOD_S)
+    phase = np.nan_to_num(np.asarray(samples["as_hat"], dtype=float), nan=-1)
+    return {"rig_time_s": len(samples) * CONTROL_PERIOD_S,
+            "peak_excursion_m": float(np.max(np.abs(y - conditions.start_m))) if y.size else 0.0,
+            "peak_velocity_m_per_s": float(np.max(np.abs(v5))) if y.size else 0.0,
+            "peak_command_v": float(np.max(np.abs(samples["voltage_v"]))) if y.size else 0.0,
+            "dither_s": float(np.count_nonzero(phase == 1.0) * CONTROL_PERIOD_S),
+            "completed": bool(np.any(phase == 3.0))}
+
+
+def dither_slice(samples: Samples) -> slice | None:
+    phase = np.nan_to_num(np.asarray(samples["as_hat"], dtype=float), nan=-1)
+    idx = np.flatnonzero(phase == 1.0)
+    return slice(int(idx[0]), int(idx[-1]) + 1) if idx.size else None
+
+
+def identify(samples: Samples, declared: RigParameters, conditions: Conditions,
+             options: dict | None = None) -> Identification:
+    """Fit the commissioning record ``samples`` (see the module docstring)."""
+    from ..controllers.excitation import OPTIONS as EXCITATION_OPTIONS
+
+    out = Identification(conditions, declared, record=record_figures(samples, conditions))
+    if not out.record["completed"]:
+        out.problems.append("the excitation did not run to its end (stopped, tripped, or the valve did not open "
+                            "both ways within the command it may use): nothing is fitted from part of it")
+        return out
+    try:
+        sig = signals_from_samples(samples, CONTROL_PERIOD_S)
+        out.fit = fit_rig(sig, declared)
+    except FitError as exc:
+        out.problems.append(str(exc))
+        return out
+    with_systematic(out.fit)
+    out.problems += trust_problems(out.fit)
+    try:
+        rig = commissioned_rig(out.fit, declared, conditions.vertical_load_n)
+        rig.check()
+    except RigError as exc:
+        out.problems.append(f"the fitted values are not a rig: {exc}")
+        return out
+    o = {**{k: s.default for k, s in EXCITATION_OPTIONS.items()}, **(options or {})}
+    window = dither_slice(samples)
+    if window is not None:
+        lines, _ = dither_lines(o["dither_min_hz"], o["dither_max_hz"], o["dither_lines"], o["dither_corner_hz"])
+        try:
+            loaded = rig.with_changes(vertical_load_n=conditions.vertical_load_n)  # the friction of the run
+            out.response = dither_response(sig, window, loaded, lines, 1.0 / o["dither_min_hz"])
+        except ValueError as exc:
+            out.problems.append(str(exc))
+    out.problems += response_problems(out.response)
+    out.rig = rig
+    return out

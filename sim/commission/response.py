@@ -1,0 +1,111 @@
+"""The rig's frequency response during the dither, as measured and as the fitted model predicts it.
+
+The dither (sim.controllers.excitation) is a multisine whose lines are whole multiples of its lowest
+frequency, so over whole periods of it the response at each line is read without leakage: the DFT of the
+command and of the response over each period, at the line's bin, averaged over the periods. From the valve
+command to the table's velocity (m/s per V, from the position reading) and to the load pressure (Pa per V).
+The model's response is computed the same way from ``sim.commission.model.replay`` of the same commands,
+so the two are compared like with like (the model's dead zone and friction included). The replay starts
+afresh from the measured state every ``SEGMENT_S`` (an integrating table drifts on any model: what is judged
+is the response, not where a drift of seconds leads). The velocity's normalised RMS error of that replay
+over the dither is the fit's figure of quality.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..rig import RigParameters
+from .fit import Signals, derivative, lowpass, valve_voltage
+from .model import replay
+
+SETTLE_S = 1.0  # the first second of the dither (its fade-in) is not read
+SEGMENT_S = 0.5
+MIN_PERIODS = 2
+
+
+@dataclass
+class FrequencyResponse:
+    """Measured and modelled responses at the dither's lines, and the replay's error over the dither."""
+
+    frequency_hz: np.ndarray
+    velocity_measured: np.ndarray  # complex, (m/s)/V
+    velocity_model: np.ndarray
+    pressure_measured: np.ndarray  # complex, Pa/V
+    pressure_model: np.ndarray
+    periods: int
+    velocity_nrmse: float  # ||v_model - v_measured|| / ||v_measured|| over the dither (velocity from readings)
+    pressure_nrmse: float
+
+    def to_dict(self) -> dict:
+        def split(h):
+            return {"magnitude": np.abs(h).tolist(), "phase_deg": np.degrees(np.angle(h)).tolist()}
+
+        return {"frequency_hz": self.frequency_hz.tolist(), "periods": self.periods,
+                "velocity_per_volt": {"unit": "(m/s)/V", "measured": split(self.velocity_measured),
+                                      "model": split(self.velocity_model)},
+                "load_pressure_per_volt": {"unit": "Pa/V", "measured": split(self.pressure_measured),
+                                           "model": split(self.pressure_model)},
+                "velocity_nrmse": self.velocity_nrmse, "pressure_nrmse": self.pressure_nrmse}
+
+
+def _line_response(u: np.ndarray, x: np.ndarray, n_period: int, bins: np.ndarray) -> np.ndarray:
+    periods = u.size // n_period
+    shape = (periods, n_period)
+    cu = np.fft.rfft(u[: periods * n_period].reshape(shape), axis=1)[:, bins]
+    cx = np.fft.rfft(x[: periods * n_period].reshape(shape), axis=1)[:, bins]
+    return cx.mean(axis=0) / cu.mean(axis=0)
+
+
+def replay_segments(sig: Signals, window: slice, rig: RigParameters) -> tuple[np.ndarray, np.ndarray]:
+    """(velocity as read, load pressure) of the fitted rig's replay of the commands of ``window``, started
+    from the measured state (position and
+    velocity moved back by the latency, load pressure, the valve as the fitted valve had it) every
+    ``SEGMENT_S``."""
+    dt = sig.dt_s
+    lag = rig.position_latency_s
+    y0 = sig.at_latency(sig.y_f, lag)
+    v0 = sig.at_latency(sig.v_f, lag)
+    v_e = valve_voltage(sig.u, dt, rig.valve_natural_frequency_rad_s / (2 * np.pi), rig.valve_damping_ratio,
+                        rig.driver_offset_v, rig.driver_gain_negative)
+    v_e_rate = derivative(v_e, dt)
+    v_model = np.empty(window.stop - window.start)
+    p_model = np.empty_like(v_model)
+    step = int(round(SEGMENT_S / dt))
+    for a in range(window.start, window.stop, step):
+        b = min(a + step, window.stop)
+        _y, v_model[a - window.start: b - window.start], p_model[a - window.start: b - window.start] = replay(
+            rig, sig.u[a:b], sig.force[a:b], sig.p_supply[a:b], float(y0[a]), float(v0[a]), float(sig.p_load_f[a]),
+            dt, float(v_e[a]), float(v_e_rate[a]))
+    return v_model, p_model
+
+
+def dither_response(sig: Signals, dither: slice, rig: RigParameters, lines_hz: np.ndarray,
+                    period_s: float) -> FrequencyResponse:
+    """The responses over whole dither periods of ``dither`` (a slice of the record), the fitted ``rig``'s
+    replay from the state measured at its start."""
+    dt = sig.dt_s
+    start = dither.start + int(round(SETTLE_S / dt))
+    n_period = int(round(period_s / dt))
+    periods = (dither.stop - start) // n_period
+    if periods < MIN_PERIODS:
+        raise ValueError(f"the dither ran {periods} whole period(s) after its fade-in; at least {MIN_PERIODS} are "
+                         "needed for a frequency response")
+    window = slice(start, start + periods * n_period)
+    u = sig.u[window]
+    v_model, p_model = replay_segments(sig, window, rig)
+    v_model = lowpass(np.nan_to_num(v_model), dt)
+    v_meas = sig.v_f[window]
+    bins = np.round(lines_hz * period_s).astype(int)
+    return FrequencyResponse(
+        frequency_hz=np.asarray(lines_hz, dtype=float),
+        velocity_measured=_line_response(u, v_meas, n_period, bins),
+        velocity_model=_line_response(u, v_model, n_period, bins),
+        pressure_measured=_line_response(u, sig.p_load[window], n_period, bins),
+        pressure_model=_line_response(u, np.nan_to_num(p_model), n_period, bins),
+        periods=periods,
+        velocity_nrmse=float(np.linalg.norm(v_model - v_meas) / max(np.linalg.norm(v_meas), 1e-300)),
+        pressure_nrmse=float(np.linalg.norm(np.nan_to_num(p_model) - sig.p_load[window])
+                             / max(np.linalg.norm(sig.p_load[window] - np.mean(sig.p_load[window])), 1e-300)))
