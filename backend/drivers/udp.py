@@ -163,8 +163,21 @@ class UdpRig(RigDriver):
             self._accept(packet)
             return
         self.disarm(success=False)
-        raise RigFault(f"no answer from the rig at {self.url} within {self.arm_timeout_s:g} s of ARM "
-                       "(is it running and reachable?)")
+        raise RigFault(self._why_not_armed(conditions))
+
+    def _why_not_armed(self, conditions: ArmConditions) -> str:
+        """Why the ARMs went unanswered: a rig refuses an ARM in silence (docs/rig-protocol.md section 3.1), so
+        ask it with HELLO whether it is there, armed by another test, or counting refused ARMs."""
+        answer = probe(self.url)
+        waited = f"no answer from the rig at {self.url} within {self.arm_timeout_s:g} s of ARM"
+        if not answer["connected"]:
+            return f"{waited} (is it running and reachable? {answer['detail']})"
+        if answer["armed"]:
+            return f"{waited}: it is armed by another test or move (its ARM was refused as busy)"
+        return (f"{waited}: it answers HELLO but refused the ARM ({conditions.supply_pressure_pa / 1e5:g} bar, "
+                f"vertical load {conditions.vertical_load_n / 1e3:g} kN; it has dropped "
+                f"{answer['packets_rejected']} packet(s) since its last test): the supply pressure or the vertical "
+                "load is outside the rig's own range, which the service's rig file must match")
 
     def _accept(self, packet: proto.Packet) -> None:
         f = packet.fields
@@ -269,7 +282,8 @@ def probe(url: str, timeout_s: float = 0.2) -> dict:
                 "armed": bool(status & STATUS_ARMED), "status": describe_status(status),
                 "fault": bool(status & RIG_FAULT_BITS), "position_m": packet.fields["position_m"],
                 "force_n": packet.fields["force_n"], "supply_pressure_pa": packet.fields["supply_pressure_pa"],
-                "period_s": packet.fields["period_ns"] * 1e-9, "protocol_version": proto.VERSION}
+                "period_s": packet.fields["period_ns"] * 1e-9, "packets_rejected": packet.fields["packets_rejected"],
+                "protocol_version": proto.VERSION}
 
 
 START_TOLERANCE_M = 0.002  # a test starts only with the table this close to zero, where every target begins

@@ -177,8 +177,11 @@ class RigEmulator:
         except proto.PacketError as exc:
             self._reject(exc.reason)
             return
-        if packet.kind == proto.HELLO:
-            self._send_measurement(addr, hello=True)
+        if packet.kind == proto.HELLO:  # armed: the test's session and latest sequence; else session 0, sequence 0
+            if self.armed:
+                self._send_measurement(addr, self.session, max(self.sequence, 0), hello=True)
+            else:
+                self._send_measurement(addr, 0, 0, hello=True)
         elif packet.kind == proto.ARM:
             self._arm(packet, addr, arrival)
         elif packet.kind == proto.DISARM:
@@ -198,14 +201,14 @@ class RigEmulator:
         rig = self.config.rig
         if packet.session == 0 or not (rig.min_supply_pa <= supply <= rig.max_supply_pa) \
                 or not (0.0 <= load <= rig.max_vertical_load_n):
-            self._reject("arm")
+            self._reject("arm")  # no answer: the host learns of it by its timeout, or from a HELLO's count
             return
         if self.armed and packet.session == self.session:
             return  # the host repeats ARM until it hears the rig: already armed
         if self.armed:
             self._reject("busy")  # another host's test runs: it keeps the rig (its disarm or the watchdog frees it)
             return
-        self._reset_session()
+        self._reset_session()  # a finished session is not remembered: its ARM again starts it anew, at 0
         self.armed = True
         self.session = packet.session
         self.host_addr = addr
@@ -218,6 +221,7 @@ class RigEmulator:
         self.counters["arms"] += 1
 
     def _command(self, packet: proto.Packet, arrival: float) -> None:
+        """The checks in the order of docs/rig-protocol.md section 5: session, stale, future, stale (age), value."""
         if not self.armed or packet.session != self.session:
             self._reject("session")
             return
@@ -229,7 +233,7 @@ class RigEmulator:
             self._reject("future")
             return
         if seq < self.sequence - STALE_PERIODS:
-            self._reject("stale")
+            self._reject("stale")  # more than 10 periods old: the latest measurement is seq + 11 or later
             return
         if not (math.isfinite(u) and abs(u) <= self.config.rig.command_limit_v):
             self._reject("value")
@@ -280,9 +284,11 @@ class RigEmulator:
                                         "last_command_v": self.command_v})
             self.command_v = 0.0  # the valve closes now: the next period integrates at 0 V
             self.armed = False
-            self.latched_status |= STATUS_WATCHDOG
+            self.latched_status |= STATUS_WATCHDOG  # until the next ARM, in every HELLO answer too
             self.sequence += 1
-            self._send_measurement(self.host_addr, session=self.session)  # the host hears why, if it still can
+            # the host hears why, if it still can: the test's session, the next sequence, WATCHDOG and (no command
+            # came in this period) COMMAND_MISSED, without ARMED
+            self._send_measurement(self.host_addr, self.session, self.sequence, extra_status=status_missed)
             return
         if self._fault_due(faults.restart_after_s, now) and self.counters["restarts"] == 0:
             self.counters["restarts"] += 1
@@ -296,7 +302,7 @@ class RigEmulator:
             self.plant.params[P_SUPPLY] = self.supply_set_pa * math.exp(-t / SUPPLY_DECAY_S)
         if self.armed:
             self.sequence += 1
-            self._send_measurement(self.host_addr, extra_status=status_missed)
+            self._send_measurement(self.host_addr, self.session, self.sequence, extra_status=status_missed)
 
     def _reading(self, m) -> float:
         faults = self.faults
@@ -310,7 +316,7 @@ class RigEmulator:
             self.stuck_reading = m.position_m
         return self.stuck_reading
 
-    def _send_measurement(self, addr, hello: bool = False, extra_status: int = 0, session: int | None = None) -> None:
+    def _send_measurement(self, addr, session: int, seq: int, extra_status: int = 0, hello: bool = False) -> None:
         if addr is None or self.counters["link_dropped"]:
             return
         m = self.plant.measure()
@@ -321,9 +327,6 @@ class RigEmulator:
             if supply < SUPPLY_LOW_FRACTION * self.supply_set_pa:
                 status |= STATUS_SUPPLY_LOW
         now_ns = time.perf_counter_ns()
-        seq = max(self.sequence, 0)
-        if session is None:
-            session = self.session if self.armed or hello else 0
         packet = proto.encode(proto.MEASUREMENT, session, seq, now_ns,
                               self._reading(m), m.force_n, m.load_pressure_pa, supply, status,
                               min(self.missed, proto.U32), min(self.rejected_count, proto.U32),
