@@ -22,6 +22,13 @@ def register(sub) -> None:
                    help="no valid command for this long and the rig closes its valve (default 18 ms)")
     p.add_argument("--seed", type=int, default=0, help="seed of the injected faults' randomness and sensor noise")
     p.add_argument("--status-file", help="JSON file with the rig's counters and timings, rewritten twice a second")
+    p.add_argument("--plant-file", metavar="FILE",
+                   help="the rig it plays: a lab's rig file (.json or .toml of RigParameters names, SI) over isorig's "
+                        "default rig; its supply, jack and command ranges are the ones ARM and COMMAND are checked "
+                        "against")
+    p.add_argument("--plant-set", action="append", default=[], metavar="NAME=VALUE",
+                   help="change one parameter of the rig it plays (after --plant-file), e.g. piston_area_m2=0.02 "
+                        "(repeatable)")
     g = p.add_argument_group("fault injection (times count from the ARM of the test)")
     g.add_argument("--packet-loss-pct", type=float, default=0.0, help="drop this share of datagrams, both ways")
     g.add_argument("--latency-ms", type=float, default=0.0, help="delay every measurement by this much")
@@ -36,6 +43,23 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+def plant(args):
+    """(the rig parameters, their name, where they came from) from --plant-file and --plant-set."""
+    from sim.rig import DEFAULT_RIG
+    from sim.rigfile import load_rig_file, with_assignments
+
+    described = load_rig_file(args.plant_file) if args.plant_file else None
+    rig = described.parameters if described else DEFAULT_RIG
+    try:
+        rig = with_assignments(rig, args.plant_set, "--plant-set")
+    except ValueError as exc:
+        message = str(exc) if str(exc).startswith("--plant-set") else f"--plant-set: {exc}"
+        raise UsageError(f"isorig rig-emulator: {message}") from None
+    name = described.name if described else "isorig default rig"
+    sources = ([described.source] if described else []) + [f"--plant-set {a}" for a in args.plant_set]
+    return rig, name, ", ".join(sources) or "sim.rig defaults"
+
+
 def run(args) -> int:
     from pathlib import Path
 
@@ -45,9 +69,11 @@ def run(args) -> int:
 
     faults = Faults(args.packet_loss_pct, args.latency_ms, args.jitter_ms, args.drop_link_after_s,
                     args.restart_after_s, args.sensor_fault, args.sensor_fault_after_s, args.supply_loss_after_s)
-    config = EmulatorConfig(load_isolator(args.isolator), args.port, args.host, period_s=args.period_s,
+    rig, plant_name, plant_source = plant(args)
+    config = EmulatorConfig(load_isolator(args.isolator), args.port, args.host, rig=rig, period_s=args.period_s,
                             watchdog_s=args.watchdog_ms / 1e3, seed=args.seed, faults=faults,
-                            status_file=Path(args.status_file) if args.status_file else None)
+                            status_file=Path(args.status_file) if args.status_file else None,
+                            plant_name=plant_name, plant_source=plant_source)
     try:
         emulator = RigEmulator(config)
     except OSError as exc:
@@ -56,9 +82,11 @@ def run(args) -> int:
     stop = lambda *_: emulator.stop()  # noqa: E731
     signal.signal(signal.SIGTERM, stop)
     signal.signal(signal.SIGINT, stop)
-    print(f"isorig rig-emulator: udp://{args.host}:{emulator.port}, isolator {config.isolator.name}, period "
-          f"{config.period_s:g} s, watchdog {config.watchdog_s * 1e3:g} ms, priority {priority}", file=sys.stderr,
-          flush=True)
+    changed = config.plant()["changed"]
+    plant_text = config.plant_name + (f" ({', '.join(f'{k}={v:g}' for k, v in changed.items())})" if changed else "")
+    print(f"isorig rig-emulator: udp://{args.host}:{emulator.port}, isolator {config.isolator.name}, plant "
+          f"{plant_text}, period {config.period_s:g} s, watchdog {config.watchdog_s * 1e3:g} ms, priority "
+          f"{priority}", file=sys.stderr, flush=True)
     try:
         emulator.serve()
     finally:

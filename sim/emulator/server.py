@@ -12,6 +12,7 @@ Faults are injected by ``Faults`` (the ``isorig rig-emulator`` flags), timed fro
 packet loss (each datagram, both ways), added latency and jitter on measurements, a link that drops for
 good, a restart (the rig forgets session and host: nothing moves until a new ARM), a position sensor
 stuck, NaN or out of range (silent: the host must see it in the values), and supply pressure loss.
+The plant is any rig (``rig``: a lab's rig file), not only isorig's default.
 
 Counters and timings go to ``status()`` and, if asked, to a JSON file a thread rewrites twice a second (file
 I/O never runs in the loop: a slow disk once stalled it for 131 ms). Timings are fixed-size histograms
@@ -29,7 +30,7 @@ import select
 import socket
 import threading
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 from ..isolator import Isolator
@@ -91,6 +92,9 @@ class EmulatorConfig:
     seed: int = 0
     faults: Faults = field(default_factory=Faults)
     status_file: Path | None = None
+    #: where ``rig`` came from, for the start line and ``status()``
+    plant_name: str = "isorig default rig (sim.rig)"
+    plant_source: str = "sim.rig defaults"
 
     def check(self) -> None:
         if not (1e-4 <= self.period_s <= 0.1):
@@ -99,7 +103,14 @@ class EmulatorConfig:
             raise ValueError(f"watchdog = {self.watchdog_s!r} s must be in [one period, 1] s")
         if not (0 <= self.port <= 65535):
             raise ValueError(f"port {self.port!r} is outside [0, 65535]")
+        self.rig.check()
         self.faults.check()
+
+    def plant(self) -> dict:
+        """The plant's name, where it came from and the parameters that differ from isorig's default rig."""
+        changed = {f.name: getattr(self.rig, f.name) for f in fields(RigParameters)
+                   if getattr(self.rig, f.name) != getattr(DEFAULT_RIG, f.name)}
+        return {"name": self.plant_name, "source": self.plant_source, "changed": changed}
 
 
 class RigEmulator:
@@ -426,7 +437,8 @@ class RigEmulator:
 
     def status(self) -> dict:
         return {"pid": os.getpid(), "port": self.port, "isolator": self.config.isolator.name,
-                "period_s": self.period_s, "watchdog_s": self.config.watchdog_s, "faults": asdict(self.faults),
+                "plant": self.config.plant(), "period_s": self.period_s,
+                "watchdog_s": self.config.watchdog_s, "faults": asdict(self.faults),
                 "armed": self.armed, "session": self.session, "sequence": self.sequence,
                 "supply_pa": self.supply_set_pa, "vertical_load_n": self.vertical_load_n,
                 "command_v": self.command_v, "position_m": float(self.plant.state[0]),
