@@ -9,6 +9,7 @@ from isorig.cli import UsageError
 
 
 def register(sub) -> None:
+    from sim.emulator.defects import DEFECTS
     from sim.isolator import PRESETS
 
     p = sub.add_parser("rig-emulator", help="run the rig model in real time behind the UDP rig protocol "
@@ -40,6 +41,10 @@ def register(sub) -> None:
                    help="the position sensor sticks, reads NaN or reads out of range (silently)")
     g.add_argument("--sensor-fault-after-s", type=float, default=0.0, help="when the sensor fault begins")
     g.add_argument("--supply-loss-after-s", type=float, help="the pump stops: supply pressure decays from this time")
+    d = p.add_argument_group("protocol defects (only for testing isorig check-rig: a rig that does not conform)")
+    d.add_argument("--defect", action="append", default=[], choices=tuple(DEFECTS), metavar="NAME",
+                   help="break one rule of docs/rig-protocol.md on purpose (repeatable): "
+                        + "; ".join(f"{name}: {what}" for name, what in DEFECTS.items()))
     p.set_defaults(func=run)
 
 
@@ -73,7 +78,7 @@ def run(args) -> int:
     config = EmulatorConfig(load_isolator(args.isolator), args.port, args.host, rig=rig, period_s=args.period_s,
                             watchdog_s=args.watchdog_ms / 1e3, seed=args.seed, faults=faults,
                             status_file=Path(args.status_file) if args.status_file else None,
-                            plant_name=plant_name, plant_source=plant_source)
+                            plant_name=plant_name, plant_source=plant_source, defects=tuple(dict.fromkeys(args.defect)))
     try:
         emulator = RigEmulator(config)
     except OSError as exc:
@@ -84,9 +89,10 @@ def run(args) -> int:
     signal.signal(signal.SIGINT, stop)
     changed = config.plant()["changed"]
     plant_text = config.plant_name + (f" ({', '.join(f'{k}={v:g}' for k, v in changed.items())})" if changed else "")
+    defects = f", DEFECTS {', '.join(config.defects)} (for testing check-rig)" if config.defects else ""
     print(f"isorig rig-emulator: udp://{args.host}:{emulator.port}, isolator {config.isolator.name}, plant "
           f"{plant_text}, period {config.period_s:g} s, watchdog {config.watchdog_s * 1e3:g} ms, priority "
-          f"{priority}", file=sys.stderr, flush=True)
+          f"{priority}{defects}", file=sys.stderr, flush=True)
     try:
         emulator.serve()
     finally:

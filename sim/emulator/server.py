@@ -12,7 +12,8 @@ Faults are injected by ``Faults`` (the ``isorig rig-emulator`` flags), timed fro
 packet loss (each datagram, both ways), added latency and jitter on measurements, a link that drops for
 good, a restart (the rig forgets session and host: nothing moves until a new ARM), a position sensor
 stuck, NaN or out of range (silent: the host must see it in the values), and supply pressure loss.
-The plant is any rig (``rig``: a lab's rig file), not only isorig's default.
+``defects`` break the protocol on purpose (sim.emulator.defects): a rig that does not conform, for testing
+``isorig check-rig``. The plant is any rig (``rig``: a lab's rig file), not only isorig's default.
 
 Counters and timings go to ``status()`` and, if asked, to a JSON file a thread rewrites twice a second (file
 I/O never runs in the loop: a slow disk once stalled it for 131 ms). Timings are fixed-size histograms
@@ -39,6 +40,7 @@ from ..measurement import STATUS_ARMED, STATUS_COMMAND_MISSED, STATUS_SUPPLY_LOW
 from ..plant import SimulatedPlant
 from ..rig import DEFAULT_RIG, P_FRICTION, P_SUPPLY, RigParameters
 from . import protocol as proto
+from .defects import check_defects
 
 SENSOR_FAULTS = ("stuck", "nan", "out-of-range")
 OUT_OF_RANGE_M = 1.0  # what a broken position sensor reads in the out-of-range fault
@@ -95,6 +97,8 @@ class EmulatorConfig:
     #: where ``rig`` came from, for the start line and ``status()``
     plant_name: str = "isorig default rig (sim.rig)"
     plant_source: str = "sim.rig defaults"
+    #: names of ``DEFECTS``: a rig that breaks the protocol on purpose (for testing isorig check-rig)
+    defects: tuple[str, ...] = ()
 
     def check(self) -> None:
         if not (1e-4 <= self.period_s <= 0.1):
@@ -103,6 +107,7 @@ class EmulatorConfig:
             raise ValueError(f"watchdog = {self.watchdog_s!r} s must be in [one period, 1] s")
         if not (0 <= self.port <= 65535):
             raise ValueError(f"port {self.port!r} is outside [0, 65535]")
+        check_defects(self.defects)
         self.rig.check()
         self.faults.check()
 
@@ -132,6 +137,11 @@ class RigEmulator:
         self.sock.bind((config.host, config.port))
         self.sock.setblocking(False)
         self.port = self.sock.getsockname()[1]
+        self.defects = frozenset(config.defects)
+        self.send_sock = self.sock
+        if "reply-from-other-port" in self.defects:
+            self.send_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            self.send_sock.bind((config.host, 0))
         self.delayed: list[tuple[float, int, bytes, tuple]] = []
         self.stopped = False
         self.counters = {"ticks": 0, "arms": 0, "disarms": 0, "measurements_sent": 0, "measurements_dropped": 0,
@@ -233,17 +243,19 @@ class RigEmulator:
 
     def _command(self, packet: proto.Packet, arrival: float) -> None:
         """The checks in the order of docs/rig-protocol.md section 5: session, stale, future, stale (age), value."""
-        if not self.armed or packet.session != self.session:
+        defects = self.defects
+        if not self.armed or (packet.session != self.session and "echo-other-session" not in defects):
             self._reject("session")
             return
         seq, u = packet.sequence, packet.fields["command_v"]
-        if seq <= self.last_applied_seq or (self.pending is not None and seq <= self.pending[2]):
+        if "accept-stale" not in defects and \
+                (seq <= self.last_applied_seq or (self.pending is not None and seq <= self.pending[2])):
             self._reject("stale")  # a duplicate, or older than what this rig already has
             return
         if seq > self.sequence:
             self._reject("future")
             return
-        if seq < self.sequence - STALE_PERIODS:
+        if seq < self.sequence - STALE_PERIODS and "accept-stale" not in defects:
             self._reject("stale")  # more than 10 periods old: the latest measurement is seq + 11 or later
             return
         if not (math.isfinite(u) and abs(u) <= self.config.rig.command_limit_v):
@@ -289,7 +301,8 @@ class RigEmulator:
         else:
             status_missed = 0
         self.answered_this_period = False
-        if self.armed and now - self.last_command_time > self.config.watchdog_s:
+        if self.armed and now - self.last_command_time > self.config.watchdog_s \
+                and "no-watchdog" not in self.defects:
             self.watchdog_trips.append({"test_time_s": self.test_time(now),
                                         "after_last_command_ms": (now - self.last_command_time) * 1e3,
                                         "last_command_v": self.command_v})
@@ -359,7 +372,7 @@ class RigEmulator:
 
     def _sendto(self, packet: bytes, addr) -> None:
         try:
-            self.sock.sendto(packet, addr)
+            self.send_sock.sendto(packet, addr)
             self.counters["measurements_sent"] += 1
         except OSError:
             self.counters["measurements_dropped"] += 1
@@ -434,10 +447,12 @@ class RigEmulator:
 
     def close(self) -> None:
         self.sock.close()
+        if self.send_sock is not self.sock:
+            self.send_sock.close()
 
     def status(self) -> dict:
         return {"pid": os.getpid(), "port": self.port, "isolator": self.config.isolator.name,
-                "plant": self.config.plant(), "period_s": self.period_s,
+                "plant": self.config.plant(), "defects": sorted(self.defects), "period_s": self.period_s,
                 "watchdog_s": self.config.watchdog_s, "faults": asdict(self.faults),
                 "armed": self.armed, "session": self.session, "sequence": self.sequence,
                 "supply_pa": self.supply_set_pa, "vertical_load_n": self.vertical_load_n,
