@@ -417,16 +417,20 @@ class RigEmulator:
             now = time.perf_counter()
             late = now - due
             self.tick_lateness.add(late * 1e3)
+            stall = 0.0
             if late > 2 * self.period_s:
                 # this process was not scheduled for a while (its own stall, not the link's): like a real
                 # target, it does not catch up on the ticks it lost; the watchdog does not count the stall
                 lost = int(late / self.period_s)
                 self.counters["overruns"] += 1
                 self.counters["ticks_lost"] += lost
-                self.last_command_time += lost * self.period_s
+                stall = lost * self.period_s
                 t0, k = now - self.period_s, 0
                 tick_start = t0
             self.integrate(tick_start)
+            if stall and self.last_command_time < due:
+                # after integrate: a command that arrived before the stall and is applied now dates from before it
+                self.last_command_time += stall
             self.after_tick(now)
             self.counters["ticks"] += 1
             k += 1
