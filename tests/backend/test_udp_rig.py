@@ -23,7 +23,7 @@ from backend.drivers.udp import UdpRig, parse_udp_url, probe
 from backend.worker import CHECK_PERIODS
 from sim.emulator import protocol as proto
 from sim.isolator import PRESETS
-from sim.measurement import FLAG_LOST, STATUS_ARMED, STATUS_COMMAND_MISSED
+from sim.measurement import FLAG_LOST, STATUS_ARMED, STATUS_COMMAND_MISSED, STATUS_WATCHDOG
 
 MISSED_PERIODS_MAX = 0.01  # a share of periods: what a loaded CI machine may miss on loopback in these short tests
 
@@ -300,6 +300,83 @@ def test_bad_commands_never_reach_the_emulators_valve(tmp_path):
     assert rejected == {"version": 1, "crc": 1, "short": 1, "session": 1, "future": 1, "value": 1, "stale": 2}
     assert status["counters"]["commands_applied"] == 1  # the valid 0 V command only
     assert status["command_v"] == 0.0 and abs(status["position_m"]) < 1e-6  # no 9 V ever reached the valve
+
+
+def test_the_emulator_checks_a_packet_in_the_order_the_protocol_settles():
+    """docs/rig-protocol.md sections 3 and 5, in-process (no timing): the first failing check names the drop,
+    '10 periods old' is exact, ARMs and DISARMs again, and what a HELLO answer carries armed and unarmed."""
+    from sim.emulator.server import EmulatorConfig, RigEmulator
+
+    rig = RigEmulator(EmulatorConfig(PRESETS["IUT_a"], 0))
+    host = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    host.bind(("127.0.0.1", 0))
+    host.settimeout(1.0)
+    addr = host.getsockname()
+
+    def send(kind, session, sequence, *payload):
+        rig.receive(proto.encode(kind, session, sequence, 0, *payload), addr, time.perf_counter())
+
+    def hello():
+        send(proto.HELLO, 0, 0)
+        return proto.decode(host.recv(256))
+
+    def dropped(kind, session, sequence, *payload):
+        before = dict(rig.rejected)
+        send(kind, session, sequence, *payload)
+        return {k: v - before.get(k, 0) for k, v in rig.rejected.items() if v != before.get(k, 0)}
+
+    try:
+        assert dropped(proto.COMMAND, 7, 0, 0.0) == {"session": 1}  # unarmed: every command
+        assert dropped(proto.ARM, 0, 0, 100e5, 0.0) == {"arm": 1}  # session 0
+        assert dropped(proto.ARM, 7, 0, 300e5, 0.0) == {"arm": 1}  # beyond 210 bar
+        assert dropped(proto.ARM, 7, 0, 100e5, math.nan) == {"arm": 1}
+        unarmed = hello()
+        assert (unarmed.session, unarmed.sequence, unarmed.fields["packets_rejected"]) == (0, 0, 4)
+        assert not unarmed.fields["status"] & STATUS_ARMED
+        assert dropped(proto.ARM, 7, 0, 100e5, 0.0) == {} and rig.armed and rig.rejected_count == 0  # from zero
+        rig.sequence, rig.last_applied_seq = 20, 5  # as if measurements 0-20 were sent and 5 answered
+        assert dropped(proto.ARM, 7, 0, 150e5, 1e5) == {} and rig.sequence == 20  # repeated: ignored
+        assert rig.supply_set_pa == 100e5  # the first ARM's conditions hold
+        assert dropped(proto.ARM, 8, 0, 100e5, 0.0) == {"busy": 1}
+        assert dropped(proto.ARM, 8, 0, 300e5, 0.0) == {"arm": 1}  # the range is checked before busy
+        armed = hello()
+        assert (armed.session, armed.sequence) == (7, 20) and armed.fields["status"] & STATUS_ARMED
+        assert armed.fields["packets_rejected"] == 2
+        # a COMMAND: session, stale (not newer), future, stale (age), value, in that order
+        assert dropped(proto.COMMAND, 8, 99, math.nan) == {"session": 1}
+        assert dropped(proto.COMMAND, 7, 5, math.nan) == {"stale": 1}  # not newer than the one applied
+        assert dropped(proto.COMMAND, 7, 21, math.nan) == {"future": 1}
+        assert dropped(proto.COMMAND, 7, 9, 0.0) == {"stale": 1}  # 11 periods old (the latest is 20)
+        assert dropped(proto.COMMAND, 7, 10, math.nan) == {"value": 1}  # 10 periods old: only its value is wrong
+        assert dropped(proto.COMMAND, 7, 10, 0.0) == {} and rig.pending[2] == 10  # 10 periods old: applied
+        assert dropped(proto.COMMAND, 7, 10, 0.0) == {"stale": 1}  # the same again: not newer than the pending
+        assert dropped(proto.DISARM, 8, 0) == {"session": 1} and rig.armed
+        assert dropped(proto.DISARM, 7, 0) == {} and not rig.armed
+        assert dropped(proto.DISARM, 7, 0) == {}  # the host's second and third DISARM: ignored, not counted
+        assert dropped(proto.COMMAND, 7, 20, 0.0) == {"session": 1}  # unarmed again
+        after = hello()
+        assert (after.session, after.sequence) == (0, 0) and not after.fields["status"] & STATUS_ARMED
+        assert after.fields["packets_rejected"] == 10 and after.fields["command_sequence"] == 5  # the last test's
+        assert dropped(proto.ARM, 7, 0, 100e5, 0.0) == {} and rig.armed and rig.sequence == -1  # anew, from 0
+        # section 1.3: measurement n + 1 carries COMMAND_MISSED; 1.5: the watchdog runs from ARM, its last measurement
+        rig.after_tick(time.perf_counter())
+        first = proto.decode(host.recv(256))
+        assert (first.session, first.sequence) == (7, 0) and not first.fields["status"] & STATUS_COMMAND_MISSED
+        rig.after_tick(time.perf_counter())  # nothing answered measurement 0
+        second = proto.decode(host.recv(256))
+        assert second.sequence == 1 and second.fields["status"] & STATUS_COMMAND_MISSED
+        assert second.fields["commands_missed"] == 1 and second.fields["command_sequence"] == 0
+        rig.after_tick(rig.last_command_time + 0.0185)  # 18.5 ms since the ARM, no command
+        final = proto.decode(host.recv(256))
+        assert (final.session, final.sequence) == (7, 2) and not rig.armed and rig.command_v == 0.0
+        status = final.fields["status"]
+        assert status & STATUS_WATCHDOG and status & STATUS_COMMAND_MISSED and not status & STATUS_ARMED
+        latched = hello()
+        assert latched.session == 0 and latched.fields["status"] & STATUS_WATCHDOG  # until the next ARM
+        assert dropped(proto.ARM, 9, 0, 100e5, 0.0) == {} and not hello().fields["status"] & STATUS_WATCHDOG
+    finally:
+        rig.close()
+        host.close()
 
 
 class FakeRig:

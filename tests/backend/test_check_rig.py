@@ -1,0 +1,188 @@
+"""isorig check-rig against the rig emulator in its own process (``isorig rig-emulator``, real time): it passes on
+the emulator, with and without --motion; it fails, naming the rule, on each emulator broken on purpose
+(--defect); the emulator plays a lab's rig file; and an emulator that overruns its period does what
+docs/rig-protocol.md section 1.6 says.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+import pytest
+from emulator import ISORIG, Emulator
+
+from backend.drivers import ArmConditions, RigFault
+from backend.drivers.rig_check import check_rig
+from backend.drivers.udp import UdpRig
+from sim.emulator import protocol as proto
+from sim.rigfile import load_rig_file
+
+DROP_REASONS = ("short", "size", "magic", "version", "kind", "crc", "session", "stale", "future", "value", "busy",
+                "arm")
+SECTIONS = {"§1.1", "§1.2", "§1.3", "§1.4", "§1.5", "§1.7", "§2", "§3.1", "§3.2", "§3.3", "§3.4", "§3.5", "§4", "§5"}
+#: each broken emulator, and the rules check-rig must fail on it (and no other): (section, start of the rule)
+BROKEN = {
+    "no-watchdog": {("§1.5", "watchdog: 0 V"), ("§1.5", "watchdog starts at ARM"),
+                    ("§1.5", "a stale command does not feed"), ("§1.5", "watchdog's last measurement")},
+    "echo-other-session": {("§5", "drop session")},
+    "accept-stale": {("§5", "drop stale: a duplicate"), ("§5", "drop stale: a command more than 10")},
+    "reply-from-other-port": {("§2", "replies come from the address and port")},
+}
+LAB_RIG = 'name = "Lab B rig"\nmax_supply_pa = 150e5\ncommand_limit_v = 5.0\n'
+
+
+@pytest.fixture(scope="module")
+def good(tmp_path_factory):
+    emulator = Emulator(tmp_path_factory.mktemp("good"))
+    yield emulator
+    emulator.stop()
+
+
+@pytest.fixture(scope="module")
+def others(tmp_path_factory):
+    """The broken emulators and one playing a lab's rig, started side by side (each takes seconds to start)."""
+    path = tmp_path_factory.mktemp("others")
+    (path / "lab.toml").write_text(LAB_RIG)
+    flags = {name: ("--defect", name) for name in BROKEN}
+    flags["lab"] = ("--plant-file", str(path / "lab.toml"), "--plant-set", "piston_area_m2=0.02")
+    with ThreadPoolExecutor(len(flags)) as pool:
+        started = dict(zip(flags, pool.map(lambda item: Emulator(path, *item[1], name=item[0]), flags.items()),
+                           strict=True))
+    started["lab_file"] = path / "lab.toml"
+    yield started
+    for name in flags:
+        started[name].stop()
+
+
+def failed(report) -> set[tuple[str, str]]:
+    return {(r.section, r.rule) for r in report.failures}
+
+
+def matches(failures: set[tuple[str, str]], expected: set[tuple[str, str]]) -> bool:
+    """Every expected rule failed, and nothing else."""
+    named = {(s, prefix) for s, prefix in expected if any(f[0] == s and f[1].startswith(prefix) for f in failures)}
+    others = {f for f in failures if not any(f[0] == s and f[1].startswith(p) for s, p in expected)}
+    return named == expected and not others
+
+
+def test_check_rig_passes_on_the_emulator_and_checks_every_rule(good):
+    out = subprocess.run([*ISORIG, "check-rig", good.url, "--json"], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stdout + out.stderr
+    report = json.loads(out.stdout)
+    assert report["ok"] and report["failed"] == 0 and report["passed"] == len(report["rules"]) >= 34
+    assert {r["section"] for r in report["rules"]} == SECTIONS
+    for reason in DROP_REASONS:
+        assert any(r["rule"].startswith(f"drop {reason}") for r in report["rules"]), reason
+    figures = report["figures"]
+    assert figures["period_ns"] == 1_000_000 and 0.9 < figures["inter_arrival_median_ms"] < 1.1
+    for way in ("last_command", "ARM", "stale_commands"):  # the emulator's 18 ms, its period and the link
+        assert all(18.0 <= t <= 24.0 for t in figures[f"watchdog_after_{way}_ms"]), figures
+    status = good.fresh_status()
+    # every drop reason reached the rig as that reason (its own counters by reason), and nothing moved: every
+    # command was 0 V or refused
+    assert set(DROP_REASONS) <= set(status["rejected"]), status["rejected"]
+    assert not status["armed"] and status["command_v"] == 0.0 and abs(status["position_m"]) < 1e-6
+    assert len(status["watchdog_trips"]) == 9
+
+
+def test_check_rig_with_motion_moves_the_table_both_ways_and_back(good):
+    report = check_rig(good.url, motion=True)
+    assert report.ok, report.table()
+    motion = report.figures["motion"]
+    assert motion["up_m"] > 0.2e-3 and motion["back_m"] < -0.2e-3 and motion["up_ms"] < 100
+    assert max(abs(motion["up_m"]), abs(motion["back_m"])) < 1e-3  # small, bounded
+    status = good.fresh_status()
+    assert not status["armed"] and abs(status["position_m"]) < 0.2e-3  # left near where it was
+
+
+@pytest.fixture
+def cli(monkeypatch, capsys):
+    """``isorig ARGS...`` in this process (the subprocess's imports cost seconds): (exit code, stdout, stderr)."""
+    from isorig.cli import main
+
+    monkeypatch.setattr("sim.realtime.raise_priority", lambda _priority: "normal")  # not the test process's
+
+    def run(*args: str) -> tuple[int, str, str]:
+        code = main(list(args))
+        out = capsys.readouterr()
+        return code, out.out, out.err
+
+    return run
+
+
+@pytest.mark.parametrize("defect", sorted(BROKEN))
+def test_check_rig_fails_on_a_broken_emulator_naming_the_rule(others, defect, cli):
+    emulator = others[defect]
+    assert emulator.status()["defects"] == [defect]
+    if defect != "reply-from-other-port":
+        report = check_rig(emulator.url)
+        assert matches(failed(report), BROKEN[defect]), report.table()
+        return
+    code, out, err = cli("check-rig", emulator.url)  # the table, as a lab reads it
+    assert code == 1 and err == "", out + err
+    rows = [line for line in out.splitlines() if line.startswith("FAIL")]
+    assert len(rows) == 1 and rows[0].split()[1] == "§2" and "replies come from the address and port" in rows[0]
+    assert "FAILED: §2 replies come from" in out.splitlines()[-1]
+
+
+def test_check_rig_says_in_one_line_that_nothing_answers(cli):
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    code, out, err = cli("check-rig", f"udp://127.0.0.1:{port}", "--timeout-s", "0.3")
+    assert code == 1 and out == "", out + err
+    assert err.count("\n") == 1 and "no answer to HELLO" in err and "nothing listens" in err
+    code, out, err = cli("check-rig", f"udp://127.0.0.1:{port}", "--supply-bar", "300")
+    assert code == 2 and "300 bar is outside the rig's range [10, 210] bar" in err
+
+
+def test_the_emulator_plays_the_rig_of_a_lab_rig_file(others):
+    lab = others["lab"]
+    plant = lab.status()["plant"]
+    assert plant["name"] == "Lab B rig" and plant["source"] == f"{others['lab_file']}, --plant-set piston_area_m2=0.02"
+    assert plant["changed"] == {"piston_area_m2": 0.02, "max_supply_pa": 150e5, "command_limit_v": 5.0}
+    # its ranges are the lab's: the check with the lab's rig file passes (165 bar and 6 V refused), ...
+    report = check_rig(lab.url, rig=load_rig_file(others["lab_file"]).parameters)
+    assert report.ok, report.table()
+    # ... and the host says why an ARM at 160 bar, within isorig's default range, goes unanswered
+    rig = UdpRig("127.0.0.1", lab.port, arm_timeout_s=0.3)
+    with pytest.raises(RigFault, match=r"answers HELLO but refused the ARM \(160 bar.*outside the rig's own range"):
+        rig.arm(ArmConditions(160e5))
+    rig.disarm()
+
+
+def test_an_emulator_that_overruns_its_period_does_not_catch_up(good):
+    """Section 1.6: stopped for 60 ms (SIGSTOP), the emulator sends nothing for the lost periods, no burst
+    after, numbers on by one, and (its world paused with it) its watchdog does not trip."""
+    before = good.status()["counters"]
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.connect(("127.0.0.1", good.port))
+        sock.settimeout(1.0)
+        session = 777
+        sock.send(proto.encode(proto.ARM, session, 0, 0, 20e5, 0.0))
+        got = []
+        while len(got) < 300:
+            m = proto.decode(sock.recv(256))
+            if m.session != session:
+                continue
+            got.append(m)
+            sock.send(proto.encode(proto.COMMAND, session, m.sequence, 0, 0.0))
+            if len(got) == 100:
+                os.kill(good.proc.pid, signal.SIGSTOP)
+                time.sleep(0.06)
+                os.kill(good.proc.pid, signal.SIGCONT)
+        sock.send(proto.encode(proto.DISARM, session, 0, 0))
+    assert [m.sequence for m in got] == list(range(300))  # +1 each, no gap, nothing twice
+    assert all(m.fields["status"] & 1 for m in got)  # armed throughout: the stall did not trip the watchdog
+    sent_ms = [(b.time_ns - a.time_ns) / 1e6 for a, b in zip(got, got[1:], strict=False)]
+    stall = max(range(len(sent_ms)), key=sent_ms.__getitem__)
+    assert 55 < sent_ms[stall] < 200 and 95 <= stall <= 105, sent_ms[stall]
+    assert min(sent_ms[stall + 1: stall + 20]) > 0.5, sent_ms[stall + 1: stall + 20]  # no burst of late ones
+    counters = good.fresh_status()["counters"]
+    assert counters["overruns"] > before["overruns"] and counters["ticks_lost"] >= before["ticks_lost"] + 50
