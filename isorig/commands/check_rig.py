@@ -20,9 +20,9 @@ def register(sub) -> None:
         "rig's ranges are sent too, and a conforming rig refuses them.")
     p.add_argument("rig", metavar="udp://HOST:PORT", help="the rig's target (or isorig rig-emulator)")
     p.add_argument("--motion", action="store_true",
-                   help="also move the table a little: +--motion-v until it has moved 0.3 mm, then back (0 V at "
-                        "once beyond 1 mm), to check the direction of the command, the signs of load_pressure_pa "
-                        "and force_n, and the position a HELLO reports")
+                   help="also move the table a little: --motion-v until it has moved 0.3 mm, then back at minus "
+                        "--motion-v (0 V at once beyond 1 mm), to check the direction of the command, the signs of "
+                        "load_pressure_pa and force_n, and the position a HELLO reports")
     p.add_argument("--motion-v", type=float, default=1.5,
                    help="the command of --motion in V (default 1.5; beyond the valve's dead zone, at most 3 V)")
     p.add_argument("--json", action="store_true", help="print the report as JSON instead of the table")
