@@ -265,6 +265,7 @@ class Stream:
         self.foreign = 0  # measurements of another session on this socket
         self.armed = False
         self.best_offset_ns: int | None = None  # arrival minus the rig's time_ns, the least seen
+        self.clock = True  # the rig's time_ns advances like a clock (it is only for its own statistics)
 
     def arm(self, timeout_s: float) -> Received:
         """ARM (repeated every 50 ms, as the host does) until the first measurement of the session."""
@@ -301,10 +302,15 @@ class Stream:
             if rec.packet.session != self.session:
                 self.foreign += 1
                 continue
-            offset = int(rec.t * 1e9) - rec.packet.time_ns
-            if self.best_offset_ns is None or offset < self.best_offset_ns:
-                self.best_offset_ns = offset
-            rec.late_s = (offset - self.best_offset_ns) * 1e-9
+            if self.last is not None and rec.seq > self.last.seq:
+                sent_ns = rec.packet.time_ns - self.last.packet.time_ns
+                if not 0 < sent_ns < 1000 * (rec.seq - self.last.seq) * max(1, rec["period_ns"]):
+                    self.clock = False  # not a clock: this check cannot tell how late it reads
+            if self.clock:
+                offset = int(rec.t * 1e9) - rec.packet.time_ns
+                if self.best_offset_ns is None or offset < self.best_offset_ns:
+                    self.best_offset_ns = offset
+                rec.late_s = (offset - self.best_offset_ns) * 1e-9
             self.last = rec
             if not rec.status & STATUS_ARMED:
                 self.armed = False
