@@ -40,6 +40,9 @@ FROZEN_SATURATED_PERIODS = 20  # ... or this many with the valve nearly wide ope
 FROZEN_SATURATED_V = 8.0
 FROZEN_TIERS = ((FROZEN_COMMAND_V, FROZEN_PERIODS), (FROZEN_SATURATED_V, FROZEN_SATURATED_PERIODS))
 SENSOR_FAULTS = ("non_finite", "rig_fault", "sensor_range", "position_frozen")  # the reading is not trusted
+#: the valve closes at once, without a ramp from the last command: a reading that cannot be trusted, or a
+#: controller that cannot follow this rig (sim.follow: its last command may be the peak of an oscillation)
+CLOSE_AT_ONCE = (*SENSOR_FAULTS, "not_following")
 VELOCITY_SPAN_PERIODS = 5  # velocity = measured displacement difference over 5 periods (5 ms): noise / 5
 INDICATIONS_RECORDED = 10  # events per indicating limit and test; further excursions are only counted
 
@@ -166,8 +169,9 @@ class Trip:
 
     @property
     def close_at_once(self) -> bool:
-        """A sensor fault: the last command came from a reading that cannot be trusted, so no ramp from it."""
-        return self.detector in SENSOR_FAULTS
+        """A sensor fault (the last command came from a reading that cannot be trusted) or a controller that
+        does not follow the rig: no ramp from the last command."""
+        return self.detector in CLOSE_AT_ONCE
 
 
 def velocity_readings(rows: Samples) -> np.ndarray:

@@ -21,6 +21,7 @@ import numpy as np
 from sqlalchemy.orm import Session, sessionmaker
 
 from sim.engine import Scenario
+from sim.follow import advice_for, tracking_verdict
 from sim.loop import CONTROL_PERIOD_S
 from sim.metrics import headline_figures
 from sim.samples import CSV_FIELDS, SAMPLE_FIELDS, Samples
@@ -582,10 +583,10 @@ class RigService:
 
     def _summary(self, session: Session, test, job: dict, pacing: dict, link: dict,
                  indications: dict | None = None, stability: dict | None = None) -> dict:
-        """Tracking figures (sim.tracking), loop-metric means over the steady cycles (sim.metrics), pacing, the
-        periods lost on the link and its health, how often each indicating limit was exceeded; for a history
-        or hybrid test the J criteria with their targets, and for a hybrid test the structure against its
-        reference and the stability monitor (sim.earthquake.record_figures)."""
+        """Tracking figures (sim.tracking) and the tracking verdict (sim.follow), loop-metric means over the steady
+        cycles (sim.metrics), pacing, the periods lost on the link and its health, how often each indicating
+        limit was exceeded; for a history or hybrid test the J criteria with their targets, and for a hybrid test
+        the structure against its reference and the stability monitor (sim.earthquake.record_figures)."""
         samples = store.load_samples(session, test.id)
         scenario: Scenario = scenario_from_job(job)
         closed = samples[np.isfinite(samples["target_m"])]
@@ -608,6 +609,9 @@ class RigService:
         summary["loop_metrics_mean"] = headline["means"]  # over the steady cycles only (sim.metrics)
         if job["scenario"].get("earthquake") is not None:
             summary.update(self._earthquake_summary(session, test, job, samples, stability))
+        summary["tracking_verdict"] = tracking_verdict(samples, scenario.profile, summary.get("criteria")
+                                                       if not scenario.profile else None,
+                                                       advice=advice_for(scenario.controller))
         return store.clean_json(summary)
 
     @staticmethod

@@ -34,8 +34,9 @@ import time
 
 import numpy as np
 
-from sim.controllers import make_controller
+from sim.controllers import INTERNAL_FACTORIES, make_controller
 from sim.engine import Scenario
+from sim.follow import FollowMonitor, advice_for, reference_for
 from sim.isolator import isolator_from_dict
 from sim.loop import CONTROL_PERIOD_S, ClosedLoop
 from sim.measurement import FLAG_LOST, Measurement
@@ -168,6 +169,18 @@ def hybrid_from_job(job: dict, scenario: Scenario):
                               spec["ground_acc_m_per_s2"])
 
 
+def follow_monitor(scenario: Scenario, table) -> FollowMonitor | None:
+    """The detector of a rig the controller cannot follow (sim.follow), judged against the rig's declared
+    position latency; None for the commissioning excitation, which follows no target by design."""
+    if scenario.controller in INTERNAL_FACTORIES:
+        return None
+    if scenario.profile:
+        reference = reference_for(scenario.profile)
+    else:
+        reference = reference_for([], table[:, 0] if table is not None and len(table) else np.zeros(1))
+    return FollowMonitor(reference, scenario.rig.position_latency_s, advice=advice_for(scenario.controller))
+
+
 class Pacer:
     """Waits until each chunk is due on the wall clock; records how late every release was.
 
@@ -233,6 +246,7 @@ class Run:
                        table=scenario.target_table()).step(Measurement(0, 0.0, 0.0, 0.0, 0.0, scenario.supply_pa))
         self.monitor = SafetyMonitor(SafetyLimits.from_dict(job["limits"]), self.scenario.supply_pa,
                                      sensor_range_m=scenario.rig.stroke_m)
+        self.follow = follow_monitor(scenario, table)
         # a hybrid test computes each target from the last measurement: one period at a time on every rig
         self.compiled = getattr(self.driver, "run_compiled", None) if self.hybrid is None else None
         self.windows = cycle_windows(self.scenario)
@@ -426,6 +440,10 @@ class Run:
             for indication in self.monitor.take_indications():
                 self.event("limit_indicate", indication.message, {"detector": indication.detector,
                                                                   **indication.values}, time_s=indication.time_s)
+            if trip is None and self.follow is not None and self.trip is None and not loop.stopping:
+                lost = self.follow.check(block)
+                if lost is not None:
+                    trip = Trip("not_following", lost.index, lost.time_s, lost.message, lost.values)
             if trip is None and self.hybrid is not None and self.hybrid.tripped:
                 trip = Trip("rths_stability", len(block) - 1, loop.time_s,
                             f"hybrid simulation unstable at t = {loop.time_s:.3f} s: {self.hybrid.monitor.reason}",

@@ -221,14 +221,30 @@ class Simulation:
             parts.append(self.plant.run_closed(self.loop, stop - self.period))
         return Samples.concatenate(parts)
 
-    def run(self, chunk_periods: int = 5000, progress=None) -> Result:
-        """Run to the end; ``progress(fraction)`` is called after each chunk."""
-        chunks = []
+    def run(self, chunk_periods: int = 5000, progress=None, follow: bool = False) -> Result:
+        """Run to the end; ``progress(fraction)`` is called after each chunk. ``follow``: with the service's
+        detector of a rig the controller cannot follow (sim.follow), checked every 10 periods as the worker
+        does; on a trip the valve closes at once (0 V for 0.1 s, open loop) and the run ends there."""
+        from .follow import FollowMonitor, advice_for, reference_for
+
+        monitor = None
+        if follow:
+            s = self.scenario
+            reference = reference_for(s.profile) if s.profile else reference_for([], s.history.r_m)
+            monitor = FollowMonitor(reference, s.rig.position_latency_s, advice=advice_for(s.controller))
+            chunk_periods = FOLLOW_CHECK_PERIODS
+        chunks, trip, next_progress = [], None, 0
         while not self.done:
-            chunks.append(self.advance(chunk_periods))
-            if progress is not None:
+            rows = self.advance(chunk_periods)
+            chunks.append(rows)
+            if monitor is not None and trip is None:
+                trip = monitor.check(rows)
+                if trip is not None:
+                    self.loop.begin_command_ramp(at_once=True)
+            if progress is not None and self.period >= next_progress:
                 progress(self.period / max(self.total_periods, 1))
-        return Result(self.scenario, Samples.concatenate(chunks), self.diverged)
+                next_progress = self.period + 5000
+        return Result(self.scenario, Samples.concatenate(chunks), self.diverged, trip)
 
 
 @dataclass
@@ -236,6 +252,8 @@ class Result:
     scenario: Scenario
     samples: Samples
     diverged: bool = False
+    #: the table did not follow and the run was stopped there (sim.follow.FollowTrip), or None
+    trip: object | None = None
 
     def column(self, name: str):
         return self.samples[name]
@@ -248,12 +266,16 @@ class Result:
 
         out = {"scenario": self.scenario.describe(), "diverged": self.diverged,
                **tracking_summary(self.samples, self.scenario)}
+        if self.trip is not None:
+            out["stopped"] = {"time_s": self.trip.time_s, "detector": "not_following", "reason": self.trip.message,
+                              "values": self.trip.values}
         if self.scenario.history is not None:
             from .hybrid_metrics import tracking_criteria
 
             s = self.samples
             if len(s) > 10:
                 out["criteria"] = tracking_criteria(s["target_m"], s["displacement_m"], CONTROL_PERIOD_S)
+            out["tracking_verdict"] = self.verdict(out.get("criteria", {}))
             return out
         loops = {c["cycle"]: c for c in scenario_cycle_metrics(self.samples, self.scenario)} \
             if len(self.samples) else {}
@@ -261,9 +283,18 @@ class Result:
             loop = loops.get(c["cycle"], {})
             c.update({k: v for k, v in loop.items() if k not in ("i_start", "i_end")})
         out["headline"] = headline_figures(list(loops.values()))
+        out["tracking_verdict"] = self.verdict()
         return out
 
+    def verdict(self, criteria: dict | None = None) -> dict:
+        """How well the table followed (sim.follow.tracking_verdict), with the advice for this controller."""
+        from .follow import advice_for, tracking_verdict
 
+        return tracking_verdict(self.samples, self.scenario.profile, criteria,
+                                advice=advice_for(self.scenario.controller))
+
+
+FOLLOW_CHECK_PERIODS = 10  # as the worker's detectors (backend.worker.CHECK_PERIODS)
 ISOLATOR_PARAMETERS = ("rho_bw_per_m", "sigma_bw", "n", "kd_n_per_m", "kw_n")
 
 

@@ -105,7 +105,7 @@ def tracking_summary(samples, scenario) -> dict:
         "all_finite": finite,
         "saturated_share": float(np.mean(np.abs(samples["command_raw_v"]) >= limit)) if n else 0.0,
         "peak_flow_l_per_min": _peak_abs(samples["flow_m3_per_s"]) / LITRE_PER_MIN_M3_S,
-        "rms_y_minus_r_m": _rms(y - r),
+        "rms_y_minus_r_m": _rms((y - r)[np.isfinite(r)]),  # closed loop only (a stop's valve ramp has no target)
         "cycles": per_cycle,
     }
     if not scenario.profile:  # a time history: no cycles (its figures: sim.hybrid_metrics)

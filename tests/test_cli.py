@@ -69,8 +69,9 @@ def test_bench_json_short(capsys):
 
 def test_controller_option_reaches_the_controller(tmp_path):
     base = ["simulate", "--controller", "mrac", "--cycles", "3", "--frequency-hz", "1"]  # an mrac option
-    assert main([*base, "--out", str(tmp_path / "lit")]) == 0
-    assert main([*base, "--controller-option", "dimensionless_as=true", "--out", str(tmp_path / "dim")]) == 0
+    # the paper's MRAC does not follow this rig (docs/compare.md): the run is stopped, exit code 1
+    assert main([*base, "--out", str(tmp_path / "lit")]) == 1
+    assert main([*base, "--controller-option", "dimensionless_as=true", "--out", str(tmp_path / "dim")]) == 1
     lit = json.loads((tmp_path / "lit" / "summary.json").read_text())
     dim = json.loads((tmp_path / "dim" / "summary.json").read_text())
     assert lit["scenario"]["controller_options"] == {}

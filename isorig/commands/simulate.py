@@ -147,7 +147,7 @@ def run(args) -> int:
         return run_on_rig(args, scenario, out)
     progress = Progress(f"simulating {scenario.duration_s:g} s")
     t0 = time.perf_counter()
-    result = Simulation(scenario, validate=False).run(progress=progress)
+    result = Simulation(scenario, validate=False).run(progress=progress, follow=True)
     progress.close()
     elapsed = time.perf_counter() - t0
     write_csv(out / "timeseries.csv", result.samples)
@@ -159,14 +159,24 @@ def run(args) -> int:
         print(f"wrote {out / 'timeseries.csv'} ({len(result.samples)} samples) and {out / 'summary.json'}")
         print(f"J1 delay {c['j1_delay_ms']:.3f} ms, J2 RMS error {c['j2_rms_percent']:.2f} %, J3 peak error "
               f"{c['j3_peak_percent']:.2f} %  (sim.hybrid_metrics)")
-        return 0 if not result.diverged else 1
+        return outcome(result, summary)
     last = summary.get("last_two_cycles", {})
     print(f"wrote {out / 'timeseries.csv'} ({len(result.samples)} samples) and {out / 'summary.json'}")
     print(f"RMS |y - r| over the run: {summary['rms_y_minus_r_m'] * 1e3:.3f} mm; "
           + (f"last two cycles: {last['rms_y_minus_r_m'] * 1e3:.3f} mm "
              f"({100 * last['rms_y_minus_r_over_amplitude']:.2f} % of amplitude); " if last else "")
           + f"saturated samples {100 * summary['saturated_share']:.2f} %")
-    return 0 if not result.diverged else 1
+    return outcome(result, summary)
+
+
+def outcome(result, summary: dict) -> int:
+    """Print how the test ended and its tracking verdict; the exit code: 0 only for a test that ran to its end
+    and whose table followed (within the 1 % the service allows, sim.follow)."""
+    if result.trip is not None:
+        print(f"test aborted: {result.trip.message}")
+    verdict = summary.get("tracking_verdict", {})
+    print(f"tracking: {verdict.get('words', 'not judged')}")
+    return 1 if result.diverged or result.trip is not None or verdict.get("verdict") == "did_not_follow" else 0
 
 
 def run_on_rig(args, scenario, out: Path) -> int:
@@ -190,7 +200,7 @@ def run_on_rig(args, scenario, out: Path) -> int:
     run, sent, status, reason, wall_s = run_job(job)  # Ctrl-C: abort the test, valve closed, files written
     samples = sent.samples()
     write_csv(out / "timeseries.csv", samples)
-    summary = Result(scenario, samples, diverged=False).summary()
+    summary = Result(scenario, samples, diverged=False).summary()  # the worker's detectors stopped it, if at all
     summary.update(rig=args.rig, status=status, reason=reason, wall_time_s=wall_s,
                    lost_periods=run.lost_periods, link=run.driver.link_stats(), pacing=run.pacing(),
                    events=sent.of_kind("event"))
@@ -201,4 +211,5 @@ def run_on_rig(args, scenario, out: Path) -> int:
           + (f"; last two cycles RMS |y - r| {100 * last['rms_y_minus_r_over_amplitude']:.3f} % of amplitude"
              if last else "")
           + f"; {run.lost_periods} period(s) lost on the link")
+    print(f"tracking: {summary.get('tracking_verdict', {}).get('words', 'not judged')}")
     return 0 if status == "completed" else 1

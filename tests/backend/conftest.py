@@ -17,7 +17,7 @@ AUTH = {"Authorization": f"Bearer {TOKEN}"}
 
 def sine_test(**overrides) -> dict:
     """A short, accelerated IUT_a test body (3 cycles at 2 Hz = 1.5 s of test time)."""
-    body = {"isolator": "IUT_a", "supply_bar": 100, "controller": "pid", "speed": 20.0,
+    body = {"isolator": "IUT_a", "supply_bar": 100, "controller": "servo", "speed": 20.0,
             "profile": {"kind": "sine", "amplitude_m": 0.01, "frequency_hz": 2.0, "cycles": 3, "taper_cycles": 1}}
     for key, value in overrides.items():
         if key == "profile":

@@ -140,7 +140,7 @@ def test_limits_bounded_by_the_rig():
 
 
 @pytest.mark.parametrize(("limits", "detector"), [
-    ({"tracking_error_m": 0.0002}, "tracking_error"),
+    ({"tracking_error_m": 0.00003}, "tracking_error"),
     ({"displacement_m": 0.004}, "displacement"),
     ({"force_n": 2000.0}, "force"),
     ({"load_pressure_pa": 5e5}, "load_pressure"),

@@ -91,8 +91,8 @@ def run_with(driver_class, spec=None, commands=None, **kwargs):
 
 @pytest.mark.parametrize("rig", [DEFAULT_RIG, NOISY_RIG], ids=["ideal sensors", "late noisy sensors"])
 def test_per_period_driver_path_equals_the_compiled_path(rig):
-    _, _, fast, _ = run_with(SimulatedRig, job(cycles=2), rig=rig, noise_seed=4)
-    _, _, slow, _ = run_with(PerPeriodRig, job(cycles=2), rig=rig, noise_seed=4)
+    _, _, fast, _ = run_with(SimulatedRig, job(cycles=2, controller="servo"), rig=rig, noise_seed=4)
+    _, _, slow, _ = run_with(PerPeriodRig, job(cycles=2, controller="servo"), rig=rig, noise_seed=4)
     a, b = samples_of(fast), samples_of(slow)
     assert len(a) == len(b) == 1000
     np.testing.assert_array_equal(np.nan_to_num(a.array, nan=9e9), np.nan_to_num(b.array, nan=9e9))
@@ -228,8 +228,16 @@ def test_pacer_polls_without_sleeping_inside_spin_s_and_counts_a_missed_deadline
 
 @pytest.mark.parametrize("controller", ["mrac", "pid", "servo"])
 def test_no_detector_trips_on_a_normal_test(controller):
-    """The paper's MRAC barely moves the table at first (a_r_hat(0) = 0): no detector may take that for a fault."""
+    """The paper's MRAC barely moves the table at first (a_r_hat(0) = 0): no safety detector may take that for a
+    fault. What stops the MRAC and the PID here is that they do not follow this rig (several percent: the
+    comparison grid, docs/compare.md), and the reason says so, with the controller that does."""
     spec = job(cycles=4, controller=controller)
     spec["scenario"]["profile"] = [SineProfile(0.02, 1.0, 4, 1).to_dict()]
-    status, reason, _, _ = run_with(SimulatedRig, spec)
-    assert (status, reason) == ("completed", None)
+    status, reason, out, _ = run_with(SimulatedRig, spec)
+    if controller == "servo":
+        assert (status, reason) == ("completed", None)
+        return
+    assert status == "aborted" and "does not follow its target" in reason
+    assert f"the {controller} controller does not follow this rig" in reason
+    trips = [m for k, m in out.sent if k == "event" and m["kind"] == "limit_trip"]
+    assert [t["values"]["detector"] for t in trips] == ["not_following"]
