@@ -24,6 +24,7 @@ range ...) is drawn again too; when more than 1 % of the runs needed that, the c
 from __future__ import annotations
 
 import csv
+import functools
 import logging
 import math
 import os
@@ -48,10 +49,12 @@ MAX_OUTSIDE_SHARE = 0.01  # a distribution may put at most this share of its dra
 MAX_RUNS = 100_000
 MAX_CYCLES = 1000
 SCHEDULER_TIMEOUT_S = 5.0
-DISTRIBUTIONS = {"normal": ("mean", "std"), "uniform": ("low", "high"), "lognormal": ("median", "sigma")}
+DISTRIBUTIONS = {"normal": ("mean", "std"), "uniform": ("low", "high"), "lognormal": ("median", "sigma"),
+                 "loguniform": ("low", "high")}
 FIGURE_FORMATS = (".png", ".svg", ".pdf")
 CAMPAIGN_KEYS = ("name", "description", "runs", "seed", "controller", "isolator", "supply_bar", "amplitude_m",
-                 "frequency_hz", "cycles", "nominal_rig", "rig", "isolator_parameters")
+                 "frequency_hz", "cycles", "nominal_rig", "rig", "isolator_parameters", "commissioning")
+COMMISSIONING_KEYS = ("more_tests", "max_stroke_m", "max_velocity_m_per_s", "vertical_load_n")
 
 
 class CampaignError(FieldError):
@@ -69,7 +72,7 @@ def _normal_cdf(z: float) -> float:
 @dataclass(frozen=True)
 class Distribution:
     """One parameter's distribution: ``fixed`` (a), ``normal`` (mean a, std b), ``uniform`` (low a, high b),
-    ``lognormal`` (median a, sigma b of ln x)."""
+    ``lognormal`` (median a, sigma b of ln x), ``loguniform`` (low a, high b: ln x uniform)."""
 
     kind: str
     a: float
@@ -82,6 +85,8 @@ class Distribution:
             return float(rng.uniform(self.a, self.b))
         if self.kind == "lognormal":
             return float(rng.lognormal(math.log(self.a), self.b))
+        if self.kind == "loguniform":
+            return float(math.exp(rng.uniform(math.log(self.a), math.log(self.b))))
         return self.a
 
     def share_outside(self, lo: float, hi: float) -> float:
@@ -94,7 +99,7 @@ class Distribution:
             below = _normal_cdf((math.log(lo) - math.log(self.a)) / self.b) if lo > 0.0 else 0.0
             above = 1.0 - _normal_cdf((math.log(hi) - math.log(self.a)) / self.b) if math.isfinite(hi) else 0.0
             return below + above
-        low, high = (self.a, self.b) if self.kind == "uniform" else (self.a, self.a)
+        low, high = (self.a, self.b) if self.kind in ("uniform", "loguniform") else (self.a, self.a)
         return 0.0 if lo <= low and high <= hi else 1.0
 
     def to_dict(self) -> dict:
@@ -136,8 +141,8 @@ def parse_distribution(where: str, name: str, spec) -> Distribution:
             raise CampaignError(name, spec, allowed, f"{where} = {spec:g} {unit} is outside the allowed range "
                                 f"{allowed}")
         return dist
-    shape = ('a number (a fixed value) or one distribution: {"normal": [mean, std]}, {"uniform": [low, high]} '
-             'or {"lognormal": [median, sigma]}')
+    shape = ('a number (a fixed value) or one distribution: {"normal": [mean, std]}, {"uniform": [low, high]}, '
+             '{"lognormal": [median, sigma]} or {"loguniform": [low, high]}')
     if not isinstance(spec, dict) or len(spec) != 1:
         raise CampaignError(name, spec, shape, f"{where} = {spec!r} is not {shape}")
     kind, args = next(iter(spec.items()))
@@ -158,16 +163,18 @@ def parse_distribution(where: str, name: str, spec) -> Distribution:
         raise CampaignError(name, b, "std > 0", f"{where}.normal: std = {b:g} {unit} is "
                             f"{'negative' if b < 0 else 'zero'}; a standard deviation must be > 0 (a plain "
                             "number gives a fixed value)")
-    if kind == "uniform" and not a < b:
-        raise CampaignError(name, [a, b], "low < high", f"{where}.uniform: low = {a:g} is not below high = "
+    if kind in ("uniform", "loguniform") and not a < b:
+        raise CampaignError(name, [a, b], "low < high", f"{where}.{kind}: low = {a:g} is not below high = "
                             f"{b:g} {unit}")
+    if kind == "loguniform" and a <= 0.0:
+        raise CampaignError(name, [a, b], "low > 0", f"{where}.loguniform: low = {a:g} {unit} must be > 0")
     if kind == "lognormal" and (a <= 0.0 or b <= 0.0):
         raise CampaignError(name, [a, b], "median > 0 and sigma > 0", f"{where}.lognormal: median = {a:g} "
                             f"{unit} and sigma = {b:g} (of ln x) must both be > 0")
     dist = Distribution(kind, a, b)
     share = dist.share_outside(lo, hi)
-    if kind == "uniform" and share > 0.0:
-        raise CampaignError(name, [a, b], allowed, f"{where}.uniform: [{a:g}, {b:g}] {unit} leaves the allowed "
+    if kind in ("uniform", "loguniform") and share > 0.0:
+        raise CampaignError(name, [a, b], allowed, f"{where}.{kind}: [{a:g}, {b:g}] {unit} leaves the allowed "
                             f"range {allowed}")
     if share > MAX_OUTSIDE_SHARE:
         raise CampaignError(name, spec, allowed, f"{where}: {dist.describe()} {unit} puts {100 * share:.2g} % "
@@ -218,6 +225,10 @@ class Campaign:
     source: str = ""
     #: filled by ``points()``: draws made again (per parameter: out of its range; "inconsistent": whole runs)
     redrawn: dict = field(default_factory=dict)
+    #: a commissioning campaign (sim.commission.campaign): each drawn rig is commissioned, then tested with
+    #: and without its rig file; {"more_tests": [(amplitude_m, frequency_hz), ...], "max_stroke_m",
+    #: "max_velocity_m_per_s", "vertical_load_n"}; None: a controller campaign
+    commissioning: dict | None = None
 
     def nominal_scenario(self, controller: str) -> Scenario:
         return CampaignPoint(controller, self.isolator.name, self.supply_bar, self.frequency_hz, self.amplitude_m,
@@ -382,8 +393,40 @@ def campaign_from_mapping(data, source: str = "", base_dir: Path | None = None) 
         if not isinstance(value, str):
             raise CampaignError(key, value, "text", f"{where}: {key} must be text")
         text[key] = value[:200]
+    commissioning = None
+    if "commissioning" in data:
+        commissioning = parse_commissioning(f"{where}: commissioning", data["commissioning"])
     return Campaign(runs, seed, tuple(controllers), isolator, supply, amplitude, frequency, cycles, distributions,
-                    nominal, text["name"], text["description"], source)
+                    nominal, text["name"], text["description"], source, commissioning=commissioning)
+
+
+def parse_commissioning(where: str, spec) -> dict:
+    """The commissioning section of a campaign file, every value checked."""
+    if not isinstance(spec, dict):
+        raise CampaignError("commissioning", spec, "an object", f"{where} must be an object of "
+                            f"{', '.join(COMMISSIONING_KEYS)}")
+    for key in spec:
+        if key not in COMMISSIONING_KEYS:
+            raise CampaignError(key, spec[key], ", ".join(COMMISSIONING_KEYS), f"{where}: unknown key {key!r}"
+                                f"{suggestion(str(key), COMMISSIONING_KEYS)}; allowed: {', '.join(COMMISSIONING_KEYS)}")
+    out = {"more_tests": [], "max_stroke_m": 0.002, "max_velocity_m_per_s": 0.02, "vertical_load_n": None}
+    for key in ("max_stroke_m", "max_velocity_m_per_s", "vertical_load_n"):
+        if key in spec:
+            out[key] = _number(f"{where}.{key}", spec[key])
+    tests = spec.get("more_tests", [])
+    if not isinstance(tests, list):
+        raise CampaignError("more_tests", tests, "a list", f"{where}.more_tests must be a list of "
+                            "{amplitude_m, frequency_hz}")
+    for i, t in enumerate(tests):
+        if not isinstance(t, dict) or sorted(t) != ["amplitude_m", "frequency_hz"]:
+            raise CampaignError("more_tests", t, "{amplitude_m, frequency_hz}", f"{where}.more_tests[{i}] = {t!r} "
+                                "is not {amplitude_m, frequency_hz}")
+        a, f = (_number(f"{where}.more_tests[{i}].{k}", t[k]) for k in ("amplitude_m", "frequency_hz"))
+        if a <= 0 or f <= 0:
+            raise CampaignError("more_tests", t, "> 0", f"{where}.more_tests[{i}]: amplitude and frequency must be "
+                                "> 0")
+        out["more_tests"].append((a, f))
+    return out
 
 
 def load_campaign(path: str | Path) -> Campaign:
@@ -488,14 +531,19 @@ class Engine:
     def run(self, points: list[GridPoint], cycles: int = CYCLES, progress=None) -> tuple[list[dict], float]:
         """Run every point; returns (rows in the order of ``points``, wall time in s). ``progress(done, total)``
         is called as tasks finish."""
+        for p in points:
+            p.scenario(cycles).validate()  # as run_batch does: refuse a bad point before anything runs
+        return self.map(functools.partial(run_chunk, cycles=cycles), points, chunk_size(len(points), self.n_workers),
+                        progress)
+
+    def map(self, function, items: list, chunk: int, progress=None) -> tuple[list, float]:
+        """``function`` (of a list of items, returning one row per item) over ``items`` in chunks of ``chunk``;
+        (the rows in the order of ``items``, wall time in s). ``progress(done, total)`` as tasks finish."""
         from distributed import as_completed
 
         t0 = time.perf_counter()
-        for p in points:
-            p.scenario(cycles).validate()  # as run_batch does: refuse a bad point before anything runs
-        size = chunk_size(len(points), self.n_workers)
-        chunks = [points[i:i + size] for i in range(0, len(points), size)]
-        futures = self.client.map(run_chunk, chunks, cycles=cycles, pure=False)
+        chunks = [items[i:i + chunk] for i in range(0, len(items), chunk)]
+        futures = self.client.map(function, chunks, pure=False)
         sizes = {f.key: len(c) for f, c in zip(futures, chunks, strict=True)}
         done = 0
         try:
@@ -503,7 +551,7 @@ class Engine:
                 future.result()  # a task's error here, at once
                 done += sizes[future.key]
                 if progress is not None:
-                    progress(done, len(points))
+                    progress(done, len(items))
             rows = [row for future in futures for row in future.result()]
         except (CancelledError, OSError) as exc:
             raise CampaignError("scheduler", self.scheduler, "a scheduler that answers", f"lost "
@@ -828,8 +876,10 @@ class Outputs:
             raise CampaignError("--figure", str(self.figure_path), "another file than --csv", "--csv and --figure "
                                 "name the same file")
 
-    def write(self, rows: list[dict], groups: dict[str, list[dict]], title: str) -> list[Path]:
-        """Write both (temporary names first, renamed when both are complete); returns the paths written."""
+    def write(self, rows: list[dict], groups: dict[str, list[dict]], title: str, text: str | None = None,
+              figure=None) -> list[Path]:
+        """Write both (temporary names first, renamed when both are complete); returns the paths written.
+        ``text`` and ``figure`` (a matplotlib figure) replace the comparison's CSV and error figure."""
         import tempfile
 
         temps: list[tuple[Path, Path]] = []
@@ -838,13 +888,14 @@ class Outputs:
                 fd, tmp = tempfile.mkstemp(dir=self.csv_path.parent, prefix=f".{self.csv_path.name}.", suffix=".tmp")
                 temps.append((Path(tmp), self.csv_path))
                 with os.fdopen(fd, "w", newline="") as f:
-                    f.write(csv_text(rows))
+                    f.write(csv_text(rows) if text is None else text)
             if self.figure_path is not None:
                 fd, tmp = tempfile.mkstemp(dir=self.figure_path.parent, prefix=f".{self.figure_path.name}.",
                                            suffix=".tmp")
                 temps.append((Path(tmp), self.figure_path))
                 with os.fdopen(fd, "wb") as f:
-                    error_figure(groups, title).savefig(f, format=self.figure_path.suffix.lower()[1:], dpi=120)
+                    (error_figure(groups, title) if figure is None else figure).savefig(
+                        f, format=self.figure_path.suffix.lower()[1:], dpi=120)
             umask = os.umask(0)
             os.umask(umask)
             for tmp, final in temps:

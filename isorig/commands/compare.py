@@ -163,6 +163,8 @@ def run(args) -> int:
     notes: list[str] = []
     if args.monte_carlo is not None:
         campaign = cpg.load_campaign(args.monte_carlo)
+        if campaign.commissioning is not None:
+            return run_commissioning(args, campaign)
         cycles = campaign.cycles
         points = campaign.points()  # the draws, every plant checked: a bad file stops here
         group_key = "controller"
@@ -312,6 +314,44 @@ def run(args) -> int:
     if backends is not None:
         print("\n### engines\n")
         print(cpg.backends_table(backends))
+    for path in (args.csv, args.figure):
+        if path:
+            print(f"wrote {path}", file=sys.stderr)
+    return 0
+
+
+def run_commissioning(args, campaign) -> int:
+    """A commissioning campaign (a campaign file with a ``commissioning`` section, sim.commission.campaign): each
+    drawn rig commissioned, then tested with its rig file and without it; the tables, and --csv / --figure."""
+    from sim import campaign as cpg
+    from sim.commission import campaign as cc
+
+    if args.json:
+        raise UsageError("isorig compare: a commissioning campaign prints its tables; use --csv for every run's "
+                         "figures")
+    runs = cc.campaign_runs(campaign)
+    outputs = cpg.Outputs(args.csv, args.figure)
+    timeout = cpg.SCHEDULER_TIMEOUT_S if args.scheduler_timeout is None else args.scheduler_timeout
+    tests = runs[0].tests
+    with cpg.Engine(scheduler=args.scheduler, workers=args.processes, timeout_s=timeout) as engine:
+        print(f"commissioning {len(runs)} drawn rigs, then {len(tests)} test(s) on each with and without the rig file, "
+              f"on {engine.description} ...", file=sys.stderr)
+        bar = ProgressBar()
+        bar(0, len(runs))
+        try:
+            rows, wall = engine.map(cc.run_chunk, runs, 1, progress=bar)
+        finally:
+            bar.close()
+        where, startup = engine.description, engine.startup_s
+    title = (f"commissioning campaign '{campaign.name}': {len(rows)} rigs, {campaign.isolator.name}, "
+             f"{campaign.supply_bar:g} bar, {campaign.cycles} cycles, seed {campaign.seed}")
+    figure = cc.figure(rows, tests, title) if args.figure else None
+    outputs.write(rows, {}, title, text=cc.csv_text(rows), figure=figure)
+    print(f"\n### {title}\n")
+    print(cpg.parameters_table(campaign))
+    print()
+    print(cc.summary_tables(rows, tests, runs[0].max_stroke_m, runs[0].max_velocity_m_per_s))
+    print(f"\n{len(rows)} rigs in {wall:.1f} s wall time on {where} (and {startup:.1f} s to start it)")
     for path in (args.csv, args.figure):
         if path:
             print(f"wrote {path}", file=sys.stderr)
