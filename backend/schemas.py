@@ -246,6 +246,8 @@ class TestOut(BaseModel):
     speed: float
     driver: str
     rig: str | None = None  # the rig description the service ran with (settings.rig_file), None before they existed
+    #: that rig file: name, source, what it changes, its commissioning (sim.rigfile); None before they were kept
+    rig_file: dict | None = None
     profile: dict | None
     limits: dict
     duration_s: float

@@ -611,7 +611,8 @@ class RigService:
             summary.update(self._earthquake_summary(session, test, job, samples, stability))
         summary["tracking_verdict"] = tracking_verdict(samples, scenario.profile, summary.get("criteria")
                                                        if not scenario.profile else None,
-                                                       advice=advice_for(scenario.controller))
+                                                       advice=advice_for(scenario.controller),
+                                                       latency_s=scenario.rig.position_latency_s)
         return store.clean_json(summary)
 
     @staticmethod

@@ -93,6 +93,8 @@ def test_record(session: Session, test: TestRecord, with_events: bool = True) ->
         "speed": test.speed,
         "driver": test.driver,
         "rig": test.request.get("rig_name"),  # the rig description the service ran with (settings.rig_file)
+        # ... its source, what it changes and its commissioning (sim.rigfile.RigDescription.to_dict); None before
+        "rig_file": test.request.get("rig_file"),
         "profile": test.request.get("profile"),
         "limits": test.limits,
         "duration_s": test.duration_s,

@@ -291,7 +291,8 @@ class Result:
         from .follow import advice_for, tracking_verdict
 
         return tracking_verdict(self.samples, self.scenario.profile, criteria,
-                                advice=advice_for(self.scenario.controller))
+                                advice=advice_for(self.scenario.controller),
+                                latency_s=self.scenario.rig.position_latency_s)
 
 
 FOLLOW_CHECK_PERIODS = 10  # as the worker's detectors (backend.worker.CHECK_PERIODS)

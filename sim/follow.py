@@ -143,15 +143,10 @@ class FollowMonitor:
         self.tripped: FollowTrip | None = None
 
     def _late_target(self, r: np.ndarray) -> np.ndarray:
-        """r(t - L) for each row of this block (linear between periods), from the targets kept."""
+        """r(t - L) for each row of this block, from the targets kept."""
         full = np.concatenate([self.r_hist, r])
         self.r_hist = full[-self.r_hist.size:]
-        if self.lag == 0.0:
-            return r
-        n = int(math.floor(self.lag))
-        f = self.lag - n
-        idx = np.arange(full.size - r.size, full.size)
-        return (1.0 - f) * full[idx - n] + f * full[idx - n - 1]
+        return late(full, self.lag)[-r.size:]
 
     def check(self, rows) -> FollowTrip | None:
         """Take the next rows of the test (the worker's blocks of ten periods; ``feed`` cuts a record into
@@ -249,6 +244,14 @@ class FollowMonitor:
         return self.tripped
 
 
+def late(r: np.ndarray, periods: float) -> np.ndarray:
+    """r ``periods`` earlier (linear between periods; NaN before the start)."""
+    if periods <= 0.0:
+        return r
+    k = np.arange(r.size, dtype=float)
+    return np.interp(k - periods, k, r, left=np.nan)
+
+
 def oscillation_frequency_hz(x: np.ndarray) -> float:
     """The dominant frequency of a zero-mean signal from its zero crossings."""
     x = x[np.isfinite(x)]
@@ -259,11 +262,13 @@ def oscillation_frequency_hz(x: np.ndarray) -> float:
 
 
 def tracking_verdict(samples, profile, history_criteria: dict | None = None,
-                     limits: FollowLimits | None = None, advice: str = ADVICE) -> dict:
+                     limits: FollowLimits | None = None, advice: str = ADVICE, latency_s: float = 0.0) -> dict:
     """How well the table followed: ``verdict`` (``followed``: within LAB_TARGET_SHARE; ``outside_target``:
     within the monitor's ``rms_share``; ``did_not_follow``; ``not_judged``: no steady cycle ran), the figure
     it rests on (``rms_share``: the worst block's RMS |y - r| over its judged cycles / its amplitude; a time
-    history: J2 / 100), and words for a person."""
+    history: J2 / 100), and words for a person. Judged as the monitor judges: the position reading against the
+    target of ``latency_s`` (the rig's declared position latency) ago, so that a real rig's record (its reading)
+    and a simulation's are judged alike."""
     limits = limits or FollowLimits()
     if history_criteria is not None:
         j2 = history_criteria.get("j2_rms_percent")
@@ -280,8 +285,8 @@ def tracking_verdict(samples, profile, history_criteria: dict | None = None,
     if n == 0 or not profile:
         return {"verdict": "not_judged", "words": "not judged (no steady cycle ran)"}
     ref = reference_for(profile)
-    e = np.asarray(samples["displacement_m"], dtype=float) - np.asarray(samples["target_m"], dtype=float)
     r = np.asarray(samples["target_m"], dtype=float)
+    e = np.asarray(samples["measured_displacement_m"], dtype=float) - late(r, latency_s / CONTROL_PERIOD_S)
     worst = None
     for b in range(ref.starts.size):
         a = float(ref.amplitudes[b])

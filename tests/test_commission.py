@@ -153,3 +153,38 @@ def test_identify_rig_refuses_bad_bounds_and_writes_nothing(tmp_path):
                  "--out", "rig.json", cwd=tmp_path)
     assert out.returncode == 1 and "NOT trusted" in out.stdout
     assert not (tmp_path / "rig.json").exists()
+
+
+def test_a_link_that_loses_measurements_and_commands_is_fitted_on_what_the_rig_did():
+    """On a loaded host 2 % of the periods lose their measurement (the reading is held) or their command (the
+    rig holds the one before): the held readings are interpolated, the command is the one the rig applied,
+    and the fit leaves their neighbourhood out (an emulator record on a loaded machine: mass 20 % off before)."""
+    from sim.commission.fit import signals_from_samples
+    from sim.measurement import FLAG_LOST, STATUS_COMMAND_MISSED
+
+    c, s = run_excitation(SOFT_SLOW)
+    arr = s.array.copy()
+    flags_col = s.array.shape[1] - 1
+    rng = np.random.default_rng(3)
+    lost = np.sort(rng.choice(np.arange(100, len(s) - 100), size=len(s) // 50, replace=False))
+    names = ("measured_displacement_m", "load_pressure_pa", "force_n")
+    from sim.samples import SAMPLE_FIELDS, Samples
+
+    for k in lost:
+        for name in names:
+            j = SAMPLE_FIELDS.index(name)
+            arr[k, j] = arr[k - 1, j]
+        arr[k, flags_col] = FLAG_LOST
+    missed = np.array([1000, 5000, 9000])
+    arr[missed + 1, flags_col] = STATUS_COMMAND_MISSED
+    damaged = Samples(arr)
+    sig = signals_from_samples(damaged, 1e-3)
+    assert np.all(sig.u[missed] == arr[missed - 1, SAMPLE_FIELDS.index("voltage_v")])
+    assert not sig.valid[lost].any() and not sig.valid[missed].any()
+    ident = identify(damaged, DEFAULT_RIG, c)
+    assert ident.trusted, ident.problems
+    assert ident.rig.mass_kg == pytest.approx(SOFT_SLOW["mass_kg"], rel=0.05)
+    assert ident.rig.position_latency_s == pytest.approx(SOFT_SLOW["position_latency_s"], abs=1e-4)
+    arr[::5, flags_col] = FLAG_LOST  # a link that loses a fifth of the periods is not fitted
+    worse = identify(Samples(arr), DEFAULT_RIG, c)
+    assert not worse.trusted and "link is not good enough" in worse.problems[0]

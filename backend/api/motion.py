@@ -60,7 +60,8 @@ def build_move(session, body: MoveIn, request: Request) -> dict:
         "isolator": isolator.name, "supply_bar": body.supply_bar, "vertical_load_n": scenario.effective_vertical_load_n,
         "controller": "servo", "speed": 1.0, "driver": service.driver,
         "request": {**body.model_dump(mode="json"), "profile": {"kind": "move", **motion},
-                    "job_scenario": job_scenario, "rig_name": request.app.state.rig_description.name},
+                    "job_scenario": job_scenario, "rig_name": request.app.state.rig_description.name,
+                    "rig_file": clean_json(request.app.state.rig_description.to_dict())},
         "scenario": clean_json(scenario.describe()), "limits": limits.to_dict(),
         "duration_s": scenario.duration_s, "cycles_total": 0,
     }

@@ -19,6 +19,7 @@ from .data import (
     protocol_of,
     rig_of,
     run_of,
+    tracking_verdict_of,
 )
 from .identification import identified_bouc_wen
 
@@ -257,6 +258,7 @@ def report_json(bundle, identify: bool = True, meta: dict | None = None, identif
         "isolator_nominal": iso.to_dict() if iso else None,
         "controller": controller_state(bundle),
         "tracking": tracking(bundle),
+        "tracking_verdict": tracking_verdict_of(record),
         "earthquake": earthquake(bundle),
         "headline": headline(bundle, protocol),
         "cycles": cycles,

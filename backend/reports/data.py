@@ -124,7 +124,9 @@ def bundle_from_csv(path, summary_path=None, isolator=None, supply_bar: float | 
         "id": None,
         "label": path.name,
         "source": str(path),
-        "status": "recorded",
+        # how the run ended, when its summary says (isorig simulate: a stop of the follow monitor, or --rig's status)
+        "status": (summary or {}).get("status") or ("aborted" if (summary or {}).get("stopped") else "recorded"),
+        "reason": (summary or {}).get("reason") or ((summary or {}).get("stopped") or {}).get("reason"),
         "created_at": datetime.fromtimestamp(stat.st_mtime, UTC).isoformat(),
         "isolator": iso.name if iso else None,
         "supply_bar": supply_bar if supply_bar is not None else scenario.get("supply_bar"),
@@ -344,7 +346,7 @@ def rig_of(record: dict) -> dict:
     changes = scenario.get("rig_changes") or {}
     simulated = driver == "simulated" or (driver is None and scenario.get("control_period_s") is not None)
     out: dict = {"driver": driver or ("simulated" if simulated else None), "name": record.get("rig"),
-                 "simulated": bool(simulated), "speed": num(record.get("speed")),
+                 "rig_file": record.get("rig_file"), "simulated": bool(simulated), "speed": num(record.get("speed")),
                  "control_period_s": num(scenario.get("control_period_s")), "rig_changes": changes, "sensors": []}
     try:
         from sim.rig import DEFAULT_RIG, RigParameters
@@ -407,6 +409,8 @@ def rig_text(rig: dict) -> tuple[str, list[str]]:
     else:
         sensors.append("the rig's own transducers (position, force, load and supply pressure): not described over "
                        "the link; see the rig's calibration records")
+    if isinstance(rig.get("rig_file"), dict):
+        sensors.insert(0, rig_file_text(rig["rig_file"]))
     for c in rig.get("other_changes", []):
         sensors.append(f"rig parameter {c['name']} = {c['value']:.6g} {c['unit']} (changed from sim.rig's default)")
     link = rig.get("link")
@@ -415,6 +419,33 @@ def rig_text(rig: dict) -> tuple[str, list[str]]:
     elif rig.get("lost_periods"):
         sensors.append(f"{rig['lost_periods']} control periods without a fresh measurement (held)")
     return name, sensors
+
+
+def rig_file_text(rig_file: dict) -> str:
+    """The rig file in force and its commissioning, in one line: where its values came from."""
+    text = f"rig file {rig_file.get('name')} ({rig_file.get('source')})"
+    c = rig_file.get("commissioning")
+    if not c:
+        return text + ": not commissioned (values as written, not measured by isorig identify rig)"
+    fit = []
+    if num(c.get("flow_r2")) is not None:
+        fit.append(f"flow balance R^2 {c['flow_r2']:.4f}")
+    if num(c.get("velocity_nrmse")) is not None:
+        fit.append(f"replay {100 * c['velocity_nrmse']:.1f} % RMS")
+    supply = num(c.get("supply_pa"))
+    return (text + f": commissioned {str(c.get('date', '?'))[:10]} on {c.get('rig')}"
+            + (f" at {supply / 1e5:g} bar" if supply is not None else "")
+            + (f", {c.get('specimen')} mounted" if c.get("specimen") not in (None, "none") else ", no specimen")
+            + (f" ({', '.join(fit)})" if fit else ""))
+
+
+def tracking_verdict_of(record: dict) -> dict:
+    """The test's tracking verdict (sim.follow, in its summary), or a note that the record has none."""
+    verdict = (record.get("summary") or {}).get("tracking_verdict")
+    if isinstance(verdict, dict) and verdict.get("words"):
+        return verdict
+    return {"verdict": "not_judged", "words": "not judged (recorded before isorig judged how well the table "
+                                              "followed)"}
 
 
 def link_text(link: dict) -> str:

@@ -496,6 +496,10 @@ def _acceptance_and_tracking(flow: Flow, report: dict) -> None:
             flow.text(VALUE_X, line, pitch=PITCH, fontsize=BODY, color=colour)
     flow.skip(3)
 
+    verdict = report.get("tracking_verdict") or {}
+    if verdict:
+        _kv(flow, "Table followed", verdict["words"], color=RED if verdict.get("verdict") == "did_not_follow"
+            else "black")
     trk = report["tracking"]
     if trk:
         peak_u = fmt_num(trk.get("peak_abs_voltage_v"), "{:.2f}")

@@ -21,7 +21,23 @@ def register(sub) -> None:
                         f"{MAX_SPEED_M_PER_S:g})")
     p.add_argument("--isolator", default="IUT_a", help=f"the specimen mounted: a preset ({', '.join(PRESETS)})")
     p.add_argument("--supply-bar", type=float, default=100.0, help="supply pressure in bar (default 100)")
+    p.add_argument("--rig-file", default=None, help="the rig file in force (what `isorig identify rig` wrote; default: "
+                   "ISORIG_RIG_FILE, else isorig's default rig): the controller settles the table on it")
+    p.add_argument("--rig-set", action="append", default=[], metavar="NAME=VALUE",
+                   help="change one rig parameter (after --rig-file; repeatable)")
     p.set_defaults(func=run)
+
+
+def rig_in_force(args):
+    """(the rig description, its parameters with --rig-set): --rig-file, else ISORIG_RIG_FILE, else the defaults."""
+    import os
+
+    from sim.rig import DEFAULT_RIG
+    from sim.rigfile import RigDescription, load_rig_file, with_assignments
+
+    path = args.rig_file or os.environ.get("ISORIG_RIG_FILE")
+    described = load_rig_file(path) if path else RigDescription(DEFAULT_RIG)
+    return described, with_assignments(described.parameters, args.rig_set, "--rig-set")
 
 
 def run(args) -> int:
@@ -31,7 +47,7 @@ def run(args) -> int:
     from sim.isolator import PRESETS
     from sim.motion import MotionError, check_move, move_target
     from sim.profiles import ProfileError
-    from sim.rig import BAR_PA, DEFAULT_RIG
+    from sim.rig import BAR_PA
 
     from .rig_run import rig_job, run_job
 
@@ -49,9 +65,10 @@ def run(args) -> int:
         raise UsageError(f"isorig move: the rig at {args.rig} is armed: another test or move runs on it (wait for it "
                          "to end); nothing moved")
     start_m = float(answer["position_m"])
+    described, rig = rig_in_force(args)
     try:
-        check_move(start_m, args.position_m, args.speed_m_per_s, DEFAULT_RIG.stroke_m)
-        scenario = Scenario(PRESETS[args.isolator], args.supply_bar * BAR_PA, [], "servo",
+        check_move(start_m, args.position_m, args.speed_m_per_s, rig.stroke_m)
+        scenario = Scenario(PRESETS[args.isolator], args.supply_bar * BAR_PA, [], "servo", rig=rig,
                             history=move_target(start_m, args.position_m, args.speed_m_per_s))
         scenario.validate()
     except (MotionError, ProfileError) as exc:
@@ -59,9 +76,11 @@ def run(args) -> int:
     motion = {"start_m": start_m, "end_m": args.position_m, "speed_m_per_s": args.speed_m_per_s}
     job = rig_job(args.rig, scenario, motion=motion, history_target=None)
     print(f"moving the table on {args.rig} from {start_m * 1e3:.2f} mm to {args.position_m * 1e3:.2f} mm at "
-          f"{args.speed_m_per_s * 1e3:g} mm/s ({scenario.duration_s:.1f} s; Ctrl-C stops it where it is)")
+          f"{args.speed_m_per_s * 1e3:g} mm/s ({scenario.duration_s:.1f} s; Ctrl-C stops it where it is); rig: "
+          f"{described.name} ({described.source})")
     _run, sent, status, reason, wall_s = run_job(job, interrupt="stop")
     samples = sent.samples()
     end = float(samples["measured_displacement_m"][-1]) if len(samples) else start_m
-    print(f"move {status}{': ' + reason if reason else ''}; the table is at {end * 1e3:.2f} mm ({wall_s:.1f} s)")
+    print(f"move {status}{': ' + reason if reason else ''}; the table is at {end * 1e3:.3f} mm, "
+          f"{(end - args.position_m) * 1e3:+.3f} mm from the target ({wall_s:.1f} s)")
     return 0 if status == "completed" else 1

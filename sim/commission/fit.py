@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import optimize, signal
 
-from ..measurement import FLAG_LOST
+from ..measurement import FLAG_LOST, STATUS_COMMAND_MISSED
 from ..rig import RigParameters
 from ..samples import Samples
 
@@ -43,6 +43,8 @@ EDGE_S = 0.05  # the filter's start and end transients are not fitted
 SLIDING_M_PER_S = 1e-3  # the force balance uses samples where |y'| is above this ...
 STICK_MARGIN_S = 0.003  # ... and has been for this long either side (a sticking table is not in the model)
 BLOCKS = 5
+ANOMALY_MARGIN_S = 0.015  # left out either side of a lost measurement or a late command
+MAX_ANOMALY_SHARE = 0.1  # more than this share of lost or late periods: the record is not fitted
 MAX_EVALUATIONS = 40  # per start of the non-linear fit (it converges in 10-30 on a rich record)
 TOLERANCE = 1e-5  # relative change of the cost and of the parameters at which it has converged
 CHUNK_S = 0.2
@@ -119,23 +121,46 @@ def derivative(x: np.ndarray, dt_s: float) -> np.ndarray:
 
 
 def signals_from_samples(samples: Samples, dt_s: float) -> Signals:
-    """The channels a real rig measures, from a record (``voltage_v`` is the command applied); lost periods
-    (FLAG_LOST, a reading held) are not used, nor are the filter's transients at both ends."""
+    """The channels a real rig measures, from a record (``voltage_v`` is the command the host sent).
+
+    A link is not perfect: a period whose measurement was lost holds the previous reading (FLAG_LOST), and a
+    command that missed its period left the previous one applied for it (COMMAND_MISSED in the next
+    measurement, docs/rig-protocol.md). The readings held over lost periods are interpolated, the command is
+    the one the rig applied, and the fits leave out ``ANOMALY_MARGIN_S`` either side of either (the low-pass
+    spreads them), as they leave out the filter's transients at both ends."""
     n = len(samples)
     if n * dt_s < 2.0:
         raise FitError(f"a commissioning record of {n * dt_s:.2f} s is too short to fit (at least 2 s)")
-    columns = {name: np.asarray(samples[name], dtype=float) for name in
+    columns = {name: np.array(samples[name], dtype=float) for name in
                ("voltage_v", "measured_displacement_m", "load_pressure_pa", "force_n", "supply_pressure_pa")}
     for name, x in columns.items():
         if not np.all(np.isfinite(x)):
             raise FitError(f"the record's {name} has non-finite values: the fit needs every reading")
     flags = np.nan_to_num(np.asarray(samples["flags"], dtype=float)).astype(np.int64)
-    valid = (flags & FLAG_LOST) == 0
+    lost = (flags & FLAG_LOST) != 0
+    missed = np.zeros(n, dtype=bool)
+    missed[:-1] = (flags[1:] & STATUS_COMMAND_MISSED) != 0  # the measurement after a missed period says so
+    if np.count_nonzero(lost | missed) > MAX_ANOMALY_SHARE * n:
+        raise FitError(f"{np.count_nonzero(lost)} measurements lost and {np.count_nonzero(missed)} commands late "
+                       f"in {n} periods (more than {100 * MAX_ANOMALY_SHARE:g} %): the link is not good enough to "
+                       "fit (see the link figures; a host that is loaded misses its periods)")
+    u = columns["voltage_v"]
+    for k in np.flatnonzero(missed):
+        if k > 0:
+            u[k] = u[k - 1]  # the rig held the command before (consecutive misses in order)
+    if lost.any() and not lost.all():
+        t = np.arange(n)
+        for name in ("measured_displacement_m", "load_pressure_pa", "force_n", "supply_pressure_pa"):
+            x = columns[name]
+            x[lost] = np.interp(t[lost], t[~lost], x[~lost])
+    margin = int(round(ANOMALY_MARGIN_S / dt_s))
+    near = np.convolve((lost | missed).astype(float), np.ones(2 * margin + 1), "same") > 0
+    valid = ~near
     edge = int(round(EDGE_S / dt_s))
     valid[:edge] = False
     valid[n - edge:] = False
-    return Signals(dt_s, columns["voltage_v"], columns["measured_displacement_m"], columns["load_pressure_pa"],
-                   columns["force_n"], columns["supply_pressure_pa"], valid)
+    return Signals(dt_s, u, columns["measured_displacement_m"], columns["load_pressure_pa"], columns["force_n"],
+                   columns["supply_pressure_pa"], valid)
 
 
 def orifice(dp: np.ndarray, dp_reg: float) -> np.ndarray:
