@@ -159,6 +159,8 @@ OPTIONS = {
     "dead_zone_adaptive": Option(1.0, 0.0, 1.0, "-", meaning="1: the dead zone is estimated with the flow gain"),
     "dead_zone_min_share": Option(0.5, 0.0, 1.0, "-", meaning="lower projection of the dead zone, share of nominal"),
     "dead_zone_max_share": Option(1.5, 1.0, 5.0, "-", meaning="upper projection of the dead zone, share of nominal"),
+    "dead_zone_tolerance_v": Option(0.1, 0.0, 5.0, "V", meaning="the dead zone's projection widens by this on each "
+                                    "side: a small declared dead zone is known to some tens of mV, not to 50 %"),
     # arbitrary (non-periodic) commands: the second-order lag of the valve and the oil column, fed forward
     "jerk_lead_s2": Option(0.0, 0.0, 1e-3, "s2", meaning="feed-forward of the target jerk (0: off, as on "
                            "sines, where the learning does it; time histories turn it on)"),
@@ -241,8 +243,8 @@ def make_servo(rig=None, **options) -> Controller:
     params[P_STEADY] = o["steady_envelope_rate"]
     params[P_PL_SHARE] = o["load_pressure_share"]
     params[P_DZ_ADAPT] = o["dead_zone_adaptive"]
-    params[P_DZ_LO] = o["dead_zone_min_share"] * o["dead_zone_v"]
-    params[P_DZ_HI] = o["dead_zone_max_share"] * o["dead_zone_v"]
+    params[P_DZ_LO] = max(o["dead_zone_min_share"] * o["dead_zone_v"] - o["dead_zone_tolerance_v"], 0.0)
+    params[P_DZ_HI] = o["dead_zone_max_share"] * o["dead_zone_v"] + o["dead_zone_tolerance_v"]
     params[P_JERK_LEAD] = o["jerk_lead_s2"]
     params[P_INTEGRAL] = o["integral_per_s"]
     params[P_RAMP_SHARE] = o["dead_zone_ramp_share"]
@@ -573,7 +575,7 @@ def servo_step(p, s, meas, dt, report):
         o_hat = s[S_OFFSET]
         qq = (sxx + dz_hat * dz_hat * sww + o_hat * o_hat * szz - 2.0 * dz_hat * sxw + 2.0 * o_hat * sxz
               - 2.0 * dz_hat * o_hat * swz)
-        dzn = p[P_DZ_LO] + 0.5 * (p[P_DZ_HI] - p[P_DZ_LO])
+        dzn = p[P_DZ]  # the declared dead zone
         if p[P_OFFSET_ADAPT] > 0.5 and p[P_DZ_ADAPT] > 0.5:
             # the offset, over its long window, when z is not (nearly) a combination of x and w (both directions
             # of motion in the window): the Schur complement of z in the normal matrix of (x, -w, z). On a steady
