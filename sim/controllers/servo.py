@@ -71,7 +71,7 @@ from .base import (
 )
 
 KIND = 3
-MAX_HARMONICS = 24
+MAX_HARMONICS = 64
 
 # Parameter indices.
 (P_AREA, P_KQ, P_DZ, P_ULIM, P_KP, P_TAU_V, P_TAU_L, P_GAMMA, P_NH, P_FMAX, P_DZ_RAMP, P_DP_MIN,
@@ -81,7 +81,8 @@ P_JERK_LEAD, P_INTEGRAL = 27, 28
 (P_RAMP_SHARE, P_RAMP_MIN, P_OFFSET_MAX, P_KPF, P_PF_WC, P_LAT, P_COMPLIANCE, P_WH, P_ZH, P_OFFSET_ADAPT,
  P_OW, P_DP_REG, P_OVMIN, P_OVT) = range(29, 43)
 P_FB_RAMP, P_EDGE_TRIM = 43, 44
-N_PARAMS = 45
+(P_NH_FAST, P_FMAX_FAST, P_V_FAST, P_ZC_MAX, P_ZC_PER_V, P_COMP, P_CFMAX, P_CGAIN, P_WV, P_XV, P_CVMAX) = range(45, 56)
+N_PARAMS = 56
 DELAY_LINE = 256  # periods of regressor and target history kept (valve estimate, position latency)
 
 # State indices; the delay line and the harmonic coefficients (real, imaginary) follow.
@@ -96,7 +97,11 @@ S_LINE_W = S_LINE_X + DELAY_LINE
 S_LINE_Z = S_LINE_W + DELAY_LINE
 S_LINE_R = S_LINE_Z + DELAY_LINE
 S_C = S_LINE_R + DELAY_LINE
-N_STATE = S_C + 2 * MAX_HARMONICS
+S_P = S_C + 2 * MAX_HARMONICS  # the load pressure's harmonics (Pa, real and imaginary) over the last cycles
+S_PACC = S_P + 2 * MAX_HARMONICS  # ... their sums over the running cycle
+S_PCYC = S_PACC + 2 * MAX_HARMONICS  # 1: the running cycle has been steady throughout
+S_THETA_PREV = S_PCYC + 1  # the target's phase of the last period
+N_STATE = S_THETA_PREV + 1
 
 
 def _nominal_rig(rig=None) -> dict:
@@ -141,6 +146,29 @@ OPTIONS = {
     "learning_max_hz": Option(12.0, 1e-3, 100.0, "Hz", meaning="harmonics above this frequency are not learned"),
     "learning_max_oil_share": Option(0.5, 0.01, 10.0, "-", meaning="... nor above this share of the nominal "
                                      "oil-column frequency"),
+    # fast tests where the oil column stays damped (docs/controller.md, "Soft columns, friction and reversals")
+    "fast_harmonics": Option(MAX_HARMONICS, 0, MAX_HARMONICS, "-", "int", "harmonics learned on a fast test"),
+    "fast_learning_max_hz": Option(25.0, 1e-3, 100.0, "Hz", meaning="on a fast test harmonics are learned up to this "
+                                   "frequency"),
+    "fast_learning_max_oil_share": Option(1.2, 0.01, 10.0, "-", meaning="... and up to this share of the declared "
+                                          "oil-column frequency"),
+    "fast_velocity_m_per_s": Option(0.01, 0.0, 10.0, "m/s", meaning="a test is fast from this peak target "
+                                    "velocity (fading in from half of it; below, the learned harmonics and the "
+                                    "compression pulses would throw the narrow dead-zone inverse across its dead zone "
+                                    "mid-stroke)"),
+    "fast_max_valve_damping": Option(0.25, 0.0, 10.0, "-", meaning="... while the damping the valve's pressure-flow "
+                                     "slope would give the declared column at the target's peak velocity, V_env / "
+                                     "(4 P_s sqrt(C / m)), is below this (fading out at twice it): the valve-law "
+                                     "inverse cancels that slope a valve lag late and the column's mode is then less "
+                                     "damped than the loop model says"),
+    "compression_feedforward_share": Option(1.0, 0.0, 2.0, "-", meaning="on a fast test, share of the oil's "
+                                            "compression flow (V_0 / (2 beta)) P_L' fed forward from the load "
+                                            "pressure's harmonics of the last cycles, from K_p up (0: off)"),
+    "compression_max_velocity_m_per_s": Option(0.03, 0.0, 10.0, "m/s", meaning="the compression feed-forward serves "
+                                               "tests up to this peak target velocity (fading out at twice it)"),
+    "compression_max_hz": Option(30.0, 0.1, 200.0, "Hz", meaning="the compression feed-forward's highest harmonic"),
+    "compression_gain": Option(0.5, 0.0, 1.0, "-", meaning="share of a whole steady cycle's pressure harmonics the "
+                               "compression feed-forward takes"),
     "dead_zone_ramp_v": Option(0.05, 1e-4, 2.0, "V", meaning="the dead-zone inverse ramps in over +-this"),
     "dead_zone_share": Option(1.0, 0.0, 2.0, "-", meaning="share of the dead zone that is compensated"),
     "min_pressure_drop_share": Option(0.05, 1e-3, 1.0, "-", meaning="floor of P_s - sgn(v) P_L, share of P_s"),
@@ -270,6 +298,24 @@ def make_servo(rig=None, **options) -> Controller:
     params[P_ZH] = design["damping"]
     # harmonics close to the oil column are not learned: there the loop model is least sure
     params[P_FMAX] = min(o["learning_max_hz"], o["learning_max_oil_share"] * params[P_WH] / (2.0 * np.pi))
+    # fast tests: more harmonics, up to and past the oil column, and the compression feed-forward
+    params[P_NH_FAST] = max(o["fast_harmonics"], o["harmonics"])
+    params[P_FMAX_FAST] = max(min(o["fast_learning_max_hz"], o["fast_learning_max_oil_share"] * params[P_WH]
+                                  / (2.0 * np.pi)), params[P_FMAX])
+    params[P_V_FAST] = o["fast_velocity_m_per_s"]
+    params[P_ZC_MAX] = o["fast_max_valve_damping"]
+    # the damping ratio a leak of k per pascal gives the column is k / (2 sqrt(C / m)) (pressure_feedback_design);
+    # the valve's pressure-flow slope is a leak of |v| / (2 dp): at the target's peak velocity and dp = P_s,
+    # V_env / (4 P_s sqrt(C / m))
+    params[P_ZC_PER_V] = 1.0 / (4.0 * np.sqrt(compliance / o["mass_kg"]))
+    # the compression feed-forward belongs to the learning of a periodic test (not a time history's HISTORY_MODE)
+    params[P_COMP] = (o["compression_feedforward_share"] * compliance / o["piston_area_m2"]
+                      if o["learning_gain"] > 0.0 else 0.0)
+    params[P_CFMAX] = o["compression_max_hz"]
+    params[P_CVMAX] = o["compression_max_velocity_m_per_s"]
+    params[P_CGAIN] = o["compression_gain"]
+    params[P_WV] = o["valve_natural_frequency_rad_s"]
+    params[P_XV] = o["valve_damping_ratio"]
     state = np.zeros(N_STATE)
     state[S_GAIN] = 1.0
     state[S_DZ_HAT] = o["dead_zone_v"]
@@ -339,6 +385,8 @@ def smallest_damping_ratio(poles: np.ndarray) -> float:
 #: the plant's oil compliance (V_0 / beta, or m for the column's frequency) over the declared one that the design
 #: must damp: the declared rig, and one whose column is 1/sqrt(1.5) = 0.82 times as fast
 COMPLIANCE_SCALES = (1.0, 1.5)
+#: the high-pass corners the pressure-feedback design tries, shares of pressure_feedback_corner_share
+CORNER_STEPS = (1.0, 0.7)
 #: what the pressure-feedback design reads of the options
 DESIGN_KEYS = ("piston_area_m2", "mass_kg", "half_volume_m3", "bulk_modulus_pa", "valve_natural_frequency_rad_s",
                "valve_damping_ratio", "position_latency_s", "kp_per_s", "pressure_feedback_max_damping",
@@ -371,22 +419,25 @@ def _design(values: tuple) -> tuple:
     xi_max = o["pressure_feedback_max_damping"]
     scales = COMPLIANCE_SCALES
 
-    def worst(xi: float) -> float:  # the smallest damping ratio over the plants the declared rig may be
-        return min(smallest_damping_ratio(linearised_poles(o, xi, c)) for c in scales)
+    def worst(xi: float, corner: float) -> float:  # the smallest damping ratio over the plants the rig may be
+        oc = dict(o, pressure_feedback_corner_share=corner)
+        return min(smallest_damping_ratio(linearised_poles(oc, xi, c)) for c in scales)
 
-    without = worst(0.0)
-    best = (without, 0.0)
+    top = o["pressure_feedback_corner_share"]
+    without = worst(0.0, top)
+    best = (without, 0.0, top)
     if xi_max > 0.0:
-        for xi in np.linspace(0.0, xi_max, 11)[1:]:
-            zeta = worst(float(xi))
-            if zeta > best[0]:
-                best = (zeta, float(xi))
+        for corner in (step * top for step in CORNER_STEPS):
+            for xi in np.linspace(0.0, xi_max, 11)[1:]:
+                zeta = worst(float(xi), corner)
+                if zeta > best[0]:
+                    best = (zeta, float(xi), corner)
     if best[0] < without + o["pressure_feedback_min_improvement"]:
-        best = (without, 0.0)
+        best = (without, 0.0, top)
     compliance = o["half_volume_m3"] / (2.0 * o["bulk_modulus_pa"])
     return (("oil_column_hz", wh / (2.0 * np.pi)), ("damping", best[1]),
             ("gain_m_per_s_per_pa", 2.0 * best[1] * float(np.sqrt(compliance / o["mass_kg"]))),
-            ("corner_rad_s", o["pressure_feedback_corner_share"] * wh),
+            ("corner_rad_s", best[2] * wh), ("corner_share", best[2]),
             ("loop_damping_without", without), ("loop_damping", best[0]))
 
 
@@ -461,6 +512,51 @@ def _solve3(m11, m12, m13, m22, m23, m33, b1, b2, b3):
 
 
 @njit(cache=True)
+def compression_feedforward(p, s, theta, omega, kp, p_meas, steady, dt):
+    """The oil's compression flow (V_0 / (2 beta)) P_L' (eq. 3, second line) that the test's periodic load pressure
+    needs, as a velocity demand (m/s): (V_0 / (2 beta A)) Re sum_k sigma_k j k w P_k exp(j k theta) / V(j k w) over
+    the harmonics k w from K_p to compression_max_hz, P_k the load pressure's harmonics over the last cycles, V the
+    declared valve (w_v^2 exp(-j k w D) / (w_v^2 - (k w)^2 + 2 j xi_v w_v k w), D the sampling delay: the flow arrives
+    when the pressure must change), sigma_k Lanczos factors (no Gibbs ringing at the reversals' pressure steps).
+    Also sums this period's load pressure into the running cycle's harmonics; at the cycle's end (theta wraps), if the
+    cycle was steady throughout, P_k moves by compression_gain towards them."""
+    nc = min(int(p[P_CFMAX] * 2.0 * np.pi / omega), MAX_HARMONICS)
+    c1 = np.cos(theta)
+    s1 = np.sin(theta)
+    if s[S_THETA_PREV] > 0.5 * np.pi and theta < -0.5 * np.pi:
+        if s[S_PCYC] > 0.5:
+            for i in range(2 * MAX_HARMONICS):
+                s[S_P + i] += p[P_CGAIN] * (s[S_PACC + i] - s[S_P + i])
+        for i in range(2 * MAX_HARMONICS):
+            s[S_PACC + i] = 0.0
+        s[S_PCYC] = 1.0
+    if not steady:
+        s[S_PCYC] = 0.0
+    s[S_THETA_PREV] = theta
+    wv = p[P_WV]
+    step = p_meas * omega * dt / np.pi
+    ck, sk = c1, s1
+    acc = 0.0
+    for k in range(nc):
+        s[S_PACC + 2 * k] += step * ck
+        s[S_PACC + 2 * k + 1] -= step * sk
+        kw = (k + 1) * omega
+        if kw >= kp:
+            # j k w P_k / V(j k w)
+            vr = 1.0 - (kw / wv) ** 2
+            vi = 2.0 * p[P_XV] * kw / wv
+            cd = np.cos(kw * SAMPLING_DELAY_S)
+            sd = np.sin(kw * SAMPLING_DELAY_S)
+            vr, vi = vr * cd - vi * sd, vr * sd + vi * cd
+            fr = -kw * s[S_P + 2 * k + 1]
+            fi = kw * s[S_P + 2 * k]
+            x = np.pi * (k + 1) / (nc + 1)
+            acc += np.sin(x) / x * ((fr * vr - fi * vi) * ck - (fr * vi + fi * vr) * sk)
+        ck, sk = ck * c1 - sk * s1, sk * c1 + ck * s1
+    return p[P_COMP] * acc
+
+
+@njit(cache=True)
 def servo_step(p, s, meas, dt, report):
     """One control period of the learning servo controller (see the module docstring)."""
     r = meas[M_TARGET]
@@ -515,6 +611,9 @@ def servo_step(p, s, meas, dt, report):
         if steady:  # what was learned at the old frequency does not apply
             for i in range(2 * MAX_HARMONICS):
                 s[S_C + i] = 0.0
+                s[S_P + i] = 0.0
+                s[S_PACC + i] = 0.0
+            s[S_PCYC] = 0.0
             w_l = 0.0
     else:
         s[S_NEW_FREQ_S] = 0.0
@@ -530,6 +629,22 @@ def servo_step(p, s, meas, dt, report):
         nmax = int(p[P_FMAX] * 2.0 * np.pi / omega)
         if nmax < nh:
             nh = nmax
+    # a fast test (fast: 0..1) learns more harmonics (nh_fast) and feeds the oil's compression flow forward: where
+    # the target's peak velocity passes the dead zone's narrow inverse mid-stroke, and while the valve's
+    # pressure-flow slope at that velocity (cancelled by the inverse a valve lag late) is small
+    fast = 0.0
+    nh_fast = nh
+    if omega > 0.0:
+        fast = 1.0
+        if p[P_V_FAST] > 0.0:
+            fast = min(max(2.0 * v_env / p[P_V_FAST] - 1.0, 0.0), 1.0)
+        if p[P_ZC_MAX] > 0.0:
+            zeta_c = v_env * p[P_ZC_PER_V] / max(meas[M_SUPPLY_PRESSURE], 1.0)
+            fast *= min(max(2.0 - zeta_c / p[P_ZC_MAX], 0.0), 1.0)
+        else:
+            fast = 0.0
+        if fast > 0.0:
+            nh_fast = max(min(int(p[P_NH_FAST]), int(p[P_FMAX_FAST] * 2.0 * np.pi / omega)), nh)
     # the position reading is late by the declared latency L: the table's velocity and the error it shows are
     # those of L ago, so the valve estimate and the learning look L further back, and the reading is compared
     # with the target of L ago (the table, not the late reading, follows the target)
@@ -628,18 +743,22 @@ def servo_step(p, s, meas, dt, report):
     if p[P_JERK_LEAD] > 0.0:
         v += p[P_JERK_LEAD] * rddd
     theta = 0.0
-    if omega > 0.0 and nh >= 1:
+    if omega > 0.0:
         theta = np.arctan2(-rdd / omega, rd_mid) + 0.5 * omega * dt
+    if omega > 0.0 and nh_fast >= 1:
         c1 = np.cos(theta)
         s1 = np.sin(theta)
         ck, sk = c1, s1
         acc = 0.0
-        for k in range(nh):
+        for k in range(nh_fast):
             a = s[S_C + 2 * k]
             b = s[S_C + 2 * k + 1]
-            acc += a * ck - b * sk
+            acc += (1.0 if k < nh else fast) * (a * ck - b * sk)
             ck, sk = ck * c1 - sk * s1, sk * c1 + ck * s1
         v += v_env * acc
+    if omega > 0.0 and p[P_COMP] > 0.0:
+        small = min(max(2.0 - v_env / p[P_CVMAX], 0.0), 1.0) if p[P_CVMAX] > 0.0 else 0.0
+        v += fast * small * compression_feedforward(p, s, theta, omega, kp, p_meas, steady, dt)
     # load-pressure feedback, high-passed: a leak that damps the oil column and leaves the test's frequencies alone
     v_pf = 0.0
     if p[P_KPF] > 0.0:
@@ -715,6 +834,8 @@ def servo_step(p, s, meas, dt, report):
     s[S_LINE_Z + head_new] = zs
     s[S_HEAD] = head_new
     # learning update (only on a steady sine and unsaturated), with projection of each coefficient
+    if fast >= 1.0:
+        nh = nh_fast  # the harmonics of a fast test learn only once it is fully so
     if steady and nh >= 1 and not saturated:
         gamma = p[P_GAMMA]
         a_eff = max(v_env / omega, p[P_AFLOOR])
