@@ -150,16 +150,21 @@ def test_compensation_reaches_a_steady_state_on_a_plain_sine():
     s = Scenario.sine("HDRB_soft", 100.0, 0.03, 0.5, 10, controller="servo", taper_cycles=0)
     sim = Simulation(s)
     period = int(round(2.0 / CONTROL_PERIOD_S))
-    snapshots = []
+    snapshots, pressures = [], []
     for _ in range(10):
         sim.advance(period)
-        snapshots.append(sim.loop.controller_state[S_C:].copy())
+        snapshots.append(sim.loop.controller_state[S_C:S_C + 2 * sv.MAX_HARMONICS].copy())
+        pressures.append(sim.loop.controller_state[sv.S_P:sv.S_P + 2 * sv.MAX_HARMONICS].copy())
     change = [np.max(np.abs(b - a)) for a, b in zip(snapshots[:-1], snapshots[1:], strict=True)]
     # the learned coefficients settle: their change per cycle falls by a factor of ten and ends small
     assert change[-1] < 0.1 * max(change[:3])
     assert change[-1] < 2e-3
     first = snapshots[-1][:2]
     assert np.hypot(*first) > 1e-4  # something was learned (the valve lag at least)
+    # so do the load pressure's harmonics the compression feed-forward takes (Pa; the fundamental is some bar)
+    moved = [np.max(np.abs(b - a)) for a, b in zip(pressures[:-1], pressures[1:], strict=True)]
+    assert np.hypot(*pressures[-1][:2]) > 1e5
+    assert moved[-1] < 0.01 * np.hypot(*pressures[-1][:2])
 
 
 def test_sudden_change_of_isolator_stiffness_mid_test():
@@ -314,3 +319,21 @@ def test_the_rest_logic_is_the_time_histories_only():
     assert make_controller("servo").params[sv.P_FB_RAMP] == 0.0
     history = make_controller("servo", **sv.HISTORY_MODE)
     assert history.params[sv.P_FB_RAMP] == sv.OPTIONS["dead_zone_feedback_ramp_v"].default
+
+
+#: a hard plant from issue 20's range (scripts/unknown_plants.py, seed 1, #88): a heavy table on a soft oil column
+#: (16.6 Hz), a slow valve (47 Hz) with a wide dead zone, friction 40 % above the default rig's
+SOFT_COLUMN_PLANT = {"mass_kg": 3266.0, "bulk_modulus_pa": 3.6e8, "half_volume_m3": 3.615e-3,
+                     "flow_gain_m3_per_s_v_sqrt_pa": 3.054e-7, "valve_natural_frequency_rad_s": 294.5,
+                     "dead_zone_v": 1.005, "friction_coefficient": 0.02208, "coulomb_force_n": 2007.0,
+                     "position_latency_s": 2e-5}
+
+
+@pytest.mark.parametrize("amplitude_m, frequency_hz, target", [(0.002, 1.0, 0.005), (0.02, 0.5, 0.001)])
+def test_a_soft_column_plant_told_exactly_meets_the_tracking_targets(amplitude_m, frequency_hz, target):
+    """Told exactly, the plant meets issue 20's targets (before: 1.19 % at 2 mm and 0.149 % at 20 mm; the friction
+    flipping at each reversal rang the column in harmonics above the learning's 12 Hz and stalled the table)."""
+    rig = DEFAULT_RIG.with_changes(**SOFT_COLUMN_PLANT)
+    s = Scenario.sine("IUT_a", 100.0, amplitude_m, frequency_hz, 10, rig=rig, plant_changes=SOFT_COLUMN_PLANT)
+    figure = Simulation(s).run().summary()["last_two_cycles"]["rms_y_minus_r_over_amplitude"]
+    assert figure < 0.8 * target
