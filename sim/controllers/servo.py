@@ -1,10 +1,12 @@
 """Learning servo controller: flow-linearised velocity feed-forward, position feedback, an estimate of the
 valve's true flow gain, dead zone and null offset, harmonic learning of the periodic error, and what a lab's
-declared rig adds (a damping load-pressure feedback on a soft oil column, the sensor latency). Design and
-stability argument: docs/controller.md.
+declared rig adds (a damping load-pressure feedback on a soft oil column, the sensor latency, and on small fast
+tests the oil's compression flow fed forward). Design and stability argument: docs/controller.md.
 
-    v    = r' + tau_v r'' + K_p (r(t - L) - y_L) + dv            velocity demand, m/s (y_L: the reading, L late)
+    v    = r' + tau_v r'' + K_p (r(t - L) - y_L) + dv + v_c      velocity demand, m/s (y_L: the reading, L late)
     dv   = c_0 + V_env Re sum_k c_k exp(j k theta)              learned periodic feed-forward
+    v_c  = (V_0 / (2 beta A_n)) Re sum_k s_k j k w P_k exp(j k theta) / V(j k w)
+                                                                compression flow (eq. 3 second line), fed forward
     u_l  = A_n (v / g) / (K_qn R(P_s - sgn(v) P_L))             inverse of the valve flow law, eq. (3) second line
     u    = u_l + DZ ramp(u_l / delta) - o + u_pf                dead-zone inverse (ramp over +-delta), null offset
            (time histories: ramp((u_l - u_fb) / delta + u_fb / delta_fb), u_fb the command of K_p e + c_0)
@@ -29,7 +31,13 @@ relative to the target's peak velocity) learn the periodic error:
 
 that is, the error's k-th Fourier coefficient divided by a nominal model of the closed loop from dv to y
 (1 / (s + K_p) with a pure delay for the valve and the reading, and the declared oil column w_h damped by the
-pressure feedback's zeta_h), so each harmonic's error shrinks by about (1 - gamma_k) per cycle. The learning
+pressure feedback's zeta_h), so each harmonic's error shrinks by about (1 - gamma_k) per cycle. H is 15 harmonics,
+up to 12 Hz and half the declared column; on a fast test (peak target velocity from 10 mm/s, while the valve's
+pressure-flow slope at that velocity, which the inverse cancels a valve lag late, would damp the declared column by
+less than 0.25) 64, up to 25 Hz and 1.2 times the column. On such tests up to 30 mm/s, v_c feeds forward the flow
+that compresses the oil as the load pressure changes (at each reversal the friction flips): P_k are the load
+pressure's harmonics over the last whole steady cycles, V the declared valve with the sampling delay, s_k Lanczos
+factors, from K_p to 30 Hz. The learning
 runs only on a steady sine (not in a taper, not at a block change; a new frequency clears it), is frozen while
 the command saturates (the error then says nothing about the feed-forward) and each |c_k| is projected onto a
 bound. Only the measured position, the load pressure, the supply pressure setting and declared rig values (A_p,
@@ -401,7 +409,8 @@ def pressure_feedback_design(o: dict) -> dict:
     high-passed at a share of the column's frequency w_h = sqrt(2 beta A^2 / (V_0 m)) so that the test's own
     frequencies pass. Through the valve the leak lags: where the column lies near or above the valve's frequency
     (the paper's rig: 55 Hz against 40 Hz) it would remove damping. So xi is picked from 0 to
-    pressure_feedback_max_damping (11 steps) as the one whose linearised loop has the largest smallest damping
+    pressure_feedback_max_damping (11 steps), and the corner from pressure_feedback_corner_share times CORNER_STEPS
+    of the column's frequency, as the pair whose linearised loop has the largest smallest damping
     ratio (``linearised_poles``) over the declared column and one 1.5 times as compliant (``COMPLIANCE_SCALES``: a
     lab's V_0 with hoses, beta with air and m are rough), and kept only if it adds at least
     pressure_feedback_min_improvement to it: the
