@@ -69,7 +69,7 @@ def run(args) -> int:
     from sim.profiles import check_supply
     from sim.rig import BAR_PA
 
-    from .rig_run import rig_job, run_job
+    from .rig_run import resting_position_m, rig_job, run_job
 
     try:
         kind = rig_kind(args.rig)
@@ -90,15 +90,7 @@ def run(args) -> int:
             else declared.vertical_load_n
     start_m = 0.0
     if kind == "udp":
-        from backend.drivers.udp import probe
-
-        answer = probe(args.rig, timeout_s=0.5)
-        if not answer["connected"]:
-            raise UsageError(f"isorig identify rig: {answer['detail']}; nothing moved")
-        if answer["armed"]:
-            raise UsageError(f"isorig identify rig: the rig at {args.rig} is armed: another test or move runs on it "
-                             "(wait for it to end); nothing moved")
-        start_m = float(answer["position_m"])
+        start_m = resting_position_m("identify rig", args.rig)
     conditions = Conditions(args.rig, supply_pa, load_n, isolator.name, start_m, args.max_stroke_m,
                             args.max_velocity_m_per_s)
     scenario = excitation_scenario(isolator, conditions, declared, plant)

@@ -42,14 +42,13 @@ def rig_in_force(args):
 
 def run(args) -> int:
     from backend.drivers import rig_kind
-    from backend.drivers.udp import probe
     from sim.engine import Scenario
     from sim.isolator import PRESETS
     from sim.motion import MotionError, check_move, move_target
     from sim.profiles import ProfileError
     from sim.rig import BAR_PA
 
-    from .rig_run import rig_job, run_job
+    from .rig_run import resting_position_m, rig_job, run_job
 
     try:
         if rig_kind(args.rig) != "udp":
@@ -58,13 +57,7 @@ def run(args) -> int:
         raise UsageError(f"isorig move: --rig: {exc}") from None
     if args.isolator not in PRESETS:
         raise UsageError(f"isorig move: --isolator {args.isolator!r} is not a preset ({', '.join(PRESETS)})")
-    answer = probe(args.rig, timeout_s=0.5)
-    if not answer["connected"]:
-        raise UsageError(f"isorig move: {answer['detail']}; nothing moved")
-    if answer["armed"]:
-        raise UsageError(f"isorig move: the rig at {args.rig} is armed: another test or move runs on it (wait for it "
-                         "to end); nothing moved")
-    start_m = float(answer["position_m"])
+    start_m = resting_position_m("move", args.rig)
     described, rig = rig_in_force(args)
     try:
         check_move(start_m, args.position_m, args.speed_m_per_s, rig.stroke_m)

@@ -37,6 +37,19 @@ def check_start_position(command: str, rig: str, expected_m: float = 0.0) -> Non
         raise UsageError(f"isorig {command}: not started on {rig}: {problem}")
 
 
+def resting_position_m(command: str, rig: str) -> float:
+    """Where the rig's table rests, from one HELLO; refuse (exit 2) a rig that does not answer or is armed."""
+    from backend.drivers.udp import probe
+
+    answer = probe(rig, timeout_s=0.5)
+    if not answer["connected"]:
+        raise UsageError(f"isorig {command}: {answer['detail']}; nothing moved")
+    if answer["armed"]:
+        raise UsageError(f"isorig {command}: the rig at {rig} is armed: another test or move runs on it (wait for "
+                         "it to end); nothing moved")
+    return float(answer["position_m"])
+
+
 def run_job(job: dict, interrupt: str = "abort"):
     """Run ``job`` here; Ctrl-C sends ``interrupt`` (``abort``: valve closed at once; ``stop``). Returns
     (run, what it sent, status, reason, wall time in s)."""
