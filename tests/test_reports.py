@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from backend.reports import ReportBundle, bundle_from_csv, render_report_pdf, report_json
+from backend.reports.data import rig_text
 from backend.reports.layout import PAGE_BOTTOM
 from sim.engine import Scenario, Simulation
 from sim.isolator import PRESETS
@@ -968,3 +969,21 @@ def test_the_controller_options_in_the_report_are_those_of_the_labs_rig():
 
     assert in_force({})["mass_kg"] == DEFAULT_RIG.mass_kg
     assert in_force({"mass_kg": 4000.0})["mass_kg"] == 4000.0
+
+
+def test_the_report_names_the_rig_file_its_commissioning_and_whether_the_table_followed():
+    bundle = protocol_run(controller="servo")
+    bundle.record["rig_file"] = {"name": "Lab B rig, commissioned", "source": "/lab/rig.json", "changed": {},
+                                 "commissioning": {"date": "2026-11-27T08:00:00+00:00", "rig": "udp://10.0.0.2:5555",
+                                                   "supply_pa": 1e7, "specimen": "none", "flow_r2": 0.9992,
+                                                   "velocity_nrmse": 0.034}}
+    bundle.record["summary"] = {"tracking_verdict": {"verdict": "did_not_follow", "words": "did not follow: 2 %"}}
+    report = report_json(bundle, identify=False)
+    rig_name, sensors = rig_text(report["rig"])
+    assert sensors[0] == ("rig file Lab B rig, commissioned (/lab/rig.json): commissioned 2026-11-27 on "
+                          "udp://10.0.0.2:5555 at 100 bar, no specimen (flow balance R^2 0.9992, replay 3.4 % RMS)")
+    assert report["tracking_verdict"]["words"] == "did not follow: 2 %"
+    bundle.record["rig_file"]["commissioning"] = None
+    assert "not commissioned" in rig_text(report_json(bundle, identify=False)["rig"])[1][0]
+    bundle.record.pop("summary")
+    assert "not judged" in report_json(bundle, identify=False)["tracking_verdict"]["words"]
