@@ -123,26 +123,9 @@ def run(args) -> int:
     return report(args, ident, described, started, out_path)
 
 
-def provenance(ident, described, started, rig: str) -> dict:
-    """The rig file's ``commissioning`` section: when, where, how, and how well."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        isorig_version = version("isorig")
-    except PackageNotFoundError:
-        isorig_version = "unknown"
-    r = ident.response
-    return {"date": started.isoformat(timespec="seconds"), "isorig_version": isorig_version,
-            **ident.conditions.to_dict(), "started_from": described.source, "trusted": ident.trusted,
-            "rig_time_s": ident.record.get("rig_time_s"), "record": ident.record,
-            "fit": {"flow_r2": ident.fit.flow_r2, "force_r2": ident.fit.force_r2,
-                    "velocity_nrmse": r.velocity_nrmse if r else None,
-                    "pressure_nrmse": r.pressure_nrmse if r else None},
-            "estimates": {k: e.to_dict() for k, e in ident.fit.estimates.items()}}
-
-
 def report(args, ident, described, started, out_path: Path) -> int:
     """Print the identification; write the rig file when it is trusted. Exit 0 only then."""
+    from sim.commission.identify import provenance
     from sim.rigfile import rig_file_data, write_rig_file
 
     if args.json:
@@ -154,7 +137,7 @@ def report(args, ident, described, started, out_path: Path) -> int:
         return 1
     name = args.name or f"{described.name}, commissioned"
     data = rig_file_data(ident.rig, name[:100], f"commissioned by isorig identify rig on {args.rig} at "
-                         f"{started.date().isoformat()}", provenance(ident, described, started, args.rig),
+                         f"{started.date().isoformat()}", provenance(ident, described.source, started),
                          always=tuple(ident.changed()))
     write_rig_file(out_path, data)
     print(f"wrote {out_path}: use it with --rig-file (isorig serve, simulate, move ...)")

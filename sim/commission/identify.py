@@ -273,3 +273,35 @@ def identify(samples: Samples, declared: RigParameters, conditions: Conditions,
     out.problems += response_problems(out.response)
     out.rig = rig
     return out
+
+
+def declared_values(ident: Identification) -> dict:
+    """The declared rig's value of each fitted quantity, by the fit's names (the friction at the run's vertical
+    load, F_f = mu N + F_c): what a page puts beside each fitted value."""
+    d = ident.declared
+    out = {name: float(getattr(d, name)) for name in (ident.fit.estimates if ident.fit else {})
+           if isinstance(getattr(d, name, None), (int, float))}
+    if ident.fit is not None and "friction_force_n" in ident.fit.estimates:
+        out["friction_force_n"] = d.friction_coefficient * ident.conditions.vertical_load_n + d.coulomb_force_n
+    return out
+
+
+def provenance(ident: Identification, started_from: str, started) -> dict:
+    """A rig file's ``commissioning`` section: when (``started``, a datetime), where, how, and how well;
+    ``started_from``: the rig file (or defaults) the run was told of. Written by ``isorig identify rig`` and
+    by the service's commissioning (backend.commissioning)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        isorig_version = version("isorig")
+    except PackageNotFoundError:
+        isorig_version = "unknown"
+    r = ident.response
+    return {"date": started.isoformat(timespec="seconds"), "isorig_version": isorig_version,
+            **ident.conditions.to_dict(), "started_from": started_from, "trusted": ident.trusted,
+            "rig_time_s": ident.record.get("rig_time_s"), "record": ident.record,
+            "fit": {"flow_r2": ident.fit.flow_r2 if ident.fit else None,
+                    "force_r2": ident.fit.force_r2 if ident.fit else None,
+                    "velocity_nrmse": r.velocity_nrmse if r else None,
+                    "pressure_nrmse": r.pressure_nrmse if r else None},
+            "estimates": {k: e.to_dict() for k, e in (ident.fit.estimates.items() if ident.fit else ())}}
