@@ -18,8 +18,10 @@ from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
 
 from . import db, errors, store
-from .api import ground_motions, isolators, meta, motion, protocols, tests, ws
+from .api import commissioning, ground_motions, isolators, meta, motion, protocols, tests, ws
 from .auth import load_or_create_token
+from .commissioning import Fitter
+from .rig_in_force import rig_in_force
 from .service import RigService
 from .settings import Settings
 from .stream import Hub
@@ -40,11 +42,14 @@ def create_app(settings: Settings | None = None, driver: str | None = None) -> F
     token, token_source = load_or_create_token(settings)
     hub = Hub(settings.stream_history_s)
     service = RigService(settings, sessions, hub, driver)
+    fitter = Fitter(service, sessions)  # a commissioning's fit, once its run has ended (backend.commissioning)
+    service.end_hooks.append(fitter.on_end)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
         hub.bind(asyncio.get_running_loop())
         threading.Thread(target=service.prepare, daemon=True, name="isorig-forkserver-start").start()
+        threading.Thread(target=fitter.resume, daemon=True, name="isorig-fit-resume").start()
         print(f"isorig: operator token in {token_source}", file=sys.stderr, flush=True)
         try:
             yield
@@ -56,8 +61,10 @@ def create_app(settings: Settings | None = None, driver: str | None = None) -> F
                   description="Control and test service for a hydraulic seismic-isolator test rig. Actions that "
                               "move the rig or change records need the operator token (Authorization: Bearer).")
     app.state.settings = settings
-    app.state.rig_description = settings.rig_description()
+    # --rig-file, else the rig file applied from a commissioning (kept across a restart), else the defaults
+    app.state.rig_description, app.state.rig_origin = rig_in_force(settings)
     app.state.rig = app.state.rig_description.parameters  # what the controller assumes; envelope, limits
+    app.state.fitter = fitter
     app.state.engine = engine
     app.state.sessions = sessions
     app.state.token = token
@@ -71,6 +78,7 @@ def create_app(settings: Settings | None = None, driver: str | None = None) -> F
     app.include_router(protocols.router)
     app.include_router(ground_motions.router)
     app.include_router(motion.router)
+    app.include_router(commissioning.router)
     app.include_router(ws.router)
     try:
         from . import viewer

@@ -295,3 +295,25 @@ class MoveIn(StrictModel):
     vertical_load_n: float | None = Field(None, description="vertical load in N (default as for a test)")
     limits: LimitsIn | None = Field(None, description="the same limits as a test's (default: the rig's)")
     operator_name: str = Field("", max_length=64, description="who moves the table")
+
+
+class CommissioningIn(StrictModel):
+    """``POST /api/commissioning``: commission the rig (sim.commission): a bounded excitation about where the
+    table rests, then a fit of the rig's parameters; SI units."""
+
+    supply_bar: float = Field(description="supply pressure of the run in bar")
+    isolator: str = Field("none", min_length=1, max_length=64, description="the specimen mounted: none (default), "
+                          "a preset or a user isolator; its force is measured, not assumed")
+    vertical_load_n: float | None = Field(None, description="vertical load in N (default: the specimen's design "
+                                          "load; 0 with no specimen)")
+    max_stroke_m: float = Field(0.002, description="the table stays within this of where it rests, m "
+                                                   "(0.0002 to 0.01)")
+    max_velocity_m_per_s: float = Field(0.02, description="... and below this velocity, m/s (0.01 to 0.1)")
+    operator_name: str = Field("", max_length=64, description="who commissions the rig")
+    speed: float = Field(1.0, description="simulated rig only: time scale of the run (a real rig runs at 1)")
+
+
+class ApplyRigIn(StrictModel):
+    """``POST /api/commissioning/{id}/apply``: who makes the commissioned rig file the service's rig."""
+
+    operator_name: str = Field("", max_length=64, description="who applies it (default: the token's holder)")

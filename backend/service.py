@@ -59,13 +59,30 @@ def cycle_with_metrics(payload: dict) -> dict:
 
 
 def start_position_m(job_scenario: dict) -> float:
-    """Where a job's target begins, m: a manual move's start, else the first sine block's ``start_m`` (0 for
-    every other test)."""
+    """Where a job's target begins, m: a manual move's start, a commissioning's resting position, else the
+    first sine block's ``start_m`` (0 for every other test)."""
     motion = job_scenario.get("motion")
     if motion:
         return float(motion["start_m"])
+    if job_scenario.get("commissioning"):
+        return float(job_scenario["commissioning"]["start_m"])
     profile = job_scenario.get("profile") or []
     return float(profile[0].get("start_m", 0.0)) if profile else 0.0
+
+
+def worker_scenario(job_scenario: dict, plant_changes: dict) -> dict:
+    """The job's scenario as the worker gets it: the stored one (JSON), with a commissioning's excitation target
+    (sim.commission.identify.excitation_target, rebuilt from its conditions: the table held where it rested)
+    and the simulated plant's changes of ``isorig serve --plant-set`` (the run's own come last)."""
+    out = dict(job_scenario)
+    c = job_scenario.get("commissioning")
+    if c:
+        from sim.commission.identify import excitation_target
+
+        out["history_target"] = excitation_target(c["start_m"], job_scenario.get("controller_options") or {})
+    if plant_changes:
+        out["plant_changes"] = {**plant_changes, **(job_scenario.get("plant_changes") or {})}
+    return out
 
 
 def lost_periods(samples: Samples) -> int:
@@ -106,8 +123,10 @@ class ActiveRun:
 
 
 def _what(test) -> str:
-    """What a record is, in its events' words: "manual move" (a move of the table) or "test"."""
-    return "manual move" if ((test.request or {}).get("profile") or {}).get("kind") == "move" else "test"
+    """What a record is, in its events' words: "manual move" (a move of the table), "commissioning" (the rig's
+    commissioning excitation) or "test"."""
+    kind = ((test.request or {}).get("profile") or {}).get("kind")
+    return {"move": "manual move", "commissioning": "commissioning"}.get(kind, "test")
 
 
 class RigService:
@@ -124,6 +143,9 @@ class RigService:
         self._lock = threading.Lock()
         self._context = None
         self._seq: dict[int, int] = {}
+        #: called as hook(session, test, status, reason) in the transaction that ends a run, after its summary;
+        #: a hook may change the record and return a callable, called once the end is committed and streamed
+        self.end_hooks: list = []
 
     # --- state ---------------------------------------------------------------------------------------
     def context(self):
@@ -162,8 +184,14 @@ class RigService:
 
         tolerance = {"start_tolerance_m": self.settings.rig_start_tolerance_m}  # the table within this of the start
         if self.driver == SIMULATED:
-            return {"kind": "simulated", "name": "simulated rig", "url": SIMULATED, **tolerance,
-                    "detail": "the fifth-order rig model runs in the worker, faster than real time if asked"}
+            plant = self.settings.plant_changes()
+            out = {"kind": "simulated", "name": "simulated rig", "url": SIMULATED, **tolerance,
+                   "detail": "the fifth-order rig model runs in the worker, faster than real time if asked",
+                   "plant_changes": plant}
+            if plant:
+                out["detail"] += ("; it plays a rig unlike the rig file in force (isorig serve --plant-set: "
+                                  + ", ".join(f"{k}={v:g}" for k, v in plant.items()) + "), for demos and tests")
+            return out
         from .drivers.udp import parse_udp_url
 
         host, port = parse_udp_url(self.driver)
@@ -232,6 +260,8 @@ class RigService:
 
     # --- operator actions ----------------------------------------------------------------------------
     def start(self, test_id: int, actor: str = "operator") -> None:
+        from .drivers import SIMULATED
+
         with self._lock:
             running = self.running_test_id()
             if running is not None:
@@ -244,8 +274,14 @@ class RigService:
                     raise Conflict(f"test {test_id} is {test.status}; only a test with status 'ready' can start "
                                    "(create a new test to run it again)")
                 self._check_start_position(start_position_m(test.request["job_scenario"]), test_id)
+                plant = self.settings.plant_changes() if test.driver == SIMULATED else {}
+                if plant:  # the record says what the simulated plant was: not the rig it was told of
+                    test.request = {**test.request, "plant_changes": plant}
+                    test.scenario = {**test.scenario, "plant_changes": {**plant,
+                                                                        **(test.scenario.get("plant_changes") or {})}}
                 job = {"test_id": test_id, "rig": test.driver, "link": self.settings.link_settings(),
-                       "speed": test.speed, "scenario": test.request["job_scenario"], "limits": test.limits,
+                       "speed": test.speed, "scenario": worker_scenario(test.request["job_scenario"], plant),
+                       "limits": test.limits,
                        "realtime": self.settings.worker_realtime,
                        "start_tolerance_m": self.settings.rig_start_tolerance_m,
                        "table_position_m": self.resting_position_m() or 0.0}
@@ -261,7 +297,8 @@ class RigService:
                 cmd_r.close()
                 store.set_status(session, test, "running")
                 started = f"{_what(test)} {test_id} started by {actor}"
-                start_values = {"action": "start", **({"move": True} if _what(test) == "manual move" else {})}
+                start_values = {"action": "start", **({"move": True} if _what(test) == "manual move" else {}),
+                                **({"commissioning": True} if _what(test) == "commissioning" else {})}
                 store.add_event(session, test_id, "operator", started, {**start_values, "worker_pid": process.pid},
                                 actor=actor, time_s=0.0)
                 session.commit()
@@ -555,9 +592,20 @@ class RigService:
             message = f"{_what(test)} {test_id} {status}" + (f": {reason}" if reason else "")
             store.add_event(session, test_id, "status", message, {"status": status, "time_s": run.time_s},
                             time_s=run.time_s)
+            after = []
+            for hook in self.end_hooks:
+                try:
+                    then = hook(session, test, status, reason)
+                except Exception:  # never lose the end of a run over what follows it
+                    log.exception("end hook of test %s", test_id)
+                    then = None
+                if then is not None:
+                    after.append(then)
             session.commit()
             self._publish_event(test_id, run.time_s, "status", message, {"status": status})
             self.hub.publish_threadsafe(self._status_message(run, record, status, reason))
+            for then in after:
+                then()
         except Exception:
             log.exception("could not record the end of test %s", test_id)
         finally:
@@ -576,6 +624,10 @@ class RigService:
     def hub_seq(self, test_id: int) -> int:
         self._seq[test_id] = self._seq.get(test_id, 0) + 1
         return self._seq[test_id]
+
+    def publish_event(self, test_id: int, time_s: float | None, kind: str, message: str, values: dict) -> None:
+        """Stream an event of a test to every console (the caller stores it)."""
+        self._publish_event(test_id, time_s, kind, message, values)
 
     def _publish_event(self, test_id: int, time_s: float | None, kind: str, message: str, values: dict) -> None:
         self.hub.publish_threadsafe({"type": "event", "test_id": test_id, "time_s": time_s, "kind": kind,

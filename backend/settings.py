@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import platformdirs
-from pydantic import Field, SecretStr, field_validator
+from pydantic import Field, SecretStr, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 REPO_STATIC_DIR = Path(__file__).resolve().parent.parent / "frontend" / "static"
@@ -48,6 +48,9 @@ class Settings(BaseSettings):
     rig_file: Path | None = Field(default=None, description="the lab's rig: a .json or .toml file of RigParameters "
                                   "names (SI) over the defaults (docs/compare.md, 'Rig files'); what the controller "
                                   "assumes, the envelope and the limits follow it")
+    plant_set: str = Field(default="", description="simulated rig only: the rig as it truly is, unlike the rig file "
+                           "(NAME=VALUE of rig or isolator parameters, SI, separated by commas or spaces; "
+                           "`--plant-set`, repeatable): every job's scenario.plant_changes, shown in GET /api/rig")
     lab_name: str = Field(default="", max_length=200, description="the lab named at the top of every report")
     lab_address: str = Field(default="", max_length=500, description="the lab's address under its name in reports "
                              "(lines separated by newlines or ';')")
@@ -71,6 +74,23 @@ class Settings(BaseSettings):
             load_rig_file(value)  # RigError (a ValueError) says what is wrong with the file
         return value
 
+    @field_validator("plant_set")
+    @classmethod
+    def _plant_assignments(cls, value: str) -> str:
+        plant_changes_of(value)  # FieldError (a ValueError) names the parameter and what is allowed
+        return value
+
+    @model_validator(mode="after")
+    def _plant_only_simulated(self):
+        if self.plant_set.strip() and self.rig != "simulated":
+            raise ValueError(f"plant_set changes the simulated rig only; the rig {self.rig} is as it is (leave "
+                             "--plant-set / ISORIG_PLANT_SET out)")
+        return self
+
+    def plant_changes(self) -> dict:
+        """The simulated rig's plant changes (name -> SI value), {} when the plant is its rig file's rig."""
+        return plant_changes_of(self.plant_set)
+
     def rig_description(self):
         """The rig the service drives (sim.rigfile.RigDescription): the rig file's, else the defaults."""
         from sim.rig import DEFAULT_RIG
@@ -92,3 +112,16 @@ class Settings(BaseSettings):
     @property
     def token_file(self) -> Path:
         return self.data_dir / "operator-token"
+
+
+def plant_changes_of(text: str) -> dict:
+    """``NAME=VALUE`` assignments separated by commas or white space -> {name: value}; each name a rig or
+    isolator parameter (sim.rigfile.parse_assignment), the rig ones within the rig's ranges."""
+    from sim.engine import ISOLATOR_PARAMETERS
+    from sim.rig import DEFAULT_RIG
+    from sim.rigfile import RIG_FIELDS, parse_assignment, rig_from_mapping
+
+    changes = dict(parse_assignment(a, RIG_FIELDS + ISOLATOR_PARAMETERS, "rig or isolator parameter")
+                   for a in text.replace(",", " ").split())
+    rig_from_mapping({k: v for k, v in changes.items() if k in RIG_FIELDS}, DEFAULT_RIG, "plant_set")
+    return changes

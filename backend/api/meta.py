@@ -39,7 +39,20 @@ def rig_state(request: Request) -> dict:
     state = request.app.state.service.rig_state()
     with request.app.state.sessions() as session:
         state["last_event"] = store.last_event(session)
+    state["rig_file"] = rig_file_brief(request)
     return store.clean_json(state)
+
+
+def rig_file_brief(request: Request) -> dict:
+    """The rig file in force in a few words (the strip asks every 2 s: every console sees a rig applied from
+    another one): name, where it comes from, when it was commissioned, the simulated plant's changes."""
+    described = request.app.state.rig_description
+    commissioning = described.to_dict()["commissioning"] or {}
+    origin = request.app.state.rig_origin
+    return {"name": described.name, "source": described.source, "how": origin.get("how"),
+            "commissioned": commissioning.get("date"), "applied_at": origin.get("at"),
+            "applied_by": origin.get("by"), "commissioning_id": origin.get("commissioning_id"),
+            "plant_changes": request.app.state.service.rig_info().get("plant_changes") or {}}
 
 
 @router.get("/api/rig", summary="Rig parameters, envelope, limits and state")
@@ -51,7 +64,8 @@ def rig(request: Request) -> dict:
         "rig": service.rig_info(),
         "link": service.link_health(),
         "parameters": rig.describe(),
-        "rig_file": request.app.state.rig_description.to_dict(),  # name, description, source, what it changes
+        # name, description, source, what it changes, its commissioning; where it comes from (in_force)
+        "rig_file": {**request.app.state.rig_description.to_dict(), "in_force": request.app.state.rig_origin},
         "envelope": {
             "stroke_m": rig.stroke_m,
             "supply_bar_min": rig.min_supply_pa / BAR_PA,

@@ -451,10 +451,13 @@ def get_acceptance(test_id: TestId, session: SessionDep) -> dict:
 def _reportable(session, test_id: int):
     """The test, if a report can be made of it (404 unknown; 422 for a manual move, which has none)."""
     test = _test_or_404(session, test_id)
-    if (test.request.get("profile") or {}).get("kind") == "move":
-        raise ApiError(422, f"test {test_id} is a manual move of the table: it has no report; its record "
+    kind = (test.request.get("profile") or {}).get("kind")
+    if kind in ("move", "commissioning"):
+        what = "a manual move of the table" if kind == "move" else \
+            f"a commissioning of the rig (its result: GET /api/commissioning/{test_id})"
+        raise ApiError(422, f"test {test_id} is {what}: it has no report; its record "
                             f"(GET /api/tests/{test_id}) and samples (data.csv) are kept", "test_id", test_id,
-                       "a test that is not a manual move")
+                       "a test that is not a manual move or a commissioning")
     return test
 
 

@@ -17,6 +17,9 @@ def register(sub) -> None:
     p.add_argument("--rig-file", default=None, metavar="FILE",
                    help="the lab's rig: a .json or .toml file of RigParameters names (SI) over the defaults; what "
                         "the controller assumes, the envelope and the limits follow it (ISORIG_RIG_FILE)")
+    p.add_argument("--plant-set", action="append", default=[], metavar="NAME=VALUE",
+                   help="simulated rig only: the rig as it truly is, unlike its rig file (a rig or isolator "
+                        "parameter, SI; repeatable; ISORIG_PLANT_SET): for demos and tests of commissioning")
     p.add_argument("--log-level", default="info", choices=("critical", "error", "warning", "info", "debug"))
     p.set_defaults(func=run)
 
@@ -42,11 +45,13 @@ def run(args) -> int:
     overrides = {k: v for k, v in (("host", args.host), ("port", args.port), ("database_url", args.database_url),
                                    ("data_dir", args.data_dir), ("rig", args.rig), ("rig_file", args.rig_file))
                  if v is not None}
+    if args.plant_set:
+        overrides["plant_set"] = " ".join(args.plant_set)
     try:
         settings = Settings(**overrides)
     except ValidationError as exc:
         first = exc.errors()[0]
-        field = ".".join(str(p) for p in first["loc"])
+        field = ".".join(str(p) for p in first["loc"]) or "settings"
         raise UsageError(f"isorig serve: {field}: {first['msg'].removeprefix('Value error, ')}") from None
     if not (0 < settings.port < 65536):
         raise UsageError(f"isorig serve: --port {settings.port} is outside 1-65535")
@@ -66,7 +71,8 @@ def run(args) -> int:
         return 2
     print(f"isorig: serving on http://{settings.host}:{settings.port}/ (API docs at /docs), "
           f"database {app.state.engine.url.render_as_string(hide_password=True)}, rig {settings.rig} "
-          f"({app.state.rig_description.name})",
+          f"({app.state.rig_description.name})"
+          + (f", the simulated plant unlike it: {settings.plant_set}" if settings.plant_set.strip() else ""),
           file=sys.stderr, flush=True)
     uvicorn.run(app, host=settings.host, port=settings.port, log_level=args.log_level,
                 ws_per_message_deflate=settings.ws_per_message_deflate)
