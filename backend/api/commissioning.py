@@ -8,8 +8,10 @@ from typing import Annotated
 from fastapi import APIRouter, Body, Request
 from fastapi.responses import JSONResponse
 
+from sim.errors import FieldError
+
 from .. import commissioning, rig_in_force, store
-from ..errors import ApiError
+from ..errors import ApiError, _jsonable
 from ..schemas import ERROR_RESPONSES, ApplyRigIn, CommissioningIn, TestOut
 from .deps import OperatorDep, SessionDep, TestId, not_found
 
@@ -31,6 +33,27 @@ def start(body: CommissioningIn, request: Request, session: SessionDep, actor: O
     what commissioning takes. Once the run ends, ``GET /api/commissioning/{id}`` says ``fitting``, then the
     result."""
     return commissioning.start(session, body, request, actor)
+
+
+@router.post("/api/commissioning/check", summary="What a commissioning would do, without starting it (no token)",
+             responses=ERROR_RESPONSES)
+def check(body: CommissioningIn, request: Request, session: SessionDep) -> dict:
+    """Always 200: ``ok``, and either what would move (``start_m``, ``duration_s``, ``limits``,
+    ``vertical_load_n``, ``what``) or the refusal (``detail``, ``field``, ``value``, ``limit``) that
+    ``POST /api/commissioning`` would answer with now. Nothing is created."""
+    try:
+        fields = commissioning.build(session, body, request)
+    except FieldError as exc:
+        return {"ok": False, "detail": str(exc), "field": exc.field, "value": _jsonable(exc.value),
+                "limit": exc.limit}
+    except ApiError as exc:
+        return {"ok": False, "detail": exc.detail, "field": exc.field, "value": _jsonable(exc.value),
+                "limit": exc.limit, "status": exc.status}
+    profile = fields["request"]["profile"]
+    return {"ok": True, "detail": "the commissioning can start", "start_m": profile["start_m"],
+            "duration_s": fields["duration_s"], "limits": fields["limits"],
+            "vertical_load_n": fields["vertical_load_n"], "isolator": fields["isolator"], "what": profile["what"],
+            "speed": fields["speed"], "wall_s": fields["duration_s"] / fields["speed"]}
 
 
 @router.get("/api/commissioning/{test_id}", summary="A commissioning: its state (running, fitting, trusted, "

@@ -40,12 +40,14 @@ def free_port() -> int:
 class Server:
     """`isorig serve` in a subprocess on 127.0.0.1 with its own database; restartable on the same port."""
 
-    def __init__(self, workdir: Path, viewer: bool = False, port: int | None = None, rig: str | None = None):
+    def __init__(self, workdir: Path, viewer: bool = False, port: int | None = None, rig: str | None = None,
+                 plant_set: tuple[str, ...] = ()):
         self.workdir = Path(workdir)
         self.workdir.mkdir(parents=True, exist_ok=True)
         self.port = port or free_port()
         self.viewer = viewer
         self.rig = rig  # None: the service's default (simulated); or udp://HOST:PORT
+        self.plant_set = tuple(plant_set)  # the simulated rig unlike its rig file (isorig serve --plant-set)
         self.proc: subprocess.Popen | None = None
         self.log_path = self.workdir / "serve.log"
 
@@ -67,6 +69,7 @@ class Server:
     def start(self, timeout_s: float = 60.0) -> Server:
         log = open(self.log_path, "ab")
         rig = ["--rig", self.rig] if self.rig else []
+        rig += [a for item in self.plant_set for a in ("--plant-set", item)]
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "isorig", "serve", "--host", "127.0.0.1", "--port", str(self.port), *rig],
             cwd=REPO, env=self.env(), stdout=log, stderr=subprocess.STDOUT, start_new_session=True)

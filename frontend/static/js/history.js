@@ -8,6 +8,7 @@ import { confirmDialog, summaryTable } from "./dialogs.js";
 import { indicationsText, limitsText } from "./limits.js";
 import { isProtocol, ProtocolAcceptance, VERDICT_CLASS } from "./acceptance.js";
 import { EarthquakeRecord } from "./eqrecord.js";
+import { verdictBlock, verdictPill as trackingPill } from "./verdict.js";
 import { LoopPlot } from "./plots.js";
 import { el, eventLine, fmtTime, profileText } from "./ui.js";
 import { factorIn, fmt, fmtU, onUnits, system, unit } from "./units.js";
@@ -57,6 +58,14 @@ function summaryOf(t) {
     saturated_share: tr.saturated_share,
     peak_flow_l_per_min: tr.peak_flow_l_per_min,
   };
+}
+
+/** A commissioning's state after its status (trusted, not trusted, fitting ...), or nothing. */
+function commissioningPill(t) {
+  const c = t.profile && t.profile.kind === "commissioning" ? (t.summary && t.summary.commissioning) || {} : null;
+  if (!c) return [];
+  const s = c.state || (t.status === "running" ? "running" : "fitting");
+  return [" ", el("span", { class: `pill cstate cstate-${s}`, text: s.replace("_", " "), title: c.words || "" })];
 }
 
 function statusPill(status) {
@@ -140,7 +149,7 @@ export class History {
         el("td", { text: profileText(t) }),
         el("td", { text: controllerName(t) }),
         el("td", { text: num(t.vertical_load_n) ? fmtU("force", t.vertical_load_n, { sig: 4 }) : "-" }),
-        el("td", {}, statusPill(t.status), ...verdictPill(t),
+        el("td", {}, statusPill(t.status), ...verdictPill(t), ...trackingPill(t), ...commissioningPill(t),
           ...(t.archived ? [el("small", { class: "muted", text: ` archived by ${t.archived.by}: ${t.archived.reason}` })] : [])),
         ...(isProtocol(t) ? [el("td", { class: "muted", colspan: "2", text: "by level (test page)" })]
           : [el("td", { text: fmtU("stiffness", s.k_eff_n_per_m) }), el("td", { text: fmtU("energy", s.edc_j) })]),
@@ -232,6 +241,13 @@ export class History {
       kv("speed", num(t.speed) ? `${t.speed}x` : "-"),
       kv("limits (action when exceeded)", limitsText(t.limits), "wide"),
     );
+    const tracking = verdictBlock(t);
+    if (tracking) summary.append(tracking);
+    if (t.profile && t.profile.kind === "commissioning") {
+      const c = (t.summary && t.summary.commissioning) || {};
+      summary.append(el("div", { class: "kv wide" }, el("span", { text: "commissioning" }),
+        el("b", {}, `${c.state || "-"} `, el("a", { href: `#/commission/${t.id}`, text: "its result on the Commissioning page" }))));
+    }
     const indicated = indicationsText(t.summary && t.summary.limit_indications);
     if (indicated) summary.append(kv("limits indicated", indicated, "wide"));
     if (t.label) summary.append(kv("label", t.label));

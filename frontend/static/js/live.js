@@ -8,7 +8,7 @@
 import { EarthquakeLive } from "./eqlive.js";
 import { LoopPlot, lowerBound, PlotStack, TimePlot } from "./plots.js";
 import { actionName, actionOf, LIMITS } from "./limits.js";
-import { changed, isMove, state } from "./state.js";
+import { changed, isCommissioning, isMove, state } from "./state.js";
 import { eventLine, eventWords, fmtDuration, profileText, setStatusBadge, showAlert } from "./ui.js";
 import { factorIn, fmt, fmtU, onUnits, system, toDisplay, unit } from "./units.js";
 
@@ -569,8 +569,8 @@ export class LiveView {
     if (msg.stability) this.eq.onStability(msg.stability);
     if (this.eq.kind) {
       $("l-cycle").textContent = `none (${this.eq.kind === "hybrid" ? "a hybrid simulation" : "a time history"})`;
-    } else if (isMove(this.test)) {
-      $("l-cycle").textContent = "none (a manual move)";
+    } else if (isMove(this.test) || isCommissioning(this.test)) {
+      $("l-cycle").textContent = `none (a ${isMove(this.test) ? "manual move" : "commissioning"})`;
     } else if (msg.cycle !== undefined && msg.cycle !== null) {
       $("l-cycle").textContent = msg.cycles_total ? `${msg.cycle} / ${msg.cycles_total}` : String(msg.cycle);
     }
@@ -585,7 +585,8 @@ export class LiveView {
       $("l-left").textContent = "-";
     }
     if (changedStatus && this.testId !== null) {
-      const what = isMove(this.test) ? "Manual move" : "Test"; // a move of the table (POST /api/rig/move, /zero)
+      // a move of the table (POST /api/rig/move, /zero), the rig's commissioning (POST /api/commissioning), a test
+      const what = isMove(this.test) ? "Manual move" : isCommissioning(this.test) ? "Commissioning" : "Test";
       if (firstLook) {
         // no banner: the strip's last event and the status badge say how the last test ended
       } else if (BAD.has(msg.status)) {

@@ -1,7 +1,8 @@
-// Dashboard entry point: views (live, history, one test), the status strip, the always-visible Abort, the
-// token, the unit choice, the 3D view.
+// Dashboard entry point: views (live, history, one test, commissioning), the status strip, the always-visible
+// Abort, the token, the unit choice, the 3D view.
 
 import { api, askToken, getToken } from "./api.js";
+import { CommissionPage } from "./commission.js";
 import { History } from "./history.js";
 import { LiveView } from "./live.js";
 import { RigLink } from "./rig.js";
@@ -10,6 +11,7 @@ import { changed, onState, state } from "./state.js";
 import { StatusStrip } from "./strip.js";
 import { hideAlert, showAlert } from "./ui.js";
 import { onUnits, setSystem, system } from "./units.js";
+import { watchLiveVerdict } from "./verdict.js";
 
 const $ = (id) => document.getElementById(id);
 // The embedded 3D view shares the page's renderer (same origin); its frame rate is capped so the plots stay
@@ -30,14 +32,16 @@ const setup = new SetupPanel({ live });
 const historyView = new History();
 const strip = new StatusStrip();
 strip.nextLimits = () => setup.nextLimits();
+const commission = new CommissionPage({ onApplied: () => reloadRig() });
 let currentView = "";
 
 function route() {
   const hash = location.hash || "#/live";
   const m = hash.match(/^#\/tests\/(\d+)/);
-  const view = m ? "test" : hash.startsWith("#/history") ? "history" : "live";
+  const c = hash.match(/^#\/commission(?:\/(\d+))?/);
+  const view = m ? "test" : c ? "commission" : hash.startsWith("#/history") ? "history" : "live";
   currentView = view;
-  for (const v of ["live", "history", "test"]) $(`view-${v}`).classList.toggle("hidden", v !== view);
+  for (const v of ["live", "history", "test", "commission"]) $(`view-${v}`).classList.toggle("hidden", v !== view);
   document.querySelectorAll("nav a").forEach((a) => {
     a.classList.toggle("active", a.dataset.view === (view === "test" ? "history" : view));
   });
@@ -45,6 +49,25 @@ function route() {
   live.dirty = true;
   if (view === "history") historyView.showList();
   if (view === "test") historyView.showTest(Number(m[1]));
+  if (view === "commission" && commissionReady) commission.show(c[1] ? Number(c[1]) : null);
+  else commission.hide();
+}
+
+let commissionReady = false;
+
+/** A rig file was made the service's rig (the Commissioning page): the set-up's envelope, limits and rig block
+ * follow GET /api/rig again. */
+async function reloadRig() {
+  try {
+    const rig = await api.get("/api/rig");
+    setup.rig = rig;
+    state.rig = rig;
+    setup.renderFieldMeta();
+    setup.formChanged();
+    rigLink.setInfo(rig);
+    commission.setRig(rig);
+    changed("rig");
+  } catch { /* the next page load reads it */ }
 }
 
 async function abort() {
@@ -227,6 +250,10 @@ async function main() {
   await setup.init();
   rigLink.setInfo(setup.rig);
   rigLink.start();
+  watchLiveVerdict();
+  await commission.init(setup.rig);
+  commissionReady = true;
+  if (currentView === "commission") route();
   strip.render();
   pollRigState();
   await setupViewer();

@@ -148,7 +148,10 @@ export class RigLink {
   /** The one-line figures under the rig's name. */
   figures() {
     const l = this.link || {};
-    if (this.kind === "simulated") return [["model", "rig model in the service, no link"]];
+    if (this.kind === "simulated") {
+      const plant = this.plantChanges();
+      return plant ? [["plant", `plays a rig unlike its rig file (${plant})`]] : [["model", "rig model in the service, no link"]];
+    }
     if (this.error) return [["error", `link unknown: the service does not answer (${this.error})`]];
     if (!this.link) return [["wait", "asking the rig..."]];
     if (!l.connected) return [["detail", l.detail || "no answer from the rig"]];
@@ -170,9 +173,19 @@ export class RigLink {
     return out;
   }
 
+  /** The simulated plant's changes (isorig serve --plant-set) in a few words, or "". */
+  plantChanges() {
+    const p = (this.info && this.info.plant_changes) || {};
+    return Object.entries(p).map(([k, v]) => `${k}=${+Number(v).toPrecision(4)}`).join(", ");
+  }
+
   tooltip() {
     const i = this.info || {};
-    if (this.kind === "simulated") return "simulated rig: the rig model runs in the service (no link). Click for details.";
+    if (this.kind === "simulated") {
+      const plant = this.plantChanges();
+      return `simulated rig: the rig model runs in the service (no link)${plant ? `; for demos and tests it plays a rig ` +
+        `unlike its rig file: ${plant} (isorig serve --plant-set)` : ""}. Click for details.`;
+    }
     const parts = [`${this.name()}`];
     if (i.host !== undefined) parts.push(`host ${i.host}, port ${i.port}`);
     if (num(i.control_period_s)) parts.push(`control period ${fmtPeriod(i.control_period_s)}`);
@@ -225,6 +238,7 @@ export class RigLink {
     if (this.kind === "simulated") {
       row("kind", "simulated: the rig model runs in the service's worker");
       if (i.detail) row("note", i.detail);
+      if (this.plantChanges()) row("plant unlike its rig file", this.plantChanges());
       row("link", "none (always connected)");
       box.append(table);
       return;

@@ -15,7 +15,7 @@ import { actionHelp, actionName, actionOf, ACTION_ORDER, DEFAULT_ACTION, LIMITS,
 import { ManualMotion } from "./manual.js";
 import { parseNumber } from "./parse.js";
 import { fmtPeriod, rigKind } from "./rig.js";
-import { changed, isMove, onState, runName, sourceWords, state, tablePosition, testRunning } from "./state.js";
+import { changed, isCommissioning, isMove, onState, runName, sourceWords, state, tablePosition, testRunning } from "./state.js";
 import { el, fmtDuration, showAlert } from "./ui.js";
 import { fmt, fmtU, inputText, onUnits, sigDigits, toDisplay, toSI, unit } from "./units.js";
 
@@ -1043,7 +1043,8 @@ export class SetupPanel {
     const lock = $("form-lock");
     lock.textContent = isMove(t)
       ? `Manual move #${t.id} is running: the form is locked until it ends.`
-      : `The form shows test #${t.id}, which is running: locked until it ends.`;
+      : isCommissioning(t) ? `Commissioning #${t.id} is running (see the Commissioning page): the form is locked until it ends.`
+        : `The form shows test #${t.id}, which is running: locked until it ends.`;
     lock.classList.remove("hidden");
     this.scheduleCheck(0);
   }

@@ -51,9 +51,14 @@ export function isMove(t) {
   return Boolean(t && t.profile && !Array.isArray(t.profile) && t.profile.kind === "move");
 }
 
-/** "manual move #7" or "test #7": what a record is, in words. */
+/** A record of the rig's commissioning (POST /api/commissioning: profile kind "commissioning"), not a test. */
+export function isCommissioning(t) {
+  return Boolean(t && t.profile && !Array.isArray(t.profile) && t.profile.kind === "commissioning");
+}
+
+/** "manual move #7", "commissioning #7" or "test #7": what a record is, in words. */
 export function runName(t, id) {
-  return `${isMove(t) ? "manual move" : "test"} #${id ?? (t && t.id)}`;
+  return `${isMove(t) ? "manual move" : isCommissioning(t) ? "commissioning" : "test"} #${id ?? (t && t.id)}`;
 }
 
 /**

@@ -5,7 +5,7 @@
 // what another console did); what the service does not report is said, not guessed.
 
 import { limitsLines, limitsText } from "./limits.js";
-import { isMove, onState, state, tablePosition, testRunning } from "./state.js";
+import { isCommissioning, isMove, onState, runName, state, tablePosition, testRunning } from "./state.js";
 import { eventLine } from "./ui.js";
 import { fmt, fmtU, onUnits } from "./units.js";
 
@@ -46,7 +46,7 @@ export class StatusStrip {
       if (state.stopping || serviceStopping) {
         return ["STOPPING", "stopping", state.stoppingReason || rs.stopping_reason || "the test is ending"];
       }
-      return ["RUNNING", "running", isMove(state.test) ? `manual move #${id}` : `test #${id}`];
+      return ["RUNNING", "running", runName(state.test, id)];
     }
     if (rs.status === "faulted") return ["FAULTED", "bad", rs.rig_status ? `the rig reports: ${rs.rig_status}` : "the rig reports a fault"];
     if (state.faulted) return ["FAULTED", "bad", state.faulted];
@@ -66,7 +66,8 @@ export class StatusStrip {
     const cell = $("s-rig-cell");
     cell.dataset.state = word.toLowerCase().replace(/ /g, "-");
     cell.className = `cell cell-rig ${cls}`;
-    const showWhy = ["STOPPING", "NOT CONNECTED", "FAULTED"].includes(word) || (word === "RUNNING" && isMove(state.test));
+    const showWhy = ["STOPPING", "NOT CONNECTED", "FAULTED"].includes(word) ||
+      (word === "RUNNING" && (isMove(state.test) || isCommissioning(state.test)));
     $("s-rig-why").textContent = showWhy ? why : "";
     $("s-rig-why").title = showWhy ? why : "";
     const running = testRunning();
@@ -87,10 +88,11 @@ export class StatusStrip {
     // limits: the running test's (with their actions), else those the next test would get
     const lim = running ? t.limits || rs.limits : this.nextLimits ? this.nextLimits() : null;
     const id = state.testId ?? rs.test_id;
-    const what = isMove(state.test) ? "move" : "test";
+    const what = isMove(state.test) ? "move" : isCommissioning(state.test) ? "commissioning" : "test";
     $("s-limits-label").textContent = running ? `limits of ${what} #${id}, action when exceeded` : "limits of the next test, action when exceeded";
     $("s-limits").textContent = limitsText(lim);
     $("s-limits").title = limitsLines(lim);
+    this.renderRigFile(rs);
     // the last event: this page's (the test in view), else the service's latest
     const e = $("s-event");
     const mine = state.lastEvent;
@@ -99,6 +101,26 @@ export class StatusStrip {
     e.textContent = text;
     e.title = text;
     e.dataset.kind = mine ? mine.kind : theirs ? theirs.kind : "";
+  }
+
+  /** The rig file in force and when it was commissioned (GET /api/rig/state: a rig applied elsewhere shows too). */
+  renderRigFile(rs) {
+    const cell = $("s-rigfile");
+    const rf = rs.rig_file || (state.rigState && state.rigState.rig_file);
+    if (!rf) {
+      cell.textContent = "-";
+      cell.title = "the service has not said which rig file is in force";
+      return;
+    }
+    const date = rf.commissioned ? String(rf.commissioned).slice(0, 10) : "";
+    const plant = rf.plant_changes && Object.keys(rf.plant_changes).length;
+    const name = rf.how === "defaults" ? "sim.rig defaults" : rf.name;
+    const when = date ? (name.includes(date) ? "" : ` \u00b7 commissioned ${date}`) : " \u00b7 not commissioned";
+    cell.textContent = `${name}${when}${plant ? " \u00b7 simulated plant differs" : ""}`;
+    cell.dataset.commissioned = date;
+    cell.title = `${rf.name}\n${rf.source}\n${date ? `commissioned ${rf.commissioned}` : "never commissioned"}` +
+      `${rf.how === "applied" ? `\napplied by ${rf.applied_by} at ${rf.applied_at} (commissioning ${rf.commissioning_id})` : ""}` +
+      `${plant ? `\nthe simulated rig plays a rig unlike this file: ${Object.entries(rf.plant_changes).map(([k, v]) => `${k}=${v}`).join(", ")}` : ""}`;
   }
 
   /** Supply pressure: measured when the service reports it (a running test, a UDP rig's answer), else the setting. */

@@ -24,6 +24,10 @@ export function profileText(t) {
       `at ${fmtU("velocity", p.speed_m_per_s)}`;
   }
   if (p.kind === "history" || p.kind === "hybrid") return earthquakeText(p);
+  if (p.kind === "commissioning") {
+    return `commissioning \u00b1${fmtU("length", p.max_stroke_m)} about ${fmtU("length", p.start_m, { sign: true })}, ` +
+      `below ${fmtU("velocity", p.max_velocity_m_per_s)}`;
+  }
   if (p.kind === "sine" || p.amplitude_m !== undefined) {
     const off = typeof p.offset_m === "number" && p.offset_m !== 0 ? ` about ${fmtU("length", p.offset_m, { sign: true })}` : "";
     return `sine ${fmtU("length", p.amplitude_m)} at ${fmtU("frequency", p.frequency_hz)} x ${p.cycles}${off}`;
@@ -87,6 +91,7 @@ function capital(text) {
 /** A limit event (limit_trip, limit_indicate) in words: the quantity, its value and the limit, the action taken. */
 function limitWords(e) {
   const v = e.values || {};
+  if (v.detector === "not_following" && e.kind === "limit_trip") return notFollowingWords(e);
   const info = limitInfo(v.limit_name);
   const reading = info && typeof v[v.limit_name] === "number" && typeof v.limit === "number"
     ? `${info.name} ${fmtU(info.quantity, Math.abs(v[v.limit_name]), { sig: 4 })} beyond the limit of ` +
@@ -104,6 +109,20 @@ function limitWords(e) {
     controlled_stop: "controlled stop: the target ramps out under control, the test ends aborted",
   }[action] || `${actionName(action)}: the test ends aborted`;
   return `LIMIT TRIP: ${reading}; ${done}`;
+}
+
+/**
+ * The table did not follow its target (sim.follow): the service's reason, the action (the valve closes at once:
+ * the controller is no longer trusted) and its advice (commission the rig) last, so the banner reads in order.
+ */
+function notFollowingWords(e) {
+  const msg = e.message || "the table does not follow its target";
+  const head = msg.indexOf(": ");
+  const cut = msg.indexOf("; ", head > 0 ? head : 0);
+  const what = cut > 0 ? msg.slice(0, cut) : msg;
+  const advice = cut > 0 ? msg.slice(cut + 2) : "";
+  return `LIMIT TRIP: ${what}; the valve closes at once (the controller is no longer trusted), the test ends aborted` +
+    `${advice ? `. Advice: ${advice}` : ""}`;
 }
 
 /** "stop requested by operator" -> "operator" (the actor of a request streamed live, which has no actor field). */
@@ -141,13 +160,17 @@ export function eventWords(e) {
         : `Abort requested by ${who || "an operator"}: valve command to 0 V`;
     } else {
       const words = {
-        create: "Test created", start: v.move ? "Move started: the valve opens" : "Test started: the valve opens",
+        create: "Test created",
+        start: v.move ? "Move started: the valve opens" : v.commissioning
+          ? "Commissioning started: the valve opens (the excitation, not a test controller)" : "Test started: the valve opens",
         discard: "Start refused: the test was not kept", delete: "Test deleted (it never ran)",
       }[v.action];
       text = words ? `${words}${who && who !== "operator" ? ` (${who})` : ""}` : capital(text);
     }
   } else if (kind === "status") {
-    text = capital(text.replace(/^(test|manual move) \d+ /, "$1 "));
+    text = capital(text.replace(/^(test|manual move|commissioning) \d+ /, "$1 "));
+  } else if (kind === "commissioning") {
+    text = capital(text.replace(/^commissioning \d+ /, "commissioning "));
   } else {
     text = capital(text);
   }

@@ -1,0 +1,68 @@
+// How well the table followed its target (sim.follow, the record's summary.tracking_verdict): a pill for History,
+// a line for the test page, and the live view's header and banner when a test ends. "did not follow" is marked
+// in red with the service's advice (commission the rig) and a link to the Commissioning page.
+
+import { onState, state } from "./state.js";
+import { el } from "./ui.js";
+
+const $ = (id) => document.getElementById(id);
+const PILL = { followed: "followed", outside_target: "outside target", did_not_follow: "DID NOT FOLLOW", not_judged: "not judged" };
+const ENDED = new Set(["completed", "stopped", "aborted", "interrupted", "failed"]);
+
+/** The record's verdict split into {verdict, words, short, advice}, or null (a move or a commissioning has none). */
+export function trackingVerdict(t) {
+  const kind = t && t.profile && !Array.isArray(t.profile) ? t.profile.kind : null;
+  if (kind === "move" || kind === "commissioning") return null;
+  const v = t && t.summary && t.summary.tracking_verdict;
+  if (!v || !v.verdict) return null;
+  const words = v.words || v.verdict;
+  const cut = v.verdict === "did_not_follow" ? words.indexOf("; ") : -1;
+  return { verdict: v.verdict, words, short: cut > 0 ? words.slice(0, cut) : words, advice: cut > 0 ? words.slice(cut + 2) : "" };
+}
+
+/** A pill after a History row's status ([] when the record has no verdict). */
+export function verdictPill(t) {
+  const v = trackingVerdict(t);
+  if (!v) return [];
+  return [" ", el("span", { class: `pill tracking tv-${v.verdict}`, "data-verdict": v.verdict, text: PILL[v.verdict] || v.verdict, title: v.words })];
+}
+
+/** The test page's line: the verdict in words, the advice below it, and where to commission the rig. */
+export function verdictBlock(t) {
+  const v = trackingVerdict(t);
+  if (!v) return null;
+  const box = el("div", { class: `kv wide tracking-verdict`, "data-verdict": v.verdict },
+    el("span", { text: "tracking verdict (RMS |y - r| over the last steady cycles)" }),
+    el("b", {}, el("span", { class: `pill tv-${v.verdict}`, text: PILL[v.verdict] || v.verdict }), ` ${v.short}`));
+  if (v.advice) {
+    box.append(el("small", { class: "tv-advice" }, `${v.advice[0].toUpperCase()}${v.advice.slice(1)}: `,
+      el("a", { href: "#/commission", text: "open the Commissioning page" })));
+  }
+  return box;
+}
+
+/** The live view's header: the verdict of the test in view once it has ended; the end banner gets it too. */
+export function watchLiveVerdict() {
+  const announced = new Set();
+  onState((what) => {
+    if (what !== "test" && what !== "status") return;
+    const t = state.test;
+    const kv = $("l-verdict-kv");
+    const v = t && ENDED.has(state.status) ? trackingVerdict(t) : null;
+    kv.classList.toggle("hidden", !v);
+    kv.dataset.verdict = v ? v.verdict : "";
+    $("l-verdict").textContent = v ? v.words : "-";
+    $("l-verdict").title = v ? v.words : "";
+    if (!v || announced.has(state.testId)) return;
+    announced.add(state.testId);
+    const alert = $("alert");
+    const text = $("alert-text");
+    const ours = !alert.classList.contains("hidden") && new RegExp(`^Test ${state.testId} (completed|stopped)$`).test(text.textContent);
+    if (!ours) return;
+    text.textContent = `${text.textContent}; tracking: ${v.words}`;
+    if (v.verdict === "did_not_follow") {
+      alert.className = "alert warn";
+      alert.dataset.kind = "warn";
+    }
+  });
+}
