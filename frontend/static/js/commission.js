@@ -326,6 +326,7 @@ export class CommissionPage {
   }
 
   async start() {
+    this.say("", "");
     this.formChanged();
     await this.askCheck();
     if (this.whyNot()) return;

@@ -117,8 +117,15 @@ function limitWords(e) {
  */
 function notFollowingWords(e) {
   const msg = e.message || "the table does not follow its target";
-  const head = msg.indexOf(": ");
-  const cut = msg.indexOf("; ", head > 0 ? head : 0);
+  let cut = -1; // the first "; " outside parentheses: what was seen, then the advice
+  for (let i = 0, depth = 0; i < msg.length - 1; i++) {
+    if (msg[i] === "(") depth++;
+    else if (msg[i] === ")") depth = Math.max(0, depth - 1);
+    else if (depth === 0 && msg[i] === ";" && msg[i + 1] === " ") {
+      cut = i;
+      break;
+    }
+  }
   const what = cut > 0 ? msg.slice(0, cut) : msg;
   const advice = cut > 0 ? msg.slice(cut + 2) : "";
   return `LIMIT TRIP: ${what}; the valve closes at once (the controller is no longer trusted), the test ends aborted` +
