@@ -26,6 +26,35 @@ def commissioning_state(srv: Server, cid: int) -> str:
     return srv.call("GET", f"/api/commissioning/{cid}")[1]["state"]
 
 
+def test_a_rig_unlike_what_the_controller_is_told_stops_the_test_with_the_advice(plant_server, open_page, artifacts):
+    """Before commissioning: the servo, told the rig file's stiff oil column and light table, cannot follow the rig
+    the simulated plant plays; the service stops the test, and the console says why and what to do. (Runs first:
+    the next test commissions this service's rig.)"""
+    srv = plant_server
+    page, _watch = open_page(f"{srv.url}/", width=1366, height=768, token=TOKEN)
+    test_id = srv.start_test(sine_test(amplitude_m=0.01, frequency_hz=1.0, cycles=6, speed=4, isolator="IUT_a",
+                                       supply_bar=100))
+    rec = srv.wait_status(test_id, {"completed", "stopped", "aborted", "failed"})
+    assert rec["status"] == "aborted", rec["reason"]
+    assert rec["reason"].startswith("the table does not follow its target"), rec["reason"]
+    trip = next(e for e in rec["events"] if e["kind"] == "limit_trip")
+    assert trip["values"]["detector"] == "not_following"
+    banner = poll(lambda: page.inner_text("#alert-text") if "ABORTED" in page.inner_text("#alert-text") else "", 15,
+                  "the red banner")
+    assert banner.startswith(f"LIMIT TRIP - Test {test_id} ABORTED: the table does not follow its target at t = ")
+    assert "the valve closes at once (the controller is no longer trusted)" in banner
+    assert banner.index("the valve closes at once") < banner.index("Advice: the rig is not what the controller")
+    assert "ramps to 0 V" not in banner
+    events = page.inner_text("#live-events")
+    assert "LIMIT TRIP: the table does not follow" in events and "Advice: the rig is not what" in events
+    shots(page, artifacts, "dashboard_not_following_trip")
+    page.goto(f"{srv.url}/?viewer=off#/tests/{test_id}")
+    block = page.wait_for_selector(".tracking-verdict[data-verdict='did_not_follow']", timeout=10000)
+    assert "DID NOT FOLLOW" in block.inner_text() and "the table did not follow its target" in block.inner_text()
+    assert page.locator(".tracking-verdict a[href='#/commission']").count() == 1
+    srv.zero_table()  # the trip left the table where it was
+
+
 def test_commissioning_from_the_page_on_a_rig_unlike_its_file(plant_server, open_page, artifacts):
     srv = plant_server
     page, watch = open_page(f"{srv.url}/", width=1366, height=768, token=TOKEN)
@@ -60,13 +89,14 @@ def test_commissioning_from_the_page_on_a_rig_unlike_its_file(plant_server, open
     assert "valve sweeps" in what and "dither" in what and "sensor delay" in what
     shots(page, artifacts, "dashboard_commissioning_form")
     # the confirmation says it again; Cancel sends nothing
+    before = srv.call("GET", "/api/tests")[1]
     page.click("#c-start")
     page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
     confirm = page.inner_text("#confirm-body")
     assert "\u00b12.00 mm about" in confirm and "below 20.0 mm/s" in confirm and "e2e commissioner" in confirm
     assert "the valve, the oil column, the moving mass and the sensor delay" in confirm
     page.click("#confirm-cancel")
-    assert srv.call("GET", "/api/tests")[1] == []
+    assert srv.call("GET", "/api/tests")[1] == before
     page.click("#c-start")
     page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
     page.click("#confirm-ok")

@@ -517,6 +517,9 @@ export class CommissionPage {
       this.current.state = "fitting";
       if (this.ws) this.ws.close();
       this.poll(this.current.id);
+      this.renderResult(this.current);
+      if (!this.trace.t.length || this.trace.t[0] > 0.1) this.loadTrace(this.current.id); // joined late: the whole run
+      return;
     }
     this.renderProgress();
     this.renderButtons();

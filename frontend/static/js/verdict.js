@@ -27,9 +27,20 @@ export function verdictPill(t) {
   return [" ", el("span", { class: `pill tracking tv-${v.verdict}`, "data-verdict": v.verdict, text: PILL[v.verdict] || v.verdict, title: v.words })];
 }
 
+/** A test stopped because its table did not follow (a limit_trip of detector not_following): as a verdict. */
+function notFollowingTrip(t) {
+  const trip = ((t && t.events) || []).find((e) => e.kind === "limit_trip" && e.values && e.values.detector === "not_following");
+  if (!trip) return null;
+  const msg = trip.message || "";
+  const at = /at t = ([\d.]+) s/.exec(msg);
+  const advice = /; (the rig is not what[^]*|the \w+ controller does not follow[^]*)$/.exec(msg);
+  return { verdict: "did_not_follow", words: msg, short: `stopped${at ? ` at t = ${at[1]} s` : ""}: the table did not follow its target`,
+    advice: advice ? advice[1] : "the rig is not what the controller was told: commission it" };
+}
+
 /** The test page's line: the verdict in words, the advice below it, and where to commission the rig. */
 export function verdictBlock(t) {
-  const v = trackingVerdict(t);
+  const v = notFollowingTrip(t) || trackingVerdict(t);
   if (!v) return null;
   const box = el("div", { class: `kv wide tracking-verdict`, "data-verdict": v.verdict },
     el("span", { text: "tracking verdict (RMS |y - r| over the last steady cycles)" }),
@@ -48,10 +59,11 @@ export function watchLiveVerdict() {
     if (what !== "test" && what !== "status") return;
     const t = state.test;
     const kv = $("l-verdict-kv");
-    const v = t && ENDED.has(state.status) ? trackingVerdict(t) : null;
+    const trip = t && ENDED.has(state.status) ? notFollowingTrip(t) : null;
+    const v = trip || (t && ENDED.has(state.status) ? trackingVerdict(t) : null);
     kv.classList.toggle("hidden", !v);
     kv.dataset.verdict = v ? v.verdict : "";
-    $("l-verdict").textContent = v ? v.words : "-";
+    $("l-verdict").textContent = v ? (trip ? trip.short : v.words) : "-";
     $("l-verdict").title = v ? v.words : "";
     if (!v || announced.has(state.testId)) return;
     announced.add(state.testId);
