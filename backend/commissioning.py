@@ -98,7 +98,8 @@ def build(session, body, request) -> dict:
         "supply_bar": body.supply_bar, "vertical_load_n": load_n, "controller": CONTROLLER, "speed": body.speed,
         "driver": service.driver,
         "request": {**body.model_dump(mode="json"), "profile": profile, "job_scenario": job_scenario,
-                    "rig_name": described.name, "rig_source": described.source},
+                    "rig_name": described.name, "rig_source": described.source,
+                    "rig_file": clean_json(described.to_dict())},
         "scenario": clean_json(scenario.describe()), "limits": limits.to_dict(),
         "duration_s": duration_s, "cycles_total": 0,
     }
