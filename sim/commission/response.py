@@ -2,8 +2,10 @@
 
 The dither (sim.controllers.excitation) is a multisine whose lines are whole multiples of its lowest
 frequency, so over whole periods of it the response at each line is read without leakage: the DFT of the
-command and of the response over each period, at the line's bin, averaged over the periods. From the valve
-command to the table's velocity (m/s per V, from the position reading) and to the load pressure (Pa per V).
+command and of the response over each period, at the line's bin, averaged over the periods. From the valve's
+opening, the command past its dead zone (eq. 2 with the fitted null and k_en, then the fitted dead zone: the
+command itself jumps across the dead zone at every reversal, which no linear response follows), to the
+table's velocity (m/s per V, from the position reading) and to the load pressure (Pa per V).
 The model's response is computed the same way from ``sim.commission.model.replay`` of the same commands,
 so the two are compared like with like (the model's dead zone and friction included). The replay starts
 afresh from the measured state every ``SEGMENT_S`` (an integrating table drifts on any model: what is judged
@@ -44,11 +46,18 @@ class FrequencyResponse:
             return {"magnitude": np.abs(h).tolist(), "phase_deg": np.degrees(np.angle(h)).tolist()}
 
         return {"frequency_hz": self.frequency_hz.tolist(), "periods": self.periods,
+                "input": "the valve command past the fitted dead zone (V)",
                 "velocity_per_volt": {"unit": "(m/s)/V", "measured": split(self.velocity_measured),
                                       "model": split(self.velocity_model)},
                 "load_pressure_per_volt": {"unit": "Pa/V", "measured": split(self.pressure_measured),
                                            "model": split(self.pressure_model)},
                 "velocity_nrmse": self.velocity_nrmse, "pressure_nrmse": self.pressure_nrmse}
+
+
+def valve_opening(u: np.ndarray, rig: RigParameters) -> np.ndarray:
+    """The command past the valve's dead zone, V: DZ(v_c) with v_c of eq. (2) (the valve's dynamics aside)."""
+    v_c = np.where(u < 0.0, rig.driver_gain_negative * u, rig.driver_gain_positive * u) + rig.driver_offset_v
+    return v_c - np.clip(v_c, -rig.dead_zone_v, rig.dead_zone_v)
 
 
 def _line_response(u: np.ndarray, x: np.ndarray, n_period: int, bins: np.ndarray) -> np.ndarray:
@@ -94,7 +103,7 @@ def dither_response(sig: Signals, dither: slice, rig: RigParameters, lines_hz: n
         raise ValueError(f"the dither ran {periods} whole period(s) after its fade-in; at least {MIN_PERIODS} are "
                          "needed for a frequency response")
     window = slice(start, start + periods * n_period)
-    u = sig.u[window]
+    u = valve_opening(sig.u[window], rig)
     v_model, p_model = replay_segments(sig, window, rig)
     v_model = lowpass(np.nan_to_num(v_model), dt)
     v_meas = sig.v_f[window]
