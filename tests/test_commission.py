@@ -188,3 +188,17 @@ def test_a_link_that_loses_measurements_and_commands_is_fitted_on_what_the_rig_d
     arr[::5, flags_col] = FLAG_LOST  # a link that loses a fifth of the periods is not fitted
     worse = identify(Samples(arr), DEFAULT_RIG, c)
     assert not worse.trusted and "link is not good enough" in worse.problems[0]
+
+
+def test_a_sweep_does_not_take_the_spring_back_for_the_valve_opening():
+    """A stiff specimen on a heavy table with a narrow dead zone rings back when a sweep's valve closes: the next
+    sweep once took that motion for the valve opening, each edge crept inwards (0.37, 0.31 ... 0.10 V for a
+    0.34 V dead zone) and the dither then stayed inside the dead zone (drawn rig 19 of the campaign)."""
+    plant = {"mass_kg": 3372.0, "bulk_modulus_pa": 9.37e8, "half_volume_m3": 1.81e-3, "dead_zone_v": 0.342,
+             "flow_gain_m3_per_s_v_sqrt_pa": 3.22e-7, "valve_natural_frequency_rad_s": 350.2,
+             "position_latency_s": 1.01e-3, "coulomb_force_n": 1109.0, "friction_coefficient": 0.0113}
+    c, s = run_excitation(plant)
+    assert np.nanmax(s["ay_hat"][s["as_hat"] == 1.0]) == pytest.approx(0.342, abs=0.05)  # the dead zone it saw
+    ident = identify(s, DEFAULT_RIG, c)
+    assert ident.trusted, ident.problems
+    assert ident.response.opening_share > 0.5

@@ -36,6 +36,7 @@ MAX_RIG_TIME_S = 60.0
 MIN_FLOW_R2 = 0.98
 MIN_FORCE_R2 = 0.9
 MAX_VELOCITY_NRMSE = 0.2
+MIN_OPENING_SHARE = 0.3  # the dither must open the valve past its dead zone in this share of its periods
 #: largest one-sigma uncertainty of each value the controller relies on: relative, or absolute (V, s)
 MAX_RELATIVE_STD = {"flow_gain_m3_per_s_v_sqrt_pa": 0.05, "driver_gain_negative": 0.05, "mass_kg": 0.2,
                     "bulk_modulus_pa": 0.2, "valve_natural_frequency_rad_s": 0.2}
@@ -148,11 +149,21 @@ def with_systematic(fit: RigFit) -> None:
 
 
 def response_problems(response: FrequencyResponse | None) -> list[str]:
-    """Why the fitted rig's replay of the dither says it is not the rig (empty: it may be)."""
-    if response is not None and response.velocity_nrmse > MAX_VELOCITY_NRMSE:
-        return [f"the fitted rig, given the same commands, reproduces the table's velocity to "
-                f"{100 * response.velocity_nrmse:.0f} % RMS; at most {100 * MAX_VELOCITY_NRMSE:g} % is needed"]
-    return []
+    """Why the dither or the fitted rig's replay of it says the fit is not the rig (empty: it may be)."""
+    if response is None:
+        return []
+    problems = []
+    if response.opening_share < MIN_OPENING_SHARE:
+        problems.append(f"the dither opened the valve past its dead zone in {100 * response.opening_share:.0f} % of "
+                        f"its periods (at least {100 * MIN_OPENING_SHARE:g} % are needed): it did not show the valve's "
+                        "dynamics; run it again (a sweep may have taken a spring-back for the valve's edge)")
+    nrmse = response.velocity_nrmse
+    if not math.isfinite(nrmse):
+        problems.append("the fitted rig, given the same commands, did not stay finite: it is not this rig")
+    elif nrmse > MAX_VELOCITY_NRMSE:
+        problems.append(f"the fitted rig, given the same commands, reproduces the table's velocity to "
+                        f"{100 * nrmse:.0f} % RMS; at most {100 * MAX_VELOCITY_NRMSE:g} % is needed")
+    return problems
 
 
 def trust_problems(fit: RigFit) -> list[str]:

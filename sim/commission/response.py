@@ -15,6 +15,7 @@ over the dither is the fit's figure of quality.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,6 +39,7 @@ class FrequencyResponse:
     pressure_measured: np.ndarray  # complex, Pa/V
     pressure_model: np.ndarray
     periods: int
+    opening_share: float  # share of the dither's periods with the valve open past its fitted dead zone
     velocity_nrmse: float  # ||v_model - v_measured|| / ||v_measured|| over the dither (velocity from readings)
     pressure_nrmse: float
 
@@ -46,7 +48,7 @@ class FrequencyResponse:
             return {"magnitude": np.abs(h).tolist(), "phase_deg": np.degrees(np.angle(h)).tolist()}
 
         return {"frequency_hz": self.frequency_hz.tolist(), "periods": self.periods,
-                "input": "the valve command past the fitted dead zone (V)",
+                "input": "the valve command past the fitted dead zone (V)", "opening_share": self.opening_share,
                 "velocity_per_volt": {"unit": "(m/s)/V", "measured": split(self.velocity_measured),
                                       "model": split(self.velocity_model)},
                 "load_pressure_per_volt": {"unit": "Pa/V", "measured": split(self.pressure_measured),
@@ -105,7 +107,8 @@ def dither_response(sig: Signals, dither: slice, rig: RigParameters, lines_hz: n
     window = slice(start, start + periods * n_period)
     u = valve_opening(sig.u[window], rig)
     v_model, p_model = replay_segments(sig, window, rig)
-    v_model = lowpass(np.nan_to_num(v_model), dt)
+    diverged = not np.all(np.isfinite(v_model))
+    v_model = lowpass(np.nan_to_num(v_model, posinf=0.0, neginf=0.0), dt)
     v_meas = sig.v_f[window]
     bins = np.round(lines_hz * period_s).astype(int)
     return FrequencyResponse(
@@ -115,6 +118,8 @@ def dither_response(sig: Signals, dither: slice, rig: RigParameters, lines_hz: n
         pressure_measured=_line_response(u, sig.p_load[window], n_period, bins),
         pressure_model=_line_response(u, np.nan_to_num(p_model), n_period, bins),
         periods=periods,
-        velocity_nrmse=float(np.linalg.norm(v_model - v_meas) / max(np.linalg.norm(v_meas), 1e-300)),
+        opening_share=float(np.mean(u != 0.0)),
+        velocity_nrmse=math.nan if diverged else float(np.linalg.norm(v_model - v_meas)
+                                                       / max(np.linalg.norm(v_meas), 1e-300)),
         pressure_nrmse=float(np.linalg.norm(np.nan_to_num(p_model) - sig.p_load[window])
                              / max(np.linalg.norm(sig.p_load[window] - np.mean(sig.p_load[window])), 1e-300)))

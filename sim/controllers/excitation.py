@@ -10,8 +10,9 @@ Phases (the target r is the table's resting position y0, held constant; the guar
 1. **Valve sweeps.** The command ramps from inside the dead zone outwards, at ``ramp_v_per_s``, until the
    measured velocity (the position's difference over 5 periods, what the velocity detector reads) reaches this
    sweep's level, or the table is ``guard_m`` from y0, or the command reaches ``max_command_v``. Then the
-   command steps back inside the dead zone and the next sweep goes the other way, at the next level. The
-   command at which the table started to move (``velocity_start_m_per_s``) is the valve's opening edge in
+   command steps back inside the dead zone and the next sweep goes the other way, at the next level. Once
+   the table has rested 20 ms (it rings as the last sweep's valve closes), the command at which it started
+   to move (``velocity_start_m_per_s``) is the valve's opening edge in
    that direction; the next sweep in that direction starts just inside it. Once the valve is open the ramp
    is ``open_ramp_share`` times faster (the velocity rises quickly; the table stays within the guard).
 2. **Dither**, until ``sweep_max_s + dither_s`` (it takes the time the sweeps did not need): a position hold
@@ -49,7 +50,8 @@ N_PARAMS = P_PHASE + MAX_LINES
 
 (S_STARTED, S_PHASE, S_DIR, S_SWEEP, S_U, S_OPENED, S_EDGE_P, S_EDGE_N, S_UHI_P, S_UHI_N, S_VHI_P, S_VHI_N,
  S_GATE, S_T_PHASE, S_LAST_CUT, S_HEAD, S_HOLD) = range(17)  # S_HOLD: 1 once the valve is known (the rest holds)
-S_RING = 17  # the last 6 position readings (velocity over 5 periods)
+S_QUIET = 17  # periods the table has been at rest since this sweep began
+S_RING = 18  # the last 6 position readings (velocity over 5 periods)
 N_STATE = S_RING + 6
 
 PHASE_SWEEP, PHASE_DITHER, PHASE_RETURN, PHASE_REST = 0.0, 1.0, 2.0, 3.0
@@ -87,6 +89,7 @@ OPTIONS = {
     "dither_velocity_share": Option(0.35, 0.01, 1.0, "-", meaning="the dither's peak velocity demand, share of "
                                     "max_velocity_m_per_s"),
 }
+QUIET_PERIODS = 20  # a sweep takes the valve's edge only after the table rested this long (20 ms)
 REFERENCE_VELOCITY_M_PER_S = 0.02  # the open ramp's share is meant for this velocity bound
 REST_RAMP_SHARE = 0.3  # return and rest: the dead zone is crossed over +-this share of their velocity limit
 SWEEP_LEVELS = (0.3, 0.3, 0.5, 0.5, 0.7, 0.7)  # shares of max_velocity_m_per_s; later sweeps repeat the last
@@ -194,6 +197,7 @@ def _inverse(p, s, v_ff, v_fb):
 def _start_sweep(p, s, direction):
     s[S_DIR] = direction
     s[S_OPENED] = 0.0
+    s[S_QUIET] = 0.0
     edge = s[S_EDGE_P] if direction > 0 else s[S_EDGE_N]
     other = s[S_EDGE_N] if direction > 0 else s[S_EDGE_P]
     if np.isnan(edge):
@@ -223,7 +227,13 @@ def excitation_step(p, s, meas, dt, report):
     if phase == PHASE_SWEEP:
         d = s[S_DIR]
         k = int(s[S_SWEEP])
-        if s[S_OPENED] < 0.5 and d * v5 > p[P_VSTART]:
+        # the table rings when the last sweep's valve closes (the oil column and the specimen spring back): an
+        # edge is taken only once it has been at rest for QUIET_PERIODS since this sweep began
+        if abs(v5) < p[P_VSTART]:
+            s[S_QUIET] += 1.0
+        elif s[S_QUIET] < QUIET_PERIODS:
+            s[S_QUIET] = 0.0
+        if s[S_OPENED] < 0.5 and s[S_QUIET] >= QUIET_PERIODS and d * v5 > p[P_VSTART]:
             s[S_OPENED] = 1.0
             if d > 0:
                 s[S_EDGE_P] = s[S_U]
