@@ -63,7 +63,7 @@ def main() -> int:
     campaign = load_campaign(ROOT / "docs" / "examples" / "unknown_rigs.toml")
     campaign.runs, campaign.seed = args.rigs, args.seed
     print("| rig | oil column Hz | dead zone V | latency ms | rig time s | excursion / bound | velocity / bound | "
-          "trusted | mass err % | beta err % | DZ err mV | L err ms | " +
+          "trusted | mass err % | beta / V_0 err % | DZ err mV | L err ms | " +
           " | ".join(f"{a * 1e3:g} mm {f:g} Hz with / without" for a, f, _ in TESTS) + " |")
     print("|" + "---|" * (12 + len(TESTS)))
     for i, (plant, _seed) in enumerate(campaign.draws()):
@@ -86,8 +86,10 @@ def main() -> int:
                          + "; ".join(ident["problems"])[:80]]
                 if trusted:
                     fitted = load_rig_file(tmp / "rig.json").parameters
+                    stiffness = (fitted.bulk_modulus_pa / fitted.half_volume_m3) \
+                        / (rig.bulk_modulus_pa / rig.half_volume_m3)
                     cells += [f"{100 * (fitted.mass_kg / rig.mass_kg - 1):+.1f}",
-                              f"{100 * (fitted.bulk_modulus_pa / rig.bulk_modulus_pa - 1):+.1f}",
+                              f"{100 * (stiffness - 1):+.1f}",  # beta / V_0: the fit keeps the declared V_0
                               f"{1e3 * (fitted.dead_zone_v - rig.dead_zone_v):+.1f}",
                               f"{1e3 * (fitted.position_latency_s - rig.position_latency_s):+.3f}"]
                 else:

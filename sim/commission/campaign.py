@@ -248,7 +248,7 @@ def figure(rows: list[dict], tests: tuple[TestSpec, ...], title: str):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, len(tests), figsize=(5.5 * len(tests), 4.2), squeeze=False)
+    fig, axes = plt.subplots(1, len(tests), figsize=(5.5 * len(tests), 5.0), squeeze=False)
     for ax, spec in zip(axes[0], tests, strict=True):
         for prefix, label, style in (("after", "commissioned rig file", "-"), ("without", "default rig file", "--")):
             v = np.sort([100 * r[f"{prefix}.{spec.label}.last2_share"] for r in rows
@@ -266,7 +266,7 @@ def figure(rows: list[dict], tests: tuple[TestSpec, ...], title: str):
         ax.set_ylabel("share of the rigs")
         ax.set_title(spec.label)
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7, loc="lower right")
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.17), ncol=2)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return fig

@@ -229,14 +229,20 @@ class Identification:
 
 
 def record_figures(samples: Samples, conditions: Conditions) -> dict:
-    """What the excitation did: its length, how far and how fast the table went, the phases it reached."""
+    """What the excitation did: its length, how far and how fast the table went (the velocity as the velocity
+    detector reads it: the reading's difference over 5 periods, not across a lost period's held reading), the
+    phases it reached."""
+    from ..measurement import FLAG_LOST
+
     y = np.asarray(samples["measured_displacement_m"], dtype=float)
+    lost = (np.nan_to_num(np.asarray(samples["flags"], dtype=float)).astype(np.int64) & FLAG_LOST) != 0
+    readings = np.where(lost, np.nan, y)
     v5 = np.zeros_like(y)
-    v5[5:] = (y[5:] - y[:-5]) / (5 * CONTROL_PERIOD_S)
+    v5[5:] = (readings[5:] - readings[:-5]) / (5 * CONTROL_PERIOD_S)
     phase = np.nan_to_num(np.asarray(samples["as_hat"], dtype=float), nan=-1)
     return {"rig_time_s": len(samples) * CONTROL_PERIOD_S,
-            "peak_excursion_m": float(np.max(np.abs(y - conditions.start_m))) if y.size else 0.0,
-            "peak_velocity_m_per_s": float(np.max(np.abs(v5))) if y.size else 0.0,
+            "peak_excursion_m": float(np.nanmax(np.abs(readings - conditions.start_m))) if y.size else 0.0,
+            "peak_velocity_m_per_s": float(np.nanmax(np.abs(v5))) if y.size else 0.0,
             "peak_command_v": float(np.max(np.abs(samples["voltage_v"]))) if y.size else 0.0,
             "dither_s": float(np.count_nonzero(phase == 1.0) * CONTROL_PERIOD_S),
             "completed": bool(np.any(phase == 3.0))}
