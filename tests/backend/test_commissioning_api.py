@@ -89,6 +89,13 @@ def test_a_rig_unlike_its_file_is_commissioned_trusted_and_becomes_the_services_
         applied = [e for e in client.get(f"/api/tests/{cid}").json()["events"]
                    if (e["values"] or {}).get("action") == "apply_rig"]
         assert applied and "made the service's rig by C. Ferri" in applied[0]["message"]
+        # the console's manual motion takes the rig in force: it settles within 0.05 mm, there and back
+        for position_m in (0.001, 0.0):
+            body = {"position_m": position_m, "speed_m_per_s": 0.005, "isolator": "IUT_a", "supply_bar": 100}
+            r = client.post("/api/rig/move", json=body, headers=AUTH)
+            assert r.status_code == 201, r.text
+            assert wait_for(client, r.json()["id"])["status"] == "completed"
+            assert client.get("/api/rig/state").json()["table_position_m"] == pytest.approx(position_m, abs=5e-5)
         test_id = create_and_start(client)
         rec = wait_for(client, test_id)
         assert rec["status"] == "completed" and rec["rig"] == data["name"]
