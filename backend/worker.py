@@ -36,7 +36,7 @@ import numpy as np
 
 from sim.controllers import INTERNAL_FACTORIES, make_controller
 from sim.engine import Scenario
-from sim.follow import FollowMonitor, advice_for, reference_for
+from sim.follow import FollowMonitor, advice_for, limits_for, reference_for
 from sim.isolator import isolator_from_dict
 from sim.loop import CONTROL_PERIOD_S, ClosedLoop
 from sim.measurement import FLAG_LOST, Measurement
@@ -178,7 +178,8 @@ def follow_monitor(scenario: Scenario, table) -> FollowMonitor | None:
         reference = reference_for(scenario.profile)
     else:
         reference = reference_for([], table[:, 0] if table is not None and len(table) else np.zeros(1))
-    return FollowMonitor(reference, scenario.rig.position_latency_s, advice=advice_for(scenario.controller))
+    return FollowMonitor(reference, scenario.rig.position_latency_s, limits_for(scenario.controller),
+                         advice_for(scenario.controller))
 
 
 class Pacer:

@@ -225,13 +225,14 @@ class Simulation:
         """Run to the end; ``progress(fraction)`` is called after each chunk. ``follow``: with the service's
         detector of a rig the controller cannot follow (sim.follow), checked every 10 periods as the worker
         does; on a trip the valve closes at once (0 V for 0.1 s, open loop) and the run ends there."""
-        from .follow import FollowMonitor, advice_for, reference_for
+        from .follow import FollowMonitor, advice_for, limits_for, reference_for
 
         monitor = None
         if follow:
             s = self.scenario
             reference = reference_for(s.profile) if s.profile else reference_for([], s.history.r_m)
-            monitor = FollowMonitor(reference, s.rig.position_latency_s, advice=advice_for(s.controller))
+            monitor = FollowMonitor(reference, s.rig.position_latency_s, limits_for(s.controller),
+                                    advice_for(s.controller))
             chunk_periods = FOLLOW_CHECK_PERIODS
         chunks, trip, next_progress = [], None, 0
         while not self.done:

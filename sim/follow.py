@@ -71,6 +71,13 @@ class FollowLimits:
                 "corner_hz": self.corner_hz, "corner_harmonic": self.corner_harmonic}
 
 
+def limits_for(controller: str) -> FollowLimits:
+    """The monitor's limits for a controller: a fixed-gain one (``pid``) learns nothing, so its first steady
+    cycle is judged; the learning ones (``servo``, the paper's ``mrac``) get their transient."""
+    return FollowLimits(learning_cycles=0) if controller == "pid" else FollowLimits()
+
+
+
 @dataclass
 class Reference:
     """Each sine block of a test as the monitor judges it: first period, amplitude, period in control periods,
@@ -203,7 +210,7 @@ class FollowMonitor:
         lim = self.limits
         if self.steady_judged <= lim.learning_cycles:
             return None  # the learning's transient
-        stuck = (share > (1.0 - lim.min_improvement) * previous
+        stuck = (previous is None or share > (1.0 - lim.min_improvement) * previous
                  or self.steady_judged > lim.learning_cycles + lim.improving_cycles)
         if share > lim.rms_share and stuck:
             return self._trip(i, t, "tracking", share * a, lim.rms_share * a, a)

@@ -42,7 +42,7 @@ class Pipe:
         return samples[-1][-1][0] if samples else 0.0
 
 
-def job(speed=50.0, cycles=3, controller="pid"):
+def job(speed=50.0, cycles=3, controller="servo"):
     return {"test_id": 1, "rig": "simulated", "speed": speed,
             "scenario": {"isolator": PRESETS["IUT_a"].to_dict(), "supply_pa": 100e5,
                          "profile": [SineProfile(0.01, 2.0, cycles, 1).to_dict()], "controller": controller},
