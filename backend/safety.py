@@ -338,11 +338,14 @@ class SafetyMonitor:
 
     def _frozen(self, rows: Samples, velocity: np.ndarray) -> Trip | None:
         """The first sample whose reading has not changed for a tier's periods with the valve open beyond
-        the tier's voltage (``FROZEN_TIERS``), or None."""
-        n = len(rows)
+        the tier's voltage (``FROZEN_TIERS``), or None. Lost periods (FLAG_LOST) hold an older reading: a host
+        that did not get a measurement says nothing about the sensor, so they neither count nor break a run."""
+        fresh = np.flatnonzero((np.nan_to_num(rows["flags"]).astype(np.int64) & FLAG_LOST) == 0)
+        n = fresh.size
         if n == 0:
             return None
-        y = rows["measured_displacement_m"]
+        y = rows["measured_displacement_m"][fresh]
+        command = rows["voltage_v"][fresh]
         same = np.empty(n, dtype=bool)
         same[0] = y[0] == self._last_reading
         same[1:] = y[1:] == y[:-1]
@@ -351,7 +354,7 @@ class SafetyMonitor:
         first = None
         for tier, (command_v, periods) in enumerate(FROZEN_TIERS):
             with np.errstate(invalid="ignore"):
-                changed = ~same | ~(np.abs(rows["voltage_v"]) >= command_v)  # a run counts valve-open periods
+                changed = ~same | ~(np.abs(command) >= command_v)  # a run counts valve-open periods
             start = np.maximum.accumulate(np.where(changed, index, -1))  # where the current run began (-1: before)
             run = np.where(start >= 0, index - start, index + 1 + self._run_periods[tier])
             self._run_periods[tier] = int(run[-1])
@@ -360,7 +363,8 @@ class SafetyMonitor:
                 first = (int(hits[0]), int(run[hits[0]]), command_v)
         if first is None:
             return None
-        i, unchanged, command_v = first
+        j, unchanged, command_v = first
+        i = int(fresh[j])
         values = _values(rows, i, velocity)
         values.update(unchanged_periods=unchanged, command_at_least_v=command_v)
         message = (f"position reading frozen at t = {values['time_s']:.3f} s: {values['displacement_m']:.6g} m for "

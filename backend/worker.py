@@ -25,7 +25,6 @@ Commands from the server: ``"stop"`` and ``"abort"``.
 
 from __future__ import annotations
 
-import gc
 import queue
 import signal
 import sys
@@ -41,7 +40,7 @@ from sim.isolator import isolator_from_dict
 from sim.loop import CONTROL_PERIOD_S, ClosedLoop
 from sim.measurement import FLAG_LOST, Measurement
 from sim.profiles import B_CYCLES, B_TAPER, blocks_from_dicts
-from sim.realtime import raise_priority
+from sim.realtime import RealtimeSection, raise_priority
 from sim.rig import DEFAULT_RIG
 from sim.samples import Samples
 from sim.tracking import cycle_phase, cycle_windows
@@ -248,6 +247,8 @@ class Run:
         self.monitor = SafetyMonitor(SafetyLimits.from_dict(job["limits"]), self.scenario.supply_pa,
                                      sensor_range_m=scenario.rig.stroke_m)
         self.follow = follow_monitor(scenario, table)
+        self.start_target_m = self.loop.start_target_m  # now, not in the first period (its first call compiles)
+        self.realtime_section = "not entered"
         # a hybrid test computes each target from the last measurement: one period at a time on every rig
         self.compiled = getattr(self.driver, "run_compiled", None) if self.hybrid is None else None
         self.windows = cycle_windows(self.scenario)
@@ -310,8 +311,10 @@ class Run:
         """Arm, run to the end (or to a stop, trip, abort or fault), disarm; the final (status, reason)."""
         driver, loop = self.driver, self.loop
         status = "failed"
-        gc.freeze()  # what exists now is never scanned again: no collector pause of this size inside the loop
+        section = RealtimeSection(lock=self.rig.realtime)
         try:
+            section.__enter__()  # no collector pause in the period; memory locked where permitted (sim.realtime)
+            self.realtime_section = section.granted
             driver.arm(ArmConditions(self.scenario.supply_pa, self.scenario.effective_vertical_load_n,
                                      self.job.get("test_id")))
             status, reason = self._run()
@@ -329,6 +332,7 @@ class Run:
             raise
         finally:
             driver.disarm(success=status in ("completed", "stopped"))
+            section.__exit__(None, None, None)
 
     def _run(self) -> tuple[str, str | None]:
         driver, loop = self.driver, self.loop
@@ -417,7 +421,7 @@ class Run:
     def check_start(self, m: Measurement) -> None:
         """The first reading after arming: the table must rest where the target begins (the service and the
         command line ask the rig before; this is the check that cannot be raced), else no command is sent."""
-        start_m = self.loop.start_target_m
+        start_m = self.start_target_m
         tolerance_m = self.job.get("start_tolerance_m", START_TOLERANCE_M)
         if not abs(m.position_m - start_m) <= tolerance_m:
             raise RigFault(f"the table reads {m.position_m * 1e3:.2f} mm at arming and the run starts at "
@@ -436,6 +440,7 @@ class Run:
         while done < n and not loop.done:
             m = min(CHECK_PERIODS, n - done)
             block = self.periods(m)
+            RealtimeSection.slack()  # the command is out, the rig's period runs: the young garbage goes now
             done += len(block)
             trip = self.monitor.check(block, valve_close_only=self.trip is not None)
             for indication in self.monitor.take_indications():
@@ -491,7 +496,7 @@ class Run:
         stats = self.pacer.stats() if self.pacer is not None else {}
         if self.rig.realtime:
             stats = {"chunks": stats.get("chunks", 0), "realtime_rig": True}
-        return {**stats, "priority": self.priority}
+        return {**stats, "priority": self.priority, "realtime_section": self.realtime_section}
 
 
 class Collector:

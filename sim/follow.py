@@ -30,6 +30,7 @@ import numpy as np
 from scipy import signal
 
 from .loop import CONTROL_PERIOD_S
+from .measurement import FLAG_LOST
 
 LAB_TARGET_SHARE = 0.001  # the labs' target: the table follows within 0.1 % of the amplitude
 HISTORY_J2_BOUND = 0.01  # a time history follows when its J2 is within this (sim.hybrid_metrics.CRITERIA)
@@ -153,12 +154,30 @@ class FollowMonitor:
         self.previous_share: float | None = None  # the last steady cycle's RMS share in this block
         self.steady_judged = 0  # steady cycles judged in this block
         self.tripped: FollowTrip | None = None
+        self.last_fresh: tuple[int, float] | None = None  # (period, reading) of the last fresh measurement
 
     def _late_target(self, r: np.ndarray) -> np.ndarray:
         """r(t - L) for each row of this block, from the targets kept."""
         full = np.concatenate([self.r_hist, r])
         self.r_hist = full[-self.r_hist.size:]
         return late(full, self.lag)[-r.size:]
+
+    def _bridge_lost(self, k: np.ndarray, y: np.ndarray, lost: np.ndarray) -> np.ndarray:
+        """The readings with each lost period's (an older reading held) replaced by a straight line between
+        the fresh readings around it: a host's stall must not look like a step of the table to the
+        oscillation detector. The tracking figures skip lost periods altogether (``check``)."""
+        fresh = ~lost & np.isfinite(y)
+        known_k, known_y = k[fresh], y[fresh]
+        if self.last_fresh is not None:
+            known_k, known_y = np.concatenate([[self.last_fresh[0]], known_k]), np.concatenate([[self.last_fresh[1]],
+                                                                                             known_y])
+        if known_k.size:
+            self.last_fresh = (int(known_k[-1]), float(known_y[-1]))
+        if not lost.any() or known_k.size == 0:
+            return y
+        out = y.copy()
+        out[lost] = np.interp(k[lost], known_k, known_y)
+        return out
 
     def check(self, rows) -> FollowTrip | None:
         """Take the next rows of the test (the worker's blocks of ten periods; ``feed`` cuts a record into
@@ -169,6 +188,8 @@ class FollowMonitor:
         r = np.asarray(rows["target_m"], dtype=float)
         y = np.asarray(rows["measured_displacement_m"], dtype=float)
         k = np.round(t / CONTROL_PERIOD_S).astype(np.int64)
+        lost = (np.nan_to_num(np.asarray(rows["flags"], dtype=float)).astype(np.int64) & FLAG_LOST) != 0
+        y = self._bridge_lost(k, y, lost)
         e = y - self._late_target(r)
         closed = np.isfinite(e)
         e_hf = self._high_pass(np.where(closed, e, 0.0))
@@ -192,7 +213,7 @@ class FollowMonitor:
                     self.previous_share, self.steady_judged = None, 0
                 self.cycle_key, self.cycle_sum, self.cycle_n = key, 0.0, 0
                 self.cycle_steady = bool(steady[a])
-            part = e[a:b][closed[a:b]]
+            part = e[a:b][closed[a:b] & ~lost[a:b]]  # a lost period's reading is an older one: not judged
             self.cycle_sum += float(np.dot(part, part))
             self.cycle_n += part.size
         return None

@@ -36,7 +36,7 @@ from .controllers.base import (
     N_MEAS,
     N_REPORT,
 )
-from .measurement import FLAG_LOST, FLAG_OPEN_LOOP, Measurement
+from .measurement import FLAG_HELD, FLAG_LOST, FLAG_OPEN_LOOP, Measurement
 from .profiles import (
     B_CYCLES,
     B_FREQUENCY,
@@ -148,6 +148,40 @@ def control_period(k, position_m, force_n, load_pressure_pa, supply_pressure_pa,
     row[_YMEAS] = position_m
     row[_PS] = supply_pressure_pa
     row[_FLAGS] = flags
+    return u
+
+
+@njit(cache=True)
+def hold_period(k, position_m, force_n, load_pressure_pa, supply_pressure_pa, status, lp, ls, blocks, table, report,
+                row):
+    """A period whose measurement never arrived: the controller is not stepped (it neither integrates nor
+    adapts on a reading it did not get) and the command stays the last one sent, which is what the rig
+    applied (it holds its last command until the next one, docs/rig-protocol.md). ``row`` records the target,
+    the held reading, the held command and the controller's last report (its adapted parameters, unchanged),
+    flagged FLAG_LOST | FLAG_HELD."""
+    t = k * lp[L_DT]
+    if ls[LS_MODE] == MODE_RAMP:
+        r = np.nan
+    elif table.shape[0] > 0:
+        r = table[k if k < table.shape[0] else table.shape[0] - 1, 0]
+    else:
+        r = target(t, blocks)[0]
+    u = ls[LS_LAST_U]
+    for i in range(row.shape[0]):
+        row[i] = np.nan
+    row[_TIME] = t
+    row[_TARGET] = r
+    row[_MODEL] = report[0]
+    row[_AR] = report[1]
+    row[_AY] = report[2]
+    row[_AS] = report[3]
+    row[_Y] = position_m
+    row[_YMEAS] = position_m
+    row[_U] = u
+    row[_FORCE] = force_n
+    row[_PL] = load_pressure_pa
+    row[_PS] = supply_pressure_pa
+    row[_FLAGS] = status | FLAG_LOST | FLAG_HELD
     return u
 
 
@@ -306,7 +340,8 @@ class ClosedLoop:
         """The command for the measurement's period and the rows up to it.
 
         Periods the rig counted but whose measurement never arrived (``m.period`` ahead of the loop) are
-        run first on the last measurement held and flagged lost; their commands were never sent.
+        recorded first, flagged lost and held: the last reading and the last command (which the rig applied
+        meanwhile; their own commands were never sent), the controller not stepped (``hold_period``).
         """
         if m.period < self.period:
             raise ValueError(f"measurement of period {m.period} is older than the loop's period {self.period}")
@@ -314,10 +349,15 @@ class ClosedLoop:
         rows = np.empty((n, N_FIELDS))
         held = self.last_measurement or m
         for i in range(n - 1):
-            self._run_period(held, held.status | FLAG_LOST, rows[i])
+            self._hold_period(held, rows[i])
         u = self._run_period(m, m.status, rows[n - 1])
         self.last_measurement = m
         return u, Samples(rows)
+
+    def _hold_period(self, m: Measurement, row: np.ndarray) -> None:
+        hold_period(self.period, m.position_m, m.force_n, m.load_pressure_pa, m.supply_pressure_pa, m.status,
+                    self.params, self.state, self.blocks, self.table, self._report, row)
+        self.period += 1
 
     def _run_period(self, m: Measurement, status: int, row: np.ndarray) -> float:
         u = control_period(self.period, m.position_m, m.force_n, m.load_pressure_pa, m.supply_pressure_pa,

@@ -29,6 +29,7 @@ RIG_FAULT_BITS = STATUS_SENSOR_FAULT | STATUS_WATCHDOG | STATUS_INTERLOCK
 # Added by the host's loop (bits 8-15).
 FLAG_LOST = 1 << 8  # no fresh measurement for this period (a packet was lost): the previous one is held
 FLAG_OPEN_LOOP = 1 << 9  # the controller was not stepped (command ramp of a controlled stop)
+FLAG_HELD = 1 << 10  # a lost period: the controller neither integrated nor adapted; the rig held the last command
 
 
 def describe_status(bits: int) -> str:
@@ -36,6 +37,8 @@ def describe_status(bits: int) -> str:
     names = [name for bit, name in RIG_STATUS_NAMES.items() if bits & bit]
     if bits & FLAG_LOST:
         names.append("measurement lost")
+    if bits & FLAG_HELD:
+        names.append("command held")
     if bits & FLAG_OPEN_LOOP:
         names.append("open loop")
     return ", ".join(names) or "none"

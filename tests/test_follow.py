@@ -102,3 +102,31 @@ def test_simulate_says_the_table_did_not_follow_and_exits_1(tmp_path, capsys):
     assert code == 1 and "test aborted: the table does not follow" in out and "tracking: did not follow" in out
     assert main(["simulate", "--cycles", "4", "--out", str(tmp_path / "ok")]) == 0
     assert "tracking: followed" in capsys.readouterr().out
+
+
+def test_a_hosts_lost_periods_are_not_taken_for_a_rig_that_does_not_follow():
+    """Issue 21: a loaded host lost 15 % of its periods (each holds an older reading) and the monitor stopped
+    a test whose table followed, as an oscillation. Lost periods are bridged for the oscillation detector and
+    skipped by the tracking figures; the same held readings not flagged lost still trip."""
+    from sim.measurement import FLAG_LOST
+
+    s = Scenario.sine("IUT_a", 100.0, 0.01, 2.0, 8, rig=DEFAULT_RIG)
+    samples = Simulation(s).run().samples
+    y = samples["measured_displacement_m"].copy()
+    flags = np.zeros(len(y))
+    rng = np.random.default_rng(3)
+    k = 1
+    while k < len(y):
+        if rng.random() < 0.06:  # a stall of 1-5 periods
+            n = int(rng.integers(1, 6))
+            y[k:k + n] = y[k - 1]
+            flags[k:k + n] = FLAG_LOST
+            k += n
+        k += 1
+    assert 0.1 < np.mean(flags != 0) < 0.3
+    held = Samples(samples.array.copy())
+    held["measured_displacement_m"][:] = y
+    held["flags"][:] = flags
+    assert FollowMonitor(reference_for(s.profile)).feed(held) is None
+    held["flags"][:] = 0.0  # the same readings, not flagged lost
+    assert FollowMonitor(reference_for(s.profile)).feed(held) is not None

@@ -39,7 +39,7 @@ LAB_RIG = 'name = "Lab B rig"\nmax_supply_pa = 150e5\ncommand_limit_v = 5.0\n'
 
 @pytest.fixture(scope="module")
 def good(tmp_path_factory):
-    emulator = Emulator(tmp_path_factory.mktemp("good"))
+    emulator = Emulator(tmp_path_factory.mktemp("good"), watchdog_ms=18.0)
     yield emulator
     emulator.stop()
 
@@ -52,8 +52,8 @@ def others(tmp_path_factory):
     flags = {name: ("--defect", name) for name in BROKEN}
     flags["lab"] = ("--plant-file", str(path / "lab.toml"), "--plant-set", "piston_area_m2=0.02")
     with ThreadPoolExecutor(len(flags)) as pool:
-        started = dict(zip(flags, pool.map(lambda item: Emulator(path, *item[1], name=item[0]), flags.items()),
-                           strict=True))
+        started = dict(zip(flags, pool.map(lambda item: Emulator(path, *item[1], name=item[0], watchdog_ms=18.0),
+                                           flags.items()), strict=True))
     started["lab_file"] = path / "lab.toml"
     yield started
     for name in flags:

@@ -28,8 +28,8 @@ def move(url: str, position_m: float, *args: str) -> tuple[int, str]:
 
 def test_commissioning_a_lab_rig_through_the_udp_protocol(tmp_path):
     plant = [f"--plant-set={k}={v}" for k, v in LAB_RIG.items()]
-    # a 100 ms watchdog: this test is about commissioning on a loaded machine, the watchdog is tested elsewhere
-    emulator = Emulator(tmp_path, *plant, "--watchdog-ms", "100")
+    # the helper's 100 ms watchdog: this test is about commissioning on a loaded machine
+    emulator = Emulator(tmp_path, *plant)
     try:
         out = isorig("identify", "rig", "--rig", emulator.url, "--supply-bar", "100", "--isolator", "IUT_a",
                      "--out", str(tmp_path / "rig.json"), "--record", str(tmp_path / "excitation.csv"))

@@ -99,6 +99,37 @@ def test_a_frozen_reading_trips_only_while_the_valve_is_open():
         assert monitor.check(r) is None
 
 
+def test_a_host_stall_is_not_a_stuck_sensor():
+    """Issue 21: the host lost 40 periods (it held the last reading, flagged lost) with the valve at 9 V: the
+    frozen-reading detector tripped on the host's own stall. Lost periods neither count nor break a run."""
+    monitor = SafetyMonitor(LIMITS, 100e5)
+    for t0 in range(0, 600, 30):
+        r = rows(30)
+        k = t0 + np.arange(30)
+        r["time_s"] = k * 1e-3
+        r["target_m"] = 0.004 * np.sin(2 * np.pi * k * 1e-3)
+        lost = (k >= 200) & (k < 240)
+        r["measured_displacement_m"] = np.where(lost, 0.004 * np.sin(2 * np.pi * 0.199), r["target_m"])
+        r["flags"] = np.where(lost, FLAG_LOST, 0)
+        r["voltage_v"] = 9.0
+        assert monitor.check(r) is None, k[0]
+    # the same readings not flagged lost: a stuck sensor
+    monitor = SafetyMonitor(LIMITS, 100e5)
+    trips = []
+    for t0 in range(0, 600, 30):
+        r = rows(30)
+        k = t0 + np.arange(30)
+        r["time_s"] = k * 1e-3
+        r["target_m"] = 0.004 * np.sin(2 * np.pi * k * 1e-3)
+        r["measured_displacement_m"] = np.where((k >= 200) & (k < 240), 0.004 * np.sin(2 * np.pi * 0.199),
+                                                r["target_m"])
+        r["voltage_v"] = 9.0
+        trips.append(monitor.check(r))
+    assert any(t is not None and t.detector == "position_frozen" for t in trips)
+    # a stuck sensor across a lost stretch: the fresh readings before and after it still add up
+    assert stuck_run(150, command_v=9.0) is not None
+
+
 def test_a_wide_open_valve_finds_a_stuck_sensor_sooner():
     tripped = stuck_run(150, command_v=9.0)
     assert tripped is not None and tripped.detector == "position_frozen" and tripped.close_at_once

@@ -25,7 +25,7 @@ from sim.emulator import protocol as proto
 from sim.isolator import PRESETS
 from sim.measurement import FLAG_LOST, STATUS_ARMED, STATUS_COMMAND_MISSED, STATUS_WATCHDOG
 
-MISSED_PERIODS_MAX = 0.01  # a share of periods: what a loaded CI machine may miss on loopback in these short tests
+MISSED_PERIODS_MAX = 0.03  # a share of periods: what a loaded CI machine at normal priority may miss on loopback
 
 
 # --- the protocol --------------------------------------------------------------------------------------------
@@ -161,7 +161,7 @@ def test_link_silent_longer_than_the_timeout(tmp_path):
     np.testing.assert_allclose(record["time_s"], np.arange(n) * 1e-3, atol=1e-9)
     assert [e["kind"] for e in summary["events"]] == ["rig_fault"]
     trip = status["watchdog_trips"]
-    assert len(trip) == 1 and trip[0]["after_last_command_ms"] <= 20.0
+    assert len(trip) == 1 and trip[0]["after_last_command_ms"] <= emulator.watchdog_ms + 2.0
     assert status["command_v"] == 0.0 and not status["armed"]
 
 
@@ -291,7 +291,7 @@ def test_bad_commands_never_reach_the_emulators_valve(tmp_path):
                              proto.encode(proto.COMMAND, session, seq, 0, math.nan),
                              good, good,  # the valid one, then the same packet again
                              proto.encode(proto.COMMAND, session, seq, 0, 9.0),  # stale: that period is answered
-                             proto.encode(proto.DISARM, session, 0, 0)):  # at once: the rig's watchdog is 18 ms
+                             proto.encode(proto.DISARM, session, 0, 0)):  # at once, before the watchdog
                 sock.send(datagram)
         status = emulator.fresh_status()
     finally:
