@@ -3,8 +3,9 @@
 Each block of samples the worker produces is checked before it is released. Operator limits (per test,
 ``limits`` in ``POST /api/tests``, bounded by the rig's hard limits): displacement (stroke), force, table
 velocity, load pressure, tracking error |y - r|, each with an action (``ACTIONS``, MTS limit detectors are
-the anchor): ``indicate`` records an event and the test goes on; ``controlled_stop`` ramps the target out
-under control, as an operator's stop; ``valve_close`` ramps the valve command to 0 V in 0.1 s, open loop.
+the anchor): ``indicate`` records an event and the test goes on; ``controlled_stop`` brakes the target to rest
+within every displacement limit (sim.loop.ClosedLoop.brake; a displacement limit with this action is guarded:
+the target brakes before it); ``valve_close`` ramps the valve command to 0 V in 0.1 s, open loop.
 Built-in detectors, always ``valve_close``: non-finite readings or commands, a fault the rig reports in its
 status bits (sensor fault, watchdog, interlock), the supply pressure lost (below ``SUPPLY_LOSS_FRACTION``
 of the test's setting), a position reading beyond the rig's stroke (``sensor_range_m``: no table can be
@@ -48,8 +49,11 @@ INDICATIONS_RECORDED = 10  # events per indicating limit and test; further excur
 
 ACTIONS = {
     "indicate": "an event is recorded, the test goes on",
-    "controlled_stop": "the target ramps out under control, as an operator's stop; the test ends aborted",
-    "valve_close": "the valve command ramps to 0 V in 0.1 s, open loop; the test ends aborted",
+    "controlled_stop": ("the target brakes to rest from where it is, within every displacement limit (one with this "
+                        "action is never passed: the target brakes before it), and holds there under control; the "
+                        "test ends aborted"),
+    "valve_close": ("the valve command ramps to 0 V in 0.1 s, open loop; the table coasts on by its stopping distance, "
+                    "so the limit can be passed; the test ends aborted"),
 }
 DEFAULT_ACTION = "valve_close"
 LIMIT_KEYS = ("displacement_m", "force_n", "velocity_m_per_s", "load_pressure_pa", "tracking_error_m")

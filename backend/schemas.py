@@ -136,8 +136,8 @@ class LimitsIn(StrictModel):
     tracking_error_m: float | None = Field(None, description="limit on |y - r| in m (error detector)")
     actions: dict[str, LimitAction | None] | None = Field(
         None, description="the action of each limit (key: a limit above): indicate (an event, the test goes on), "
-                          "controlled_stop (the target ramps out under control), valve_close (the command ramps "
-                          "to 0 V in 0.1 s, open loop; the default)")
+                          "controlled_stop (the target brakes to rest within every displacement limit), "
+                          "valve_close (the command ramps to 0 V in 0.1 s, open loop; the default)")
 
 
 class TestCreate(StrictModel):

@@ -36,6 +36,7 @@ log = logging.getLogger("isorig.service")
 
 STATUS_INTERVAL_S = 0.25  # wall time between status messages while a test runs
 MAX_CHUNK_ROWS = 1000  # one stored chunk holds at most ~1 s of samples
+SHUTDOWN_GRACE_S = 20.0  # a shutdown waits this long for the controlled stop and the return home (<= 30 mm: ~5 s)
 
 
 LOOP_POINTS_MAX = 2000  # points of a cycle's loop streamed and stored (decimated beyond this)
@@ -381,20 +382,29 @@ class RigService:
             log.warning("worker of test %s did not answer an abort; terminating it", run.test_id)
             run.process.terminate()
 
-    def shutdown(self, timeout_s: float = 5.0) -> None:
-        """Service shutdown: abort a running test (it ends ``interrupted``) and wait for its records."""
+    def shutdown(self, timeout_s: float = SHUTDOWN_GRACE_S) -> None:
+        """Service shutdown (SIGTERM, SIGINT, docker stop): the running test is stopped under control, its table
+        brought back to where the test began (``backend.worker.Run.shut_down``); it ends ``interrupted`` with
+        that reason, and this returns once its records are stored. A worker that has not ended within
+        ``timeout_s`` is aborted (valve closed at once), then terminated."""
         run = self.active
         if run is None or run.finished.is_set():
             return
+        log.warning("the service is stopping: test %s is stopped under control, its table brought back, before "
+                    "the service exits (up to %.0f s)", run.test_id, timeout_s)
         run.stop_requested = True
         run.shutdown = True
-        try:
+        run.stopping = run.stopping or "the service is stopping"
+        with self._lock, contextlib.suppress(BrokenPipeError, OSError):
+            run.commands.send("shutdown")
+        if run.finished.wait(timeout_s):
+            return
+        log.warning("test %s did not end within %.0f s of the shutdown: aborting it", run.test_id, timeout_s)
+        with self._lock, contextlib.suppress(BrokenPipeError, OSError):
             run.commands.send("abort")
-        except (BrokenPipeError, OSError):
-            pass
-        if not run.finished.wait(timeout_s) and run.process.is_alive():
+        if not run.finished.wait(2.0) and run.process.is_alive():
             run.process.terminate()
-            run.finished.wait(timeout_s)
+            run.finished.wait(5.0)
 
     # --- reader and writer threads ------------------------------------------------------------------
     # The reader streams what the worker sends to the hub at once and hands it to the writer, which stores
@@ -577,7 +587,7 @@ class RigService:
                     run.link = store.clean_json({**final["link"], "lost_periods": final.get("lost_periods", 0)})
                     self.last_link = {"test_id": test_id, **run.link}
                 if run.shutdown and status == "aborted":
-                    status, reason = "interrupted", "the service shut down while the test was running"
+                    status, reason = "interrupted", f"the service shut down while the test was running: {reason}"
             test = store.get_test(session, test_id)
             if run.arrival_ms:
                 pacing = {**pacing, "server_arrival_p50_ms": float(np.percentile(run.arrival_ms, 50)),

@@ -25,6 +25,7 @@ Commands from the server: ``"stop"`` and ``"abort"``.
 
 from __future__ import annotations
 
+import math
 import queue
 import signal
 import sys
@@ -38,7 +39,7 @@ from sim.engine import Scenario
 from sim.follow import FollowMonitor, advice_for, limits_for, reference_for
 from sim.isolator import isolator_from_dict
 from sim.loop import CONTROL_PERIOD_S, ClosedLoop
-from sim.measurement import FLAG_LOST, Measurement
+from sim.measurement import FLAG_GUARD, FLAG_LOST, Measurement
 from sim.profiles import B_CYCLES, B_TAPER, blocks_from_dicts
 from sim.realtime import RealtimeSection, raise_priority
 from sim.rig import DEFAULT_RIG
@@ -242,10 +243,21 @@ class Run:
         table = self.hybrid.target_table() if self.hybrid is not None else scenario.target_table()
         self.loop = ClosedLoop(scenario.profile, controller, limit, table=table)
         if self.rig.realtime:  # load the compiled period before the rig is armed: its watchdog will not wait
-            ClosedLoop(scenario.profile, make_controller(scenario.controller, rig=scenario.rig, **options), limit,
-                       table=scenario.target_table()).step(Measurement(0, 0.0, 0.0, 0.0, 0.0, scenario.supply_pa))
-        self.monitor = SafetyMonitor(SafetyLimits.from_dict(job["limits"]), self.scenario.supply_pa,
-                                     sensor_range_m=scenario.rig.stroke_m)
+            warm = ClosedLoop(scenario.profile, make_controller(scenario.controller, rig=scenario.rig, **options),
+                              limit, table=scenario.target_table())
+            warm.guard_displacement(scenario.rig.stroke_m)
+            for k in (0, 2):  # period 1 lost: the held period's code too
+                warm.step(Measurement(k, k * CONTROL_PERIOD_S, 0.0, 0.0, 0.0, scenario.supply_pa))
+            warm.brake()
+        limits = SafetyLimits.from_dict(job["limits"])
+        self.monitor = SafetyMonitor(limits, self.scenario.supply_pa, sensor_range_m=scenario.rig.stroke_m)
+        # a braking stop comes to rest within the displacement limit, whatever its action (but indicate)
+        self.displacement_bound_m = (math.inf if limits.action("displacement_m") == "indicate"
+                                     else limits.displacement_m)
+        self.guard_m = None  # a controlled-stop displacement limit: the target never carries the table past it
+        if limits.action("displacement_m") == "controlled_stop" and not self.motion:
+            self.guard_m = limits.displacement_m
+            self.brake_m_per_s2 = self.loop.guard_displacement(limits.displacement_m)
         self.follow = follow_monitor(scenario, table)
         self.start_target_m = self.loop.start_target_m  # now, not in the first period (its first call compiles)
         self.realtime_section = "not entered"
@@ -273,6 +285,9 @@ class Run:
                             "time_s": self.loop.time_s if time_s is None else time_s})
 
     def poll_command(self) -> str | None:
+        if SIGNALS.pending:  # SIGTERM reached this process (its process group was told to stop)
+            SIGNALS.pending = False
+            return "shutdown"
         try:
             if self.commands.poll():
                 return self.commands.recv()
@@ -342,7 +357,10 @@ class Run:
                               "total_periods": loop.total_periods, "priority": self.priority,
                               "rig": self.rig.to_dict()})
         command = None
+        shutdown = None
         while not loop.done:
+            if command == "shutdown" and shutdown is None and not loop.ramping:
+                shutdown = self.shut_down()
             if command == "abort":  # disarm(success=False) in execute closes the valve at once
                 self.event("operator", f"abort at t = {loop.time_s:.3f} s: valve command set to zero at once",
                            {"action": "abort"})
@@ -363,6 +381,8 @@ class Run:
                     self.trip_now(Trip("rig_fault", 0, loop.time_s, f"{driver.fault() or 'the rig stopped'} at "
                                        f"t = {loop.time_s:.3f} s", {"time_s": loop.time_s}))
                 break
+        if shutdown is not None:
+            return "interrupted", shutdown + (f"; before it, {self.trip.message}" if self.trip is not None else "")
         if self.trip is not None:
             return "aborted", self.trip.message
         if loop.stopping:
@@ -370,10 +390,54 @@ class Run:
         return "completed", None
 
     def ramp_out(self) -> float:
-        """The target ramps out under control (an operator's stop, a controlled-stop limit); the end time in s."""
+        """The operator's stop: the target ramps out under control (the profile tapers out); the end time in s."""
         end_s = self.loop.ramp_out()
         self.windows = [w for w in self.windows if w[2] <= self.loop.total_periods]
         return end_s
+
+    def shut_down(self) -> str:
+        """The service is told to stop (SIGTERM, SIGINT, docker stop): the target brakes to rest and goes back
+        to where the test began (a manual move stops where it is), under control; the reason to record."""
+        loop, t = self.loop, self.loop.time_s
+        if self.motion:
+            if not loop.ramping:
+                loop.begin_command_ramp()
+                loop.stopping = True
+            what = "the move stopped where it was (valve command to 0 V in 0.1 s)"
+        else:
+            end_s = loop.brake(within_m=self.displacement_bound_m, home_m=self.start_target_m)
+            self.windows = [w for w in self.windows if w[2] <= loop.end_period]
+            what = (f"the table braked to rest and went back to {self.start_target_m * 1e3:.4g} mm under control, "
+                    f"by t = {end_s:.3f} s")
+        reason = f"the service was told to stop at t = {t:.3f} s: {what}, then the valve closed"
+        self.event("operator", reason, {"action": "shutdown"}, time_s=t)
+        return reason
+
+    def brake(self) -> float:
+        """A controlled stop after a limit trip: the target brakes to rest from where it is, within every
+        displacement limit, and holds there under control (sim.loop.ClosedLoop.brake); the end time in s."""
+        end_s = self.loop.brake(within_m=self.displacement_bound_m)
+        self.windows = [w for w in self.windows if w[2] <= self.loop.end_period]
+        return end_s
+
+    def guard_trip(self, block: Samples) -> Trip | None:
+        """The displacement guard began a braking stop in this block (FLAG_GUARD): the trip that says so."""
+        flags = np.nan_to_num(block["flags"]).astype(np.int64)
+        hits = np.flatnonzero(flags & FLAG_GUARD)
+        if self.guard_m is None or hits.size == 0:
+            return None
+        i = int(hits[0])
+        t, r, y = float(block["time_s"][i]), float(block["target_m"][i]), float(block["measured_displacement_m"][i])
+        rest = self.loop.brake_rest_m
+        self.loop.stopping = True
+        self.windows = [w for w in self.windows if w[2] <= self.loop.end_period]
+        message = (f"displacement limit: controlled stop at t = {t:.3f} s before the target carried the table past "
+                   f"the limit of {self.guard_m * 1e3:.4g} mm: braking to rest at {rest * 1e3:.4g} mm "
+                   f"(at most {self.brake_m_per_s2:.3g} m/s2), held there under control")
+        values = {"time_s": t, "target_m": r, "displacement_m": y, "rest_m": rest, "limit": self.guard_m,
+                  "limit_name": "displacement_m", "action": "controlled_stop", "guard": True,
+                  "brake_m_per_s2": self.brake_m_per_s2}
+        return Trip("displacement", i, t, message, values, "controlled_stop")
 
     def trip_now(self, trip: Trip) -> None:
         """A limit trip: record it and act: ``controlled_stop`` ramps the target out under control, anything
@@ -381,8 +445,8 @@ class Run:
         still closes the valve: ``escalate``)."""
         self.trip = trip
         self.event("limit_trip", trip.message, {"detector": trip.detector, "action": trip.action, **trip.values})
-        if trip.action == "controlled_stop" and not self.loop.stopping and not self.motion:
-            self.ramp_out()
+        if trip.action == "controlled_stop" and not self.motion:  # also during an operator's ramp-out
+            self.brake()
         else:  # a manual move stops where it is, as on the operator's stop
             self.loop.begin_command_ramp(at_once=trip.close_at_once)
 
@@ -440,9 +504,11 @@ class Run:
         while done < n and not loop.done:
             m = min(CHECK_PERIODS, n - done)
             block = self.periods(m)
-            RealtimeSection.slack()  # the command is out, the rig's period runs: the young garbage goes now
             done += len(block)
             trip = self.monitor.check(block, valve_close_only=self.trip is not None)
+            if self.trip is None and (trip is None or trip.action == "controlled_stop"):
+                guard = self.guard_trip(block)  # the target began braking before the limit: that comes first
+                trip = guard or trip
             for indication in self.monitor.take_indications():
                 self.event("limit_indicate", indication.message, {"detector": indication.detector,
                                                                   **indication.values}, time_s=indication.time_s)
@@ -545,8 +611,24 @@ class Terminated(BaseException):
     """SIGTERM reached the worker process: the run ends where it is (the driver is disarmed on the way out)."""
 
 
-def _terminated(signum, _frame):
-    raise Terminated(f"the worker process was told to end ({signal.Signals(signum).name})")
+class Signals:
+    """SIGTERM to the worker: the first asks for the controlled shutdown (``Run.shut_down``, seen at the next
+    block of ten periods); a second one, or one before the run has begun, ends the run at once (valve closed)."""
+
+    def __init__(self):
+        self.pending = False
+        self.count = 0
+        self.running = False
+
+    def on_term(self, signum, _frame):
+        self.count += 1
+        if self.running and self.count == 1:
+            self.pending = True
+            return
+        raise Terminated(f"the worker process was told to end ({signal.Signals(signum).name})")
+
+
+SIGNALS = Signals()
 
 
 def main(job: dict, out, commands) -> None:
@@ -556,7 +638,7 @@ def main(job: dict, out, commands) -> None:
     shuts down and aborts the test (``interrupted``). SIGTERM ends the run at once with its reason recorded."""
     run = None
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, _terminated)
+    signal.signal(signal.SIGTERM, SIGNALS.on_term)
     # Priority first: threads inherit it, so the outbox thread cannot hold the GIL at a lower priority while
     # the real-time control thread waits for it (a priority inversion). A short GIL switch interval lets
     # the control thread take the GIL back within 0.5 ms when it wakes.
@@ -566,6 +648,7 @@ def main(job: dict, out, commands) -> None:
     try:
         run = Run(job, outbox, commands)
         run.priority = priority
+        SIGNALS.running = True
         status, reason = run.execute()
         run.send("finished", {"status": status, "reason": reason, "pacing": run.pacing(),
                               "link": run.driver.link_stats(), "lost_periods": run.lost_periods,

@@ -120,6 +120,10 @@ def reference_for(profile, history=None) -> Reference:
                      np.array([b.taper_cycles for b in profile]), np.array([b.cycles for b in profile]))
 
 
+LOST_WINDOW_PERIODS = 1000  # a trip names the periods lost on the link over the last second ...
+LOST_SHARE_BLAMED = 0.01  # ... and blames them, not the rig's description, beyond this share
+
+
 @dataclass
 class FollowTrip:
     """The table did not follow: when, why (``kind``: oscillation or tracking), the figures and the message."""
@@ -155,6 +159,7 @@ class FollowMonitor:
         self.steady_judged = 0  # steady cycles judged in this block
         self.tripped: FollowTrip | None = None
         self.last_fresh: tuple[int, float] | None = None  # (period, reading) of the last fresh measurement
+        self.lost_recent = np.zeros(LOST_WINDOW_PERIODS, dtype=bool)  # which of the last periods were lost
 
     def _late_target(self, r: np.ndarray) -> np.ndarray:
         """r(t - L) for each row of this block, from the targets kept."""
@@ -190,6 +195,7 @@ class FollowMonitor:
         k = np.round(t / CONTROL_PERIOD_S).astype(np.int64)
         lost = (np.nan_to_num(np.asarray(rows["flags"], dtype=float)).astype(np.int64) & FLAG_LOST) != 0
         y = self._bridge_lost(k, y, lost)
+        self.lost_recent = np.concatenate([self.lost_recent, lost])[-LOST_WINDOW_PERIODS:]
         e = y - self._late_target(r)
         closed = np.isfinite(e)
         e_hf = self._high_pass(np.where(closed, e, 0.0))
@@ -272,9 +278,15 @@ class FollowMonitor:
             what = (f"|y - r| {value * 1e3:.3g} mm RMS over the last cycle, {100 * share:.2g} % of the "
                     f"{amplitude * 1e3:.4g} mm amplitude (at most {100 * self.limits.rms_share:g} %), and the "
                     "learning is not bringing it down")
-        message = f"the table does not follow its target at t = {t:.3f} s: {what}; {self.advice}"
+        lost = int(np.count_nonzero(self.lost_recent))
+        advice = self.advice
+        if lost > LOST_SHARE_BLAMED * LOST_WINDOW_PERIODS:  # the host or the link, not the rig's description
+            advice = (f"{lost} of the last {LOST_WINDOW_PERIODS} periods were lost on the link (a host that stalls "
+                      "or a link that drops packets: see the link figures), so the controller held its command "
+                      "through them; make the host's real-time path steadier before commissioning the rig")
+        message = f"the table does not follow its target at t = {t:.3f} s: {what}; {advice}"
         values = {"time_s": t, "kind": kind, "value_m": value, "limit_m": bound, "amplitude_m": amplitude,
-                  "share": share, "frequency_hz": f}
+                  "share": share, "frequency_hz": f, "lost_periods_last_s": lost}
         self.tripped = FollowTrip(i, t, kind, message, values)
         return self.tripped
 

@@ -36,7 +36,7 @@ from .controllers.base import (
     N_MEAS,
     N_REPORT,
 )
-from .measurement import FLAG_HELD, FLAG_LOST, FLAG_OPEN_LOOP, Measurement
+from .measurement import FLAG_BRAKE, FLAG_GUARD, FLAG_HELD, FLAG_LOST, FLAG_OPEN_LOOP, Measurement
 from .profiles import (
     B_CYCLES,
     B_FREQUENCY,
@@ -76,12 +76,88 @@ FADE_S = 1.0  # an operator's stop of a time history: the target fades to zero o
 NO_TABLE = np.zeros((0, 3))
 NO_BLOCKS = np.zeros((1, N_BLOCK_COLUMNS))
 
+BRAKE_HOLD_S = 0.5  # a controlled stop holds the table at rest this long, under control, before the test ends
+BRAKE_MIN_ACCELERATION_M_PER_S2 = 0.5  # the braking deceleration is at least this ...
+BRAKE_TARGET_FACTOR = 2.0  # ... and at least this many times the test's own largest target acceleration
+BRAKE_HARDEST_FACTOR = 8.0  # to stay within a bound, a stop brakes up to this many times harder
+
 # Loop parameters and state (packed for compiled code).
-L_DT, L_ULIM = range(2)
-N_LOOP_PARAMS = 2
-LS_MODE, LS_RAMP_U0, LS_RAMP_K0, LS_RAMP_N, LS_LAST_U = range(5)
-N_LOOP_STATE = 5
-MODE_CLOSED, MODE_RAMP = 0.0, 1.0
+L_DT, L_ULIM, L_GUARD_M, L_BRAKE_A = range(4)
+N_LOOP_PARAMS = 4
+(LS_MODE, LS_RAMP_U0, LS_RAMP_K0, LS_RAMP_N, LS_LAST_U, LS_BRAKE_K0, LS_BRAKE_R0, LS_BRAKE_V0, LS_BRAKE_N,
+ LS_RECENT_ERROR, LS_HOME_M, LS_RETURN_N) = range(12)
+N_LOOP_STATE = 12
+RETURN_SPEED_M_PER_S = 0.01  # a stop that brings the table home moves it at most this fast ...
+RETURN_MIN_S = 0.5  # ... and takes at least this long
+RECENT_ERROR_S = 0.5  # the guard's margin: the recent peak |y - r|, forgotten with this time constant ...
+GUARD_MIN_MARGIN_M = 2e-5  # ... and at least this (what a braking servo overshoots its rest point by)
+MODE_CLOSED, MODE_RAMP, MODE_BRAKE = 0.0, 1.0, 2.0
+
+
+@njit(cache=True)
+def brake_periods(v0, a, dt):
+    """Periods of a braking stop from speed |v0| at peak deceleration a: the speed falls as a raised cosine
+    over T = pi |v0| / (2 a) (its peak deceleration), rounded up to whole periods."""
+    if a <= 0.0:
+        return 1
+    return max(1, int(math.ceil(math.pi * abs(v0) / (2.0 * a) / dt - 1e-9)))
+
+
+@njit(cache=True)
+def brake_rest_m(r0, v0, n, dt):
+    """Where a braking stop from (r0, v0) over n periods comes to rest: r0 + v0 n dt / 2."""
+    return r0 + 0.5 * v0 * n * dt
+
+
+@njit(cache=True)
+def brake_target(k, ls, dt):
+    """The target of a braking stop in period k: speed v0 (1 + cos(pi j / n)) / 2 for j = k - k0 in [0, n], the
+    position its integral; at rest from n on. Continuous in position and speed with the target it replaced."""
+    j = k - ls[LS_BRAKE_K0]
+    n = ls[LS_BRAKE_N]
+    r0, v0 = ls[LS_BRAKE_R0], ls[LS_BRAKE_V0]
+    if j >= n:
+        rest = brake_rest_m(r0, v0, n, dt)
+        m = ls[LS_RETURN_N]
+        if m <= 0.0:
+            return rest, 0.0
+        i = j - n  # then home along a raised cosine over m periods
+        if i >= m:
+            return ls[LS_HOME_M], 0.0
+        d = ls[LS_HOME_M] - rest
+        x = math.pi * i / m
+        return rest + 0.5 * d * (1.0 - math.cos(x)), 0.5 * d * math.pi / (m * dt) * math.sin(x)
+    x = math.pi * j / n
+    return r0 + v0 * (0.5 * j * dt + n * dt / (2.0 * math.pi) * math.sin(x)), 0.5 * v0 * (1.0 + math.cos(x))
+
+
+@njit(cache=True)
+def begin_brake(k, r0, v0, a, ls, dt):
+    ls[LS_MODE] = MODE_BRAKE
+    ls[LS_BRAKE_K0] = k
+    ls[LS_BRAKE_R0] = r0
+    ls[LS_BRAKE_V0] = v0
+    ls[LS_BRAKE_N] = brake_periods(v0, a, dt)
+
+
+@njit(cache=True)
+def guard_trips(r, rdot, lp, margin_m):
+    """The displacement guard: would a braking stop that begins one period from now bring the target to rest
+    closer than ``margin_m`` (the table's recent tracking error) to +-L_GUARD_M, or beyond? Then the stop
+    must begin now: the table, which follows the target within that error, stays within the limit."""
+    guard, a, dt = lp[L_GUARD_M], lp[L_BRAKE_A], lp[L_DT]
+    if not (a > 0.0 and np.isfinite(guard)):
+        return False
+    ahead = r + rdot * dt
+    return abs(brake_rest_m(ahead, rdot, brake_periods(rdot, a, dt), dt)) > guard - margin_m
+
+
+@njit(cache=True)
+def note_error(position_m, r, ls, dt):
+    """Keep the recent peak |y - r| (LS_RECENT_ERROR): it decays with RECENT_ERROR_S."""
+    e = abs(position_m - r)
+    decayed = ls[LS_RECENT_ERROR] * math.exp(-dt / RECENT_ERROR_S)
+    ls[LS_RECENT_ERROR] = e if e > decayed else decayed
 
 
 @njit(cache=True)
@@ -116,12 +192,22 @@ def control_period(k, position_m, force_n, load_pressure_pa, supply_pressure_pa,
             report[i] = np.nan
         flags |= FLAG_OPEN_LOOP
     else:
-        if table.shape[0] > 0:
-            i = k if k < table.shape[0] else table.shape[0] - 1
-            r = table[i, 0]
-            rdot = table[i, 1]
+        if ls[LS_MODE] == MODE_BRAKE:
+            r, rdot = brake_target(k, ls, dt)
+            flags |= FLAG_BRAKE
         else:
-            r, rdot = target(t, blocks)
+            if table.shape[0] > 0:
+                i = k if k < table.shape[0] else table.shape[0] - 1
+                r = table[i, 0]
+                rdot = table[i, 1]
+            else:
+                r, rdot = target(t, blocks)
+            if np.isfinite(position_m) and np.isfinite(r):
+                note_error(position_m, r, ls, dt)
+            # the target would carry the table past the limit: brake now
+            if guard_trips(r, rdot, lp, ls[LS_RECENT_ERROR] + GUARD_MIN_MARGIN_M):
+                begin_brake(k, r, rdot, lp[L_BRAKE_A], ls, dt)
+                flags |= FLAG_BRAKE | FLAG_GUARD
         meas[M_TIME] = t
         meas[M_TARGET] = r
         meas[M_TARGET_RATE] = rdot
@@ -162,6 +248,8 @@ def hold_period(k, position_m, force_n, load_pressure_pa, supply_pressure_pa, st
     t = k * lp[L_DT]
     if ls[LS_MODE] == MODE_RAMP:
         r = np.nan
+    elif ls[LS_MODE] == MODE_BRAKE:
+        r = brake_target(k, ls, lp[L_DT])[0]
     elif table.shape[0] > 0:
         r = table[k if k < table.shape[0] else table.shape[0] - 1, 0]
     else:
@@ -254,12 +342,12 @@ class ClosedLoop:
         self.controller = controller
         self.controller_state = controller.new_state()
         self.control_period_s = float(control_period_s)
-        self.params = np.array([self.control_period_s, float(command_limit_v)])
+        self.params = np.array([self.control_period_s, float(command_limit_v), math.inf, 0.0])
         self.state = np.zeros(N_LOOP_STATE)
         self.period = 0
         self.total_periods = (self.table.shape[0] if table is not None
                               else int(round(profile_duration_s(self.profile) / self.control_period_s)))
-        self.stopping = False  # the operator's ramp-out is under way
+        self._stopping = False  # the operator's ramp-out (or a braking stop) is under way
         self.last_measurement: Measurement | None = None
         self._meas = np.empty(N_MEAS)
         self._report = np.full(N_REPORT, np.nan)
@@ -279,9 +367,27 @@ class ClosedLoop:
         return self.state[LS_MODE] == MODE_RAMP
 
     @property
+    def stopping(self) -> bool:
+        """The test is ending early under control: an operator's ramp-out or a braking stop (the latter may
+        begin inside compiled code, at the displacement guard)."""
+        return self._stopping or self.braking
+
+    @stopping.setter
+    def stopping(self, value: bool) -> None:
+        self._stopping = bool(value)
+
+    @property
+    def braking(self) -> bool:
+        """A braking stop (the target comes to rest, the controller in the loop) is under way."""
+        return self.state[LS_MODE] == MODE_BRAKE
+
+    @property
     def end_period(self) -> int:
         if self.ramping:
             return int(self.state[LS_RAMP_K0] + self.state[LS_RAMP_N])
+        if self.braking:
+            return int(self.state[LS_BRAKE_K0] + self.state[LS_BRAKE_N] + self.state[LS_RETURN_N]) + int(
+                round(BRAKE_HOLD_S / self.control_period_s))
         return self.total_periods
 
     @property
@@ -317,6 +423,76 @@ class ClosedLoop:
                 self.blocks, total = ramp_out_profile(self.blocks, self.time_s, self.control_period_s)
                 self.total_periods = min(total, self.total_periods)
         return self.end_period * self.control_period_s
+
+    @property
+    def brake_rest_m(self) -> float:
+        """Where the braking stop under way comes to rest (m)."""
+        st = self.state
+        return float(brake_rest_m(st[LS_BRAKE_R0], st[LS_BRAKE_V0], st[LS_BRAKE_N], self.control_period_s))
+
+    def max_target_acceleration(self) -> float:
+        """The largest |r''| the test's target asks for (m/s2): A (2 pi f)^2 over the sine blocks, or the table's."""
+        if self.table.shape[0]:
+            return float(np.max(np.abs(self.table[:, 2]))) if self.table.shape[0] else 0.0
+        return max((b.amplitude_m * (2 * math.pi * b.frequency_hz) ** 2 for b in self.profile), default=0.0)
+
+    def guard_displacement(self, limit_m: float, acceleration_m_per_s2: float | None = None) -> float:
+        """From now on, the target never carries the table past +-``limit_m``: when a braking stop that began
+        one period later would come to rest beyond it, the stop begins (``brake``; flagged FLAG_GUARD). The
+        deceleration: ``acceleration_m_per_s2``, or the larger of BRAKE_MIN_ACCELERATION_M_PER_S2 and
+        BRAKE_TARGET_FACTOR times the test's own largest target acceleration (a sine of amplitude A within
+        the limit never trips it: its rest point stays within A while the deceleration is at least
+        pi A w^2 / 2). Returns the deceleration in m/s2."""
+        if not (math.isfinite(limit_m) and limit_m > 0):
+            raise ValueError(f"limit_m = {limit_m!r} must be a positive number of metres")
+        a = acceleration_m_per_s2 or max(BRAKE_MIN_ACCELERATION_M_PER_S2,
+                                         BRAKE_TARGET_FACTOR * self.max_target_acceleration())
+        self.params[L_GUARD_M] = float(limit_m)
+        self.params[L_BRAKE_A] = float(a)
+        return float(a)
+
+    def brake(self, within_m: float = math.inf, home_m: float | None = None) -> float:
+        """A controlled stop: from this period on the target comes to rest along a braking curve from where it
+        is (position and speed; a sine does not go on) and holds there BRAKE_HOLD_S, the controller in the loop.
+        The deceleration is raised where needed so that the rest point stays within +-``within_m`` and the
+        displacement guard (less the recent tracking error). ``home_m``: from the rest point the target then
+        goes to ``home_m`` (a raised cosine, at most RETURN_SPEED_M_PER_S) before the hold: the service's
+        shutdown leaves the table where the test began. A stop already braking only gains the return home.
+        Returns the end time in s."""
+        if self.braking and home_m is not None and self.state[LS_RETURN_N] == 0.0:
+            if self.period > self.state[LS_BRAKE_K0] + self.state[LS_BRAKE_N]:  # already at rest: home from here
+                begin_brake(self.period, self.brake_rest_m, 0.0, 1.0, self.state, self.control_period_s)
+            self._return_home(home_m)
+        if self.ramping or self.braking:
+            return self.end_period * self.control_period_s
+        k, dt = self.period, self.control_period_s
+        if self.table.shape[0]:
+            i = min(k, self.table.shape[0] - 1)
+            r0, v0 = float(self.table[i, 0]), float(self.table[i, 1])
+        elif self.blocks.shape[0]:
+            r0, v0 = (float(x) for x in target(k * dt, self.blocks))
+        else:
+            r0, v0 = 0.0, 0.0
+        a = self.params[L_BRAKE_A] or max(BRAKE_MIN_ACCELERATION_M_PER_S2, BRAKE_TARGET_FACTOR *
+                                         self.max_target_acceleration())
+        guard = min(self.params[L_GUARD_M], within_m)
+        if r0 * v0 > 0 and math.isfinite(guard):  # moving outwards: the room left, less the recent error
+            room = guard - self.state[LS_RECENT_ERROR] - GUARD_MIN_MARGIN_M - abs(r0)
+            if room <= 0.0:
+                room = guard - abs(r0)  # the margin cannot be kept: at least the bound
+            need = math.pi * v0 * v0 / (4.0 * room) if room > 0.0 else math.inf
+            a = max(a, min(need, BRAKE_HARDEST_FACTOR * a))
+        begin_brake(k, r0, v0, a, self.state, dt)
+        self.stopping = True
+        if home_m is not None:
+            self._return_home(home_m)
+        return self.end_period * dt
+
+    def _return_home(self, home_m: float) -> None:
+        distance = abs(float(home_m) - self.brake_rest_m)
+        duration_s = max(RETURN_MIN_S, math.pi / 2.0 * distance / RETURN_SPEED_M_PER_S)
+        self.state[LS_HOME_M] = float(home_m)
+        self.state[LS_RETURN_N] = float(max(1, int(math.ceil(duration_s / self.control_period_s))))
 
     def set_target(self, period: int, r_m: float, r_dot_m_per_s: float, r_ddot_m_per_s2: float = 0.0) -> None:
         """Write the target of a coming period into the table (a hybrid simulation computes each command one

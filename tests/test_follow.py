@@ -130,3 +130,17 @@ def test_a_hosts_lost_periods_are_not_taken_for_a_rig_that_does_not_follow():
     assert FollowMonitor(reference_for(s.profile)).feed(held) is None
     held["flags"][:] = 0.0  # the same readings, not flagged lost
     assert FollowMonitor(reference_for(s.profile)).feed(held) is not None
+
+
+def test_a_trip_among_many_lost_periods_blames_the_link_not_the_rig():
+    from sim.measurement import FLAG_LOST
+
+    result = run(SOFT, follow=False)  # a rig that does not follow, recorded whole
+    samples = Samples(result.samples.array.copy())
+    monitor = FollowMonitor(reference_for(Scenario.sine("IUT_a", 100.0, 0.02, 0.5, 10).profile))
+    trip = monitor.feed(samples)
+    assert trip is not None and "commission it" in trip.message and trip.values["lost_periods_last_s"] == 0
+    samples["flags"][::20] = FLAG_LOST  # 5 % of the periods lost on the link
+    trip = FollowMonitor(reference_for(Scenario.sine("IUT_a", 100.0, 0.02, 0.5, 10).profile)).feed(samples)
+    assert trip is not None and "lost on the link" in trip.message and "commission it" not in trip.message
+    assert trip.values["lost_periods_last_s"] >= 40

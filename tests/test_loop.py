@@ -258,3 +258,75 @@ def test_a_stop_fades_a_tables_target_out_smoothly():
     loop = ClosedLoop([], make_controller("pid"), 10.0, table=table.copy())
     loop.period = 1500
     assert loop.ramp_out() == pytest.approx(1.5 + FADE_S) and loop.total_periods == 2500
+
+
+@pytest.mark.parametrize("frequency_hz, limit_m", [(0.5, 0.015), (1.0, 0.025), (2.0, 0.004)])
+def test_the_displacement_guard_brakes_the_target_to_rest_within_the_limit(frequency_hz, limit_m):
+    """Issue 21: the target of a 30 mm sine under a controlled-stop limit comes to rest within the limit,
+    continuous in position and speed, and holds there; the loop ends BRAKE_HOLD_S after."""
+    from sim.loop import BRAKE_HOLD_S
+    from sim.measurement import FLAG_BRAKE, FLAG_GUARD
+
+    loop = ClosedLoop([SineProfile(0.03, frequency_hz, 3, 1)], make_controller("servo"), 10.0)
+    a = loop.guard_displacement(limit_m)
+    assert a >= 2 * 0.03 * (2 * np.pi * frequency_hz) ** 2
+    rows, y = [], 0.0
+    while not loop.done:
+        _, r = loop.step(Measurement(loop.period, loop.time_s, y, 0.0, 0.0, 100e5))
+        rows.append(r)
+        y = float(r["target_m"][-1])  # a table that follows its target exactly, one period late
+    s = Samples.concatenate(rows)
+    flags = s["flags"].astype(int)
+    guard = np.flatnonzero(flags & FLAG_GUARD)
+    assert guard.size == 1 and np.all(flags[guard[0]:] & FLAG_BRAKE) and loop.stopping
+    r = s["target_m"]
+    assert np.max(np.abs(r)) <= limit_m and np.max(np.abs(r)) > 0.9 * limit_m
+    # continuous: no step beyond the sine's top speed per period
+    assert np.max(np.abs(np.diff(r))) <= 2 * np.pi * frequency_hz * 0.03 * 1e-3 * 1.001
+    rest = int(round(BRAKE_HOLD_S / 1e-3))
+    assert np.ptp(r[-rest:]) == 0.0 and r[-1] == pytest.approx(loop.brake_rest_m)
+    assert len(s) < 3 / frequency_hz * 1000  # the sine did not go on
+
+
+def test_a_braking_stop_comes_to_rest_within_the_bound_it_is_given():
+    loop = ClosedLoop([SineProfile(0.02, 1.0, 4, 0)], make_controller("servo"), 10.0)
+    y = 0.0
+    for k in range(50):  # 50 ms in: 6 mm, outwards at 120 mm/s
+        _, r = loop.step(Measurement(k, k * 1e-3, y, 0.0, 0.0, 100e5))
+        y = float(r["target_m"][-1])
+    end_s = loop.brake(within_m=0.008)
+    assert loop.braking and loop.stopping and 0.05 + 0.5 < end_s < 0.05 + 0.2 + 0.5 + 1e-9
+    assert 0.006 < loop.brake_rest_m <= 0.008
+
+
+def test_a_stop_that_brings_the_table_home_is_continuous_and_ends_there():
+    """The service's shutdown (issue 21): brake to rest, then back to where the test began, then hold."""
+    from sim.loop import RETURN_SPEED_M_PER_S
+
+    loop = ClosedLoop([SineProfile(0.02, 1.0, 4, 0)], make_controller("servo"), 10.0)
+    rows, y = [], 0.0
+    for k in range(230):  # near the peak of the first cycle: 20 mm out
+        _, r = loop.step(Measurement(k, k * 1e-3, y, 0.0, 0.0, 100e5))
+        rows.append(r)
+        y = float(r["target_m"][-1])
+    loop.brake(home_m=0.0)
+    while not loop.done:
+        _, r = loop.step(Measurement(loop.period, loop.time_s, y, 0.0, 0.0, 100e5))
+        rows.append(r)
+        y = float(r["target_m"][-1])
+    r = Samples.concatenate(rows)["target_m"]
+    assert r[-1] == 0.0 and np.max(np.abs(r[230:])) < 0.0205
+    step = np.max(np.abs(np.diff(r[230:])))
+    assert step <= 2 * np.pi * 0.02 * 1e-3  # no faster than the sine was
+    assert np.max(np.abs(np.diff(r[-1500:]))) <= RETURN_SPEED_M_PER_S * 1e-3 * 1.001  # home at the return's speed
+
+
+def test_the_realtime_section_turns_the_collector_off_and_back_on():
+    import gc
+
+    from sim.realtime import RealtimeSection
+
+    assert gc.isenabled()
+    with RealtimeSection(lock=False) as section:
+        assert not gc.isenabled() and "collector off" in section.granted
+    assert gc.isenabled()

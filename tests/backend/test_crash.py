@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 import httpx
+import pytest
 from conftest import AUTH, TOKEN, create_and_start, make_settings, sine_test, wait_for, zero_table
 from fastapi.testclient import TestClient
 
@@ -60,9 +61,16 @@ def test_killing_the_worker_aborts_the_test_and_keeps_its_data(client):
     assert wait_for(client, next_id)["status"] == "completed"
 
 
-def test_sigterm_to_the_worker_aborts_with_its_reason_and_ctrl_c_does_not_reach_it(client):
+def last_displacement_m(client_get, test_id: int) -> float:
+    lines = client_get(f"/api/tests/{test_id}/data.csv").text.splitlines()
+    header = lines[0].split(",")
+    return float(lines[-1].split(",")[header.index("displacement_m")])
+
+
+def test_sigterm_to_the_worker_stops_under_control_and_ctrl_c_does_not_reach_it(client):
     """Ctrl-C in the service's terminal reaches the worker too (one process group): it is the service's to
-    handle, the test runs on. SIGTERM ends the run at once, the reason recorded and the samples kept."""
+    handle, the test runs on. SIGTERM (its process group told to stop) brings the table back under control
+    (issue 21: it used to stop at once, the table left mid-stroke); a second SIGTERM would end it at once."""
     test_id = create_and_start(client, **LONG)
     wait_samples(client.get, test_id, 0.5)
     pid = client.get("/api/rig").json()["state"]["worker_pid"]
@@ -71,13 +79,16 @@ def test_sigterm_to_the_worker_aborts_with_its_reason_and_ctrl_c_does_not_reach_
     wait_samples(client.get, test_id, before + 0.5)  # still running after Ctrl-C
     assert alive(pid) and client.get(f"/api/tests/{test_id}").json()["status"] == "running"
     os.kill(pid, signal.SIGTERM)
-    rec = wait_for(client, test_id, timeout_s=10)
-    assert rec["status"] == "aborted" and "SIGTERM" in rec["reason"], rec["reason"]
-    assert "valve command was set to zero" in rec["reason"]
+    rec = wait_for(client, test_id, timeout_s=20)
+    assert rec["status"] == "interrupted" and "told to stop" in rec["reason"], rec["reason"]
+    assert "went back to 0 mm under control" in rec["reason"]
     assert rec["samples_stored"] >= 1000
     lines = client.get(f"/api/tests/{test_id}/data.csv").text.splitlines()
     assert len(lines) == 1 + rec["samples_stored"]
-    zero_table(client)
+    assert abs(last_displacement_m(client.get, test_id)) < 0.001  # at rest where the test began
+    assert any(e["values"].get("action") == "shutdown" for e in rec["events"] if e["kind"] == "operator")
+    # the next test starts: the table is at zero
+    assert wait_for(client, create_and_start(client))["status"] == "completed"
 
 
 def free_port() -> int:
@@ -141,5 +152,55 @@ def test_service_shutdown_marks_the_running_test_interrupted(tmp_path):
     # leaving the block runs the lifespan shutdown: the worker is stopped and the test recorded as interrupted
     with TestClient(create_app(settings)) as client:
         rec = client.get(f"/api/tests/{test_id}").json()
-        assert rec["status"] == "interrupted" and "shut down" in rec["reason"]
+        assert rec["status"] == "interrupted" and "told to stop" in rec["reason"], rec["reason"]
         assert rec["samples_stored"] >= 300
+        assert abs(last_displacement_m(client.get, test_id)) < 0.001  # brought back before the service ended
+
+
+@pytest.mark.parametrize("how", ["SIGTERM to the service", "SIGINT to its process group",
+                                 "SIGTERM to its process group"])
+def test_a_service_told_to_stop_brings_the_table_back_and_records_why_before_it_exits(tmp_path, how):
+    """Issue 21: SIGTERM (docker stop) or Ctrl-C mid-test left the table at 18-30 mm. The service now stops the
+    test under control, brings the table back to where the test began, records how it ended, then exits."""
+    port = free_port()
+    env = {**os.environ, "ISORIG_OPERATOR_TOKEN": TOKEN, "ISORIG_VIEWER": "0"}
+    cmd = [sys.executable, "-m", "isorig", "serve", "--port", str(port), "--data-dir", str(tmp_path),
+           "--log-level", "warning"]
+    server = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                              start_new_session=True)
+    base = f"http://127.0.0.1:{port}"
+    body = sine_test(isolator="IUT_b", supply_bar=70, speed=1.0,
+                     profile={"amplitude_m": 0.03, "frequency_hz": 0.5, "cycles": 20, "taper_cycles": 1})
+    try:
+        with httpx.Client(base_url=base, timeout=10) as http:
+            deadline = time.monotonic() + 60
+            while True:
+                try:
+                    if http.get("/api/health").status_code == 200:
+                        break
+                except httpx.TransportError:
+                    pass
+                assert time.monotonic() < deadline, "server did not come up"
+                time.sleep(0.1)
+            test_id = http.post("/api/tests", json=body, headers=AUTH).json()["id"]
+            assert http.post(f"/api/tests/{test_id}/start", headers=AUTH).status_code == 200
+            wait_samples(http.get, test_id, 2.0, timeout_s=30)  # mid-stroke, well away from zero
+        sig = signal.SIGINT if "SIGINT" in how else signal.SIGTERM
+        if "group" in how:
+            os.killpg(server.pid, sig)
+        else:
+            server.send_signal(sig)
+        code = server.wait(40)
+        log = server.stderr.read()
+    finally:
+        if server.poll() is None:
+            os.killpg(server.pid, signal.SIGKILL)
+            server.wait(10)
+    assert code in (0, -sig, 128 + sig), (code, log[-2000:])
+    with TestClient(create_app(make_settings(tmp_path))) as client:
+        rec = client.get(f"/api/tests/{test_id}").json()
+        assert rec["status"] == "interrupted" and "told to stop" in rec["reason"], (rec["reason"], log[-2000:])
+        y_end = last_displacement_m(client.get, test_id)
+        assert abs(y_end) < 0.001, y_end  # at rest within 1 mm of where the test began, before the exit
+        assert rec["events"][-1]["kind"] == "status"  # the end was recorded by the service itself
+

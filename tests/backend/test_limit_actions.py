@@ -137,21 +137,44 @@ def test_an_indicating_limit_lets_the_test_run_to_its_end(client):
         assert "|y| <= 8 mm (indicate)" in page1 and f"displacement_m: {len(shown)} times (the test went on)" in page1
 
 
-def test_a_controlled_stop_ramps_the_target_out_under_control(client):
+def test_a_controlled_stop_brakes_the_target_to_rest_under_control(client):
+    """Issue 21: a controlled stop no longer tapers the running sine out (that went on to the sine's peak). The
+    target brakes to rest from where it is, continuous in position and speed, and holds there, closed loop."""
     test_id = create_and_start(client, limits={"force_n": 2000.0, "actions": {"force_n": "controlled_stop"}},
                                profile={"cycles": 6})
     rec = wait_for(client, test_id)
     assert rec["status"] == "aborted" and "controlled stop" in rec["reason"]
     trip = [e for e in rec["events"] if e["kind"] == "limit_trip"]
     assert trip[0]["values"]["action"] == "controlled_stop"
-    rows = [r.split(",") for r in client.get(f"/api/tests/{test_id}/data.csv").text.splitlines()[1:]]
+    rows = csv_rows(client, test_id)
     t = np.array([float(r[0]) for r in rows])
     after = [r for r, ti in zip(rows, t, strict=True) if ti > trip[0]["time_s"]]
     target = np.array([float(r[1]) for r in after])  # closed loop to the end: every row has a target
-    assert all(r[1] != "" for r in after) and abs(target[-1]) < 1e-4
-    # the target ends smoothly: no step beyond what the sine itself moves in one period (2 pi f A T)
+    y = np.array([float(r[3]) for r in after])
+    assert all(r[1] != "" for r in after)
+    # the target comes to rest: its last 0.4 s do not move, and the table rests there within 0.05 mm
+    assert np.ptp(target[-400:]) == 0.0 and np.max(np.abs(y[-100:] - target[-1])) < 5e-5
+    # no step: the target moves no more in one period than the sine's top speed (2 pi f A T) allows
     assert np.max(np.abs(np.diff(target))) < 1.1 * 2 * np.pi * 2.0 * 0.01 * 1e-3
-    assert t[-1] < 3.0 - 1e-3  # ended before the 6 cycles at 2 Hz
+    # it did not go on to the sine's peak: the rest point is nearer than 10 mm
+    assert abs(target[-1]) < 0.0095
+    assert t[-1] < trip[0]["time_s"] + 0.7  # a braking stop of < 0.2 s, held 0.5 s
+
+
+def test_a_controlled_stop_never_passes_its_displacement_limit(client):
+    """Issue 21: a 15 mm controlled-stop limit on a 30 mm sine went on to 26 mm. The displacement guard now brakes
+    the target so that it comes to rest within the limit less the recent tracking error."""
+    test_id = create_and_start(client, isolator="IUT_b", supply_bar=70.0,
+                               limits={"displacement_m": 0.015, "actions": {"displacement_m": "controlled_stop"}},
+                               profile={"amplitude_m": 0.03, "frequency_hz": 0.5, "cycles": 3})
+    rec = wait_for(client, test_id)
+    assert rec["status"] == "aborted" and "controlled stop" in rec["reason"] and "15 mm" in rec["reason"]
+    trip = [e for e in rec["events"] if e["kind"] == "limit_trip"][0]
+    assert trip["values"]["detector"] == "displacement" and trip["values"]["guard"]
+    rows = csv_rows(client, test_id)
+    y = np.abs(np.array([float(r[3]) for r in rows]))
+    assert y.max() <= 0.015 and y.max() > 0.0145  # within the limit, and it did reach near it
+    assert abs(float(rows[-1][3])) > 0.0145  # at rest there, not back to zero
 
 
 def csv_rows(client, test_id: int) -> list[list[str]]:
@@ -159,23 +182,21 @@ def csv_rows(client, test_id: int) -> list[list[str]]:
 
 
 def test_a_valve_close_trip_overrules_a_controlled_stop(client):
-    # a reference run: the force where |y| first passes 6 mm, and the peak force at the full 10 mm
+    # a reference run: the force where |y| first passes 2 mm
     reference_id = create_and_start(client, profile={"cycles": 6, "taper_cycles": 0})
     reference = csv_rows(client, wait_for(client, reference_id)["id"])
     y = np.array([float(r[3]) for r in reference])
     f = np.abs(np.array([float(r[5]) for r in reference]))
-    at_6mm = f[np.flatnonzero(np.abs(y) > 0.006)[0]]
-    force_limit = 0.5 * (at_6mm + f.max())
-    assert f.max() > force_limit > at_6mm
-    # without a taper-in the first cycle runs at full amplitude; the displacement limit asks for a controlled
-    # stop, which finishes that cycle before it tapers out;
-    # the force limit (valve close) fires during it and closes the valve
-    test_id = create_and_start(client, limits={"displacement_m": 0.006, "force_n": force_limit,
-                                               "actions": {"displacement_m": "controlled_stop"}},
+    force_limit = f[np.flatnonzero(np.abs(y) > 0.002)[0]]
+    # without a taper-in the target starts at its top speed: the velocity limit asks for a controlled stop at
+    # once, and the braking stop goes on outwards beyond 2 mm: the force limit (valve close) fires during it
+    # and closes the valve
+    test_id = create_and_start(client, limits={"velocity_m_per_s": 0.06, "force_n": force_limit,
+                                               "actions": {"velocity_m_per_s": "controlled_stop"}},
                                profile={"cycles": 6, "taper_cycles": 0})
     rec = wait_for(client, test_id)
     trips = [e for e in rec["events"] if e["kind"] == "limit_trip"]
-    assert rec["status"] == "aborted" and trips[0]["values"]["detector"] == "displacement"
+    assert rec["status"] == "aborted" and trips[0]["values"]["detector"] == "velocity"
     assert len(trips) == 2 and trips[1]["values"]["detector"] == "force" and trips[1]["values"]["escalation"]
     assert "the valve closes" in trips[1]["message"]
     rows = csv_rows(client, test_id)

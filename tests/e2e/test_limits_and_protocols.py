@@ -8,6 +8,9 @@ from __future__ import annotations
 
 import json
 import re
+import urllib.request
+
+import numpy as np
 
 from .harness import (
     TOKEN,
@@ -104,12 +107,13 @@ def test_limits_with_actions_reach_the_record_and_indications_show(server, open_
 
 
 def test_trips_say_which_action_was_taken(server, open_page, artifacts):
-    """A controlled-stop trip: the target ramps out, the banner says so; a valve-close limit tripping during that
-    controlled stop closes the valve, and the banner says both."""
+    """A controlled-stop trip: the target brakes to rest, the banner says so; a valve-close limit tripping during
+    that controlled stop closes the valve, and the banner says both."""
     page, _ = open_page(server.url + "/", width=1920, height=1080)
     page.wait_for_selector("#conn.conn-up", timeout=10000)
 
-    body = sine_test(cycles=10, speed=2.0)
+    # no taper-in: the target starts at its top speed, so the velocity limit trips at once, moving outwards
+    body = sine_test(cycles=10, speed=2.0, taper_cycles=0)
     body["limits"] = {"velocity_m_per_s": 0.08, "actions": {"velocity_m_per_s": "controlled_stop"}}
     test_id = server.start_test(body)
     rec = server.wait_status(test_id, {"aborted"}, timeout_s=30)
@@ -118,11 +122,25 @@ def test_trips_say_which_action_was_taken(server, open_page, artifacts):
     page.wait_for_function("document.getElementById('alert-text').textContent.includes('ABORTED')", timeout=10000)
     banner = page.inner_text("#alert-text")
     assert re.fullmatch(rf"LIMIT TRIP - Test {test_id} ABORTED: velocity [\d.]+ mm/s beyond the limit of 80 mm/s; "
-                        r"controlled stop: the target ramps out under control, the test ends aborted", banner), banner
+                        r"controlled stop: the target brakes to rest within every displacement limit and holds there "
+                        r"under control, the test ends aborted", banner), banner
     assert page.get_attribute("#alert", "data-kind") == "bad"
 
-    body["limits"] = {"velocity_m_per_s": 0.05, "displacement_m": 0.02,
-                      "actions": {"velocity_m_per_s": "controlled_stop"}}  # displacement: valve close
+    # that controlled stop braked the table to rest off zero: where it rests, no test starts until it is zeroed
+    page.wait_for_selector("#rig-warning[data-state='off-zero']", timeout=10000)
+    with urllib.request.urlopen(f"{server.url}/api/tests/{test_id}/data.csv", timeout=30) as r:
+        lines = r.read().decode().splitlines()
+    header = lines[0].split(",")
+    rows = np.array([[float(x or "nan") for x in line.split(",")] for line in lines[1:]])
+    t_trip = [e for e in rec["events"] if e["kind"] == "limit_trip"][0]["time_s"]
+    braking = rows[:, header.index("time_s")] > t_trip
+    force = np.abs(rows[:, header.index("force_n")])
+    at_trip, peak = force[np.flatnonzero(braking)[0]], force[braking].max()
+    assert peak > at_trip  # the brake went on outwards from where the velocity tripped
+    server.zero_table()
+    # the same test and trip, with a force limit (valve close) that the brake passes on its way to rest
+    body["limits"] = {"velocity_m_per_s": 0.08, "force_n": 0.5 * (at_trip + peak),
+                      "actions": {"velocity_m_per_s": "controlled_stop"}}  # force: valve close
     test_id = server.start_test(body)
     rec = server.wait_status(test_id, {"aborted"}, timeout_s=30)
     trips = [e["values"] for e in rec["events"] if e["kind"] == "limit_trip"]
@@ -130,11 +148,11 @@ def test_trips_say_which_action_was_taken(server, open_page, artifacts):
     page.wait_for_function("document.getElementById('alert-text').textContent"
                            f".startsWith('LIMIT TRIP - Test {test_id}')", timeout=10000)
     banner = page.inner_text("#alert-text")
-    assert "velocity" in banner and "controlled stop: the target ramps out under control" in banner, banner
-    assert re.search(r"then, during the controlled stop: displacement [\d.]+ mm beyond the limit of 20 mm; "
+    assert "velocity" in banner and "controlled stop: the target brakes to rest" in banner, banner
+    assert re.search(r"then, during the controlled stop: force [\d.]+ kN beyond the limit of [\d.]+ kN; "
                      r"valve close: the valve closes now", banner), banner
     events = page.inner_text("#live-events")
-    assert "LIMIT TRIP during the controlled stop: displacement" in events, events
+    assert "LIMIT TRIP during the controlled stop: force" in events, events
     assert "{" not in events and "escalation" not in events, events  # words, no internals
     page.screenshot(path=str(artifacts / "dashboard_limit_escalation_1920x1080.png"))
     # the valve closed mid-stroke: the table rests off zero, where no test may start

@@ -27,8 +27,8 @@ export const ACTION_ORDER = ["valve_close", "controlled_stop", "indicate"];
 /** The actions in words, as the service describes them (GET /api/rig limit_actions), these when it does not. */
 const ACTION_HELP = {
   indicate: "an event is recorded, the test goes on",
-  controlled_stop: "the target ramps out under control, as an operator's stop; the test ends aborted",
-  valve_close: "the valve command ramps to 0 V in 0.1 s, open loop; the test ends aborted",
+  controlled_stop: "the target brakes to rest from where it is, within every displacement limit (one with this action is never passed: the target brakes before it), and holds there under control; the test ends aborted",
+  valve_close: "the valve command ramps to 0 V in 0.1 s, open loop; the table coasts on by its stopping distance, so the limit can be passed; the test ends aborted",
 };
 let serviceHelp = {};
 

@@ -106,7 +106,7 @@ function limitWords(e) {
   const action = v.action || "valve_close";
   const done = {
     valve_close: "valve close: the valve command ramps to 0 V in 0.1 s, the test ends aborted",
-    controlled_stop: "controlled stop: the target ramps out under control, the test ends aborted",
+    controlled_stop: "controlled stop: the target brakes to rest within every displacement limit and holds there under control, the test ends aborted",
   }[action] || `${actionName(action)}: the test ends aborted`;
   return `LIMIT TRIP: ${reading}; ${done}`;
 }
