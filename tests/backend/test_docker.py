@@ -33,6 +33,11 @@ def test_compose_runs_the_readme_command():
     postgres = compose["services"]["postgres"]
     assert postgres["profiles"] == ["postgres"]  # optional: only with --profile postgres
     assert service["depends_on"]["postgres"]["required"] is False
+    # docker stop: the service's controlled shutdown (up to backend.service.SHUTDOWN_GRACE_S) fits the grace period
+    from backend.service import SHUTDOWN_GRACE_S
+
+    grace = re.fullmatch(r"(\d+)s", str(service["stop_grace_period"]))
+    assert grace is not None and int(grace.group(1)) >= SHUTDOWN_GRACE_S + 5
 
 
 def test_dockerfile_runs_the_readme_command():
