@@ -39,9 +39,9 @@ def test_3d_view_is_relayed_and_follows_the_rig(server, open_page, artifacts):
 
 
 def test_reconnects_after_service_restart(server, browser, artifacts):
-    """Stop the service under an open dashboard, start it again: the page reconnects, says how the test ended,
-    shows where the table was left (the service keeps it across the restart), brings it back with Zero and
-    follows a new test."""
+    """Stop the service under an open dashboard (Ctrl-C: it brings the running test's table back first), start it
+    again: the page reconnects, says how the test ended, shows where the table was left (the service keeps it
+    across the restart) in the strip and the DISPLACEMENT readout, Zero works, and it follows a new test."""
     srv = server
     context = browser.new_context(viewport={"width": 1400, "height": 900})
     watch_rejections(context)
@@ -79,10 +79,16 @@ def test_reconnects_after_service_restart(server, browser, artifacts):
         assert state["position_source"] == f"end of test {running} ({rec['status']})", state
         source = f"end of test {running} ({rec['status']})"  # the service's figure, not the page's last sample
         page.wait_for_function(f"document.getElementById('s-position').dataset.source === {source!r}", timeout=10000)
+        # told to stop, the service brought the table back before it exited (issue 21), and the DISPLACEMENT
+        # readout says where the table is now, as the strip does, not the last sample before the restart
+        assert abs(state["table_position_m"]) < 0.001, state
+        page.wait_for_function(f"document.getElementById('r-y').dataset.source === {source!r}", timeout=10000)
+        assert page.inner_text("#r-y") == page.inner_text("#s-position").split()[0] + " mm", (
+            page.inner_text("#r-y"), page.inner_text("#s-position"))
         page.fill("#f-mm_speed", "50")
         page.click("#mm-zero")
         page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
-        assert f"{state['table_position_m'] * 1e3:+.2f} mm" in page.inner_text("#confirm-body")
+        assert f"{abs(state['table_position_m']) * 1e3:.2f} mm" in page.inner_text("#confirm-body")
         page.click("#confirm-ok")
         page.wait_for_selector("#mm-status[data-kind='ok']:has-text('completed')", timeout=30000)
         _, state = srv.call("GET", "/api/rig/state")

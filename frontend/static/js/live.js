@@ -8,7 +8,7 @@
 import { EarthquakeLive } from "./eqlive.js";
 import { LoopPlot, lowerBound, PlotStack, TimePlot } from "./plots.js";
 import { actionName, actionOf, LIMITS } from "./limits.js";
-import { changed, isCommissioning, isMove, state } from "./state.js";
+import { changed, isCommissioning, isMove, onState, sourceWords, state, tablePosition, testRunning } from "./state.js";
 import { eventLine, eventWords, fmtDuration, profileText, setStatusBadge, showAlert } from "./ui.js";
 import { factorIn, fmt, fmtU, onUnits, system, toDisplay, unit } from "./units.js";
 
@@ -119,6 +119,20 @@ export class LiveView {
     this.events = []; // [{key, e}] in order
     this.eq = new EarthquakeLive(); // a time-history or hybrid test: the whole record, drifts, stability
     onUnits(() => this.onUnitsChanged());
+    // between tests the displacement readout is where the table is now, as the rig (or the service) says, never
+    // the last sample of a test that ended before the service restarted
+    onState((what) => { if (what === "rigState" || what === "status" || what === "conn") this.showTableNow(); });
+  }
+
+  /** No test running: the DISPLACEMENT readout shows the table's position now (the strip's), with its source. */
+  showTableNow() {
+    if (testRunning()) return;
+    const where = tablePosition();
+    const el = $("r-y");
+    if (!where || where.source === "live") return;
+    el.textContent = fmtU("length", where.m, { sign: true });
+    el.title = `the table now: ${sourceWords(where.source)}`;
+    el.dataset.source = where.source;
   }
 
   // ---------------------------------------------------------------- plots
@@ -314,6 +328,8 @@ export class LiveView {
       $(id).textContent = num(shown) ? fmtU(quantity, si(quantity, shown), { sign: true }) : "-";
     };
     put("r-y", L, a.y[k]);
+    delete $("r-y").dataset.source;
+    $("r-y").title = "";
     put("r-y-max", L, c.yMax);
     put("r-y-min", L, c.yMin);
     put("r-f", "force", a.f[k]);
@@ -326,6 +342,7 @@ export class LiveView {
     state.position = { m: si(L, a.y[k]), testId: this.testId, t: a.t[k], live };
     changed("position");
     this.renderMargins(false);
+    this.showTableNow();
   }
 
   /**
