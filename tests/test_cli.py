@@ -1,5 +1,6 @@
 import csv
 import json
+import re
 import subprocess
 import sys
 
@@ -81,3 +82,14 @@ def test_controller_option_reaches_the_controller(tmp_path):
 
 def test_bad_controller_option_is_one_line(tmp_path):
     assert main(["simulate", "--controller-option", "gama=3", "--out", str(tmp_path)]) == 2
+
+
+def test_bench_rig_watchdog_part_refuses_bad_figures_and_runs_a_short_test(tmp_path, capsys):
+    """``isorig bench-rig --parts watchdog`` (issue 21's target: 0 trips at 18 ms, p99 < 1 ms, two CPU hogs
+    beside) names what it needs, and prints one row per test and the totals."""
+    assert main(["bench-rig", "--parts", "watchdog", "--tests", "0"]) == 2
+    assert "--tests >= 1" in capsys.readouterr().err
+    assert main(["bench-rig", "--parts", "watchdog", "--tests", "1", "--test-s", "4", "--cpu-hogs", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "1 tests on an 18 ms rig watchdog, 1 CPU hog(s) beside" in out
+    assert re.search(r"^\s+1\s+\w+\s+\d+\s+[\d.]+", out, re.M) and "total:" in out

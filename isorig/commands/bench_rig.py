@@ -25,18 +25,25 @@ import time
 from datetime import datetime
 from pathlib import Path
 
-PARTS = ("stream", "tracking", "link-drop")
+PARTS = ("stream", "tracking", "link-drop", "watchdog")
+DEFAULT_PARTS = ("stream", "tracking", "link-drop")  # "watchdog" takes --tests x --test-s: asked for by name
 TRACKING_CASES = (("IUT_a", 100.0, 0.02, 0.5), ("IUT_a", 100.0, 0.02, 1.0), ("IUT_b", 70.0, 0.03, 0.5),
                   ("IUT_b", 70.0, 0.03, 1.0))
 
 
 def register(sub) -> None:
     p = sub.add_parser("bench-rig", help="measure the real-rig targets against `isorig rig-emulator`")
-    p.add_argument("--parts", nargs="+", choices=PARTS, default=list(PARTS), help="what to measure (default all)")
+    p.add_argument("--parts", nargs="+", choices=PARTS, default=list(DEFAULT_PARTS),
+                   help="what to measure (default: stream tracking link-drop)")
     p.add_argument("--duration-s", type=float, default=600.0, help="length of the streamed test (default 600)")
     p.add_argument("--clients", type=int, default=10, help="websocket clients watching it (default 10)")
     p.add_argument("--cycles", type=int, default=12, help="cycles of each tracking case (default 12)")
     p.add_argument("--drops", type=int, default=3, help="link-drop repetitions (default 3)")
+    p.add_argument("--tests", type=int, default=10, help="watchdog: tests run one after another (default 10)")
+    p.add_argument("--test-s", type=float, default=60.0, help="watchdog: length of each test in s (default 60)")
+    p.add_argument("--cpu-hogs", type=int, default=0,
+                   help="CPU-bound processes at normal priority running beside every part (default 0; the "
+                        "watchdog target is measured with 2)")
     p.add_argument("--json", action="store_true", help="print the figures as JSON")
     p.set_defaults(func=run)
 
@@ -164,13 +171,77 @@ def _link_drop(folder: Path, drops: int) -> list[dict]:
     return rows
 
 
+def _watchdog(folder: Path, tests: int, test_s: float) -> list[dict]:
+    """``tests`` tests of ``test_s`` through ``isorig simulate --rig`` on an emulator with the rig's 18 ms
+    watchdog: how each ended, the watchdog's trips, the lateness of the host's answers as the rig saw them
+    (measurement sent -> command arrived), the periods the rig missed and the host lost, and the longest host
+    stall (when the host's link figures have it)."""
+    rows = []
+    frequency_hz = 0.5
+    cycles = max(2, int(round(test_s * frequency_hz)))
+    for i in range(tests):
+        emulator = EmulatorProcess(folder, "--watchdog-ms", "18")
+        target = folder / f"watchdog-{i}"
+        try:
+            proc = subprocess.run([sys.executable, "-m", "isorig", "simulate", "--rig", emulator.url, "--out",
+                                   str(target), "--isolator", "IUT_a", "--supply-bar", "100", "--amplitude-m", "0.02",
+                                   "--frequency-hz", str(frequency_hz), "--cycles", str(cycles)],
+                                  capture_output=True, text=True)
+        finally:
+            status = emulator.stop()
+        summary_file = target / "summary.json"
+        summary = json.loads(summary_file.read_text()) if summary_file.exists() else {}
+        counters = status["counters"]
+        link = summary.get("link") or {}
+        rows.append({"test": i + 1, "exit": proc.returncode, "status": summary.get("status"),
+                     "reason": summary.get("reason"), "watchdog_trips": len(status["watchdog_trips"]),
+                     "lateness_p99_ms": status["command_latency"]["p99_ms"],
+                     "lateness_max_ms": status["command_latency"]["max_ms"],
+                     "periods_missed": counters["periods_missed"], "host_lost_periods": summary.get("lost_periods"),
+                     "host_stall_max_ms": link.get("host_stall_max_ms"),
+                     "priority": (summary.get("pacing") or {}).get("priority")})
+        r = rows[-1]
+        print(f"[watchdog] {i + 1}/{tests}: {r['status']}, {r['watchdog_trips']} trip(s), p99 "
+              f"{r['lateness_p99_ms']:.3f} ms", file=sys.stderr)
+    return rows
+
+
+class CpuHogs:
+    """``n`` CPU-bound processes at normal priority, for as long as the ``with`` lasts."""
+
+    def __init__(self, n: int):
+        self.n = n
+        self.processes: list[subprocess.Popen] = []
+
+    def __enter__(self) -> CpuHogs:
+        code = "import os\nos.setpriority(os.PRIO_PROCESS, 0, 0)\nwhile True: pass"
+        self.processes = [subprocess.Popen([sys.executable, "-c", code], start_new_session=True,
+                                           preexec_fn=_normal_priority) for _ in range(self.n)]
+        return self
+
+    def __exit__(self, *_exc) -> None:
+        for p in self.processes:
+            p.kill()
+            p.wait(5)
+
+
+def _normal_priority() -> None:
+    """A child starts at SCHED_OTHER, nice 0, whatever this process was granted."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except (AttributeError, OSError):
+        pass
+
+
 def run(args) -> int:
     from isorig.cli import UsageError
 
     if args.duration_s < 2 or args.clients < 0 or args.cycles < 4 or args.drops < 1:
         raise UsageError("isorig bench-rig: --duration-s >= 2, --clients >= 0, --cycles >= 4, --drops >= 1")
-    results: dict = {"load_average_start": os.getloadavg(), "cpus": os.cpu_count()}
-    with tempfile.TemporaryDirectory(prefix="isorig-bench-rig-") as tmp:
+    if args.tests < 1 or args.test_s < 4 or args.cpu_hogs < 0:
+        raise UsageError("isorig bench-rig: --tests >= 1, --test-s >= 4, --cpu-hogs >= 0")
+    results: dict = {"load_average_start": os.getloadavg(), "cpus": os.cpu_count(), "cpu_hogs": args.cpu_hogs}
+    with tempfile.TemporaryDirectory(prefix="isorig-bench-rig-") as tmp, CpuHogs(args.cpu_hogs):
         folder = Path(tmp)
         if "tracking" in args.parts:
             results["tracking"] = _tracking(folder, args.cycles)
@@ -178,6 +249,8 @@ def run(args) -> int:
             results["link_drop"] = _link_drop(folder, args.drops)
         if "stream" in args.parts:
             results["stream"] = _stream(folder, args.duration_s, args.clients)
+        if "watchdog" in args.parts:
+            results["watchdog"] = _watchdog(folder, args.tests, args.test_s)
     results["load_average_end"] = os.getloadavg()
     if args.json:
         print(json.dumps(results, indent=2))
@@ -187,6 +260,19 @@ def run(args) -> int:
 
 
 def _print(results: dict) -> None:
+    if "watchdog" in results:
+        rows = results["watchdog"]
+        print(f"[watchdog] {len(rows)} tests on an 18 ms rig watchdog, {results['cpu_hogs']} CPU hog(s) beside "
+              "[target: 0 trips, p99 lateness < 1 ms]")
+        print("  test  status      trips  p99 ms  max ms  rig missed  host lost  longest stall ms  priority")
+        for r in rows:
+            stall = "-" if r["host_stall_max_ms"] is None else f"{r['host_stall_max_ms']:.2f}"
+            print(f"  {r['test']:>4}  {str(r['status']):10s}  {r['watchdog_trips']:>5}  {r['lateness_p99_ms']:>6.3f}"
+                  f"  {r['lateness_max_ms']:>6.2f}  {r['periods_missed']:>10}  {str(r['host_lost_periods']):>9}"
+                  f"  {stall:>16}  {r['priority']}")
+        trips = sum(r["watchdog_trips"] for r in rows)
+        worst = max(r["lateness_p99_ms"] for r in rows)
+        print(f"  total: {trips} watchdog trip(s); worst p99 lateness {worst:.3f} ms")
     if "tracking" in results:
         print("[tracking] last two cycles' RMS |y - r| / amplitude, default controller  [target: within 0.1 %]")
         print("  case                          simulated   emulator   difference  status")
