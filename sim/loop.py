@@ -36,7 +36,7 @@ from .controllers.base import (
     N_MEAS,
     N_REPORT,
 )
-from .measurement import FLAG_BRAKE, FLAG_GUARD, FLAG_HELD, FLAG_LOST, FLAG_OPEN_LOOP, Measurement
+from .measurement import FLAG_BRAKE, FLAG_GUARD, FLAG_LOST, FLAG_OPEN_LOOP, FLAG_PREDICTED, Measurement
 from .profiles import (
     B_CYCLES,
     B_FREQUENCY,
@@ -85,8 +85,8 @@ BRAKE_HARDEST_FACTOR = 8.0  # to stay within a bound, a stop brakes up to this m
 L_DT, L_ULIM, L_GUARD_M, L_BRAKE_A = range(4)
 N_LOOP_PARAMS = 4
 (LS_MODE, LS_RAMP_U0, LS_RAMP_K0, LS_RAMP_N, LS_LAST_U, LS_BRAKE_K0, LS_BRAKE_R0, LS_BRAKE_V0, LS_BRAKE_N,
- LS_RECENT_ERROR, LS_HOME_M, LS_RETURN_N) = range(12)
-N_LOOP_STATE = 12
+ LS_RECENT_ERROR, LS_HOME_M, LS_RETURN_N, LS_LAST_ERROR) = range(13)
+N_LOOP_STATE = 13
 RETURN_SPEED_M_PER_S = 0.01  # a stop that brings the table home moves it at most this fast ...
 RETURN_MIN_S = 0.5  # ... and takes at least this long
 RECENT_ERROR_S = 0.5  # the guard's margin: the recent peak |y - r|, forgotten with this time constant ...
@@ -202,16 +202,21 @@ def control_period(k, position_m, force_n, load_pressure_pa, supply_pressure_pa,
                 rdot = table[i, 1]
             else:
                 r, rdot = target(t, blocks)
-            if np.isfinite(position_m) and np.isfinite(r):
+            if np.isfinite(position_m) and np.isfinite(r) and not status & FLAG_PREDICTED:
                 note_error(position_m, r, ls, dt)
             # the target would carry the table past the limit: brake now
             if guard_trips(r, rdot, lp, ls[LS_RECENT_ERROR] + GUARD_MIN_MARGIN_M):
                 begin_brake(k, r, rdot, lp[L_BRAKE_A], ls, dt)
                 flags |= FLAG_BRAKE | FLAG_GUARD
+        seen = position_m
+        if status & FLAG_PREDICTED:  # a lost period: the target less the last measured error, not the old reading
+            seen = r - ls[LS_LAST_ERROR]
+        elif np.isfinite(position_m) and np.isfinite(r):
+            ls[LS_LAST_ERROR] = r - position_m
         meas[M_TIME] = t
         meas[M_TARGET] = r
         meas[M_TARGET_RATE] = rdot
-        meas[M_POSITION] = position_m
+        meas[M_POSITION] = seen
         meas[M_LOAD_PRESSURE] = load_pressure_pa
         meas[M_SUPPLY_PRESSURE] = supply_pressure_pa
         u_raw = controller_step(kind, cparams, cstate, meas, dt, report)
@@ -234,42 +239,6 @@ def control_period(k, position_m, force_n, load_pressure_pa, supply_pressure_pa,
     row[_YMEAS] = position_m
     row[_PS] = supply_pressure_pa
     row[_FLAGS] = flags
-    return u
-
-
-@njit(cache=True)
-def hold_period(k, position_m, force_n, load_pressure_pa, supply_pressure_pa, status, lp, ls, blocks, table, report,
-                row):
-    """A period whose measurement never arrived: the controller is not stepped (it neither integrates nor
-    adapts on a reading it did not get) and the command stays the last one sent, which is what the rig
-    applied (it holds its last command until the next one, docs/rig-protocol.md). ``row`` records the target,
-    the held reading, the held command and the controller's last report (its adapted parameters, unchanged),
-    flagged FLAG_LOST | FLAG_HELD."""
-    t = k * lp[L_DT]
-    if ls[LS_MODE] == MODE_RAMP:
-        r = np.nan
-    elif ls[LS_MODE] == MODE_BRAKE:
-        r = brake_target(k, ls, lp[L_DT])[0]
-    elif table.shape[0] > 0:
-        r = table[k if k < table.shape[0] else table.shape[0] - 1, 0]
-    else:
-        r = target(t, blocks)[0]
-    u = ls[LS_LAST_U]
-    for i in range(row.shape[0]):
-        row[i] = np.nan
-    row[_TIME] = t
-    row[_TARGET] = r
-    row[_MODEL] = report[0]
-    row[_AR] = report[1]
-    row[_AY] = report[2]
-    row[_AS] = report[3]
-    row[_Y] = position_m
-    row[_YMEAS] = position_m
-    row[_U] = u
-    row[_FORCE] = force_n
-    row[_PL] = load_pressure_pa
-    row[_PS] = supply_pressure_pa
-    row[_FLAGS] = status | FLAG_LOST | FLAG_HELD
     return u
 
 
@@ -515,9 +484,11 @@ class ClosedLoop:
     def step(self, m: Measurement) -> tuple[float, Samples]:
         """The command for the measurement's period and the rows up to it.
 
-        Periods the rig counted but whose measurement never arrived (``m.period`` ahead of the loop) are
-        recorded first, flagged lost and held: the last reading and the last command (which the rig applied
-        meanwhile; their own commands were never sent), the controller not stepped (``hold_period``).
+        Periods the rig counted but whose measurement never arrived (``m.period`` ahead of the loop) are run
+        first, flagged FLAG_LOST | FLAG_PREDICTED: the controller runs on a *predicted* reading, the period's
+        target less the last measured tracking error, never on the old reading (which, carried forward, wound
+        a controller up to -10 V), so its clock, filters and target history stay in step; the row records the
+        last reading held (nothing new was measured). Their commands were never sent.
         """
         if m.period < self.period:
             raise ValueError(f"measurement of period {m.period} is older than the loop's period {self.period}")
@@ -525,15 +496,10 @@ class ClosedLoop:
         rows = np.empty((n, N_FIELDS))
         held = self.last_measurement or m
         for i in range(n - 1):
-            self._hold_period(held, rows[i])
+            self._run_period(held, held.status | FLAG_LOST | FLAG_PREDICTED, rows[i])
         u = self._run_period(m, m.status, rows[n - 1])
         self.last_measurement = m
         return u, Samples(rows)
-
-    def _hold_period(self, m: Measurement, row: np.ndarray) -> None:
-        hold_period(self.period, m.position_m, m.force_n, m.load_pressure_pa, m.supply_pressure_pa, m.status,
-                    self.params, self.state, self.blocks, self.table, self._report, row)
-        self.period += 1
 
     def _run_period(self, m: Measurement, status: int, row: np.ndarray) -> float:
         u = control_period(self.period, m.position_m, m.force_n, m.load_pressure_pa, m.supply_pressure_pa,

@@ -29,7 +29,7 @@ RIG_FAULT_BITS = STATUS_SENSOR_FAULT | STATUS_WATCHDOG | STATUS_INTERLOCK
 # Added by the host's loop (bits 8-15).
 FLAG_LOST = 1 << 8  # no fresh measurement for this period (a packet was lost): the previous one is held
 FLAG_OPEN_LOOP = 1 << 9  # the controller was not stepped (command ramp of a controlled stop)
-FLAG_HELD = 1 << 10  # a lost period: the controller neither integrated nor adapted; the rig held the last command
+FLAG_PREDICTED = 1 << 10  # a lost period: the controller ran on a predicted reading (target less the last error)
 FLAG_BRAKE = 1 << 11  # a controlled stop: the target brakes to rest (sim.loop.brake_target), the controller in the loop
 FLAG_GUARD = 1 << 12  # the displacement guard began the stop here: the target would have carried the table past it
 
@@ -43,8 +43,8 @@ def describe_status(bits: int) -> str:
         names.append("displacement guard")
     if bits & FLAG_BRAKE:
         names.append("braking stop")
-    if bits & FLAG_HELD:
-        names.append("command held")
+    if bits & FLAG_PREDICTED:
+        names.append("reading predicted")
     if bits & FLAG_OPEN_LOOP:
         names.append("open loop")
     return ", ".join(names) or "none"

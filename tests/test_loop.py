@@ -11,7 +11,7 @@ from sim.controllers import CONTROLLER_NAMES, make_controller
 from sim.engine import Scenario, Simulation
 from sim.isolator import PRESETS
 from sim.loop import ClosedLoop, ramp_out_profile, saturate
-from sim.measurement import FLAG_HELD, FLAG_LOST, FLAG_OPEN_LOOP, STATUS_ARMED, Measurement
+from sim.measurement import FLAG_LOST, FLAG_OPEN_LOOP, FLAG_PREDICTED, STATUS_ARMED, Measurement
 from sim.plant import SimulatedPlant
 from sim.profiles import SineProfile, pack_profile, target_series
 from sim.rig import DEFAULT_RIG
@@ -105,27 +105,40 @@ def test_lost_measurements_become_flagged_rows_on_the_held_reading():
 
 
 @pytest.mark.parametrize("controller", ["servo", "mrac", "pid"])
-def test_a_lost_period_neither_integrates_nor_adapts_and_holds_the_command(controller):
-    """Issue 21: a host that lost periods ran its controller on the held reading and wound it up to -10 V.
-    Lost periods now leave the controller's state as it was and record the command the rig held."""
-    loop = ClosedLoop([SineProfile(0.01, 1.0, 2, 0)], make_controller(controller), 10.0)
-    for k in range(200):  # the table lags its target: every controller has something to integrate
-        u, _ = loop.step(Measurement(k, k * 1e-3, 0.0, 0.0, 0.0, 100e5))
-    state = loop.controller_state.copy()
-    u_held, rows = loop.step(Measurement(260, 0.26, 0.0, 0.0, 0.0, 100e5))  # 60 periods lost
-    held = rows[:-1]
-    assert len(held) == 60 and np.all(held["voltage_v"] == u)
-    flags = held["flags"].astype(int)
-    assert np.all(flags & FLAG_LOST) and np.all(flags & FLAG_HELD) and not rows["flags"][-1].astype(int) & FLAG_HELD
-    assert np.all(np.isfinite(held["target_m"]))
-    # one controller step (the measurement that arrived) from the state before the gap: replay it
-    again = ClosedLoop([SineProfile(0.01, 1.0, 2, 0)], make_controller(controller), 10.0)
-    for k in range(200):
-        again.step(Measurement(k, k * 1e-3, 0.0, 0.0, 0.0, 100e5))
-    np.testing.assert_array_equal(again.controller_state, state)
-    again.period = 260
-    u_again, _ = again.step(Measurement(260, 0.26, 0.0, 0.0, 0.0, 100e5))
-    assert u_held == u_again
+def test_a_lost_period_runs_on_a_predicted_reading_not_the_old_one(controller):
+    """Issue 21: a host that lost periods ran its controller on the reading carried forward and wound it up to
+    -10 V. A lost period's controller now sees the target less the last measured error (flagged predicted),
+    exactly as if that reading had arrived; the record keeps the old reading, flagged lost."""
+    from sim.profiles import target
+
+    def first_200(loop):
+        for k in range(200):  # the table lags its target: every controller has something to integrate
+            loop.step(Measurement(k, k * 1e-3, 0.0, 0.0, 0.0, 100e5))
+
+    profile = [SineProfile(0.01, 1.0, 2, 0)]
+    lossy = ClosedLoop(profile, make_controller(controller), 10.0)
+    first_200(lossy)
+    u_lossy, rows = lossy.step(Measurement(260, 0.26, 0.0, 0.0, 0.0, 100e5))  # 60 periods lost
+    lost = rows[:-1]
+    flags = lost["flags"].astype(int)
+    assert len(lost) == 60 and np.all(flags & FLAG_LOST) and np.all(flags & FLAG_PREDICTED)
+    assert not int(rows["flags"][-1]) & FLAG_PREDICTED and np.all(lost["measured_displacement_m"] == 0.0)
+    # the same periods with the predicted readings arriving as measurements
+    blocks = pack_profile(profile)
+    e_last = float(target(0.199, blocks)[0]) - 0.0
+    told = ClosedLoop(profile, make_controller(controller), 10.0)
+    first_200(told)
+    for k in range(200, 260):
+        told.step(Measurement(k, k * 1e-3, float(target(k * 1e-3, blocks)[0]) - e_last, 0.0, 0.0, 100e5))
+    u_told, _ = told.step(Measurement(260, 0.26, 0.0, 0.0, 0.0, 100e5))
+    assert u_lossy == pytest.approx(u_told, abs=1e-9)
+    np.testing.assert_allclose(lossy.controller_state, told.controller_state, atol=1e-12)
+    # and not what the old reading carried forward gives
+    stale = ClosedLoop(profile, make_controller(controller), 10.0)
+    first_200(stale)
+    for k in range(200, 261):
+        stale.step(Measurement(k, k * 1e-3, 0.0, 0.0, 0.0, 100e5))
+    assert np.max(np.abs(stale.controller_state - lossy.controller_state)) > 1e-9
 
 
 def test_command_ramp_is_open_loop_and_ends_the_loop():
