@@ -97,24 +97,33 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def test_server_killed_mid_test_restarts_with_the_test_interrupted(tmp_path):
+def serve(data_dir, **popen) -> tuple[subprocess.Popen, str]:
+    """``isorig serve`` on a free port in its own process (simulated rig): the process and its base URL."""
     port = free_port()
     env = {**os.environ, "ISORIG_OPERATOR_TOKEN": TOKEN, "ISORIG_VIEWER": "0"}
-    cmd = [sys.executable, "-m", "isorig", "serve", "--port", str(port), "--data-dir", str(tmp_path),
+    cmd = [sys.executable, "-m", "isorig", "serve", "--port", str(port), "--data-dir", str(data_dir),
            "--log-level", "warning"]
-    server = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    base = f"http://127.0.0.1:{port}"
+    server = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, text=True, **popen)
+    return server, f"http://127.0.0.1:{port}"
+
+
+def wait_up(http, timeout_s: float = 30.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            if http.get("/api/health").status_code == 200:
+                return
+        except httpx.TransportError:
+            pass
+        assert time.monotonic() < deadline, "server did not come up"
+        time.sleep(0.1)
+
+
+def test_server_killed_mid_test_restarts_with_the_test_interrupted(tmp_path):
+    server, base = serve(tmp_path, stderr=subprocess.DEVNULL)
     try:
         with httpx.Client(base_url=base, timeout=10) as http:
-            deadline = time.monotonic() + 30
-            while True:
-                try:
-                    if http.get("/api/health").status_code == 200:
-                        break
-                except httpx.TransportError:
-                    pass
-                assert time.monotonic() < deadline, "server did not come up"
-                time.sleep(0.1)
+            wait_up(http)
             test_id = http.post("/api/tests", json=sine_test(**LONG), headers=AUTH).json()["id"]
             assert http.post(f"/api/tests/{test_id}/start", headers=AUTH).status_code == 200
             before = wait_samples(http.get, test_id, 1.5)
@@ -162,26 +171,12 @@ def test_service_shutdown_marks_the_running_test_interrupted(tmp_path):
 def test_a_service_told_to_stop_brings_the_table_back_and_records_why_before_it_exits(tmp_path, how):
     """Issue 21: SIGTERM (docker stop) or Ctrl-C mid-test left the table at 18-30 mm. The service now stops the
     test under control, brings the table back to where the test began, records how it ended, then exits."""
-    port = free_port()
-    env = {**os.environ, "ISORIG_OPERATOR_TOKEN": TOKEN, "ISORIG_VIEWER": "0"}
-    cmd = [sys.executable, "-m", "isorig", "serve", "--port", str(port), "--data-dir", str(tmp_path),
-           "--log-level", "warning"]
-    server = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                              start_new_session=True)
-    base = f"http://127.0.0.1:{port}"
+    server, base = serve(tmp_path, stderr=subprocess.PIPE, start_new_session=True)
     body = sine_test(isolator="IUT_b", supply_bar=70, speed=1.0,
                      profile={"amplitude_m": 0.03, "frequency_hz": 0.5, "cycles": 20, "taper_cycles": 1})
     try:
         with httpx.Client(base_url=base, timeout=10) as http:
-            deadline = time.monotonic() + 60
-            while True:
-                try:
-                    if http.get("/api/health").status_code == 200:
-                        break
-                except httpx.TransportError:
-                    pass
-                assert time.monotonic() < deadline, "server did not come up"
-                time.sleep(0.1)
+            wait_up(http, timeout_s=60)
             test_id = http.post("/api/tests", json=body, headers=AUTH).json()["id"]
             assert http.post(f"/api/tests/{test_id}/start", headers=AUTH).status_code == 200
             wait_samples(http.get, test_id, 2.0, timeout_s=30)  # mid-stroke, well away from zero
