@@ -217,7 +217,7 @@ class RigEmulator:
             self._reject(exc.reason)
             return
         kind, v2 = header.kind, self.codec.version == 2
-        if kind == proto.HELLO and v2 and not self._hello_token(arrival):
+        if kind == proto.HELLO and v2 and not self._hello_token(arrival) and "no-hello-rate" not in self.defects:
             self._reject("rate")  # a flood of HELLOs costs the rig no tag to check and no answer
             return
         key = self.lab_key
@@ -226,7 +226,7 @@ class RigEmulator:
                 if not (kind == proto.DISARM and header.session == self.session):
                     self._reject("session")
                 return  # (a DISARM of the session that last ran, once ended: ignored)
-            if addr != self.host_addr:
+            if addr != self.host_addr and "any-address" not in self.defects:
                 self._reject("address")  # not from where the accepted ARM came from
                 return
             key = self.session_key
@@ -293,7 +293,8 @@ class RigEmulator:
         if self.codec.version == 2:
             self.session_key = auth.session_key(self.lab_key, challenge, packet.session)
             self.arm_challenge = challenge
-            self.challenge = auth.new_nonce()  # this ARM can never be accepted again
+            if "reuse-challenge" not in self.defects:
+                self.challenge = auth.new_nonce()  # this ARM can never be accepted again
         self.counters["arms"] += 1
 
     def _command(self, packet: proto.Packet, arrival: float) -> None:
