@@ -59,10 +59,10 @@ def _on_rig(args, building, ag, scenario):
     from .rig_key import link_options, link_security
 
     security = link_security("hybrid", args.rig, args)
-    check_start_position("hybrid", args.rig, security=link_options(security))
+    check_start_position("hybrid", args.rig, security=link_options(security, args))
     # the scenario's history (the reference's base displacement) puts the servo in its history mode, as in
     # the virtual RTHS; the targets themselves come from the building, period by period
-    job = rig_job(args.rig, scenario, security=link_options(security),
+    job = rig_job(args.rig, scenario, security=link_options(security, args),
                   hybrid={"building": building.to_dict(), "ground_acc_m_per_s2": ag})
     print(f"running {ag.size / 1000:g} s of hybrid simulation in real time on {args.rig} (Ctrl-C aborts)"
           + ("" if security.authenticated else f"; rig link NOT AUTHENTICATED (protocol 1: {security.why})"))

@@ -95,7 +95,7 @@ def run(args) -> int:
     if kind == "udp":
         from .rig_key import link_options, link_security
 
-        options = link_options(link_security("identify rig", args.rig, args))
+        options = link_options(link_security("identify rig", args.rig, args), args)
         start_m = resting_position_m("identify rig", args.rig, options)
     conditions = Conditions(args.rig, supply_pa, load_n, isolator.name, start_m, args.max_stroke_m,
                             args.max_velocity_m_per_s)

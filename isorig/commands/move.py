@@ -62,7 +62,7 @@ def run(args) -> int:
         raise UsageError(f"isorig move: --isolator {args.isolator!r} is not a preset ({', '.join(PRESETS)})")
     from .rig_key import link_options, link_security
 
-    options = link_options(link_security("move", args.rig, args))
+    options = link_options(link_security("move", args.rig, args), args)
     start_m = resting_position_m("move", args.rig, options)
     described, rig = rig_in_force(args)
     try:

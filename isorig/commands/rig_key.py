@@ -54,6 +54,7 @@ def link_security(command: str, rig: str, args):
         raise UsageError(f"isorig {command}: {exc}") from None
 
 
-def link_options(security) -> dict:
-    """What the UDP driver and ``probe`` are given (backend.drivers.udp): the key file and the version."""
-    return {"key_file": security.key_file, "protocol_version": security.protocol_version}
+def link_options(security, args) -> dict:
+    """What the UDP driver and ``probe`` are given (backend.drivers.udp): the key file (its path, never the key)
+    and the version only if named, so that they resolve the link as ``security`` did, with the same reason."""
+    return {"key_file": security.key_file, "protocol_version": args.rig_protocol}

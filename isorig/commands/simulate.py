@@ -200,7 +200,7 @@ def run_on_rig(args, scenario, out: Path) -> int:
     security, options = None, None
     if args.rig.startswith("udp://"):
         security = link_security("simulate", args.rig, args)
-        options = link_options(security)
+        options = link_options(security, args)
         check_start_position("simulate", args.rig, security=options)
     job = rig_job(args.rig, scenario, args.link_timeout_s, security=options)
     print(f"running {scenario.duration_s:g} s in real time on {args.rig} (Ctrl-C aborts)"

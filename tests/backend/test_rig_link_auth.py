@@ -89,6 +89,21 @@ def test_v2_packets_carry_a_tag_that_a_wrong_key_or_a_flipped_bit_breaks():
     assert auth.session_key(key, b"c" * 16, 1) != auth.session_key(key, b"c" * 16, 2)
 
 
+def test_the_test_vectors_of_the_protocol_page_hold():
+    """docs/rig-protocol.md section 9.8: what a C target compares its HMAC and layout with."""
+    doc = (Path(__file__).parents[2] / "docs" / "rig-protocol.md").read_text()
+    vectors = doc[doc.index("**Test vectors**"):doc.index("### 9.9")]
+    hexes = [chunk.replace(" ", "") for chunk in vectors.split("`")[1::2]
+             if len(chunk) >= 32 and set(chunk) <= set("0123456789abcdef ")]
+    key = bytes(range(32))
+    hello = V2.encode(proto.HELLO, 0, 0, 1000, b"\x11" * 16, key=key)
+    s_key = auth.session_key(key, b"\x22" * 16, 0x01020304)
+    arm = V2.encode(proto.ARM, 0x01020304, 0, 2000, 100e5, 0.0, b"\x22" * 16, key=key)
+    command = V2.encode(proto.COMMAND, 0x01020304, 5, 3000, 1.5, key=s_key)
+    assert hexes == [x.hex() for x in (hello[:40], hello[40:], s_key, arm[:40], arm[40:], command[:32],
+                                       command[32:])], hexes
+
+
 def test_a_link_without_a_key_is_named_or_on_loopback(tmp_path):
     assert auth.resolve_security("127.0.0.1", env={}).describe() == {
         "protocol_version": 1, "authenticated": False,
@@ -359,3 +374,29 @@ def test_a_rig_with_another_key_is_named_as_such(tmp_path):
         assert code == 2 and "nothing moved" in output and "Traceback" not in output
     finally:
         emulator.stop()
+
+
+def test_the_service_runs_a_test_over_the_authenticated_link_and_shows_it(tmp_path):
+    from conftest import AUTH, make_settings, sine_test, wait_for
+    from fastapi.testclient import TestClient
+
+    from backend.app import create_app
+
+    key = new_key_file(tmp_path)
+    emulator = Emulator(tmp_path, "--rig-key-file", str(key))
+    try:
+        settings = make_settings(tmp_path, rig=emulator.url, rig_key_file=key)
+        with TestClient(create_app(settings)) as client:
+            rig = client.get("/api/rig").json()
+            assert rig["rig"]["authenticated"] is True and rig["rig"]["protocol_version"] == 2, rig["rig"]
+            assert "authenticated" in rig["rig"]["protocol"] and rig["link"]["connected"], rig
+            r = client.post("/api/tests?start=true", json=sine_test(speed=1.0), headers=AUTH)
+            assert r.status_code == 201, r.text
+            record = wait_for(client, r.json()["id"])
+            assert record["status"] == "completed", record["reason"]
+            link = record["summary"]["link"]
+            assert link["authenticated"] is True and link["protocol_version"] == 2 and link["rejected"] == 0, link
+            assert 0.0 <= link["host_stall_max_ms"] < 50.0
+    finally:
+        status = emulator.stop()
+    assert status["counters"]["arms"] == 1 and status["rejected"] == {}
