@@ -58,12 +58,15 @@ ALLOWED = (f"a key file holds at least {KEY_MIN_BYTES} bytes ({KEY_MIN_BYTES * 8
 
 
 def parse_key(data: bytes, name: str = "key") -> bytes:
-    """The key in a key file's bytes: hex text (white space around it ignored) or raw bytes."""
+    """The key in a key file's bytes: hex text (only hex digits and white space) or else raw bytes."""
     text = data.strip()
-    try:
-        decoded = bytes.fromhex(text.decode("ascii")) if text else b""
-        key = decoded if decoded and len(text) % 2 == 0 else data
-    except (UnicodeDecodeError, ValueError):
+    if text and all(c in b"0123456789abcdefABCDEF \t\r\n" for c in text):
+        digits = bytes(c for c in text if c not in b" \t\r\n")
+        if len(digits) % 2:
+            raise KeyFileError(f"{name}: {len(digits)} hex digits is an odd number (a digit missing or extra?); "
+                               f"{ALLOWED}")
+        key = bytes.fromhex(digits.decode("ascii"))
+    else:
         key = data
     if len(key) < KEY_MIN_BYTES:
         raise KeyFileError(f"{name}: {len(key)} bytes of key is too short; {ALLOWED}")

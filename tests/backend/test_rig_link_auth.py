@@ -50,6 +50,9 @@ def test_a_key_file_is_refused_unless_private_and_long_enough(tmp_path):
     short.chmod(0o600)
     with pytest.raises(auth.KeyFileError, match="31 bytes of key is too short.*at least 32 bytes"):
         auth.load_key_file(short)
+    short.write_text("ab" * 32 + "c\n")
+    with pytest.raises(auth.KeyFileError, match="65 hex digits is an odd number"):
+        auth.load_key_file(short)
     raw = tmp_path / "raw.key"
     raw.write_bytes(bytes(range(200, 248)))
     raw.chmod(0o600)
