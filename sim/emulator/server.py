@@ -54,7 +54,6 @@ SPIN_S = 2e-4  # the loop sleeps until this long before a tick, then polls
 STATUS_EVERY_S = 0.5
 HELLO_BURST = 10  # version 2: HELLOs answered at once at most ...
 HELLO_RATE_PER_S = 100.0  # ... and on average; the rest are dropped as `rate` before their tag is checked
-RECEIVE_BATCH = 64  # datagrams read in a row before the loop looks at the clock again (a flood cannot hold it)
 
 
 @dataclass
@@ -456,7 +455,7 @@ class RigEmulator:
                 wait = min(wait, self.delayed[0][0] - now)
             readable, _, _ = select.select([self.sock], [], [], max(0.0, wait))
             if readable:
-                for _ in range(RECEIVE_BATCH):
+                while True:
                     try:
                         data, addr = self.sock.recvfrom(self.codec.max_packet + 64)
                     except (BlockingIOError, InterruptedError):

@@ -31,7 +31,7 @@ def main() -> None:
     try:
         from sim.realtime import raise_priority
 
-        raise_priority(15)  # a relay the scheduler leaves waiting would look like a slow link
+        raise_priority(20)  # as the emulator's: a relay the scheduler leaves waiting looks like a slow link
     except ImportError:
         pass
     print(front.getsockname()[1], control.getsockname()[1], flush=True)
