@@ -277,6 +277,16 @@ def _attack(a: Attacker, baseline_session: int) -> dict:
     return seen
 
 
+def rcvbuf_errors() -> int:
+    """UDP datagrams the kernel dropped for a full receive buffer, machine-wide (/proc/net/snmp): never seen by
+    any process, so never counted (nor applied)."""
+    try:
+        lines = [line.split() for line in Path("/proc/net/snmp").read_text().splitlines() if line.startswith("Udp:")]
+        return int(lines[1][lines[0].index("RcvbufErrors")])
+    except (OSError, ValueError, IndexError):
+        return 0
+
+
 def _relay(emulator: Emulator, sniffer: Sniffer):
     proc = subprocess.Popen([sys.executable, str(RELAY), str(emulator.port), str(sniffer.port)],
                             stdout=subprocess.PIPE, text=True)
@@ -288,9 +298,11 @@ def _attacked_run(tmp_path: Path, url: str, key: Path, emulator: Emulator, sniff
                   baseline_session: int, name: str) -> dict:
     """One test under every attack; what the attacker sent and saw, and the rig's and the host's counts."""
     before = emulator.fresh_status()["rejected"]
+    dropped_before = rcvbuf_errors()
     attacker = Attacker(emulator.port, control, sniffer)
+    previous = sniffer.session  # the last run's (the baseline's, or an earlier attacked run's)
     run = simulate_on(url, tmp_path / name, "--rig-key-file", str(key), cycles=8, wait=False)
-    while sniffer.sequence < 300 or sniffer.session == baseline_session:
+    while sniffer.sequence < 300 or sniffer.session in (previous, baseline_session):
         time.sleep(0.01)
         assert run.poll() is None, run.stdout.read()
     seen = _attack(attacker, baseline_session)
@@ -302,6 +314,10 @@ def _attacked_run(tmp_path: Path, url: str, key: Path, emulator: Emulator, sniff
     attacker.to_rig(arm, "challenge")
     seen["after_answers"] = attacker.answers(0.1)
     status = emulator.fresh_status()
+    # a datagram the kernel dropped (a receive buffer full while a loaded machine did not schedule its reader)
+    # reaches nobody: the counts may miss at most those (machine-wide, other sessions' included)
+    unseen = rcvbuf_errors() - dropped_before
+    seen["kernel_dropped_machine_wide"] = unseen
     assert run.returncode == 0 and summary["status"] == "completed", output
     assert summary["reason"] in (None, ""), summary["reason"]
     assert seen["answers_to_hello_without_key"] == 0 and seen["after_answers"] == 0
@@ -314,14 +330,14 @@ def _attacked_run(tmp_path: Path, url: str, key: Path, emulator: Emulator, sniff
     assert answered <= HELLO_BURST + HELLO_RATE_PER_S * (seen["flood_s"] + 0.3), seen
     # (a loaded machine may add a natural drop or two, a late command counted stale: NATURAL_DROPS at most)
     flood_dropped = rejected.pop("rate", 0) + rejected["auth"] - sent.pop("auth")
-    assert flood <= flood_dropped + answered <= flood + NATURAL_DROPS, (rejected, sent, seen)
+    assert flood - unseen <= flood_dropped + answered <= flood + NATURAL_DROPS, (rejected, sent, seen)
     rejected.pop("auth")
-    assert all(rejected.get(reason, 0) >= n for reason, n in sent.items()), (rejected, sent)
+    assert all(rejected.get(reason, 0) >= n - unseen for reason, n in sent.items()), (rejected, sent, seen)
     assert sum(rejected.values()) <= sum(sent.values()) + NATURAL_DROPS, (rejected, sent)
     # the host: every forged or replayed measurement dropped and counted
     link = summary["link"]
     host = link["rejected_by_reason"]
-    assert all(host.get(reason, 0) >= n for reason, n in attacker.sent_to_host.items()), link
+    assert all(host.get(reason, 0) >= n - unseen for reason, n in attacker.sent_to_host.items()), (link, seen)
     assert sum(host.values()) <= sum(attacker.sent_to_host.values()) + NATURAL_DROPS, link
     assert link["protocol_version"] == 2 and link["authenticated"] is True
     assert link["rig_packets_rejected"] >= sum(attacker.sent_to_rig.values()) - flood - 2
