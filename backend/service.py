@@ -197,9 +197,12 @@ class RigService:
 
         host, port = parse_udp_url(self.driver)
         link = self.settings.link_settings()
+        security = self.settings.rig_security(self.driver)
         return {"kind": "udp", "name": self.driver, "url": self.driver, "host": host, "port": port, **tolerance,
                 "control_period_s": link["period_s"], "link_timeout_s": link["timeout_s"],
-                "arm_timeout_s": link["arm_timeout_s"], "protocol": "isorig rig protocol v1 (docs/rig-protocol.md)"}
+                "arm_timeout_s": link["arm_timeout_s"], **security.describe(),
+                "protocol": f"isorig rig protocol v{security.protocol_version} (docs/rig-protocol.md), "
+                + ("authenticated" if security.authenticated else f"NOT AUTHENTICATED: {security.why}")}
 
     def link_health(self) -> dict:
         """The link to the rig: the running test's figures (latency, lost packets, last sequence), else one
@@ -213,7 +216,7 @@ class RigService:
             return {"kind": "udp", "connected": True, "armed": True, "test_id": run.test_id, **run.link}
         from .drivers.udp import probe
 
-        out = {"kind": "udp", **probe(self.driver, timeout_s=0.2)}
+        out = {"kind": "udp", **probe(self.driver, timeout_s=0.2, **self.settings.rig_security_options())}
         if self.last_link:
             out["last_test"] = self.last_link
         return out
@@ -249,7 +252,7 @@ class RigService:
         if self.driver != SIMULATED:
             from .drivers.udp import probe
 
-            answer = probe(self.driver, timeout_s=0.2)
+            answer = probe(self.driver, timeout_s=0.2, **self.settings.rig_security_options())
             if not answer["connected"]:
                 out.update(status="not_connected", detail=answer["detail"])
             else:
@@ -321,7 +324,8 @@ class RigService:
 
         tolerance = self.settings.rig_start_tolerance_m
         if self.driver != SIMULATED:
-            problem = start_position_problem(self.driver, tolerance, expected_m=start_m)
+            problem = start_position_problem(self.driver, tolerance, expected_m=start_m,
+                                             **self.settings.rig_security_options())
         else:
             y = self.resting_position_m() or 0.0
             problem = None if abs(y - start_m) <= tolerance else (
@@ -338,7 +342,7 @@ class RigService:
         if self.driver != SIMULATED:
             from .drivers.udp import probe
 
-            answer = probe(self.driver, timeout_s=0.2)
+            answer = probe(self.driver, timeout_s=0.2, **self.settings.rig_security_options())
             return answer.get("position_m") if answer["connected"] else None
         end = self._last_end()
         return end["table_position_m"] if end is not None else None

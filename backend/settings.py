@@ -42,6 +42,11 @@ class Settings(BaseSettings):
     rig_period_s: float = Field(default=0.001, gt=0, description="control period the UDP rig must run at")
     rig_link_timeout_s: float = Field(default=0.05, gt=0, le=5.0, description="UDP rig: a link silent this long "
                                       "ends the test 'failed' (the rig's watchdog closes its valve by itself)")
+    rig_key_file: Path | None = Field(default=None, description="UDP rig: the lab's key file (rig protocol 2: "
+                                      "every packet authenticated; `isorig rig-key new FILE` makes one)")
+    rig_protocol: int | None = Field(default=None, description="UDP rig: 2 (default; needs rig_key_file) or 1 "
+                                     "(unauthenticated, named for a lab's bring-up or an existing v1 target); without "
+                                     "a key only a rig on loopback runs, unauthenticated, unless 1 is named")
     rig_arm_timeout_s: float = Field(default=2.0, gt=0, le=60.0, description="UDP rig: how long arming may take")
     rig_start_tolerance_m: float = Field(default=0.002, gt=0, le=0.05, description="UDP rig: a test starts only "
                                          "with the table this close to zero (m), where every test's target begins")
@@ -81,6 +86,26 @@ class Settings(BaseSettings):
         return value
 
     @model_validator(mode="after")
+    def _rig_link_security(self):
+        if self.rig.startswith("udp://"):
+            self.rig_security()  # ValueError: a key file that cannot be used, or a link that needs one
+        return self
+
+    def rig_security(self, rig: str | None = None):
+        """How the UDP rig's link (to ``rig``, default the service's) is protected (sim.emulator.auth)."""
+        from sim.emulator.auth import resolve_security
+
+        from .drivers.udp import parse_udp_url
+
+        host, _ = parse_udp_url(rig or self.rig)
+        return resolve_security(host, self.rig_key_file, self.rig_protocol, env={})
+
+    def rig_security_options(self) -> dict:
+        """The key file and protocol version that ``probe`` and the UDP driver are given."""
+        return {"key_file": str(self.rig_key_file) if self.rig_key_file else None,
+                "protocol_version": self.rig_protocol}
+
+    @model_validator(mode="after")
     def _plant_only_simulated(self):
         if self.plant_set.strip() and self.rig != "simulated":
             raise ValueError(f"plant_set changes the simulated rig only; the rig {self.rig} is as it is (leave "
@@ -101,7 +126,7 @@ class Settings(BaseSettings):
     def link_settings(self) -> dict:
         """What the worker's UDP driver is built with (host and port come from ``rig``)."""
         return {"period_s": self.rig_period_s, "timeout_s": self.rig_link_timeout_s,
-                "arm_timeout_s": self.rig_arm_timeout_s}
+                "arm_timeout_s": self.rig_arm_timeout_s, **self.rig_security_options()}
 
     @property
     def resolved_database_url(self) -> str:

@@ -34,10 +34,10 @@ import socket
 import statistics
 import struct
 import time
-import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from sim.emulator import auth
 from sim.emulator import protocol as proto
 from sim.measurement import STATUS_ARMED, STATUS_COMMAND_MISSED, STATUS_WATCHDOG
 from sim.rig import DEFAULT_RIG, RigParameters
@@ -62,6 +62,8 @@ MOTION_STEP_M = 0.3e-3  # --motion: how far the table is pushed
 MOTION_STOP_M = 1e-3  # ... and where the command goes to 0 V at once
 MOTION_MAX_V = 3.0
 HELLO_FOLLOW_M = 0.05e-3  # a HELLO after the motion: where the last measurement left the table
+HELLO_BURST_SENT = 40  # version 2: HELLOs sent at once to see the rate limit (section 9.6) ...
+HELLO_BURST, HELLO_RATE_PER_S = 10, 100.0  # ... which answers about this many at once and per second
 
 
 class RigUnreachable(Exception):
@@ -172,16 +174,17 @@ def _new_session() -> int:
     return secrets.randbits(32) or 1
 
 
-def _reseal(body: bytes) -> bytes:
-    """``body`` with a correct CRC: only what the test breaks on purpose is wrong."""
-    return body + proto.CRC.pack(zlib.crc32(body))
 
 
 class Link:
     """Two unconnected UDP sockets towards the rig (the stream's and one for HELLO), so that a reply from an
     address or port other than the one sent to is seen, not dropped by the operating system."""
 
-    def __init__(self, host: str, port: int):
+    def __init__(self, host: str, port: int, security: auth.LinkSecurity):
+        self.security, self.codec = security, proto.Codec(security.protocol_version)
+        self.session_keys: dict[int, bytes] = {}  # version 2: the key of each session this check armed
+        self.current_key: bytes | None = None  # ... and of the running one
+        self.challenge: bytes | None = None  # the rig's, from the latest ANSWER (None: spent by an accepted ARM)
         try:
             self.addr = (socket.gethostbyname(host), port)
         except OSError as exc:
@@ -213,7 +216,7 @@ class Link:
             if not readable:
                 return None
             try:
-                data, source = sock.recvfrom(proto.MAX_PACKET + 64)
+                data, source = sock.recvfrom(self.codec.max_packet + 64)
             except (BlockingIOError, InterruptedError, ConnectionError):
                 continue
             t = time.perf_counter()
@@ -221,13 +224,14 @@ class Link:
             if source != self.addr:
                 self.wrong_sources.add(source)
             try:
-                packet = proto.decode(data)
+                header = self.codec.peek(data, frozenset({proto.MEASUREMENT, proto.ANSWER}))
+                key = self.security.key if header.kind == proto.ANSWER else self.session_keys.get(header.session)
+                packet = self.codec.open(data, header, key)
             except proto.PacketError as exc:
                 self.invalid[exc.reason] = self.invalid.get(exc.reason, 0) + 1
                 continue
-            if packet.kind != proto.MEASUREMENT:
-                self.invalid["kind"] = self.invalid.get("kind", 0) + 1
-                continue
+            if packet.kind == proto.ANSWER:
+                self.challenge = packet.fields["challenge"]
             return Received(packet, len(data), source, t)
 
     def drain(self, aux: bool = False) -> list[Received]:
@@ -241,15 +245,51 @@ class Link:
         self.drain(aux=True)
         end = time.perf_counter() + timeout_s
         while time.perf_counter() < end:
-            self.send(proto.encode(proto.HELLO, 0, 0, time.perf_counter_ns()), aux=True)
-            rec = self.receive(min(end, time.perf_counter() + 0.2), aux=True)
-            if rec is not None:
-                return rec
+            nonce = auth.new_nonce()
+            self.send(self.hello_packet(nonce), aux=True)
+            t = time.perf_counter()
+            while (rec := self.receive(min(end, t + 0.2), aux=True)) is not None:
+                if self.codec.version == 1 or rec.packet.fields["nonce"] == nonce:
+                    return rec
         return None
 
     def close(self) -> None:
         self.sock.close()
         self.aux.close()
+
+    # --- packets: version 1, or version 2 tagged with the lab's key or the session's --------------------------
+    def encode(self, kind: int, session: int, sequence: int, time_ns: int, *payload, key: bytes | None = None) -> bytes:
+        """A packet of this link's version. Version 2: an ARM gets the rig's current challenge (a HELLO fetches
+        it) and its session's key is kept; a COMMAND, DISARM or MEASUREMENT is tagged with its session's key,
+        else the running session's (so that only what a probe breaks on purpose is wrong)."""
+        if self.codec.version == 1:
+            return self.codec.encode(kind, session, sequence, time_ns, *payload)
+        if kind == proto.ARM and len(payload) == 2:
+            payload = (*payload, self.fresh_challenge())
+        if kind == proto.ARM:
+            self.session_keys[session] = auth.session_key(self.security.key, payload[2], session)
+        if key is None:
+            key = self.security.key if kind in proto.LAB_KEY_KINDS else self.key_of(session)
+        return self.codec.encode(kind, session, sequence, time_ns, *payload, key=key)
+
+    def key_of(self, session: int) -> bytes | None:
+        return self.session_keys.get(session, self.current_key or self.security.key)
+
+    def seal(self, body: bytes, session: int) -> bytes:
+        """``body`` with a correct CRC or tag: only what the probe breaks on purpose is wrong."""
+        return self.codec.seal(body, None if self.codec.version == 1 else self.key_of(session))
+
+    def hello_packet(self, nonce: bytes | None = None) -> bytes:
+        if self.codec.version == 1:
+            return self.codec.encode(proto.HELLO, 0, 0, time.perf_counter_ns())
+        return self.codec.encode(proto.HELLO, 0, 0, time.perf_counter_ns(), nonce or auth.new_nonce(),
+                                 key=self.security.key)
+
+    def fresh_challenge(self) -> bytes:
+        """The rig's current challenge (version 2), from a HELLO if the last one was spent."""
+        if self.challenge is None and self.hello() is None:
+            raise RigUnreachable("no answer to the HELLO that fetches the rig's challenge for an ARM")
+        return self.challenge
 
 
 class Stream:
@@ -269,8 +309,8 @@ class Stream:
 
     def arm(self, timeout_s: float) -> Received:
         """ARM (repeated every 50 ms, as the host does) until the first measurement of the session."""
-        data = proto.encode(proto.ARM, self.session, 0, time.perf_counter_ns(), self.check.supply_pa,
-                            self.check.vertical_load_n)
+        data = self.arm_data = self.link.encode(proto.ARM, self.session, 0, time.perf_counter_ns(),
+                                                self.check.supply_pa, self.check.vertical_load_n)
         start = time.perf_counter()
         end, next_send = start + timeout_s, start
         while time.perf_counter() < end:
@@ -286,6 +326,8 @@ class Stream:
                 self.foreign += 1
                 continue
             self.armed = True
+            self.link.challenge = None  # spent: the rig draws a new one
+            self.link.current_key = self.link.session_keys.get(self.session)
             self.first_ms = (rec.t - start) * 1e3
             self.last = rec
             return rec
@@ -318,7 +360,7 @@ class Stream:
             return rec
 
     def answer(self, rec: Received, command_v: float = 0.0) -> bytes:
-        data = proto.encode(proto.COMMAND, self.session, rec.seq, time.perf_counter_ns(), command_v)
+        data = self.link.encode(proto.COMMAND, self.session, rec.seq, time.perf_counter_ns(), command_v)
         self.link.send(data)
         self.last_answer_t = time.perf_counter()
         self.last_answer_data = data
@@ -357,7 +399,7 @@ class Stream:
             raise Disturbed(f"this check read measurement {rec.seq} {rec.late_s * 1e3:.1f} ms late")
 
     def disarm(self) -> None:
-        packet = proto.encode(proto.DISARM, self.session, 0, time.perf_counter_ns())
+        packet = self.link.encode(proto.DISARM, self.session, 0, time.perf_counter_ns())
         for _ in range(3):
             self.link.send(packet)
         self.armed = False
@@ -374,8 +416,9 @@ class RigCheck:
 
     def __init__(self, url: str, rig: RigParameters = DEFAULT_RIG, supply_pa: float = 20e5,
                  vertical_load_n: float = 0.0, period_s: float = 1e-3, timeout_s: float = 1.0,
-                 motion: bool = False, motion_v: float = 1.5):
+                 motion: bool = False, motion_v: float = 1.5, security: auth.LinkSecurity | None = None):
         host, port = parse_udp_url(url)
+        self.security = security or auth.resolve_security(host)  # loopback without a key: version 1
         if not (rig.min_supply_pa <= supply_pa <= rig.max_supply_pa):
             raise ValueError(f"the check's supply pressure {supply_pa / 1e5:g} bar is outside the rig's range "
                              f"[{rig.min_supply_pa / 1e5:g}, {rig.max_supply_pa / 1e5:g}] bar")
@@ -397,6 +440,7 @@ class RigCheck:
         self.stream: Stream | None = None
         self.unsolicited: list[str] = []  # what an unarmed rig sent without being asked
         self.last_disarmed: int | None = None
+        self.last_disarmed_arm = b""
         self.steady_miscount: list[int] = []
         self.watchdog_s: float | None = None
 
@@ -458,10 +502,13 @@ class RigCheck:
     def run(self) -> RigCheckReport:
         gc_enabled = gc.isenabled()
         gc.disable()  # a collection in the middle of a probe would look like a late host to the rig's watchdog
-        self.link = Link(self.host, self.port)
+        self.link = Link(self.host, self.port, self.security)
         try:
             self._hello_unarmed()  # RigUnreachable: nothing to check
             try:
+                if self.link.codec.version == 2:
+                    self._hello_without_key()
+                    self._hello_rate()
                 self._refused_arms()
                 self._main_session()
                 self._finished_session()
@@ -487,8 +534,8 @@ class RigCheck:
             if self.link.invalid:
                 bad = ", ".join(f"{n} {reason}" for reason, n in self.link.invalid.items())
                 raise RigUnreachable(f"{self.host}:{self.port} answers, but not with a valid packet of the isorig rig "
-                                     f"protocol v{proto.VERSION} (dropped: {bad})")
-            answer = hello_probe(self.url, timeout_s=0.2)
+                                     f"protocol v{self.security.protocol_version} (dropped: {bad})")
+            answer = hello_probe(self.url, timeout_s=0.2, security=self.security)
             detail = answer["detail"] if not answer["connected"] else "it answered only a later HELLO"
             raise RigUnreachable(f"no answer to HELLO from the rig at {self.url} within {self.timeout_s:g} s: {detail}")
         self.figures["hello_round_trip_ms"] = (rec.t - t0) * 1e3
@@ -507,6 +554,61 @@ class RigCheck:
         self.hello_position_m = f["position_m"]
         self.add("§3.5", "HELLO answered unarmed: a measurement, session 0, sequence 0", not problems,
                  f"{(rec.t - t0) * 1e3:.2f} ms round trip, {rec.size} bytes", "; ".join(problems))
+
+    # --- version 2 (section 9) ------------------------------------------------------------------------------------
+    def _unanswered(self, datagrams: list[bytes], aux: bool = True) -> tuple[int, int]:
+        """(answers within SILENCE_S, the rise of packets_rejected) for ``datagrams`` sent to an idle rig."""
+        before = self.hello()["packets_rejected"]
+        for data in datagrams:
+            self.link.send(data, aux=aux)
+        answers = 0
+        end = time.perf_counter() + SILENCE_S
+        while self.link.receive(end, aux=aux) is not None:
+            answers += 1
+        return answers, self.hello()["packets_rejected"] - before
+
+    def _hello_without_key(self) -> None:
+        wrong = self.link.codec.encode(proto.HELLO, 0, 0, time.perf_counter_ns(), auth.new_nonce(),
+                                       key=auth.new_nonce() * 2)
+        answers, rose = self._unanswered([wrong])
+        ok = answers == 0 and rose == 1
+        self.add("§9.6", "drop auth: a HELLO without the key gets no answer (no session revealed)", ok,
+                 f"{answers} answer(s), packets_rejected +{rose}",
+                 "" if ok else "a HELLO with a wrong tag must be dropped in silence and counted once (auth)")
+
+    def _hello_rate(self) -> None:
+        time.sleep(HELLO_BURST / HELLO_RATE_PER_S)  # a full bucket
+        before = self.hello()["packets_rejected"]
+        time.sleep(HELLO_BURST / HELLO_RATE_PER_S)
+        t0 = time.perf_counter()
+        for _ in range(HELLO_BURST_SENT):
+            self.link.send(self.link.hello_packet(), aux=True)
+        sent_s = time.perf_counter() - t0
+        answers = 0
+        end = time.perf_counter() + SILENT_S  # every answer, however late this process reads them
+        while self.link.receive(end, aux=True) is not None:
+            answers += 1
+        time.sleep(2 * HELLO_BURST / HELLO_RATE_PER_S)  # the bucket fills again for the rest of the check
+        rose = self.hello()["packets_rejected"] - before
+        most = 2 * (HELLO_BURST + HELLO_RATE_PER_S * sent_s) + 1
+        problems = []
+        if not 5 <= answers <= most:
+            problems.append(f"{answers} of {HELLO_BURST_SENT} answered: at least 5 and at most {most:.0f} (a burst of "
+                            f"{HELLO_BURST} and {HELLO_RATE_PER_S:g}/s, within a factor of 2)")
+        if rose != HELLO_BURST_SENT - answers:
+            problems.append(f"packets_rejected rose by {rose}, not the {HELLO_BURST_SENT - answers} unanswered (rate)")
+        self.add("§9.6", f"HELLO's rate: a burst of {HELLO_BURST_SENT} answered in part, the rest counted (rate)",
+                 not problems, f"{answers} answered, packets_rejected +{rose}", "; ".join(problems))
+
+    def _replayed_arm(self, data: bytes) -> None:
+        answers, rose = self._unanswered([data], aux=False)
+        if answers:  # it armed: end that session, or the rules after this one would see it running
+            Stream(self, int.from_bytes(data[8:12], "little")).disarm()
+            self.link.challenge = None
+        ok = answers == 0 and rose == 1
+        self.add("§9.5", "drop challenge: a finished session's ARM sent again arms nothing", ok,
+                 f"{answers} measurement(s), packets_rejected +{rose}",
+                 "" if ok else "an ARM whose challenge was spent must be dropped in silence and counted (challenge)")
 
     def _refused_arms(self) -> None:
         rig = self.rig
@@ -535,12 +637,13 @@ class RigCheck:
 
     def _refused(self, session: int, supply: float, load: float, before: int) -> tuple[str, int, int]:
         """(what went wrong or '', the count it added, the count now) for an ARM the rig must refuse."""
-        self.link.send(proto.encode(proto.ARM, session, 0, time.perf_counter_ns(), supply, load))
+        self.link.send(self.link.encode(proto.ARM, session, 0, time.perf_counter_ns(), supply, load))
         end = time.perf_counter() + SILENCE_S
         answered = []
         while (rec := self.link.receive(end)) is not None:
             answered.append(rec)
         if answered:
+            self.link.challenge = None  # the rig armed: its challenge is spent
             Stream(self, session).disarm()
         answer = self.hello()
         now = answer["packets_rejected"]
@@ -623,37 +726,54 @@ class RigCheck:
         self.attempt([("§3.2", "a repeated ARM of the running session is ignored")], self._repeated_arm)
         self.attempt([("§5", "drop busy: an ARM of another session while armed")], self._busy)
         limit = self.rig.command_limit_v
+        v2 = self.link.codec.version == 2
+        trailer = self.link.codec.trailer
+        good = self._good
+        seal = self.link.seal
         drops = [
-            ("short", "fewer bytes than a header", lambda s, n: [self._good(s, n)[:20]], None),
-            ("size", "not the size of its kind", lambda s, n: [_reseal(self._good(s, n)[:-4] + b"\0")], 0),
-            ("magic", "another protocol", lambda s, n: [_reseal(b"ISRX" + self._good(s, n)[4:-4])], 0),
-            ("version", "another version", lambda s, n: [_reseal(self._good(s, n)[:4] + struct.pack("<H", 2)
-                                                                 + self._good(s, n)[6:-4])], 0),
+            ("short", "fewer bytes than a header", lambda s, n: [good(s, n)[:20]], None),
+            ("size", "not the size of its kind", lambda s, n: [seal(good(s, n)[:-trailer] + b"\0", s.session)], 0),
+            ("magic", "another protocol", lambda s, n: [seal(b"ISRX" + good(s, n)[4:-trailer], s.session)], 0),
+            ("version", "another version",
+             lambda s, n: [seal(good(s, n)[:4] + struct.pack("<H", 1 if v2 else 2) + good(s, n)[6:-trailer],
+                                s.session)], 0),
             ("kind", "an unknown kind, a MEASUREMENT to the rig",
-             lambda s, n: [_reseal(self._good(s, n)[:6] + struct.pack("<H", 9) + self._good(s, n)[8:-4]),
-                           proto.encode(proto.MEASUREMENT, s.session, n.seq, 0, 0.0, 0.0, 0.0, 0.0, 0, 0, 0, 0, 0, 0)],
+             lambda s, n: [seal(good(s, n)[:6] + struct.pack("<H", 9) + good(s, n)[8:-trailer], s.session),
+                           self.link.encode(proto.MEASUREMENT, s.session, n.seq, 0, 0.0, 0.0, 0.0, 0.0, 0, 0, 0, 0, 0,
+                                            0)],
              0),
-            ("crc", "damaged", lambda s, n: [self._good(s, n)[:-4] + bytes(b ^ 0xFF for b in self._good(s, n)[-4:])],
+            ("auth" if v2 else "crc", "damaged (a wrong tag), and tagged with another key" if v2 else "damaged",
+             lambda s, n: [good(s, n)[:-4] + bytes(b ^ 0xFF for b in good(s, n)[-4:])]
+             + ([self.link.encode(proto.COMMAND, s.session, n.seq, 0, 0.0, key=auth.new_nonce() * 2)] if v2 else []),
              0),
             ("session", "a COMMAND of another session",
-             lambda s, n: [proto.encode(proto.COMMAND, s.session ^ 0x5A5A5A5A, n.seq, 0, 0.0)], 0),
+             lambda s, n: [self.link.encode(proto.COMMAND, s.session ^ 0x5A5A5A5A, n.seq, 0, 0.0)], 0),
             ("future", "a COMMAND answering a measurement not sent yet",
-             lambda s, n: [proto.encode(proto.COMMAND, s.session, n.seq + 1000, 0, 0.0)], 1000),
+             lambda s, n: [self.link.encode(proto.COMMAND, s.session, n.seq + 1000, 0, 0.0)], 1000),
             ("value", f"NaN, +-inf, +-{VALUE_FACTOR:g} x the {limit:g} V limit",
-             lambda s, n: [proto.encode(proto.COMMAND, s.session, n.seq, 0, v)
+             lambda s, n: [self.link.encode(proto.COMMAND, s.session, n.seq, 0, v)
                            for v in (math.nan, math.inf, -math.inf, VALUE_FACTOR * limit, -VALUE_FACTOR * limit)], 0),
         ]
+        if v2:
+            drops.append(("address", "a COMMAND from another port than the ARM's",
+                          lambda s, n: [(good(s, n), True)], 0))
         for reason, what, make, offset in drops:
-            self.attempt([("§5", f"drop {reason}: {what}")],
+            self.attempt([("§9.7" if reason in ("auth", "address") else "§5", f"drop {reason}: {what}")],
                        lambda s, make=make, offset=offset: [self._dropped(s, make, offset)])
         self.attempt([("§3.3", "a DISARM of another session is dropped, the test goes on")],
-                   lambda s: [self._dropped(s, lambda s, n: [proto.encode(proto.DISARM, s.session ^ 0x5A5A5A5A, 0, 0)],
-                                            None)])
+                   lambda s: [self._dropped(s, lambda s, n: [self.link.encode(proto.DISARM, s.session ^ 0x5A5A5A5A,
+                                                                              0, 0)], None)])
+        if v2:
+            self.attempt([("§9.7", "drop auth: a DISARM tagged with another key, the test goes on")],
+                         lambda s: [self._dropped(s, lambda s, n: [self.link.encode(proto.DISARM, s.session, 0, 0,
+                                                                                    key=auth.new_nonce() * 2)], None)])
+            self.attempt([("§9.1", "a HELLO without the key while armed: no answer, no session revealed")],
+                         self._hello_without_key_armed)
         self.attempt([("§5", "drop stale: a duplicate, a command older than the one held")], self._stale)
 
     @staticmethod
     def _good(stream: Stream, rec: Received) -> bytes:
-        return proto.encode(proto.COMMAND, stream.session, rec.seq, 0, 0.0)
+        return stream.link.encode(proto.COMMAND, stream.session, rec.seq, 0, 0.0)
 
     # --- probes on an armed stream: each returns [(ok, figure, detail)] -----------------------------------
     def _missed(self, s: Stream):
@@ -699,7 +819,7 @@ class RigCheck:
         s.steady(3)
         latest = s.last
         self.link.drain(aux=True)
-        self.link.send(proto.encode(proto.HELLO, 0, 0, time.perf_counter_ns()), aux=True)
+        self.link.send(self.link.hello_packet(), aux=True)
         got = s.steady(3)
         rec = self.link.receive(time.perf_counter() + 0.1, aux=True)
         if rec is None:
@@ -724,11 +844,23 @@ class RigCheck:
                             "only)")
         return [(not problems, f"sequence {rec.seq} (latest {latest.seq})", "; ".join(problems))]
 
+    def _hello_without_key_armed(self, s: Stream):
+        s.steady(3)
+        n = s.last
+        self.link.drain(aux=True)
+        self.link.send(self.link.codec.encode(proto.HELLO, 0, 0, time.perf_counter_ns(), auth.new_nonce(),
+                                              key=auth.new_nonce() * 2), aux=True)
+        got = s.sync()
+        answered = self.link.drain(aux=True)
+        rose = got[-1]["packets_rejected"] - n["packets_rejected"] if got else 0
+        problems = ([f"{len(answered)} answer(s) to it"] if answered else []) + \
+            ([f"packets_rejected rose by {rose}, not 1"] if rose != 1 else [])
+        return [(not problems, f"{len(answered)} answers, packets_rejected +{rose}", "; ".join(problems))]
+
     def _repeated_arm(self, s: Stream):
         s.steady(3)
         n = s.last
-        self.link.send(proto.encode(proto.ARM, s.session, 0, time.perf_counter_ns(), self.supply_pa,
-                                    self.vertical_load_n))
+        self.link.send(s.arm_data)  # the host repeats its ARM (version 2: the same challenge)
         got = s.sync()
         problems = []
         if not got:
@@ -745,7 +877,7 @@ class RigCheck:
         n = s.last
         other = _new_session()
         foreign = s.foreign
-        self.link.send(proto.encode(proto.ARM, other, 0, time.perf_counter_ns(), self.supply_pa,
+        self.link.send(self.link.encode(proto.ARM, other, 0, time.perf_counter_ns(), self.supply_pa,
                                     self.vertical_load_n))
         try:
             got = s.sync()
@@ -772,8 +904,8 @@ class RigCheck:
         s.steady(3)
         n = s.next()
         datagrams = make(s, n)
-        for data in datagrams:
-            self.link.send(data)
+        for data in datagrams:  # (data, True): from the HELLO socket, another port than the ARM's
+            self.link.send(*data) if isinstance(data, tuple) else self.link.send(data)
         try:
             seen = s.skip(2) + s.sync()
         except Silent:
@@ -796,7 +928,7 @@ class RigCheck:
         n = s.next()
         good = s.answer(n)
         self.link.send(good)  # a duplicate
-        self.link.send(proto.encode(proto.COMMAND, s.session, n.seq - 2, 0, 0.0))  # older than the one held
+        self.link.send(self.link.encode(proto.COMMAND, s.session, n.seq - 2, 0, 0.0))  # older than the one held
         after = s.sync()
         if not after:
             return [(False, "", "no valid command applied after them")]
@@ -812,6 +944,8 @@ class RigCheck:
     def _finished_session(self) -> None:
         self.attempt([("§3.4", "DISARM: the stream stops, nothing more is sent"),
                     ("§1.7", "unarmed: a COMMAND is dropped and counted, nothing is sent")], self._disarm)
+        if self.link.codec.version == 2 and self.last_disarmed_arm:
+            self._replayed_arm(self.last_disarmed_arm)
         if self.last_disarmed is None:
             self.add("§3.2", "an ARM of a finished session starts it anew, at sequence 0", False, "",
                      "not checked: no session was disarmed")
@@ -837,10 +971,11 @@ class RigCheck:
             s.last = rec
             s.answer(rec)
         last = s.last
-        self.link.send(proto.encode(proto.DISARM, s.session, 0, time.perf_counter_ns()))
+        self.link.send(self.link.encode(proto.DISARM, s.session, 0, time.perf_counter_ns()))
         s.armed = False
         self.stream = None
         self.last_disarmed = s.session
+        self.last_disarmed_arm = s.arm_data
         flight = []
         end = time.perf_counter() + 2 * SILENCE_S
         while (rec := self.link.receive(end)) is not None:
@@ -855,8 +990,8 @@ class RigCheck:
                             f"sequence {answer.seq} (must be unarmed, 0, 0)")
         before = answer["packets_rejected"]
         for _ in range(2):  # the host sends DISARM three times
-            self.link.send(proto.encode(proto.DISARM, s.session, 0, time.perf_counter_ns()))
-        self.link.send(proto.encode(proto.COMMAND, s.session, last.seq + 1, 0, 0.0))
+            self.link.send(self.link.encode(proto.DISARM, s.session, 0, time.perf_counter_ns()))
+        self.link.send(self.link.encode(proto.COMMAND, s.session, last.seq + 1, 0, 0.0))
         unasked = self.silent(SILENCE_S, "while unarmed, after a COMMAND")
         rose = self.hello()["packets_rejected"] - before
         unarmed = []
@@ -929,7 +1064,7 @@ class RigCheck:
                     prev = stream.next()
                     if since == "stale commands":
                         self.link.send(kept)  # a duplicate of the last valid command
-                        self.link.send(proto.encode(proto.COMMAND, stream.session, 0, 0, 0.0))  # an old one
+                        self.link.send(self.link.encode(proto.COMMAND, stream.session, 0, 0, 0.0))  # an old one
             except Tripped as exc:
                 final = exc.rec
             except Silent as exc:
@@ -969,7 +1104,7 @@ class RigCheck:
         n0 = s.last
         held = s.skip(STALE_PERIODS + 2)
         target = held[0]  # the rig has sent held[-1] = target + 11 at least: more than 10 periods old
-        self.link.send(proto.encode(proto.COMMAND, s.session, target.seq, 0, 0.0))
+        self.link.send(self.link.encode(proto.COMMAND, s.session, target.seq, 0, 0.0))
         after = s.sync()
         problems = []
         if any(x["command_sequence"] == target.seq for x in after):
@@ -1056,7 +1191,9 @@ class RigCheck:
                  f"{link.addr[0]}:{link.addr[1]}", f"replies from {wrong}: a host's connected socket never sees them"
                  if wrong else "")
         bad = sum(link.invalid.values())
-        self.add("§4", "every datagram from the rig is a valid MEASUREMENT (84 bytes, CRC)", not bad,
+        size = self.link.codec.sizes[proto.MEASUREMENT]
+        check = "CRC" if self.link.codec.version == 1 else "tag"
+        self.add("§4", f"every datagram from the rig is a valid MEASUREMENT ({size} bytes, {check})", not bad,
                  f"{link.received} received, {bad} invalid",
                  ", ".join(f"{n} {reason}" for reason, n in link.invalid.items()))
 

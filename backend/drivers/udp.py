@@ -7,7 +7,13 @@ malformed, damaged, of another protocol version or session, stale or duplicated 
 never used. No measurement for ``timeout_s`` raises ``RigFault`` (the rig's own watchdog closes its valve
 meanwhile), as does a rig that stops reporting itself armed (watchdog, restart, interlock).
 
-Standard library only (socket, struct, zlib): the protocol needs nothing more.
+Protocol version 2 (the default) authenticates every packet (sim.emulator.auth): a HELLO with a fresh nonce
+fetches the rig's challenge, the ARM carries it, and the session's key derived from it tags every measurement,
+command and DISARM; a datagram from anywhere but the rig's address, with a wrong tag, or replayed (a sequence
+not above the latest) is dropped and counted. Version 1 runs without a key where it is named (or on loopback
+without a key file), and says so in ``describe()`` and ``link_stats()`` (``authenticated: False``).
+
+Standard library only (socket, struct, zlib, hmac): the protocol needs nothing more.
 """
 
 from __future__ import annotations
@@ -19,6 +25,7 @@ import socket
 import time
 from urllib.parse import urlsplit
 
+from sim.emulator import auth
 from sim.emulator import protocol as proto
 from sim.latency import LatencyHistogram
 from sim.measurement import RIG_FAULT_BITS, STATUS_ARMED, Measurement, describe_status
@@ -28,6 +35,7 @@ from .base import ArmConditions, RigDescription, RigDriver, RigFault, check_comm
 
 ARM_RESEND_S = 0.05  # ARM is repeated this often until the rig answers
 DISARM_REPEATS = 3  # DISARM travels on UDP too: sent three times
+ARM_TRIES_PER_CHALLENGE = 4  # version 2: ARMs sent with one challenge before a HELLO fetches a fresh one
 
 
 def parse_udp_url(url: str) -> tuple[str, int]:
@@ -45,14 +53,21 @@ def parse_udp_url(url: str) -> tuple[str, int]:
 
 
 class UdpRig(RigDriver):
-    """A rig at ``host:port`` over the isorig rig protocol, version 1."""
+    """A rig at ``host:port`` over the isorig rig protocol, version 2 (``key_file``) or 1 (see the module
+    docstring and sim.emulator.auth.resolve_security for which)."""
 
     def __init__(self, host: str, port: int, period_s: float = 1e-3, timeout_s: float = 0.05,
-                 arm_timeout_s: float = 2.0, command_limit_v: float = DEFAULT_RIG.command_limit_v):
+                 arm_timeout_s: float = 2.0, command_limit_v: float = DEFAULT_RIG.command_limit_v,
+                 key_file: str | None = None, protocol_version: int | None = None,
+                 security: auth.LinkSecurity | None = None):
         for name, value in (("period_s", period_s), ("timeout_s", timeout_s), ("arm_timeout_s", arm_timeout_s)):
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} = {value!r} must be a positive number of seconds")
         self.host, self.port = host, port
+        self.security = security or auth.resolve_security(host, key_file, protocol_version)  # ValueError: why not
+        self.codec = proto.Codec(self.security.protocol_version)
+        self.session_key: bytes | None = None
+        self.addr: tuple | None = None
         self.period_s = period_s
         self.timeout_s = timeout_s
         self.arm_timeout_s = arm_timeout_s
@@ -79,96 +94,131 @@ class UdpRig(RigDriver):
         self.rig_counters = {"commands_missed": 0, "packets_rejected": 0}
         self.round_trip = LatencyHistogram()  # as the rig saw it: measurement sent -> command arrived
         self.answer = LatencyHistogram()  # in this process: measurement received -> command sent
+        self.last_command_t: float | None = None
+        self.command_gap_max_s = 0.0  # the longest time between two commands sent (host_stall_max_ms)
 
     def describe(self) -> RigDescription:
         return RigDescription(name=self.url, kind="udp", control_period_s=self.period_s,
                               command_limit_v=self.command_limit_v, realtime=True,
-                              details={"host": self.host, "port": self.port, "protocol_version": proto.VERSION,
+                              details={"host": self.host, "port": self.port, **self.security.describe(),
                                        "link_timeout_s": self.timeout_s, "arm_timeout_s": self.arm_timeout_s})
 
     # --- socket ---------------------------------------------------------------------------------------
     def _open(self) -> socket.socket:
         if self.sock is None:
+            try:
+                self.addr = socket.getaddrinfo(self.host, self.port, socket.AF_INET, socket.SOCK_DGRAM)[0][4][:2]
+            except OSError as exc:
+                raise RigFault(f"cannot reach the rig at {self.url}: {exc.strerror or exc}") from None
             sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
-            try:
-                sock.connect((self.host, self.port))  # only the rig's datagrams reach this socket
-            except OSError as exc:
-                sock.close()
-                raise RigFault(f"cannot reach the rig at {self.url}: {exc.strerror or exc}") from None
+            # not connected: a datagram from another address is read, dropped and counted (``address``)
+            sock.bind(("", 0))
             sock.setblocking(False)
             self.sock = sock
         return self.sock
 
     def _send(self, data: bytes) -> None:
         try:
-            self.sock.send(data)
+            self.sock.sendto(data, self.addr)
         except OSError:  # e.g. ECONNREFUSED from an earlier datagram: nobody listens yet; the timeouts decide
             pass
 
     def _reject(self, reason: str) -> None:
         self.stats["rejected"][reason] = self.stats["rejected"].get(reason, 0) + 1
 
-    def _receive(self, deadline: float) -> proto.Packet | None:
-        """The next valid MEASUREMENT of this session, or None at the deadline (a past deadline: what is
-        already queued, without waiting)."""
+    def _receive(self, deadline: float, nonce: bytes | None = None) -> proto.Packet | None:
+        """The next valid MEASUREMENT of this session (with ``nonce``: the ANSWER to the HELLO that carried it),
+        or None at the deadline (a past deadline: what is already queued, without waiting)."""
+        want = proto.MEASUREMENT if nonce is None else proto.ANSWER
         while True:
             wait = max(0.0, deadline - time.perf_counter())
             readable, _, _ = select.select([self.sock], [], [], wait)
             if not readable:
                 return None
             try:
-                data = self.sock.recv(proto.MAX_PACKET + 64)
+                data, source = self.sock.recvfrom(self.codec.max_packet + 64)
             except (BlockingIOError, InterruptedError):
                 continue
             except OSError:  # ECONNREFUSED after a send to a port nobody listens on
                 continue
+            if source[:2] != self.addr:
+                self._reject("address")  # not from the rig's address and port
+                continue
             try:
-                packet = proto.decode(data)
+                header = self.codec.peek(data, frozenset({want}))
             except proto.PacketError as exc:
                 self._reject(exc.reason)
                 continue
-            if packet.kind != proto.MEASUREMENT:
-                self._reject("kind")
-                continue
-            if packet.session != self.session:
+            if nonce is None and header.session != self.session:
                 self._reject("session")
-                if packet.session == 0 and self.current is not None:
+                if self.codec.version == 1 and header.session == 0 and self.current is not None:
                     raise RigFault(f"the rig at {self.url} is no longer armed (it restarted or was disarmed by "
                                    "someone else); nothing moves until a new test is started")
                 continue
+            try:
+                packet = self.codec.open(data, header, self.security.key if nonce else self.session_key)
+            except proto.PacketError as exc:
+                self._reject(exc.reason)
+                continue
+            if nonce is not None and packet.fields["nonce"] != nonce:
+                self._reject("stale")  # the answer to an earlier HELLO
+                continue
             return packet
+
+    def _challenge(self, end: float) -> bytes | None:
+        """Version 2: the rig's current ARM challenge, from the ANSWER to a fresh HELLO (sent every 50 ms)."""
+        while time.perf_counter() < end:
+            nonce = auth.new_nonce()
+            self._send(self.codec.encode(proto.HELLO, 0, 0, time.perf_counter_ns(), nonce, key=self.security.key))
+            packet = self._receive(min(end, time.perf_counter() + ARM_RESEND_S), nonce=nonce)
+            if packet is not None:
+                return packet.fields["challenge"]
+        return None
 
     # --- protocol -------------------------------------------------------------------------------------
     def arm(self, conditions: ArmConditions) -> None:
         self._open()
         self._reset_stats()
-        self.session = secrets.randbits(32) or 1
         self.current = None
-        arm = proto.encode(proto.ARM, self.session, 0, time.perf_counter_ns(), conditions.supply_pressure_pa,
-                           conditions.vertical_load_n)
         end = time.perf_counter() + self.arm_timeout_s
+        v2 = self.codec.version == 2
         while time.perf_counter() < end:
-            self._send(arm)
-            packet = self._receive(min(end, time.perf_counter() + ARM_RESEND_S))
-            if packet is None:
-                continue
-            rig_period = packet.fields["period_ns"] * 1e-9
-            if abs(rig_period - self.period_s) > 1e-9:
-                self.disarm(success=False)
-                raise RigFault(f"the rig at {self.url} runs at a control period of {rig_period:g} s; "
-                               f"this service is set for {self.period_s:g} s (rig_period_s)")
-            if not packet.fields["status"] & STATUS_ARMED:
-                continue
-            self._accept(packet)
-            return
+            self.session = secrets.randbits(32) or 1
+            if v2:  # a fresh challenge, a new session and its key for each round of ARMs
+                challenge = self._challenge(end)
+                if challenge is None:
+                    break
+                self.session_key = auth.session_key(self.security.key, challenge, self.session)
+                arm = self.codec.encode(proto.ARM, self.session, 0, time.perf_counter_ns(),
+                                        conditions.supply_pressure_pa, conditions.vertical_load_n, challenge,
+                                        key=self.security.key)
+            else:
+                arm = self.codec.encode(proto.ARM, self.session, 0, time.perf_counter_ns(),
+                                        conditions.supply_pressure_pa, conditions.vertical_load_n)
+            for _ in range(ARM_TRIES_PER_CHALLENGE if v2 else 1 << 30):
+                if time.perf_counter() >= end:
+                    break
+                self._send(arm)
+                packet = self._receive(min(end, time.perf_counter() + ARM_RESEND_S))
+                if packet is None:
+                    continue
+                rig_period = packet.fields["period_ns"] * 1e-9
+                if abs(rig_period - self.period_s) > 1e-9:
+                    self.disarm(success=False)
+                    raise RigFault(f"the rig at {self.url} runs at a control period of {rig_period:g} s; "
+                                   f"this service is set for {self.period_s:g} s (rig_period_s)")
+                if not packet.fields["status"] & STATUS_ARMED:
+                    continue
+                self._accept(packet)
+                return
         self.disarm(success=False)
         raise RigFault(self._why_not_armed(conditions))
 
     def _why_not_armed(self, conditions: ArmConditions) -> str:
         """Why the ARMs went unanswered: a rig refuses an ARM in silence (docs/rig-protocol.md section 3.1), so
         ask it with HELLO whether it is there, armed by another test, or counting refused ARMs."""
-        answer = probe(self.url)
+        answer = probe(self.url, security=self.security)
         waited = f"no answer from the rig at {self.url} within {self.arm_timeout_s:g} s of ARM"
         if not answer["connected"]:
             return f"{waited} (is it running and reachable? {answer['detail']})"
@@ -207,9 +257,14 @@ class UdpRig(RigDriver):
         u = check_command(command_v, self.command_limit_v)
         if self.current is None or self.sock is None:
             raise RigFault(f"the rig at {self.url} is not armed")
-        self._send(proto.encode(proto.COMMAND, self.session, self.current.period, time.perf_counter_ns(), u))
+        self._send(self.codec.encode(proto.COMMAND, self.session, self.current.period, time.perf_counter_ns(), u,
+                                     key=self.session_key))
+        now = time.perf_counter()
         self.stats["commands_sent"] += 1
-        self.answer.add((time.perf_counter() - self.received_at) * 1e3)
+        self.answer.add((now - self.received_at) * 1e3)
+        if self.last_command_t is not None:
+            self.command_gap_max_s = max(self.command_gap_max_s, now - self.last_command_t)
+        self.last_command_t = now
 
     def wait_next_period(self) -> None:
         if self.current is None:
@@ -232,8 +287,8 @@ class UdpRig(RigDriver):
 
     def disarm(self, success: bool = True) -> None:
         if self.sock is not None:
-            if self.session:
-                packet = proto.encode(proto.DISARM, self.session, 0, time.perf_counter_ns())
+            if self.session and (self.codec.version == 1 or self.session_key is not None):
+                packet = self.codec.encode(proto.DISARM, self.session, 0, time.perf_counter_ns(), key=self.session_key)
                 for _ in range(DISARM_REPEATS):
                     self._send(packet)
             self.sock.close()
@@ -245,7 +300,8 @@ class UdpRig(RigDriver):
                "received": self.stats["received"], "lost": self.stats["lost"],
                "rejected": sum(self.stats["rejected"].values()), "rejected_by_reason": dict(self.stats["rejected"]),
                "rig_commands_missed": self.rig_counters["commands_missed"],
-               "rig_packets_rejected": self.rig_counters["packets_rejected"]}
+               "rig_packets_rejected": self.rig_counters["packets_rejected"], **self.security.describe(),
+               "host_stall_max_ms": max(0.0, self.command_gap_max_s - self.period_s) * 1e3}
         if self.round_trip.n:
             out.update(round_trip_p50_ms=self.round_trip.percentile_ms(50),
                        round_trip_p99_ms=self.round_trip.percentile_ms(99), round_trip_max_ms=self.round_trip.max_ms)
@@ -254,27 +310,53 @@ class UdpRig(RigDriver):
         return out
 
 
-def probe(url: str, timeout_s: float = 0.2) -> dict:
-    """One HELLO to the rig at ``url``: is it there, what does it say, how long did it take."""
+def probe(url: str, timeout_s: float = 0.2, key_file: str | None = None, protocol_version: int | None = None,
+          security: auth.LinkSecurity | None = None) -> dict:
+    """One HELLO to the rig at ``url``: is it there, what does it say, how long did it take. Version 2 (a key):
+    the HELLO carries a fresh nonce and only the rig's ANSWER to it, with a right tag, counts."""
     host, port = parse_udp_url(url)
+    try:
+        security = security or auth.resolve_security(host, key_file, protocol_version)
+    except ValueError as exc:
+        return {"rig": url, "connected": False, "detail": str(exc)}
+    codec = proto.Codec(security.protocol_version)
+    nonce = auth.new_nonce()
+    hello = (codec.encode(proto.HELLO, 0, 0, time.perf_counter_ns()) if codec.version == 1 else
+             codec.encode(proto.HELLO, 0, 0, time.perf_counter_ns(), nonce, key=security.key))
+    want = proto.MEASUREMENT if codec.version == 1 else proto.ANSWER
+    dropped: dict[str, int] = {}
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
         sock.settimeout(timeout_s)
         t0 = time.perf_counter()
         try:
             sock.connect((host, port))
-            sock.send(proto.encode(proto.HELLO, 0, 0, time.perf_counter_ns()))
+            sock.send(hello)
             while True:
-                packet = proto.decode(sock.recv(proto.MAX_PACKET + 64))
-                if packet.kind == proto.MEASUREMENT:
+                data = sock.recv(codec.max_packet + 64)
+                try:
+                    header = codec.peek(data)
+                    if header.kind != want:
+                        continue
+                    packet = codec.open(data, header, security.key)
+                except proto.PacketError as exc:
+                    dropped[exc.reason] = dropped.get(exc.reason, 0) + 1
+                    continue
+                if codec.version == 1 or packet.fields["nonce"] == nonce:
                     break
         except ConnectionRefusedError:
             return {"rig": url, "connected": False,
                     "detail": f"nothing listens at {host}:{port} (the rig or its emulator is not running there)"}
         except TimeoutError:
-            return {"rig": url, "connected": False, "detail": f"no answer from {host}:{port} within {timeout_s:g} s"}
-        except proto.PacketError as exc:
-            return {"rig": url, "connected": False, "detail": f"{host}:{port} answers, but not in the isorig rig "
-                                                              f"protocol v{proto.VERSION} ({exc})"}
+            if dropped:
+                what = ", ".join(f"{n} {reason}" for reason, n in dropped.items())
+                hint = (" (the rig holds another key than this host's key file)" if "auth" in dropped else
+                        " (another protocol version: --rig-protocol, ISORIG_RIG_PROTOCOL)" if "version" in dropped
+                        else "")
+                return {"rig": url, "connected": False, "detail": f"{host}:{port} answers, but not in the isorig rig "
+                        f"protocol v{codec.version} this host speaks (dropped: {what}){hint}"}
+            return {"rig": url, "connected": False, "detail": f"no answer from {host}:{port} within {timeout_s:g} s "
+                    f"(is it running, with rig protocol v{codec.version}"
+                    + (" and the same key file?)" if security.authenticated else "?)")}
         except OSError as exc:
             return {"rig": url, "connected": False, "detail": f"cannot reach {host}:{port}: {exc.strerror or exc}"}
         status = int(packet.fields["status"])
@@ -283,19 +365,19 @@ def probe(url: str, timeout_s: float = 0.2) -> dict:
                 "fault": bool(status & RIG_FAULT_BITS), "position_m": packet.fields["position_m"],
                 "force_n": packet.fields["force_n"], "supply_pressure_pa": packet.fields["supply_pressure_pa"],
                 "period_s": packet.fields["period_ns"] * 1e-9, "packets_rejected": packet.fields["packets_rejected"],
-                "protocol_version": proto.VERSION}
+                **security.describe()}
 
 
 START_TOLERANCE_M = 0.002  # a test starts only with the table this close to zero, where every target begins
 
 
 def start_position_problem(url: str, tolerance_m: float = START_TOLERANCE_M, timeout_s: float = 0.2,
-                           expected_m: float = 0.0) -> str | None:
+                           expected_m: float = 0.0, **security) -> str | None:
     """Why nothing may start on the rig at ``url`` now, or None: it may. Refused when the rig does not answer
     (where its table is is then unknown), when it is armed (another host's test or move runs on it), and when
     its table is more than ``tolerance_m`` from ``expected_m``, where the target begins (0 for every test),
     since the controller would drive it there at full flow."""
-    answer = probe(url, timeout_s)
+    answer = probe(url, timeout_s, **security)
     if not answer["connected"]:
         return f"{answer['detail']}, so where its table is is unknown; nothing moved"
     if answer["armed"]:

@@ -450,12 +450,16 @@ def tracking_verdict_of(record: dict) -> dict:
 
 def link_text(link: dict) -> str:
     parts = []
+    if link.get("authenticated") is False:
+        parts.append(f"link not authenticated (rig protocol {link.get('protocol_version', 1)})")
+    elif link.get("authenticated") is True:
+        parts.append(f"authenticated (rig protocol {link.get('protocol_version', 2)})")
     for key, words in (("received", "packets received"), ("lost", "lost"), ("lost_periods", "periods lost"),
                        ("rejected", "rejected"), ("rig_commands_missed", "commands the rig missed")):
         if isinstance(link.get(key), (int, float)):
             parts.append(f"{link[key]:g} {words}")
     for key, words in (("round_trip_p50_ms", "round trip median"), ("round_trip_p99_ms", "p99"),
-                       ("round_trip_max_ms", "max")):
+                       ("round_trip_max_ms", "max"), ("host_stall_max_ms", "longest host stall")):
         if num(link.get(key)) is not None:
             parts.append(f"{words} {link[key]:.3g} ms")
     return ", ".join(parts) or "no link figures"

@@ -39,6 +39,9 @@ def register(sub) -> None:
                    help="vertical load of the check's ARMs (default 0 N: the jack not loaded)")
     p.add_argument("--period-s", type=float, default=1e-3,
                    help="the control period the service is set for (ISORIG_RIG_PERIOD_S, default 0.001 s)")
+    from .rig_key import add_link_flags
+
+    add_link_flags(p)
     p.set_defaults(func=run)
 
 
@@ -51,10 +54,13 @@ def run(args) -> int:
     prog = "isorig check-rig"
     rig = load_rig_file(args.rig_file).parameters if args.rig_file else DEFAULT_RIG
     rig = with_assignments(rig, args.rig_set, "--rig-set")
+    from .rig_key import link_security
+
+    security = link_security("check-rig", args.rig, args)
     try:
         check = RigCheck(args.rig, rig, supply_pa=args.supply_bar * 1e5, vertical_load_n=args.vertical_load_n,
                          period_s=args.period_s, timeout_s=args.timeout_s, motion=args.motion,
-                         motion_v=args.motion_v)
+                         motion_v=args.motion_v, security=security)
     except ValueError as exc:
         raise UsageError(f"{prog}: {exc}") from None
     raise_priority(10)  # the host's side of the loop, as the worker's: the rig's watchdog does not wait
@@ -70,6 +76,8 @@ def run(args) -> int:
     else:
         commands = (f"motion at +-{args.motion_v:g} V" if args.motion else
                     "no motion: every command 0.0 V except the ones a conforming rig refuses")
-        print(f"{prog} {args.rig}: ARMs at {args.supply_bar:g} bar, {args.vertical_load_n:g} N; {commands}")
+        link = (f"rig protocol 2, authenticated with {security.key_file}" if security.authenticated else
+                f"rig protocol 1, NOT AUTHENTICATED ({security.why})")
+        print(f"{prog} {args.rig}: {link}; ARMs at {args.supply_bar:g} bar, {args.vertical_load_n:g} N; {commands}")
         print(report.table())
     return 0 if report.ok else 1

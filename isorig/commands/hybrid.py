@@ -40,6 +40,9 @@ def register(sub) -> None:
                    help="'simulated' (default: virtual RTHS, as fast as it runs) or udp://HOST:PORT (a real-time "
                         "I/O target or `isorig rig-emulator`, in real time)")
     p.add_argument("--out", required=True, help="output directory for timeseries.csv and summary.json")
+    from .rig_key import add_link_flags
+
+    add_link_flags(p)
     p.set_defaults(func=run)
 
 
@@ -53,11 +56,16 @@ def _on_rig(args, building, ag, scenario):
         rig_kind(args.rig)
     except ValueError as exc:
         raise UsageError(f"isorig hybrid: --rig: {exc}") from None
-    check_start_position("hybrid", args.rig)
+    from .rig_key import link_options, link_security
+
+    security = link_security("hybrid", args.rig, args)
+    check_start_position("hybrid", args.rig, security=link_options(security, args))
     # the scenario's history (the reference's base displacement) puts the servo in its history mode, as in
     # the virtual RTHS; the targets themselves come from the building, period by period
-    job = rig_job(args.rig, scenario, hybrid={"building": building.to_dict(), "ground_acc_m_per_s2": ag})
-    print(f"running {ag.size / 1000:g} s of hybrid simulation in real time on {args.rig} (Ctrl-C aborts)")
+    job = rig_job(args.rig, scenario, security=link_options(security, args),
+                  hybrid={"building": building.to_dict(), "ground_acc_m_per_s2": ag})
+    print(f"running {ag.size / 1000:g} s of hybrid simulation in real time on {args.rig} (Ctrl-C aborts)"
+          + ("" if security.authenticated else f"; rig link NOT AUTHENTICATED (protocol 1: {security.why})"))
     run, sent, status, reason, _wall_s = run_job(job)
     return run.hybrid, sent.samples(), (None if status == "completed" else f"{status}: {reason}")
 

@@ -45,6 +45,9 @@ def register(isub, parser_class) -> None:
     r.add_argument("--name", default=None, help="the rig file's name (default: the starting rig's, commissioned)")
     r.add_argument("--record", default=None, metavar="FILE.csv", help="also write the run's record (1 kHz CSV)")
     r.add_argument("--json", action="store_true", help="print the identification as JSON instead of a table")
+    from .rig_key import add_link_flags
+
+    add_link_flags(r)
     r.set_defaults(func=run)
 
 
@@ -88,14 +91,17 @@ def run(args) -> int:
     if load_n is None:
         load_n = isolator.design_vertical_load_n if isolator.design_vertical_load_n is not None \
             else declared.vertical_load_n
-    start_m = 0.0
+    start_m, options = 0.0, None
     if kind == "udp":
-        start_m = resting_position_m("identify rig", args.rig)
+        from .rig_key import link_options, link_security
+
+        options = link_options(link_security("identify rig", args.rig, args), args)
+        start_m = resting_position_m("identify rig", args.rig, options)
     conditions = Conditions(args.rig, supply_pa, load_n, isolator.name, start_m, args.max_stroke_m,
                             args.max_velocity_m_per_s)
     scenario = excitation_scenario(isolator, conditions, declared, plant)
     scenario.validate()
-    job = rig_job(args.rig, scenario)
+    job = rig_job(args.rig, scenario, security=options)
     job["scenario"]["plant_changes"] = plant
     job["limits"] = {**job["limits"], **excitation_limits(conditions)}
     job["start_tolerance_m"] = 1e-3 if kind == "udp" else 1e-6

@@ -25,6 +25,9 @@ def register(sub) -> None:
                    "ISORIG_RIG_FILE, else isorig's default rig): the controller settles the table on it")
     p.add_argument("--rig-set", action="append", default=[], metavar="NAME=VALUE",
                    help="change one rig parameter (after --rig-file; repeatable)")
+    from .rig_key import add_link_flags
+
+    add_link_flags(p)
     p.set_defaults(func=run)
 
 
@@ -57,7 +60,10 @@ def run(args) -> int:
         raise UsageError(f"isorig move: --rig: {exc}") from None
     if args.isolator not in PRESETS:
         raise UsageError(f"isorig move: --isolator {args.isolator!r} is not a preset ({', '.join(PRESETS)})")
-    start_m = resting_position_m("move", args.rig)
+    from .rig_key import link_options, link_security
+
+    options = link_options(link_security("move", args.rig, args), args)
+    start_m = resting_position_m("move", args.rig, options)
     described, rig = rig_in_force(args)
     try:
         check_move(start_m, args.position_m, args.speed_m_per_s, rig.stroke_m)
@@ -67,7 +73,7 @@ def run(args) -> int:
     except (MotionError, ProfileError) as exc:
         raise UsageError(f"isorig move: {exc}") from None
     motion = {"start_m": start_m, "end_m": args.position_m, "speed_m_per_s": args.speed_m_per_s}
-    job = rig_job(args.rig, scenario, motion=motion, history_target=None)
+    job = rig_job(args.rig, scenario, security=options, motion=motion, history_target=None)
     print(f"moving the table on {args.rig} from {start_m * 1e3:.2f} mm to {args.position_m * 1e3:.2f} mm at "
           f"{args.speed_m_per_s * 1e3:g} mm/s ({scenario.duration_s:.1f} s; Ctrl-C stops it where it is); rig: "
           f"{described.name} ({described.source})")

@@ -30,6 +30,9 @@ def register(sub) -> None:
     p.add_argument("--plant-set", action="append", default=[], metavar="NAME=VALUE",
                    help="change one parameter of the rig it plays (after --plant-file), e.g. piston_area_m2=0.02 "
                         "(repeatable)")
+    from .rig_key import add_link_flags
+
+    add_link_flags(p)
     g = p.add_argument_group("fault injection (times count from the ARM of the test)")
     g.add_argument("--packet-loss-pct", type=float, default=0.0, help="drop this share of datagrams, both ways")
     g.add_argument("--latency-ms", type=float, default=0.0, help="delay every measurement by this much")
@@ -68,17 +71,23 @@ def plant(args):
 def run(args) -> int:
     from pathlib import Path
 
+    from sim.emulator.auth import resolve_security
     from sim.emulator.server import EmulatorConfig, Faults, RigEmulator
     from sim.isolator import load_isolator
     from sim.realtime import raise_priority
 
+    try:
+        security = resolve_security(args.host, args.rig_key_file, args.rig_protocol)
+    except ValueError as exc:
+        raise UsageError(f"isorig rig-emulator: {exc}") from None
     faults = Faults(args.packet_loss_pct, args.latency_ms, args.jitter_ms, args.drop_link_after_s,
                     args.restart_after_s, args.sensor_fault, args.sensor_fault_after_s, args.supply_loss_after_s)
     rig, plant_name, plant_source = plant(args)
     config = EmulatorConfig(load_isolator(args.isolator), args.port, args.host, rig=rig, period_s=args.period_s,
                             watchdog_s=args.watchdog_ms / 1e3, seed=args.seed, faults=faults,
                             status_file=Path(args.status_file) if args.status_file else None,
-                            plant_name=plant_name, plant_source=plant_source, defects=tuple(dict.fromkeys(args.defect)))
+                            plant_name=plant_name, plant_source=plant_source, defects=tuple(dict.fromkeys(args.defect)),
+                            security=security)
     try:
         emulator = RigEmulator(config)
     except OSError as exc:
@@ -90,7 +99,9 @@ def run(args) -> int:
     changed = config.plant()["changed"]
     plant_text = config.plant_name + (f" ({', '.join(f'{k}={v:g}' for k, v in changed.items())})" if changed else "")
     defects = f", DEFECTS {', '.join(config.defects)} (for testing check-rig)" if config.defects else ""
-    print(f"isorig rig-emulator: udp://{args.host}:{emulator.port}, isolator {config.isolator.name}, plant "
+    link = (f"protocol 2, authenticated with {security.key_file}" if security.authenticated else
+            f"protocol 1, NOT AUTHENTICATED ({security.why})")
+    print(f"isorig rig-emulator: udp://{args.host}:{emulator.port}, {link}, isolator {config.isolator.name}, plant "
           f"{plant_text}, period {config.period_s:g} s, watchdog {config.watchdog_s * 1e3:g} ms, priority "
           f"{priority}{defects}", file=sys.stderr, flush=True)
     try:

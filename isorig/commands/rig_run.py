@@ -10,9 +10,10 @@ import time
 from isorig.cli import UsageError
 
 
-def rig_job(rig: str, scenario, link_timeout_s: float = 0.05, **extra) -> dict:
-    """The worker's job for ``scenario`` on ``rig`` (udp://HOST:PORT), with the rig's default limits;
-    ``extra`` adds to the job's scenario (``motion``, ``history_target``) or the job (``hybrid``)."""
+def rig_job(rig: str, scenario, link_timeout_s: float = 0.05, security: dict | None = None, **extra) -> dict:
+    """The worker's job for ``scenario`` on ``rig`` (udp://HOST:PORT), with the rig's default limits and the
+    link's protection ``security`` (rig_key.link_options: the key file's path, never the key); ``extra`` adds
+    to the job's scenario (``motion``, ``history_target``) or the job (``hybrid``)."""
     from backend.safety import default_limits
 
     spec = {"isolator": scenario.isolator.to_dict(), "supply_pa": scenario.supply_pa,
@@ -21,27 +22,27 @@ def rig_job(rig: str, scenario, link_timeout_s: float = 0.05, **extra) -> dict:
             "controller_options": scenario.controller_options, "history_target": scenario.history,
             "rig_changes": scenario.describe()["rig_changes"]}
     job = {"test_id": None, "rig": rig, "speed": 1.0,
-           "link": {"period_s": 1e-3, "timeout_s": link_timeout_s, "arm_timeout_s": 2.0},
+           "link": {"period_s": 1e-3, "timeout_s": link_timeout_s, "arm_timeout_s": 2.0, **(security or {})},
            "scenario": spec, "limits": default_limits(scenario.rig).to_dict()}
     for key, value in extra.items():
         (job if key == "hybrid" else spec)[key] = value
     return job
 
 
-def check_start_position(command: str, rig: str, expected_m: float = 0.0) -> None:
+def check_start_position(command: str, rig: str, expected_m: float = 0.0, security: dict | None = None) -> None:
     """One HELLO: refuse (exit 2) while the table rests off where the run starts; nothing moves."""
     from backend.drivers.udp import start_position_problem
 
-    problem = start_position_problem(rig, expected_m=expected_m)
+    problem = start_position_problem(rig, expected_m=expected_m, **(security or {}))
     if problem is not None:
         raise UsageError(f"isorig {command}: not started on {rig}: {problem}")
 
 
-def resting_position_m(command: str, rig: str) -> float:
+def resting_position_m(command: str, rig: str, security: dict | None = None) -> float:
     """Where the rig's table rests, from one HELLO; refuse (exit 2) a rig that does not answer or is armed."""
     from backend.drivers.udp import probe
 
-    answer = probe(rig, timeout_s=0.5)
+    answer = probe(rig, timeout_s=0.5, **(security or {}))
     if not answer["connected"]:
         raise UsageError(f"isorig {command}: {answer['detail']}; nothing moved")
     if answer["armed"]:

@@ -20,6 +20,13 @@ def register(sub) -> None:
     p.add_argument("--plant-set", action="append", default=[], metavar="NAME=VALUE",
                    help="simulated rig only: the rig as it truly is, unlike its rig file (a rig or isolator "
                         "parameter, SI; repeatable; ISORIG_PLANT_SET): for demos and tests of commissioning")
+    p.add_argument("--rig-key-file", default=None, metavar="FILE",
+                   help="UDP rig: the lab's key file (rig protocol 2, every packet authenticated; `isorig rig-key new "
+                        "FILE` makes one; ISORIG_RIG_KEY_FILE)")
+    p.add_argument("--rig-protocol", default=None, choices=("1", "2"),
+                   help="UDP rig: 2 (default: authenticated, needs --rig-key-file) or 1 (unauthenticated, for a lab's "
+                        "bring-up or an existing v1 target; ISORIG_RIG_PROTOCOL); without a key only a rig on "
+                        "loopback runs, unauthenticated, unless 1 is named")
     p.add_argument("--log-level", default="info", choices=("critical", "error", "warning", "info", "debug"))
     p.set_defaults(func=run)
 
@@ -43,7 +50,8 @@ def run(args) -> int:
     from isorig.cli import UsageError
 
     overrides = {k: v for k, v in (("host", args.host), ("port", args.port), ("database_url", args.database_url),
-                                   ("data_dir", args.data_dir), ("rig", args.rig), ("rig_file", args.rig_file))
+                                   ("data_dir", args.data_dir), ("rig", args.rig), ("rig_file", args.rig_file),
+                                   ("rig_key_file", args.rig_key_file), ("rig_protocol", args.rig_protocol))
                  if v is not None}
     if args.plant_set:
         overrides["plant_set"] = " ".join(args.plant_set)

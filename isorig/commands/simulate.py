@@ -62,6 +62,9 @@ def register(sub) -> None:
                         "(a real-time I/O target or `isorig rig-emulator`, in real time)")
     p.add_argument("--link-timeout-s", type=float, default=0.05,
                    help="UDP rig: a link silent this long ends the test failed (default 0.05 s)")
+    from .rig_key import add_link_flags
+
+    add_link_flags(p)
     p.set_defaults(func=run)
 
 
@@ -185,6 +188,7 @@ def run_on_rig(args, scenario, out: Path) -> int:
     from sim.engine import Result
     from sim.records import write_csv
 
+    from .rig_key import link_options, link_security
     from .rig_run import check_start_position, rig_job, run_job
 
     try:
@@ -193,10 +197,15 @@ def run_on_rig(args, scenario, out: Path) -> int:
         raise UsageError(f"isorig simulate: --rig: {exc}") from None
     if not (0 < args.link_timeout_s <= 5):
         raise UsageError(f"isorig simulate: --link-timeout-s {args.link_timeout_s:g} is outside (0, 5] s")
+    security, options = None, None
     if args.rig.startswith("udp://"):
-        check_start_position("simulate", args.rig)
-    job = rig_job(args.rig, scenario, args.link_timeout_s)
-    print(f"running {scenario.duration_s:g} s in real time on {args.rig} (Ctrl-C aborts)")
+        security = link_security("simulate", args.rig, args)
+        options = link_options(security, args)
+        check_start_position("simulate", args.rig, security=options)
+    job = rig_job(args.rig, scenario, args.link_timeout_s, security=options)
+    print(f"running {scenario.duration_s:g} s in real time on {args.rig} (Ctrl-C aborts)"
+          + ("" if security is None or security.authenticated else
+             f"; rig link NOT AUTHENTICATED (protocol 1: {security.why})"))
     run, sent, status, reason, wall_s = run_job(job)  # Ctrl-C: abort the test, valve closed, files written
     samples = sent.samples()
     write_csv(out / "timeseries.csv", samples)

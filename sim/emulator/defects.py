@@ -8,6 +8,9 @@ DEFECTS = {
     "echo-other-session": "applies the commands of any session (does not compare the session of a COMMAND)",
     "accept-stale": "applies stale commands (duplicates, older than the one held, more than 10 periods old)",
     "reply-from-other-port": "sends from another port than the one the host sent to",
+    "no-hello-rate": "(protocol 2) answers every HELLO, however many",
+    "any-address": "(protocol 2) applies commands from any address, not only the ARM's",
+    "reuse-challenge": "(protocol 2) keeps its challenge after an ARM, so a finished session's ARM arms it again",
 }
 
 

@@ -1,4 +1,9 @@
-"""The isorig rig protocol, version 1: one UDP datagram per control period each way (docs/rig-protocol.md).
+"""The isorig rig protocol, versions 1 and 2: one UDP datagram per control period each way (docs/rig-protocol.md).
+
+Version 2 (``Codec(2)``) has the same header and the same MEASUREMENT and COMMAND payloads; it ends every
+packet with a 16-byte HMAC-SHA-256 tag (sim.emulator.auth) instead of the CRC-32, adds a nonce to HELLO and
+the rig's challenge to ARM, and answers a HELLO with an ANSWER (kind 6: a measurement, the HELLO's nonce and
+the rig's challenge). What follows describes version 1, the module-level ``encode``/``decode``.
 
 Every packet is little-endian: a 24-byte header, a payload that depends on the kind, and a CRC-32
 (zlib's, the one of Ethernet and PNG) of everything before it.
@@ -27,10 +32,13 @@ import struct
 import zlib
 from dataclasses import dataclass
 
+from . import auth
+
 MAGIC = b"ISRG"
 VERSION = 1
-MEASUREMENT, COMMAND, ARM, DISARM, HELLO = 1, 2, 3, 4, 5
-KIND_NAMES = {MEASUREMENT: "measurement", COMMAND: "command", ARM: "arm", DISARM: "disarm", HELLO: "hello"}
+MEASUREMENT, COMMAND, ARM, DISARM, HELLO, ANSWER = 1, 2, 3, 4, 5, 6
+KIND_NAMES = {MEASUREMENT: "measurement", COMMAND: "command", ARM: "arm", DISARM: "disarm", HELLO: "hello",
+              ANSWER: "answer"}
 
 HEADER = struct.Struct("<4sHHIIQ")
 PAYLOADS = {
@@ -97,3 +105,93 @@ def decode(data: bytes) -> Packet:
         raise PacketError("crc", "CRC mismatch: the packet was damaged")
     values = PAYLOADS[kind].unpack_from(data, HEADER.size)
     return Packet(kind, session, sequence, time_ns, dict(zip(PAYLOAD_FIELDS[kind], values, strict=True)))
+
+
+# --- version 2 ----------------------------------------------------------------------------------------------
+V2_PAYLOADS = {
+    MEASUREMENT: PAYLOADS[MEASUREMENT],
+    COMMAND: PAYLOADS[COMMAND],
+    ARM: struct.Struct("<dd16s"),
+    DISARM: PAYLOADS[DISARM],
+    HELLO: struct.Struct("<16s"),
+    ANSWER: struct.Struct("<ddddIIIIII16s16s"),
+}
+V2_FIELDS = {**PAYLOAD_FIELDS, ARM: ("supply_pressure_pa", "vertical_load_n", "challenge"), HELLO: ("nonce",),
+             ANSWER: MEASUREMENT_FIELDS + ("nonce", "challenge")}
+V2_SIZES = {kind: HEADER.size + payload.size + auth.TAG_BYTES for kind, payload in V2_PAYLOADS.items()}
+#: the key a version 2 packet is tagged with: the lab's key, or the key of its session (auth.session_key)
+LAB_KEY_KINDS = frozenset({ARM, HELLO, ANSWER})
+RIG_RECEIVES = frozenset({COMMAND, ARM, DISARM, HELLO})
+
+
+@dataclass(frozen=True)
+class Header:
+    kind: int
+    session: int
+    sequence: int
+    time_ns: int
+
+
+class Codec:
+    """Encode and decode one protocol version. Version 1: CRC-32, no key. Version 2: every packet tagged with
+    ``key`` (the lab's key for ARM, HELLO and ANSWER; the session's key for MEASUREMENT, COMMAND, DISARM).
+
+    ``peek`` does the structural checks (short, magic, version, kind, size) and reads the header, so that a
+    receiver can drop by header (rate, session, address) and choose the key before ``open`` checks the CRC or
+    the tag (reason ``crc`` or ``auth``) and reads the payload."""
+
+    def __init__(self, version: int = VERSION):
+        if version not in (1, 2):
+            raise ValueError(f"rig protocol version {version!r}; isorig speaks 1 and 2")
+        self.version = version
+        self.payloads = PAYLOADS if version == 1 else V2_PAYLOADS
+        self.fields = PAYLOAD_FIELDS if version == 1 else V2_FIELDS
+        self.sizes = SIZES if version == 1 else V2_SIZES
+        self.trailer = CRC.size if version == 1 else auth.TAG_BYTES
+        self.max_packet = max(self.sizes.values())
+
+    def encode(self, kind: int, session: int, sequence: int, time_ns: int, *payload, key: bytes | None = None) -> bytes:
+        body = HEADER.pack(MAGIC, self.version, kind, session & U32, sequence & U32, time_ns & 0xFFFFFFFFFFFFFFFF)
+        body += self.payloads[kind].pack(*payload)
+        return self.seal(body, key)
+
+    def seal(self, body: bytes, key: bytes | None = None) -> bytes:
+        """``body`` (header and payload) with its trailer: the CRC-32 (version 1) or the tag under ``key``."""
+        if self.version == 1:
+            return body + CRC.pack(zlib.crc32(body))
+        if key is None:
+            raise ValueError("a version 2 packet needs a key")
+        return body + auth.tag(key, body)
+
+    def peek(self, data: bytes, receives: frozenset | None = None) -> Header:
+        """The header of a structurally valid packet, or PacketError (short, magic, version, kind, size); a
+        kind not in ``receives`` (what this side receives) is dropped as ``kind``."""
+        minimum = HEADER.size + self.trailer if self.version == 1 else HEADER.size  # v2: a v1 packet is `version`
+        if len(data) < minimum:
+            raise PacketError("short", f"{len(data)} bytes is shorter than any packet")
+        magic, version, kind, session, sequence, time_ns = HEADER.unpack_from(data)
+        if magic != MAGIC:
+            raise PacketError("magic", f"magic {magic!r} is not {MAGIC!r}")
+        if version != self.version:
+            raise PacketError("version", f"protocol version {version}; this side speaks version {self.version}")
+        if kind not in self.payloads or (receives is not None and kind not in receives):
+            raise PacketError("kind", f"unknown packet kind {kind}, or one this side does not receive")
+        if len(data) != self.sizes[kind]:
+            raise PacketError("size", f"a {KIND_NAMES[kind]} packet has {self.sizes[kind]} bytes, not {len(data)}")
+        return Header(kind, session, sequence, time_ns)
+
+    def open(self, data: bytes, header: Header, key: bytes | None = None) -> Packet:
+        """The packet, once its CRC (version 1) or tag under ``key`` (version 2) is right; else PacketError."""
+        end = len(data) - self.trailer
+        if self.version == 1:
+            (crc,) = CRC.unpack_from(data, end)
+            if crc != zlib.crc32(data[:end]):
+                raise PacketError("crc", "CRC mismatch: the packet was damaged")
+        elif key is None or not auth.tag_ok(key, data[:end], data[end:]):
+            raise PacketError("auth", "the tag is wrong: forged, damaged, or of another key or session")
+        values = self.payloads[header.kind].unpack_from(data, HEADER.size)
+        return Packet(header.kind, header.session, header.sequence, header.time_ns,
+                      dict(zip(self.fields[header.kind], values, strict=True)))
+
+    def decode(self, data: bytes, key: bytes | None = None) -> Packet:
+        return self.open(data, self.peek(data), key)

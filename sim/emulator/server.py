@@ -12,6 +12,8 @@ Faults are injected by ``Faults`` (the ``isorig rig-emulator`` flags), timed fro
 packet loss (each datagram, both ways), added latency and jitter on measurements, a link that drops for
 good, a restart (the rig forgets session and host: nothing moves until a new ARM), a position sensor
 stuck, NaN or out of range (silent: the host must see it in the values), and supply pressure loss.
+The link is protocol version 2 (every packet tagged with the lab's key, the session's key derived from the
+rig's challenge at ARM: sim.emulator.auth) or, when ``security`` says so, the unauthenticated version 1.
 ``defects`` break the protocol on purpose (sim.emulator.defects): a rig that does not conform, for testing
 ``isorig check-rig``. The plant is any rig (``rig``: a lab's rig file), not only isorig's default.
 
@@ -39,6 +41,7 @@ from ..latency import LatencyHistogram
 from ..measurement import STATUS_ARMED, STATUS_COMMAND_MISSED, STATUS_SUPPLY_LOW, STATUS_WATCHDOG
 from ..plant import SimulatedPlant
 from ..rig import DEFAULT_RIG, P_FRICTION, P_SUPPLY, RigParameters
+from . import auth
 from . import protocol as proto
 from .defects import check_defects
 
@@ -49,6 +52,8 @@ SUPPLY_LOW_FRACTION = 0.5
 STALE_PERIODS = 10  # a command answering a measurement older than this is stale
 SPIN_S = 2e-4  # the loop sleeps until this long before a tick, then polls
 STATUS_EVERY_S = 0.5
+HELLO_BURST = 10  # version 2: HELLOs answered at once at most ...
+HELLO_RATE_PER_S = 100.0  # ... and on average; the rest are dropped as `rate` before their tag is checked
 
 
 @dataclass
@@ -99,6 +104,8 @@ class EmulatorConfig:
     plant_source: str = "sim.rig defaults"
     #: names of ``DEFECTS``: a rig that breaks the protocol on purpose (for testing isorig check-rig)
     defects: tuple[str, ...] = ()
+    #: the link's protection (sim.emulator.auth): version 2 with the lab's key, or version 1 without
+    security: auth.LinkSecurity = field(default_factory=lambda: auth.LinkSecurity(1, why="no key given"))
 
     def check(self) -> None:
         if not (1e-4 <= self.period_s <= 0.1):
@@ -108,6 +115,8 @@ class EmulatorConfig:
         if not (0 <= self.port <= 65535):
             raise ValueError(f"port {self.port!r} is outside [0, 65535]")
         check_defects(self.defects)
+        if self.security.protocol_version == 2 and self.security.key is None:
+            raise ValueError("rig protocol 2 needs the lab's key")
         self.rig.check()
         self.faults.check()
 
@@ -138,6 +147,12 @@ class RigEmulator:
         self.sock.setblocking(False)
         self.port = self.sock.getsockname()[1]
         self.defects = frozenset(config.defects)
+        self.security = config.security
+        self.codec = proto.Codec(config.security.protocol_version)
+        self.lab_key = config.security.key
+        self.challenge = auth.new_nonce()  # version 2: what the next ARM must carry (a new one after each ARM)
+        self.hello_tokens = float(HELLO_BURST)
+        self.hello_refill_t = time.perf_counter()
         self.send_sock = self.sock
         if "reply-from-other-port" in self.defects:
             self.send_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -174,6 +189,8 @@ class RigEmulator:
         self.sent_ns: dict[int, int] = {}
         self.stuck_reading = None
         self.last_latency_us = 0
+        self.session_key: bytes | None = None  # version 2: the armed session's key
+        self.arm_challenge = b""  # ... and the challenge its ARM carried
 
     def test_time(self, now: float) -> float | None:
         return None if self.arm_time is None else now - self.arm_time
@@ -194,15 +211,35 @@ class RigEmulator:
             self.counters["incoming_dropped"] += 1
             return
         try:
-            packet = proto.decode(data)
+            header = self.codec.peek(data, proto.RIG_RECEIVES)  # a MEASUREMENT or ANSWER sent to a rig: kind
+        except proto.PacketError as exc:
+            self._reject(exc.reason)
+            return
+        kind, v2 = header.kind, self.codec.version == 2
+        if kind == proto.HELLO and v2 and not self._hello_token(arrival) and "no-hello-rate" not in self.defects:
+            self._reject("rate")  # a flood of HELLOs costs the rig no tag to check and no answer
+            return
+        key = self.lab_key
+        if kind in (proto.DISARM, proto.COMMAND) and v2:
+            if not self.armed or (header.session != self.session and "echo-other-session" not in self.defects):
+                if not (kind == proto.DISARM and header.session == self.session):
+                    self._reject("session")
+                return  # (a DISARM of the session that last ran, once ended: ignored)
+            if addr != self.host_addr and "any-address" not in self.defects:
+                self._reject("address")  # not from where the accepted ARM came from
+                return
+            key = self.session_key
+        try:
+            packet = self.codec.open(data, header, key)
         except proto.PacketError as exc:
             self._reject(exc.reason)
             return
         if packet.kind == proto.HELLO:  # armed: the test's session and latest sequence; else session 0, sequence 0
+            nonce = packet.fields.get("nonce")
             if self.armed:
-                self._send_measurement(addr, self.session, max(self.sequence, 0), hello=True)
+                self._send_measurement(addr, self.session, max(self.sequence, 0), hello=True, nonce=nonce)
             else:
-                self._send_measurement(addr, 0, 0, hello=True)
+                self._send_measurement(addr, 0, 0, hello=True, nonce=nonce)
         elif packet.kind == proto.ARM:
             self._arm(packet, addr, arrival)
         elif packet.kind == proto.DISARM:
@@ -212,10 +249,17 @@ class RigEmulator:
                 self.counters["disarms"] += 1
             elif packet.session != self.session:
                 self._reject("session")
-        elif packet.kind == proto.COMMAND:
-            self._command(packet, arrival)
         else:
-            self._reject("kind")
+            self._command(packet, arrival)
+
+    def _hello_token(self, now: float) -> bool:
+        """A token bucket: HELLO_BURST HELLOs at once, HELLO_RATE_PER_S on average."""
+        self.hello_tokens = min(HELLO_BURST, self.hello_tokens + (now - self.hello_refill_t) * HELLO_RATE_PER_S)
+        self.hello_refill_t = now
+        if self.hello_tokens < 1.0:
+            return False
+        self.hello_tokens -= 1.0
+        return True
 
     def _arm(self, packet: proto.Packet, addr, arrival: float) -> None:
         supply, load = packet.fields["supply_pressure_pa"], packet.fields["vertical_load_n"]
@@ -224,10 +268,16 @@ class RigEmulator:
                 or not (0.0 <= load <= rig.max_vertical_load_n):
             self._reject("arm")  # no answer: the host learns of it by its timeout, or from a HELLO's count
             return
-        if self.armed and packet.session == self.session:
+        challenge = packet.fields.get("challenge", b"")
+        if self.armed and packet.session == self.session and challenge == self.arm_challenge:
+            if self.codec.version == 2 and addr != self.host_addr:
+                self._reject("address")  # the test's ARM again, from elsewhere: a replay
             return  # the host repeats ARM until it hears the rig: already armed
         if self.armed:
             self._reject("busy")  # another host's test runs: it keeps the rig (its disarm or the watchdog frees it)
+            return
+        if self.codec.version == 2 and not auth.hmac.compare_digest(challenge, self.challenge):
+            self._reject("challenge")  # not the rig's current challenge: a replayed ARM, or one before another ARM
             return
         self._reset_session()  # a finished session is not remembered: its ARM again starts it anew, at 0
         self.armed = True
@@ -239,6 +289,11 @@ class RigEmulator:
         self.plant.params[P_SUPPLY] = supply
         self.plant.params[P_FRICTION] = rig.with_changes(vertical_load_n=load).friction_force_n  # the jack
         self.vertical_load_n = load
+        if self.codec.version == 2:
+            self.session_key = auth.session_key(self.lab_key, challenge, packet.session)
+            self.arm_challenge = challenge
+            if "reuse-challenge" not in self.defects:
+                self.challenge = auth.new_nonce()  # this ARM can never be accepted again
         self.counters["arms"] += 1
 
     def _command(self, packet: proto.Packet, arrival: float) -> None:
@@ -316,6 +371,7 @@ class RigEmulator:
             return
         if self._fault_due(faults.restart_after_s, now) and self.counters["restarts"] == 0:
             self.counters["restarts"] += 1
+            self.challenge = auth.new_nonce()
             self._reset_session()  # forgets the host: it will hear nothing more from this rig
             self.arm_time = None
             return
@@ -340,7 +396,8 @@ class RigEmulator:
             self.stuck_reading = m.position_m
         return self.stuck_reading
 
-    def _send_measurement(self, addr, session: int, seq: int, extra_status: int = 0, hello: bool = False) -> None:
+    def _send_measurement(self, addr, session: int, seq: int, extra_status: int = 0, hello: bool = False,
+                          nonce: bytes | None = None) -> None:
         if addr is None or self.counters["link_dropped"]:
             return
         m = self.plant.measure()
@@ -351,11 +408,16 @@ class RigEmulator:
             if supply < SUPPLY_LOW_FRACTION * self.supply_set_pa:
                 status |= STATUS_SUPPLY_LOW
         now_ns = time.perf_counter_ns()
-        packet = proto.encode(proto.MEASUREMENT, session, seq, now_ns,
-                              self._reading(m), m.force_n, m.load_pressure_pa, supply, status,
-                              min(self.missed, proto.U32), min(self.rejected_count, proto.U32),
-                              max(self.last_applied_seq, 0), self.last_latency_us,
-                              int(round(self.period_s * 1e9)))
+        values = (self._reading(m), m.force_n, m.load_pressure_pa, supply, status, min(self.missed, proto.U32),
+                  min(self.rejected_count, proto.U32), max(self.last_applied_seq, 0), self.last_latency_us,
+                  int(round(self.period_s * 1e9)))
+        if self.codec.version == 1:
+            packet = self.codec.encode(proto.MEASUREMENT, session, seq, now_ns, *values)
+        elif hello:
+            packet = self.codec.encode(proto.ANSWER, session, seq, now_ns, *values, nonce, self.challenge,
+                                       key=self.lab_key)
+        else:
+            packet = self.codec.encode(proto.MEASUREMENT, session, seq, now_ns, *values, key=self.session_key)
         if not hello:
             self.sent_ns[seq] = now_ns
             self.sent_ns.pop(seq - STALE_PERIODS - 1, None)
@@ -395,7 +457,7 @@ class RigEmulator:
             if readable:
                 while True:
                     try:
-                        data, addr = self.sock.recvfrom(proto.MAX_PACKET + 64)
+                        data, addr = self.sock.recvfrom(self.codec.max_packet + 64)
                     except (BlockingIOError, InterruptedError):
                         break
                     except OSError:
@@ -455,7 +517,8 @@ class RigEmulator:
             self.send_sock.close()
 
     def status(self) -> dict:
-        return {"pid": os.getpid(), "port": self.port, "isolator": self.config.isolator.name,
+        return {"pid": os.getpid(), "port": self.port, **self.security.describe(),
+                "isolator": self.config.isolator.name,
                 "plant": self.config.plant(), "defects": sorted(self.defects), "period_s": self.period_s,
                 "watchdog_s": self.config.watchdog_s, "faults": asdict(self.faults),
                 "armed": self.armed, "session": self.session, "sequence": self.sequence,

@@ -20,6 +20,7 @@ from emulator import ISORIG, Emulator
 from backend.drivers import ArmConditions, RigFault
 from backend.drivers.rig_check import check_rig
 from backend.drivers.udp import UdpRig
+from sim.emulator import auth
 from sim.emulator import protocol as proto
 from sim.rigfile import load_rig_file
 
@@ -34,6 +35,13 @@ BROKEN = {
     "accept-stale": {("§5", "drop stale: a duplicate"), ("§5", "drop stale: a command more than 10")},
     "reply-from-other-port": {("§2", "replies come from the address and port")},
 }
+#: protocol 2 (section 9): each emulator broken on purpose, and the rule check-rig must fail on it (and no other)
+V2_BROKEN = {
+    "no-hello-rate": {("§9.6", "HELLO's rate")},
+    "any-address": {("§9.7", "drop address")},
+    "reuse-challenge": {("§9.5", "drop challenge")},
+}
+V2_DROP_REASONS = tuple(r for r in DROP_REASONS if r != "crc") + ("auth", "address", "challenge", "rate")
 LAB_RIG = 'name = "Lab B rig"\nmax_supply_pa = 150e5\ncommand_limit_v = 5.0\n'
 
 
@@ -186,3 +194,43 @@ def test_an_emulator_that_overruns_its_period_does_not_catch_up(good):
     assert min(sent_ms[stall + 1: stall + 20]) > 0.5, sent_ms[stall + 1: stall + 20]  # no burst of late ones
     counters = good.fresh_status()["counters"]
     assert counters["overruns"] > before["overruns"] and counters["ticks_lost"] >= before["ticks_lost"] + 50
+
+
+# --- protocol 2 --------------------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def keyed(tmp_path_factory):
+    """Emulators speaking protocol 2 with the lab's key: a good one and the ones of V2_BROKEN."""
+    path = tmp_path_factory.mktemp("keyed")
+    key = auth.write_key_file(path / "lab.key")
+    flags = {"good": (), **{name: ("--defect", name) for name in V2_BROKEN}}
+    with ThreadPoolExecutor(len(flags)) as pool:
+        started = dict(zip(flags, pool.map(lambda item: Emulator(path, "--rig-key-file", str(key), *item[1],
+                                                                 name=item[0]), flags.items()), strict=True))
+    yield started, key
+    for emulator in started.values():
+        emulator.stop()
+
+
+def test_check_rig_v2_passes_on_a_keyed_emulator_and_checks_the_authentication(keyed, cli):
+    emulators, key = keyed
+    good = emulators["good"]
+    code, out, err = cli("check-rig", good.url, "--rig-key-file", str(key), "--json")
+    assert code == 0, out + err
+    report = json.loads(out)
+    assert report["ok"] and report["passed"] == len(report["rules"]) >= 40
+    assert {"§9.1", "§9.5", "§9.6", "§9.7"} <= {r["section"] for r in report["rules"]}
+    status = good.fresh_status()
+    assert status["protocol_version"] == 2 and status["authenticated"]
+    assert set(V2_DROP_REASONS) <= set(status["rejected"]), status["rejected"]
+    assert not status["armed"] and status["command_v"] == 0.0 and abs(status["position_m"]) < 1e-6
+    # without the key, the check says in one line that the rig does not answer this host's protocol
+    code, out, err = cli("check-rig", good.url, "--rig-protocol", "1", "--timeout-s", "0.3")
+    assert code == 1 and "no answer to HELLO" in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("defect", sorted(V2_BROKEN))
+def test_check_rig_v2_fails_on_a_broken_emulator_naming_the_rule(keyed, defect):
+    emulators, key = keyed
+    report = check_rig(emulators[defect].url, security=auth.resolve_security("127.0.0.1", key))
+    assert matches(failed(report), V2_BROKEN[defect]), report.table()

@@ -83,6 +83,7 @@ def test_udp_rig_link_health(open_page, artifacts, tmp_path):
         details = page.inner_text("#rig-details")
         for what in ("host", "port", "control period", "link timeout", "arm timeout", "protocol"):
             assert what in details, details
+        assert "link not authenticated" in details, details  # loopback without a key file: protocol 1, and said
         page.click("#setup h2")  # a click elsewhere closes it
         assert page.is_hidden("#rig-details")
         # a real rig runs in real time: speed fixed at 1, with the reason

@@ -250,6 +250,7 @@ export class RigLink {
     row("link timeout", fmtPeriod(i.link_timeout_s));
     row("arm timeout", fmtPeriod(i.arm_timeout_s));
     if (i.protocol) row("protocol", i.protocol);
+    if (i.authenticated === false) row("authentication", "link not authenticated");
     head(this.source === "test" ? `Link: test #${l.test_id} running` : "Link: probe (GET /api/rig/link)");
     row("connected", this.error ? `unknown (${this.error})` : l.connected ? "yes" : "NO");
     if (l.detail) row("detail", l.detail);
@@ -263,12 +264,15 @@ export class RigLink {
       row("rig missed commands", fmtCount(l.rig_commands_missed));
       if (num(l.rig_packets_rejected)) row("rig rejected packets", fmtCount(l.rig_packets_rejected));
       row("last sequence", fmtCount(l.last_sequence));
+      if (num(l.host_stall_max_ms)) row("longest host stall", fmtMs(l.host_stall_max_ms));
+      if (l.authenticated === false) row("authentication", "link not authenticated");
     } else if (l.connected) {
       row("round trip", fmtMs(l.round_trip_ms));
       row("armed", l.armed ? "yes" : "no");
       if (l.status) row("rig status", String(l.status));
       if (num(l.period_s)) row("rig's period", fmtPeriod(l.period_s));
       if (num(l.protocol_version)) row("rig's protocol version", fmtCount(l.protocol_version));
+      if (l.authenticated === false) row("authentication", "link not authenticated");
       const r = this.lastRun;
       if (r && num(r.test_id)) {
         head(`Last test #${r.test_id}${r.status ? ` (${r.status})` : ""}`);
