@@ -414,10 +414,6 @@ def test_a_rig_with_another_key_is_named_as_such(tmp_path):
         emulator.stop()
 
 
-@pytest.mark.xfail(strict=False, reason="OPEN (issue 21 part 4): through the service's worker process on protocol 2, "
-                   "the first COMMAND left 18.3 ms after measurement 0 (answer_max_ms) in 3 of 3 runs at load 4-6 "
-                   "on 2026-11-27, so the rig's 18 ms watchdog tripped at t = 0.001 s; protocol 1 through the service "
-                   "and protocol 2 through `isorig simulate` start on time; cause not found yet")
 def test_the_service_runs_a_test_over_the_authenticated_link_and_shows_it(tmp_path):
     from conftest import AUTH, make_settings, sine_test, wait_for
     from fastapi.testclient import TestClient
