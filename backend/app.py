@@ -21,6 +21,7 @@ from . import db, errors, store
 from .api import commissioning, ground_motions, isolators, meta, motion, protocols, tests, ws
 from .auth import load_or_create_token
 from .commissioning import Fitter
+from .doors import ServiceDoors
 from .rig_in_force import rig_in_force
 from .service import RigService
 from .settings import Settings
@@ -72,6 +73,9 @@ def create_app(settings: Settings | None = None, driver: str | None = None) -> F
     app.state.hub = hub
     app.state.service = service
     errors.install(app)
+    # Host allow-list, body cap, cross-site refusals, before any route (backend.doors; docs/backend.md)
+    app.add_middleware(ServiceDoors, max_body_bytes=settings.max_body_bytes,
+                       allowed_hosts=settings.host_allow_list())
     app.include_router(meta.router)
     app.include_router(isolators.router)
     app.include_router(tests.router)

@@ -23,6 +23,14 @@ class Settings(BaseSettings):
                                              "rig or change records; generated and saved in data_dir if unset")
     host: str = "127.0.0.1"
     port: int = 8000
+    allowed_hosts: str = Field(default="", max_length=2000, description="more names the service answers to in the "
+                               "Host header (DNS rebinding guard), separated by commas or spaces, beyond localhost, "
+                               "127.0.0.1, [::1] and the address it binds (`--allowed-host`, repeatable); '*' "
+                               "answers to any name (no guard: only behind a proxy that checks Host)")
+    max_body_bytes: int = Field(default=16 * 1024 * 1024, ge=64 * 1024, le=1024**3, description="largest request "
+                                "body accepted, bytes (413 before it is read); the largest legitimate one, a "
+                                "200 000-sample inline history, is 6.3 MB as JSON (10 MB if every number had 17 "
+                                "digits); an .AT2 file is at most 12 MB (scripts/bench_doors.py)")
     static_dir: Path = REPO_STATIC_DIR
     max_test_duration_s: float = Field(default=4 * 3600.0, description="longest test the API accepts")
     max_speed: float = Field(default=100.0, description="largest speed factor of a simulated test")
@@ -102,6 +110,15 @@ class Settings(BaseSettings):
         """What the worker's UDP driver is built with (host and port come from ``rig``)."""
         return {"period_s": self.rig_period_s, "timeout_s": self.rig_link_timeout_s,
                 "arm_timeout_s": self.rig_arm_timeout_s}
+
+    def host_allow_list(self) -> list[str]:
+        """The names the Host header may carry: the loopback names, the bound address unless a wildcard, and
+        ``allowed_hosts``."""
+        names = ["localhost", "127.0.0.1", "::1"]
+        if self.host not in ("0.0.0.0", "::", ""):
+            names.append(self.host.strip("[]"))
+        names += [n.strip("[]") for n in self.allowed_hosts.replace(",", " ").split()]
+        return list(dict.fromkeys(n.lower() for n in names))
 
     @property
     def resolved_database_url(self) -> str:

@@ -20,6 +20,11 @@ def register(sub) -> None:
     p.add_argument("--plant-set", action="append", default=[], metavar="NAME=VALUE",
                    help="simulated rig only: the rig as it truly is, unlike its rig file (a rig or isolator "
                         "parameter, SI; repeatable; ISORIG_PLANT_SET): for demos and tests of commissioning")
+    p.add_argument("--allowed-host", action="append", default=[], metavar="NAME",
+                   help="a name the service is reached by, beyond localhost, 127.0.0.1, [::1] and --host (the Host "
+                        "header is checked against DNS rebinding; repeatable; ISORIG_ALLOWED_HOSTS)")
+    p.add_argument("--max-body-bytes", type=int, default=None, metavar="BYTES",
+                   help="largest request body accepted, bytes (default 16 MiB; 413 beyond; ISORIG_MAX_BODY_BYTES)")
     p.add_argument("--log-level", default="info", choices=("critical", "error", "warning", "info", "debug"))
     p.set_defaults(func=run)
 
@@ -43,8 +48,11 @@ def run(args) -> int:
     from isorig.cli import UsageError
 
     overrides = {k: v for k, v in (("host", args.host), ("port", args.port), ("database_url", args.database_url),
-                                   ("data_dir", args.data_dir), ("rig", args.rig), ("rig_file", args.rig_file))
+                                   ("data_dir", args.data_dir), ("rig", args.rig), ("rig_file", args.rig_file),
+                                   ("max_body_bytes", args.max_body_bytes))
                  if v is not None}
+    if args.allowed_host:  # as every flag: in place of the environment's ISORIG_ALLOWED_HOSTS
+        overrides["allowed_hosts"] = " ".join(args.allowed_host)
     if args.plant_set:
         overrides["plant_set"] = " ".join(args.plant_set)
     try:

@@ -1,0 +1,192 @@
+"""The service's doors (issue 21, part 5): the body cap, cross-site refusals, the Host allow-list. Timings (a 100 MB
+body, /api/health meanwhile, RSS) are measured by scripts/bench_doors.py."""
+
+from __future__ import annotations
+
+import asyncio
+
+import pytest
+from conftest import AUTH, make_settings, sine_test, wait_for
+from fastapi.routing import APIRoute
+from fastapi.testclient import TestClient
+from starlette.websockets import WebSocketDisconnect
+
+from backend.app import create_app
+from backend.doors import SAFE_METHODS, ServiceDoors
+
+FOREIGN = "http://evil.example"
+SAME = "http://testserver"
+
+
+# --- the body cap ----------------------------------------------------------------------------------------------
+def _scope(headers: dict, method: str = "POST", path: str = "/api/tests/check") -> dict:
+    return {"type": "http", "method": method, "path": path, "raw_path": path.encode(), "query_string": b"",
+            "headers": [(k.lower().encode(), v.encode()) for k, v in headers.items()], "scheme": "http",
+            "server": ("127.0.0.1", 8000), "client": ("127.0.0.1", 5000), "root_path": "", "http_version": "1.1"}
+
+
+def _drive(doors: ServiceDoors, scope: dict, chunks) -> tuple[list, int]:
+    """Run the middleware on ``scope``; the client sends ``chunks`` (an iterator of bytes) as the body. Returns
+    what was sent back and how many body messages were taken from the client."""
+    sent, taken = [], 0
+
+    async def receive():
+        nonlocal taken
+        try:
+            chunk = next(chunks)
+        except StopIteration:
+            return {"type": "http.request", "body": b"", "more_body": False}
+        taken += 1
+        return {"type": "http.request", "body": chunk, "more_body": True}
+
+    async def send(message):
+        sent.append(message)
+
+    asyncio.run(doors(scope, receive, send))
+    return sent, taken
+
+
+def test_a_body_over_the_cap_is_413_before_it_is_read():
+    called = []
+
+    async def app(scope, receive, send):
+        called.append(scope["path"])
+
+    doors = ServiceDoors(app, max_body_bytes=1024 * 1024, allowed_hosts=["localhost"])
+    body = iter(b"x" * 65536 for _ in range(1600))  # 100 MB, if anyone read it
+    sent, taken = _drive(doors, _scope({"host": "localhost:8000", "content-type": "application/json",
+                                        "content-length": str(100 * 1024 * 1024)}), body)
+    assert sent[0]["status"] == 413
+    assert b"max_body_bytes" in sent[1]["body"] and b"at most 1048576 bytes" in sent[1]["body"]
+    assert called == [] and taken == 0  # the application never ran, not one byte was read
+
+
+def test_a_chunked_body_is_counted_and_stopped_at_the_cap():
+    async def app(scope, receive, send):  # reads the whole body, as FastAPI does before a route
+        while (await receive()).get("more_body"):
+            pass
+        await send({"type": "http.response.start", "status": 200, "headers": []})
+        await send({"type": "http.response.body", "body": b"read it all"})
+
+    doors = ServiceDoors(app, max_body_bytes=1024 * 1024, allowed_hosts=["localhost"])
+    body = iter(b"x" * 65536 for _ in range(1600))
+    sent, taken = _drive(doors, _scope({"host": "localhost", "content-type": "application/json",
+                                        "transfer-encoding": "chunked"}), body)
+    assert [m.get("status") for m in sent if m["type"] == "http.response.start"] == [413]
+    assert b"read it all" not in b"".join(m.get("body", b"") for m in sent)
+    assert taken == 1024 * 1024 // 65536 + 1  # stopped at the first chunk past the cap
+
+
+def test_the_service_answers_413_with_what_is_allowed(tmp_path):
+    with TestClient(create_app(make_settings(tmp_path, max_body_bytes=65536))) as client:
+        r = client.post("/api/tests/check", content=b"[" + b"0," * 40000 + b"0]",
+                        headers={"content-type": "application/json"})
+        assert r.status_code == 413, r.text
+        assert r.json()["limit"] == "<= 65536 bytes" and "max_body_bytes" in r.json()["detail"]
+
+        def chunks():
+            for _ in range(100):
+                yield b" " * 4096
+
+        r = client.post("/api/tests/check", content=chunks(), headers={"content-type": "application/json"})
+        assert r.status_code == 413, r.text
+        assert client.post("/api/tests/check", json=sine_test()).json()["ok"] is True  # a normal body passes
+
+
+# --- cross-site requests ---------------------------------------------------------------------------------------
+def _api_routes(routes):
+    for route in routes:
+        if isinstance(route, APIRoute):
+            yield route
+        elif getattr(route, "original_router", None) is not None:  # FastAPI's included router
+            yield from _api_routes(route.original_router.routes)
+        elif getattr(route, "routes", None):
+            yield from _api_routes(route.routes)
+
+
+def _state_changing_routes(app) -> list[tuple[str, str]]:
+    """Every route that changes state, from the app's router (and its OpenAPI schema, in case a router hides
+    one from the walk): a route added later is in the list by itself."""
+    found = {(m, r.path) for r in _api_routes(app.routes) for m in r.methods - SAFE_METHODS}
+    found |= {(m.upper(), path) for path, item in app.openapi()["paths"].items() for m in item
+              if m.upper() not in SAFE_METHODS}
+    return sorted((m, p.replace("{test_id}", "1").replace("{name}", "x")) for m, p in found)
+
+
+def test_every_state_changing_route_refuses_a_foreign_origin(client):
+    routes = _state_changing_routes(client.app)
+    paths = {p for _m, p in routes}
+    # the enumeration sees the routes that matter (and any added later)
+    assert {"/api/tests/1/abort", "/api/tests/1/stop", "/api/tests/1/start", "/api/tests", "/api/rig/move",
+            "/api/rig/zero", "/api/commissioning/1/apply", "/api/tests/check", "/api/isolators/x"} <= paths
+    for method, path in routes:
+        for origin in (FOREIGN, "null", "http://testserver.evil.example", "http://testserver:8001"):
+            r = client.request(method, path, content=b"{}", headers={**AUTH, "Origin": origin,
+                                                                     "Content-Type": "application/json"})
+            assert r.status_code == 403, (method, path, origin, r.status_code, r.text)
+            assert "cross-origin request refused" in r.json()["detail"]
+        r = client.request(method, path, content=b"{}", headers={**AUTH, "Sec-Fetch-Site": "cross-site",
+                                                                 "Content-Type": "application/json"})
+        assert r.status_code == 403, (method, path, r.text)
+
+
+def test_a_text_plain_abort_does_not_abort(client):
+    r = client.post("/api/tests?start=true", json=sine_test(profile={"cycles": 200}, speed=1.0), headers=AUTH)
+    assert r.status_code == 201, r.text
+    test_id = r.json()["id"]
+    for headers in ({"Origin": FOREIGN, "Content-Type": "text/plain"}, {"Content-Type": "text/plain"},
+                    {"Origin": SAME, "Content-Type": "text/plain"},
+                    {"Content-Type": "application/x-www-form-urlencoded"}, {"Origin": SAME}):
+        r = client.post(f"/api/tests/{test_id}/abort", content=b"x" if "Content-Type" in headers else None,
+                        headers=headers)
+        assert r.status_code in (403, 415), (headers, r.status_code, r.text)
+    assert client.get(f"/api/tests/{test_id}").json()["status"] == "running"
+    # the console's own page: same Origin and its header (no body), or JSON
+    r = client.post(f"/api/tests/{test_id}/abort", headers={"Origin": SAME, "X-Isorig-Client": "console"})
+    assert r.status_code == 200, r.text
+    assert wait_for(client, test_id)["status"] == "aborted"
+
+
+def test_same_origin_json_and_clients_without_origin_are_served(client):
+    assert client.post("/api/tests/check", json=sine_test(), headers={"Origin": SAME}).status_code == 200
+    r = client.post("/api/tests", json=sine_test(), headers={**AUTH, "Origin": SAME})
+    assert r.status_code == 201, r.text
+    test_id = r.json()["id"]
+    # curl -X POST .../start with the token: no Origin, no body (not a browser)
+    assert client.post(f"/api/tests/{test_id}/start", headers=AUTH).status_code == 200
+    assert client.post(f"/api/tests/{test_id}/abort").status_code == 200  # curl -X POST .../abort, no token
+    assert client.get("/api/health", headers={"Origin": FOREIGN}).status_code == 200  # a read is no action
+
+
+def test_websockets_refuse_a_foreign_origin(client):
+    for path in ("/ws/live", "/ws/tests/1"):
+        with pytest.raises(WebSocketDisconnect) as refused:
+            with client.websocket_connect(path, headers={"Origin": FOREIGN}) as ws:
+                ws.receive_json()
+        assert refused.value.code == 1008
+    with client.websocket_connect("/ws/live", headers={"Origin": SAME}) as ws:
+        assert ws.receive_json()["type"] == "hello"
+
+
+# --- the Host allow-list ---------------------------------------------------------------------------------------
+def test_a_host_not_on_the_allow_list_is_400(client):
+    r = client.get("/api/health", headers={"Host": "evil.example"})
+    assert r.status_code == 400, r.text
+    assert "ISORIG_ALLOWED_HOSTS" in r.json()["detail"] and "--allowed-host" in r.json()["detail"]
+    assert client.get("/api/tests", headers={"Host": "evil.example:8000"}).status_code == 400
+    with pytest.raises(WebSocketDisconnect):
+        with client.websocket_connect("/ws/live", headers={"Host": "evil.example"}) as ws:
+            ws.receive_json()
+    for host in ("localhost:8000", "127.0.0.1:8000", "[::1]:8000", "LOCALHOST", "testserver"):
+        assert client.get("/api/health", headers={"Host": host}).status_code == 200, host
+
+
+def test_the_default_allow_list_is_the_loopback_names_and_the_bound_address(tmp_path):
+    settings = make_settings(tmp_path, allowed_hosts="", host="192.168.1.20")
+    assert settings.host_allow_list() == ["localhost", "127.0.0.1", "::1", "192.168.1.20"]
+    assert make_settings(tmp_path, allowed_hosts="", host="0.0.0.0").host_allow_list() == [
+        "localhost", "127.0.0.1", "::1"]
+    assert "rig.lab" in make_settings(tmp_path, allowed_hosts="rig.lab, [fe80::1]").host_allow_list()
+    with TestClient(create_app(make_settings(tmp_path, allowed_hosts=""))) as client:  # testserver: not allowed
+        assert client.get("/api/health").status_code == 400
+        assert client.get("/api/health", headers={"Host": "localhost:8000"}).status_code == 200
