@@ -155,7 +155,8 @@ class RigService:
                 method = "spawn"
             ctx = mp.get_context(method)
             if method == "forkserver":
-                ctx.set_forkserver_preload(["backend.preload"])
+                # the worker (and the engine's kernels), and what a check worker runs (backend.checks)
+                ctx.set_forkserver_preload(["backend.preload", "backend.api.tests", "backend.api.ground_motions"])
             self._context = ctx
         return self._context
 

@@ -31,6 +31,14 @@ class Settings(BaseSettings):
                                 "body accepted, bytes (413 before it is read); the largest legitimate one, a "
                                 "200 000-sample inline history, is 6.3 MB as JSON (10 MB if every number had 17 "
                                 "digits); an .AT2 file is at most 12 MB (scripts/bench_doors.py)")
+    check_workers: int = Field(default=1, ge=1, le=8, description="processes that build history and hybrid "
+                               "profiles and read .AT2 files for requests without the token (/api/tests/check, "
+                               "/api/ground-motions/read-at2), apart from the service's own")
+    check_worker_max_rss_bytes: int = Field(default=512 * 1024**2, ge=64 * 1024**2, description="a check worker "
+                                            "still larger than this after a job (its garbage returned) is retired, "
+                                            "bytes: its memory goes with it")
+    check_queue: int = Field(default=1, ge=0, le=16, description="such requests that may wait for a worker; "
+                             "beyond workers + queue the answer is 503 with Retry-After")
     static_dir: Path = REPO_STATIC_DIR
     max_test_duration_s: float = Field(default=4 * 3600.0, description="longest test the API accepts")
     max_speed: float = Field(default=100.0, description="largest speed factor of a simulated test")

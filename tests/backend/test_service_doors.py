@@ -1,9 +1,13 @@
-"""The service's doors (issue 21, part 5): the body cap, cross-site refusals, the Host allow-list. Timings (a 100 MB
-body, /api/health meanwhile, RSS) are measured by scripts/bench_doors.py."""
+"""The service's doors (issue 21, part 5): the body cap, the bounded pool of token-free heavy work, cross-site
+refusals, the Host allow-list. Timings (a 100 MB body, /api/health meanwhile, RSS) are measured by
+scripts/bench_doors.py."""
 
 from __future__ import annotations
 
 import asyncio
+import os
+import threading
+import time
 
 import pytest
 from conftest import AUTH, make_settings, sine_test, wait_for
@@ -12,7 +16,9 @@ from fastapi.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
 
 from backend.app import create_app
+from backend.checks import CheckPool
 from backend.doors import SAFE_METHODS, ServiceDoors
+from backend.errors import ApiError
 
 FOREIGN = "http://evil.example"
 SAME = "http://testserver"
@@ -91,6 +97,58 @@ def test_the_service_answers_413_with_what_is_allowed(tmp_path):
         r = client.post("/api/tests/check", content=chunks(), headers={"content-type": "application/json"})
         assert r.status_code == 413, r.text
         assert client.post("/api/tests/check", json=sine_test()).json()["ok"] is True  # a normal body passes
+
+
+# --- the bounded pool of token-free heavy work ---------------------------------------------------------------
+def test_the_check_pool_refuses_when_busy_and_retires_a_big_worker():
+    import multiprocessing as mp
+
+    context = mp.get_context("forkserver")
+    pool = CheckPool(lambda: context, workers=1, queue=0, modules=())
+    try:
+        first = threading.Thread(target=pool.run, args=("sleep", time.sleep, 1.5))
+        first.start()
+        deadline = time.monotonic() + 5
+        while pool.in_flight == 0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        with pytest.raises(ApiError) as refused:
+            pool.run("sleep", time.sleep, 0)
+        assert refused.value.status == 503 and refused.value.headers == {"Retry-After": "2"}
+        assert "at most 1 at a time" in refused.value.detail
+        first.join()
+        worker = pool.run("pid", os.getpid)
+        assert worker != os.getpid() and pool.run("pid", os.getpid) == worker  # small: kept (imports paid once)
+    finally:
+        pool.shutdown()
+    pool = CheckPool(lambda: context, workers=1, queue=0, max_rss_bytes=1, modules=())
+    try:  # larger than its limit after a job: retired, its memory goes with it; a fresh worker takes its place
+        assert pool.run("pid", os.getpid) != pool.run("pid", os.getpid) and pool.retired == 2
+    finally:
+        pool.shutdown()
+
+
+def test_a_history_check_is_refused_503_while_the_checks_are_busy(tmp_path):
+    with TestClient(create_app(make_settings(tmp_path, check_workers=1, check_queue=0))) as client:
+        history = {**sine_test(speed=1.0), "profile": {"kind": "history", "ground_motion": "near_field_short",
+                                                            "scale": 0.5}}
+        busy = threading.Thread(target=client.app.state.checks.run, args=("sleep", time.sleep, 3.0))
+        busy.start()
+        deadline = time.monotonic() + 5
+        while client.app.state.checks.in_flight == 0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        r = client.post("/api/tests/check", json=history)
+        assert r.status_code == 503, r.text
+        assert r.headers["retry-after"] == "2" and "try again" in r.json()["detail"]
+        assert client.post("/api/tests/check", json=sine_test()).status_code == 200  # a sine is checked inline
+        busy.join()
+        r = client.post("/api/tests/check", json=history)
+        assert r.status_code == 200 and r.json()["ok"] is True, r.text
+        # an input refused in the worker comes back as the same 422-style refusal, naming the field
+        history["profile"]["ground_motion"] = {"time_s": [0.0, 0.01, 0.02], "acceleration_m_per_s2": [0.0, 1.0]}
+        r = client.post("/api/tests/check", json=history)
+        assert r.status_code == 200 and r.json()["ok"] is False and r.json()["field"].startswith("profile"), r.text
+        r = client.post("/api/ground-motions/read-at2", json={"filename": "x.AT2", "text": "not a record"})
+        assert r.status_code == 422 and "x.AT2" in r.json()["detail"], r.text
 
 
 # --- cross-site requests ---------------------------------------------------------------------------------------
