@@ -1,11 +1,13 @@
 """The service's doors (issue 21, part 5): the body cap, the bounded pool of token-free heavy work, cross-site
-refusals, the Host allow-list. Timings (a 100 MB body, /api/health meanwhile, RSS) are measured by
-scripts/bench_doors.py."""
+refusals, the Host allow-list, the database file's mode. Timings (a 100 MB body, /api/health meanwhile, RSS) are
+measured by scripts/bench_doors.py."""
 
 from __future__ import annotations
 
 import asyncio
+import logging
 import os
+import stat
 import threading
 import time
 
@@ -248,3 +250,26 @@ def test_the_default_allow_list_is_the_loopback_names_and_the_bound_address(tmp_
     with TestClient(create_app(make_settings(tmp_path, allowed_hosts=""))) as client:  # testserver: not allowed
         assert client.get("/api/health").status_code == 400
         assert client.get("/api/health", headers={"Host": "localhost:8000"}).status_code == 200
+
+
+# --- the database file -------------------------------------------------------------------------------------------
+def test_the_database_is_owner_only(tmp_path, caplog):
+    data = tmp_path / "new" / "data"
+    with TestClient(create_app(make_settings(data))):
+        pass
+    db = data / "isorig.db"
+    assert stat.S_IMODE(db.stat().st_mode) == 0o600
+    assert stat.S_IMODE(data.stat().st_mode) == 0o700  # a directory the service made
+    assert not any(stat.S_IMODE(p.stat().st_mode) & 0o077 for p in data.iterdir())
+
+    shared = tmp_path / "shared"
+    shared.mkdir(mode=0o755)
+    os.chmod(shared, 0o755)
+    (shared / "isorig.db").touch()
+    os.chmod(shared / "isorig.db", 0o644)
+    with caplog.at_level(logging.WARNING, logger="isorig"):
+        with TestClient(create_app(make_settings(shared))):
+            pass
+    assert stat.S_IMODE((shared / "isorig.db").stat().st_mode) == 0o600
+    assert stat.S_IMODE(shared.stat().st_mode) == 0o755  # a directory the user gave is left as it is
+    assert any("mode 0644" in r.getMessage() and "made 0600" in r.getMessage() for r in caplog.records)
