@@ -1,12 +1,13 @@
 """The service's doors (issue 21, part 5): the body cap, the bounded pool of token-free heavy work, cross-site
-refusals, the Host allow-list, the database file's mode. Timings (a 100 MB body, /api/health meanwhile, RSS) are
-measured by scripts/bench_doors.py."""
+refusals, the Host allow-list, the database file's mode, ids never reused. Timings (a 100 MB body, /api/health
+meanwhile, RSS) are measured by scripts/bench_doors.py."""
 
 from __future__ import annotations
 
 import asyncio
 import logging
 import os
+import sqlite3
 import stat
 import threading
 import time
@@ -273,3 +274,62 @@ def test_the_database_is_owner_only(tmp_path, caplog):
     assert stat.S_IMODE((shared / "isorig.db").stat().st_mode) == 0o600
     assert stat.S_IMODE(shared.stat().st_mode) == 0o755  # a directory the user gave is left as it is
     assert any("mode 0644" in r.getMessage() and "made 0600" in r.getMessage() for r in caplog.records)
+
+
+# --- ids -----------------------------------------------------------------------------------------------------------
+def test_a_deleted_tests_id_is_never_given_again(tmp_path):
+    settings = make_settings(tmp_path)
+    with TestClient(create_app(settings)) as client:
+        first = client.post("/api/tests", json=sine_test(), headers=AUTH).json()["id"]
+        newest = client.post("/api/tests", json=sine_test(), headers=AUTH).json()["id"]
+        assert client.delete(f"/api/tests/{newest}", headers=AUTH).status_code == 204
+        again = client.post("/api/tests", json=sine_test(), headers=AUTH).json()["id"]
+        assert again == newest + 1 and first < newest
+        assert client.delete(f"/api/tests/{again}", headers=AUTH).status_code == 204
+    with TestClient(create_app(settings)) as client:  # nor after a restart
+        assert client.post("/api/tests", json=sine_test(), headers=AUTH).json()["id"] == again + 1
+
+
+def test_the_migration_keeps_the_records_and_burns_deleted_ids(tmp_path):
+    """An old database (schema 0005, no AUTOINCREMENT): test 1 with samples and a cycle, test 2, test 3 deleted
+    (only its events remain). After the upgrade everything is there and the next id is 4."""
+    from alembic import command
+    from sqlalchemy import create_engine
+
+    from backend import db
+
+    path = tmp_path / "isorig.db"
+    url = f"sqlite:///{path}"
+    engine = create_engine(url)
+    cfg = db.alembic_config(url)
+    with engine.begin() as connection:
+        cfg.attributes["connection"] = connection
+        command.upgrade(cfg, "0005")
+    engine.dispose()
+    con = sqlite3.connect(path)
+    row = ("2026-11-20 10:00:00", "completed", "", "IUT_a", 100.0, "servo", 1.0, "simulated", "{}", "{}", "{}",
+           1.0, 1, 10, 1.0)
+    for test_id in (1, 2, 3):
+        con.execute("INSERT INTO tests (id, created_at, status, label, isolator, supply_bar, controller, speed, "
+                    "driver, request, scenario, limits, duration_s, cycles_total, samples_stored, time_s) VALUES "
+                    "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", (test_id, *row))
+        con.execute("INSERT INTO events (test_id, created_at, kind, actor, message, \"values\") VALUES "
+                    "(?, '2026-11-20', 'operator', 'operator', 'created', '{}')", (test_id,))
+    con.execute("INSERT INTO sample_chunks (test_id, seq, t0_s, n_rows, n_columns, codec, data) VALUES "
+                "(1, 0, 0.0, 10, 3, 'x', x'00')")
+    con.execute("INSERT INTO cycles (test_id, cycle, block, t_start_s, t_end_s, metrics, n_points, codec, "
+                "loop_data) VALUES (1, 1, 0, 0.0, 0.5, '{}', 2, 'x', x'00')")
+    con.execute("DELETE FROM tests WHERE id = 3")
+    con.commit()
+    con.close()
+
+    db.upgrade(db.make_engine(url))
+    con = sqlite3.connect(path)
+    assert con.execute("SELECT count(*) FROM sample_chunks WHERE test_id = 1").fetchone()[0] == 1
+    assert con.execute("SELECT count(*) FROM cycles WHERE test_id = 1").fetchone()[0] == 1
+    assert [r[0] for r in con.execute("SELECT id FROM tests ORDER BY id")] == [1, 2]
+    assert "AUTOINCREMENT" in con.execute("SELECT sql FROM sqlite_master WHERE name = 'tests'").fetchone()[0]
+    assert con.execute("PRAGMA foreign_key_check").fetchall() == []
+    con.close()
+    with TestClient(create_app(make_settings(tmp_path))) as client:
+        assert client.post("/api/tests", json=sine_test(), headers=AUTH).json()["id"] == 4
