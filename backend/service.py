@@ -155,8 +155,7 @@ class RigService:
                 method = "spawn"
             ctx = mp.get_context(method)
             if method == "forkserver":
-                # the worker (and the engine's kernels), and what a check worker runs (backend.checks)
-                ctx.set_forkserver_preload(["backend.preload", "backend.api.tests", "backend.api.ground_motions"])
+                ctx.set_forkserver_preload(["backend.preload"])
             self._context = ctx
         return self._context
 
@@ -376,6 +375,14 @@ class RigService:
             run.stop_requested = True
             # the worker stops at its next chunk (<= 20 ms); if it does not answer, end it
             threading.Thread(target=self._ensure_ended, args=(run, 2.0), daemon=True).start()
+
+    def wait_ended(self, test_id: int, timeout_s: float) -> bool:
+        """Wait (at most ``timeout_s``) until the run of ``test_id`` has ended: its final status committed and
+        streamed, the rig free for the next test. True if it has (or is not the run in progress)."""
+        run = self.active
+        if run is None or run.test_id != test_id:
+            return True
+        return run.finished.wait(timeout_s)
 
     def _ensure_ended(self, run: ActiveRun, timeout_s: float) -> None:
         if not run.finished.wait(timeout_s) and run.process.is_alive():

@@ -39,6 +39,8 @@ class Settings(BaseSettings):
                                             "bytes: its memory goes with it")
     check_queue: int = Field(default=1, ge=0, le=16, description="such requests that may wait for a worker; "
                              "beyond workers + queue the answer is 503 with Retry-After")
+    abort_wait_s: float = Field(default=5.0, ge=0.0, le=60.0, description="POST .../abort answers once the test "
+                                "has ended, waiting at most this long (else 202 with the record's URL)")
     static_dir: Path = REPO_STATIC_DIR
     max_test_duration_s: float = Field(default=4 * 3600.0, description="longest test the API accepts")
     max_speed: float = Field(default=100.0, description="largest speed factor of a simulated test")

@@ -311,9 +311,23 @@ def stop_test(test_id: TestId, request: Request, session: SessionDep, actor: Any
 
 
 @router.post("/api/tests/{test_id}/abort", summary="Abort the running test at once (no token needed, like an "
-             "emergency stop; who asked is recorded)", responses=ERROR_RESPONSES)
-def abort_test(test_id: TestId, request: Request, session: SessionDep, actor: AnyoneDep) -> TestOut:
-    return _record_after(session, test_id, lambda: request.app.state.service.command(test_id, "abort", actor))
+             "emergency stop; who asked is recorded); answers once it has ended",
+             responses={**ERROR_RESPONSES, 202: {"description": "the abort is under way but the test had not ended "
+                                                 "within abort_wait_s: follow the Location (the record)"}})
+def abort_test(test_id: TestId, request: Request, response: Response, session: SessionDep,
+               actor: AnyoneDep) -> TestOut:
+    """200 with the final record once the test has ended (its worker gone, the rig free for the next test),
+    waiting at most ``abort_wait_s`` (5 s); if it has not ended by then, 202 with the record as it is and
+    ``Location: /api/tests/{id}`` to poll until its status is final."""
+    service = request.app.state.service
+
+    def abort() -> None:
+        service.command(test_id, "abort", actor)
+        if not service.wait_ended(test_id, request.app.state.settings.abort_wait_s):
+            response.status_code = 202
+            response.headers["Location"] = f"/api/tests/{test_id}"
+
+    return _record_after(session, test_id, abort)
 
 
 @router.delete("/api/tests/{test_id}", status_code=204, summary="Delete a test that never ran (operator token)",

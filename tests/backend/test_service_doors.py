@@ -1,6 +1,6 @@
 """The service's doors (issue 21, part 5): the body cap, the bounded pool of token-free heavy work, cross-site
-refusals, the Host allow-list, the database file's mode, ids never reused. Timings (a 100 MB body, /api/health
-meanwhile, RSS) are measured by scripts/bench_doors.py."""
+refusals, the Host allow-list, the database file's mode, ids never reused, an abort that answers once the test
+has ended. Timings (a 100 MB body, /api/health meanwhile, RSS) are measured by scripts/bench_doors.py."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import threading
 import time
 
 import pytest
-from conftest import AUTH, make_settings, sine_test, wait_for
+from conftest import AUTH, TOKEN, make_settings, sine_test, wait_for
 from fastapi.routing import APIRoute
 from fastapi.testclient import TestClient
 from starlette.websockets import WebSocketDisconnect
@@ -333,3 +333,25 @@ def test_the_migration_keeps_the_records_and_burns_deleted_ids(tmp_path):
     con.close()
     with TestClient(create_app(make_settings(tmp_path))) as client:
         assert client.post("/api/tests", json=sine_test(), headers=AUTH).json()["id"] == 4
+
+
+# --- abort ---------------------------------------------------------------------------------------------------------
+def test_abort_answers_once_the_test_has_ended_and_the_next_starts_at_once(client):
+    for _ in range(10):
+        r = client.post("/api/tests?start=true", json=sine_test(profile={"cycles": 200}, speed=1.0), headers=AUTH)
+        assert r.status_code == 201, r.text
+        r = client.post(f"/api/tests/{r.json()['id']}/abort")
+        assert r.status_code == 200 and r.json()["status"] == "aborted", r.text
+        assert client.get("/api/rig/state").json()["status"] != "running"
+    r = client.post("/api/tests?start=true", json=sine_test(), headers=AUTH)
+    assert r.status_code == 201, r.text  # never 409 "test N is running"
+    assert wait_for(client, r.json()["id"])["status"] == "completed"
+
+
+def test_an_abort_that_has_not_ended_in_time_is_202_with_where_to_look(tmp_path):
+    with TestClient(create_app(make_settings(tmp_path, abort_wait_s=0.0))) as client:
+        r = client.post("/api/tests?start=true", json=sine_test(profile={"cycles": 200}, speed=1.0), headers=AUTH)
+        test_id = r.json()["id"]
+        r = client.post(f"/api/tests/{test_id}/abort", headers={"Authorization": f"Bearer {TOKEN}"})
+        assert r.status_code == 202 and r.headers["location"] == f"/api/tests/{test_id}", r.text
+        assert wait_for(client, test_id)["status"] == "aborted"
