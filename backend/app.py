@@ -20,7 +20,7 @@ from fastapi.staticfiles import StaticFiles
 from . import db, errors, store
 from .api import commissioning, ground_motions, isolators, meta, motion, protocols, tests, ws
 from .auth import load_or_create_token
-from .checks import CheckPool
+from .checks import CheckPool, HeavyBodyGate
 from .commissioning import Fitter
 from .doors import ServiceDoors
 from .rig_in_force import rig_in_force
@@ -78,6 +78,8 @@ def create_app(settings: Settings | None = None, driver: str | None = None) -> F
     app.state.service = service
     app.state.checks = checks
     errors.install(app)
+    # inside the doors: a big body on a token-free heavy route is admitted before it is read (backend.checks)
+    app.add_middleware(HeavyBodyGate, pool=checks)
     # Host allow-list, body cap, cross-site refusals, before any route (backend.doors; docs/backend.md)
     app.add_middleware(ServiceDoors, max_body_bytes=settings.max_body_bytes,
                        allowed_hosts=settings.host_allow_list())

@@ -10,6 +10,9 @@ process, four such requests at once held a GIL the event loop needs and left the
   heavy check after a start waits for that, a few seconds; a pool that replaces a retired one is made at once);
 * at most ``check_queue`` more wait for one; beyond that the answer is **503** with ``Retry-After`` and a message
   saying how many such requests run at a time;
+* a body larger than ``BIG_BODY_BYTES`` on these routes (an inline record: parsing and validating 6 MB of JSON
+  takes the event loop a few hundred ms) is admitted before it is read, ``check_workers + check_queue`` at a time
+  (``HeavyBodyGate``); beyond, the same 503 at once, the body never read;
 * after every job the worker collects its garbage and hands freed heap back to the system (``malloc_trim``); a
   worker still larger than ``check_worker_max_rss_bytes`` is retired (its memory goes when it exits) and a fresh,
   warmed pool takes its place. The service's own process never holds a job's arrays.
@@ -25,6 +28,7 @@ from __future__ import annotations
 
 import ctypes
 import gc
+import json
 import logging
 import os
 import threading
@@ -36,6 +40,8 @@ from .errors import ApiError
 log = logging.getLogger("isorig")
 
 RETRY_AFTER_S = 2
+BIG_BODY_BYTES = 1024 * 1024  # a body this large on a heavy route is an inline record: admitted before it is read
+HEAVY_ROUTES = frozenset({"/api/tests/check", "/api/ground-motions/read-at2"})
 
 
 JOB_MODULES = ("backend.api.tests", "backend.api.ground_motions")  # what the jobs run; imported by each worker
@@ -104,6 +110,7 @@ class CheckPool:
         self.max_rss_bytes = max_rss_bytes
         self.modules = modules
         self.in_flight = 0
+        self.admitted = 0  # big bodies admitted by HeavyBodyGate, being read or checked
         self.retired = 0  # pools retired for their size (diagnostics, tests)
         self._lock = threading.Lock()
         self._executor: ProcessPoolExecutor | None = None
@@ -154,8 +161,61 @@ class CheckPool:
             raise _rebuild(*value)
         return value
 
+    def admit(self) -> bool:
+        """A big body may be read (HeavyBodyGate): True and counted, or False if ``capacity`` are already."""
+        with self._lock:
+            if self.admitted >= self.capacity:
+                return False
+            self.admitted += 1
+            return True
+
+    def release(self) -> None:
+        with self._lock:
+            self.admitted -= 1
+
     def shutdown(self) -> None:
         with self._lock:
             pool, self._executor = self._executor, None
         if pool is not None:
             pool.shutdown(wait=False, cancel_futures=True)
+
+
+class HeavyBodyGate:
+    """Pure ASGI middleware: on the heavy routes, a body larger than ``BIG_BODY_BYTES`` (or chunked) is admitted
+    before a byte of it is read, at most the pool's capacity at a time; beyond, 503 with Retry-After at once."""
+
+    def __init__(self, app, pool: CheckPool):
+        self.app = app
+        self.pool = pool
+
+    async def __call__(self, scope, receive, send) -> None:
+        if scope["type"] != "http" or scope["method"] != "POST" or scope["path"] not in HEAVY_ROUTES:
+            await self.app(scope, receive, send)
+            return
+        headers = dict(scope.get("headers") or ())
+        length = headers.get(b"content-length")
+        try:
+            big = length is None and b"transfer-encoding" in headers or (length is not None
+                                                                         and int(length) > BIG_BODY_BYTES)
+        except ValueError:
+            big = True
+        if not big:
+            await self.app(scope, receive, send)
+            return
+        if not self.pool.admit():
+            pool = self.pool
+            detail = (f"the service is busy with {pool.capacity} large requests (inline records over "
+                      f"{BIG_BODY_BYTES} bytes) on {scope['path']}: at most {pool.workers} checked at a time and "
+                      f"{pool.capacity - pool.workers} waiting (check_workers, check_queue); try again in a few "
+                      "seconds")
+            body = json.dumps({"detail": detail}).encode()
+            await send({"type": "http.response.start", "status": 503,
+                        "headers": [(b"content-type", b"application/json"),
+                                    (b"retry-after", str(RETRY_AFTER_S).encode()),
+                                    (b"content-length", str(len(body)).encode()), (b"connection", b"close")]})
+            await send({"type": "http.response.body", "body": body})
+            return
+        try:
+            await self.app(scope, receive, send)
+        finally:
+            self.pool.release()

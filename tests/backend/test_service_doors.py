@@ -154,6 +154,33 @@ def test_a_history_check_is_refused_503_while_the_checks_are_busy(tmp_path):
         assert r.status_code == 422 and "x.AT2" in r.json()["detail"], r.text
 
 
+def test_a_big_body_is_refused_503_before_it_is_read_while_the_checks_are_full():
+    """Four parallel 200 000-sample checks: two are admitted (one checked, one waiting), the others get 503 at once,
+    their 6 MB never parsed by the event loop."""
+    from backend.checks import BIG_BODY_BYTES, HeavyBodyGate
+
+    class Full:
+        workers, capacity = 1, 2
+
+        def admit(self):
+            return False
+
+    called = []
+
+    async def app(scope, receive, send):
+        called.append(scope["path"])
+
+    gate = HeavyBodyGate(app, Full())
+    for path, length in (("/api/tests/check", BIG_BODY_BYTES + 1), ("/api/ground-motions/read-at2", 5_000_000)):
+        sent, taken = _drive(gate, _scope({"host": "localhost", "content-type": "application/json",
+                                           "content-length": str(length)}, path=path), iter([b"x" * 65536] * 100))
+        assert sent[0]["status"] == 503 and (b"retry-after", b"2") in sent[0]["headers"]
+        assert b"try again" in sent[1]["body"] and taken == 0 and called == []
+    sent, _taken = _drive(gate, _scope({"host": "localhost", "content-type": "application/json",
+                                        "content-length": "300"}), iter([]))
+    assert called == ["/api/tests/check"]  # a small body (a sine's check) is never held at the gate
+
+
 # --- cross-site requests ---------------------------------------------------------------------------------------
 def _api_routes(routes):
     for route in routes:
