@@ -20,7 +20,9 @@ from fastapi.staticfiles import StaticFiles
 from . import db, errors, store
 from .api import commissioning, ground_motions, isolators, meta, motion, protocols, tests, ws
 from .auth import load_or_create_token
+from .checks import CheckPool, HeavyBodyGate
 from .commissioning import Fitter
+from .doors import ServiceDoors
 from .rig_in_force import rig_in_force
 from .service import RigService
 from .settings import Settings
@@ -42,6 +44,8 @@ def create_app(settings: Settings | None = None, driver: str | None = None) -> F
     token, token_source = load_or_create_token(settings)
     hub = Hub(settings.stream_history_s)
     service = RigService(settings, sessions, hub, driver)
+    checks = CheckPool(service.context, settings.check_workers, settings.check_queue,  # heavy token-free work
+                       settings.check_worker_max_rss_bytes)
     fitter = Fitter(service, sessions)  # a commissioning's fit, once its run has ended (backend.commissioning)
     service.end_hooks.append(fitter.on_end)
 
@@ -54,6 +58,7 @@ def create_app(settings: Settings | None = None, driver: str | None = None) -> F
         try:
             yield
         finally:
+            checks.shutdown()
             await asyncio.get_running_loop().run_in_executor(None, service.shutdown)
             engine.dispose()
 
@@ -71,7 +76,13 @@ def create_app(settings: Settings | None = None, driver: str | None = None) -> F
     app.state.token_source = token_source
     app.state.hub = hub
     app.state.service = service
+    app.state.checks = checks
     errors.install(app)
+    # inside the doors: a big body on a token-free heavy route is admitted before it is read (backend.checks)
+    app.add_middleware(HeavyBodyGate, pool=checks)
+    # Host allow-list, body cap, cross-site refusals, before any route (backend.doors; docs/backend.md)
+    app.add_middleware(ServiceDoors, max_body_bytes=settings.max_body_bytes,
+                       allowed_hosts=settings.host_allow_list())
     app.include_router(meta.router)
     app.include_router(isolators.router)
     app.include_router(tests.router)

@@ -13,6 +13,7 @@ import stat
 from fastapi import Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
+from .db import owner_only_dir
 from .settings import Settings
 
 bearer = HTTPBearer(auto_error=False, description="the operator token: Authorization: Bearer <token>")
@@ -23,7 +24,7 @@ def load_or_create_token(settings: Settings) -> tuple[str, str]:
     if settings.operator_token is not None and settings.operator_token.get_secret_value():
         return settings.operator_token.get_secret_value(), "the ISORIG_OPERATOR_TOKEN environment variable"
     path = settings.token_file
-    path.parent.mkdir(parents=True, exist_ok=True)
+    owner_only_dir(path.parent)
     if path.exists():
         if stat.S_IMODE(path.stat().st_mode) & 0o077:
             os.chmod(path, 0o600)

@@ -1,11 +1,19 @@
 """Database engine, sessions and migrations (Alembic, run programmatically at start-up).
 
+A SQLite file is the lab's record and holds no secret, but it is nobody else's business either: the service
+creates it owner-only (0600; its -wal and -shm files take the same mode) and a directory it creates for it
+owner-only (0700). A directory that already exists is left as it is (it may be shared on purpose, e.g. a group's
+data directory); an existing database file readable by group or others is logged as a warning and made 0600.
+
 SQLite gets WAL mode (readers never block the writer), ``synchronous=NORMAL`` (a committed transaction
 survives a killed process) and foreign keys. Any other SQLAlchemy URL (PostgreSQL) is used as given.
 """
 
 from __future__ import annotations
 
+import logging
+import os
+import stat
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -18,12 +26,43 @@ if TYPE_CHECKING:
 
 MIGRATIONS_DIR = Path(__file__).resolve().parent / "migrations"
 
+log = logging.getLogger("isorig")
+
+
+def owner_only_dir(path: Path) -> None:
+    """Create ``path`` (and missing parents) if it does not exist, the directory itself 0700; an existing one is
+    left as it is."""
+    if not path.exists():
+        path.mkdir(parents=True, exist_ok=True)
+        os.chmod(path, 0o700)  # mkdir's mode is subject to the umask; this is not
+
+
+def owner_only_sqlite_file(path: Path) -> None:
+    """The SQLite file owner-only: created 0600 if missing (an empty file is an empty database), made 0600 with
+    a warning if it (or its -wal, -shm) is readable or writable by group or others."""
+    owner_only_dir(path.parent)
+    if not path.exists():
+        os.close(os.open(path, os.O_WRONLY | os.O_CREAT, 0o600))
+        os.chmod(path, 0o600)
+        return
+    for p in (path, path.with_name(path.name + "-wal"), path.with_name(path.name + "-shm")):
+        try:
+            mode = stat.S_IMODE(p.stat().st_mode)
+        except FileNotFoundError:
+            continue
+        if mode & 0o077:
+            log.warning("the database file %s had mode %04o (group or others could read it): made 0600", p, mode)
+            try:
+                os.chmod(p, 0o600)
+            except OSError as exc:  # not ours to change: say so, run on
+                log.warning("could not make %s owner-only: %s", p, exc)
+
 
 def make_engine(url: str) -> Engine:
     parsed = make_url(url)
     if parsed.get_backend_name() == "sqlite":
-        if parsed.database and parsed.database != ":memory:":
-            Path(parsed.database).expanduser().parent.mkdir(parents=True, exist_ok=True)
+        if parsed.database and parsed.database != ":memory:" and not parsed.database.startswith("file:"):
+            owner_only_sqlite_file(Path(parsed.database).expanduser())
         engine = create_engine(url, connect_args={"check_same_thread": False, "timeout": 30})
 
         @event.listens_for(engine, "connect")
@@ -52,9 +91,23 @@ def upgrade(engine: Engine) -> None:
     from alembic import command
 
     cfg = alembic_config(engine.url.render_as_string(hide_password=False))
-    with engine.begin() as connection:
-        cfg.attributes["connection"] = connection
-        command.upgrade(cfg, "head")
+    sqlite = engine.dialect.name == "sqlite"
+    with engine.connect() as connection:
+        if sqlite:  # a migration that recreates a table (SQLite's batch mode) must not cascade its drop to the
+            connection.exec_driver_sql("PRAGMA foreign_keys=OFF")  # children: enforcement off (outside any
+            connection.commit()  # transaction, where SQLite ignores the pragma), checked after, back on
+        try:
+            with connection.begin():
+                cfg.attributes["connection"] = connection
+                command.upgrade(cfg, "head")
+                if sqlite:
+                    broken = connection.exec_driver_sql("PRAGMA foreign_key_check").fetchall()
+                    if broken:
+                        raise RuntimeError(f"the migration left rows whose parent is missing: {broken[:5]}")
+        finally:
+            if sqlite:
+                connection.exec_driver_sql("PRAGMA foreign_keys=ON")
+                connection.commit()
 
 
 def session_factory(engine: Engine) -> sessionmaker[Session]:

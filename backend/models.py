@@ -26,6 +26,9 @@ class Base(DeclarativeBase):
 class TestRecord(Base):
     __tablename__ = "tests"
     __test__ = False  # not a pytest test class
+    # an id is never given again, even after the newest test is deleted (its events keep the id): SQLite
+    # AUTOINCREMENT (migration 0006); PostgreSQL's sequences never go back anyway
+    __table_args__ = {"sqlite_autoincrement": True}
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow, index=True)

@@ -381,6 +381,14 @@ class RigService:
             # the worker stops at its next chunk (<= 20 ms); if it does not answer, end it
             threading.Thread(target=self._ensure_ended, args=(run, 2.0), daemon=True).start()
 
+    def wait_ended(self, test_id: int, timeout_s: float) -> bool:
+        """Wait (at most ``timeout_s``) until the run of ``test_id`` has ended: its final status committed and
+        streamed, the rig free for the next test. True if it has (or is not the run in progress)."""
+        run = self.active
+        if run is None or run.test_id != test_id:
+            return True
+        return run.finished.wait(timeout_s)
+
     def _ensure_ended(self, run: ActiveRun, timeout_s: float) -> None:
         if not run.finished.wait(timeout_s) and run.process.is_alive():
             log.warning("worker of test %s did not answer an abort; terminating it", run.test_id)

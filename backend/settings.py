@@ -23,6 +23,24 @@ class Settings(BaseSettings):
                                              "rig or change records; generated and saved in data_dir if unset")
     host: str = "127.0.0.1"
     port: int = 8000
+    allowed_hosts: str = Field(default="", max_length=2000, description="more names the service answers to in the "
+                               "Host header (DNS rebinding guard), separated by commas or spaces, beyond localhost, "
+                               "127.0.0.1, [::1] and the address it binds (`--allowed-host`, repeatable); '*' "
+                               "answers to any name (no guard: only behind a proxy that checks Host)")
+    max_body_bytes: int = Field(default=16 * 1024 * 1024, ge=64 * 1024, le=1024**3, description="largest request "
+                                "body accepted, bytes (413 before it is read); the largest legitimate one, a "
+                                "200 000-sample inline history, is 6.3 MB as JSON (10 MB if every number had 17 "
+                                "digits); an .AT2 file is at most 12 MB (scripts/bench_doors.py)")
+    check_workers: int = Field(default=1, ge=1, le=8, description="processes that build history and hybrid "
+                               "profiles and read .AT2 files for requests without the token (/api/tests/check, "
+                               "/api/ground-motions/read-at2), apart from the service's own")
+    check_worker_max_rss_bytes: int = Field(default=512 * 1024**2, ge=64 * 1024**2, description="a check worker "
+                                            "still larger than this after a job (its garbage returned) is retired, "
+                                            "bytes: its memory goes with it")
+    check_queue: int = Field(default=1, ge=0, le=16, description="such requests that may wait for a worker; "
+                             "beyond workers + queue the answer is 503 with Retry-After")
+    abort_wait_s: float = Field(default=5.0, ge=0.0, le=60.0, description="POST .../abort answers once the test "
+                                "has ended, waiting at most this long (else 202 with the record's URL)")
     static_dir: Path = REPO_STATIC_DIR
     max_test_duration_s: float = Field(default=4 * 3600.0, description="longest test the API accepts")
     max_speed: float = Field(default=100.0, description="largest speed factor of a simulated test")
@@ -127,6 +145,15 @@ class Settings(BaseSettings):
         """What the worker's UDP driver is built with (host and port come from ``rig``)."""
         return {"period_s": self.rig_period_s, "timeout_s": self.rig_link_timeout_s,
                 "arm_timeout_s": self.rig_arm_timeout_s, **self.rig_security_options()}
+
+    def host_allow_list(self) -> list[str]:
+        """The names the Host header may carry: the loopback names, the bound address unless a wildcard, and
+        ``allowed_hosts``."""
+        names = ["localhost", "127.0.0.1", "::1"]
+        if self.host not in ("0.0.0.0", "::", ""):
+            names.append(self.host.strip("[]"))
+        names += [n.strip("[]") for n in self.allowed_hosts.replace(",", " ").split()]
+        return list(dict.fromkeys(n.lower() for n in names))
 
     @property
     def resolved_database_url(self) -> str:

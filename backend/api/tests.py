@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+from dataclasses import dataclass
 from datetime import datetime
 from typing import Annotated, Literal
 
@@ -15,7 +16,7 @@ from sim.engine import Scenario
 from sim.errors import FieldError
 from sim.isolator import IsolatorError
 from sim.profiles import ProfileError, SineProfile, max_amplitude_m, max_frequency_hz, motion_summary
-from sim.rig import BAR_PA
+from sim.rig import BAR_PA, RigParameters
 from sim.samples import RECORD_FIELDS, Samples
 from sim.tracking import cycle_windows
 
@@ -80,40 +81,55 @@ def earthquake_profile(body: TestCreate, isolator, rig):
     return profile, load
 
 
-def build_test(session, body: TestCreate, request: Request) -> dict:
+@dataclass(frozen=True)
+class TestEnv:
+    """What building a test takes from the service, as plain data (a check builds it in a worker process)."""
+
+    __test__ = False  # not a pytest test class
+    max_speed: float
+    max_test_duration_s: float
+    driver: str
+    rig: RigParameters
+    rig_description: object  # sim.rigfile.RigDescription
+
+
+def test_env(request: Request) -> TestEnv:
+    state = request.app.state
+    return TestEnv(state.settings.max_speed, state.settings.max_test_duration_s, state.service.driver, state.rig,
+                   state.rig_description)
+
+
+def build_test(isolator, body: TestCreate, env: TestEnv) -> dict:
     """Everything a test record needs, validated against the rig envelope (errors name field and limit). A
     history or hybrid test's built profile comes back under ``_earthquake`` (not a record field)."""
-    settings = request.app.state.settings
-    service = request.app.state.service
-    isolator = resolve_isolator(session, body.isolator)
     if body.controller not in CONTROLLER_NAMES:
         raise ApiError(422, f"controller {body.controller!r} is unknown; allowed: {', '.join(CONTROLLER_NAMES)}",
                        "controller", body.controller, ", ".join(CONTROLLER_NAMES))
     options = dict(body.controller_options or {})
     make_controller(body.controller, **options)  # ControllerOptionError (422) names the option and its range
-    if not (0 < body.speed <= settings.max_speed):
-        raise ApiError(422, f"speed = {body.speed:g} is outside (0, {settings.max_speed:g}]", "speed", body.speed,
-                       f"(0, {settings.max_speed:g}]")
+    if not (0 < body.speed <= env.max_speed):
+        raise ApiError(422, f"speed = {body.speed:g} is outside (0, {env.max_speed:g}]", "speed", body.speed,
+                       f"(0, {env.max_speed:g}]")
     from ..drivers import SIMULATED
 
-    if body.speed != 1.0 and service.driver != SIMULATED:
-        raise ApiError(422, f"the rig {service.driver} runs in real time: speed must be 1", "speed", body.speed, "1")
+    if body.speed != 1.0 and env.driver != SIMULATED:
+        raise ApiError(422, f"the rig {env.driver} runs in real time: speed must be 1", "speed", body.speed, "1")
     earthquake = None
     if isinstance(body.profile, EARTHQUAKE_PROFILES):
-        earthquake, load = earthquake_profile(body, isolator, request.app.state.rig)
+        earthquake, load = earthquake_profile(body, isolator, env.rig)
         blocks = []
         scenario = Scenario(isolator, body.supply_bar * BAR_PA, [], body.controller, options,
-                            rig=request.app.state.rig, vertical_load_n=load, history=earthquake.target)
+                            rig=env.rig, vertical_load_n=load, history=earthquake.target)
     else:
         blocks = profile_blocks(body.profile)
         scenario = Scenario(isolator, body.supply_bar * BAR_PA, blocks, body.controller, options,
-                            rig=request.app.state.rig, vertical_load_n=body.vertical_load_n)
+                            rig=env.rig, vertical_load_n=body.vertical_load_n)
     scenario.validate()  # ProfileError -> 422 with field, value, limit (vertical_load_n among them)
-    if scenario.duration_s > settings.max_test_duration_s:
+    if scenario.duration_s > env.max_test_duration_s:
         raise ApiError(422, f"the profile lasts {scenario.duration_s:g} s, longer than the allowed "
-                            f"{settings.max_test_duration_s:g} s", "profile", scenario.duration_s,
-                       f"<= {settings.max_test_duration_s:g} s")
-    limits = make_limits(request.app.state.rig, body.limits.model_dump() if body.limits else None)
+                            f"{env.max_test_duration_s:g} s", "profile", scenario.duration_s,
+                       f"<= {env.max_test_duration_s:g} s")
+    limits = make_limits(env.rig, body.limits.model_dump() if body.limits else None)
     job_scenario = {"isolator": isolator.to_dict(), "supply_pa": scenario.supply_pa,
                     "vertical_load_n": scenario.effective_vertical_load_n,
                     "profile": [b.to_dict() for b in blocks], "controller": body.controller,
@@ -127,45 +143,54 @@ def build_test(session, body: TestCreate, request: Request) -> dict:
         "label": body.label, "specimen_id": body.specimen_id.strip(), "operator_name": body.operator_name.strip(),
         "notes": body.notes, "isolator": isolator.name, "supply_bar": body.supply_bar,
         "vertical_load_n": scenario.effective_vertical_load_n,
-        "controller": body.controller, "speed": body.speed, "driver": service.driver,
-        "request": {**asked, "job_scenario": job_scenario, "rig_name": request.app.state.rig_description.name,
-                    "rig_file": clean_json(request.app.state.rig_description.to_dict())},
+        "controller": body.controller, "speed": body.speed, "driver": env.driver,
+        "request": {**asked, "job_scenario": job_scenario, "rig_name": env.rig_description.name,
+                    "rig_file": clean_json(env.rig_description.to_dict())},
         "scenario": clean_json(scenario.describe()), "limits": limits.to_dict(),
         "duration_s": scenario.duration_s, "cycles_total": len(cycle_windows(scenario)),
         "_earthquake": earthquake,
     }
 
 
-@router.post("/api/tests/check", summary="Check a test against the rig envelope without creating it (no token)",
-             responses=ERROR_RESPONSES)
-def check_test(body: TestCreate, request: Request, session: SessionDep) -> EnvelopeCheckOut:
-    """Answers 200 either way (``ok`` says which), so a form can ask at every keystroke; nothing is stored."""
-    earthquake, load = None, None
+def isolator_or_refusal(session, name: str):
+    """(the isolator, None), or (None, the refusal a check answers with) if the name is unknown or bad."""
     try:
-        fields = build_test(session, body, request)
-        earthquake, load = fields["_earthquake"], fields["vertical_load_n"]
-        refusal = None
-    except FieldError as exc:  # the envelope, a controller option
-        field = exc.field
-        if isinstance(exc, ProfileError) and isinstance(body.profile, EARTHQUAKE_PROFILES) \
-                and field not in ("supply_bar", "vertical_load_n"):
-            field = f"profile.{field}"  # as POST /api/tests names it
-        refusal = {"detail": str(exc), "field": field, "value": _jsonable(exc.value), "limit": exc.limit}
+        return resolve_isolator(session, name), None
     except ApiError as exc:
-        refusal = {"detail": exc.detail, "field": exc.field, "value": _jsonable(exc.value), "limit": exc.limit}
-    except (IsolatorError, ProtocolError) as exc:
-        refusal = {"detail": str(exc), "field": "profile" if isinstance(exc, ProtocolError) else "isolator"}
+        return None, {"detail": exc.detail, "field": exc.field, "value": _jsonable(exc.value), "limit": exc.limit}
+    except IsolatorError as exc:
+        return None, {"detail": str(exc), "field": "isolator"}
+
+
+def envelope_check(body: TestCreate, isolator, isolator_refusal: dict | None, env: TestEnv) -> dict:
+    """The answer of POST /api/tests/check (a plain function: a history or hybrid profile is built in a check
+    worker process, backend.checks)."""
+    earthquake, load = None, None
+    refusal = isolator_refusal
+    if refusal is None:
+        try:
+            fields = build_test(isolator, body, env)
+            earthquake, load = fields["_earthquake"], fields["vertical_load_n"]
+        except FieldError as exc:  # the envelope, a controller option
+            field = exc.field
+            if isinstance(exc, ProfileError) and isinstance(body.profile, EARTHQUAKE_PROFILES) \
+                    and field not in ("supply_bar", "vertical_load_n"):
+                field = f"profile.{field}"  # as POST /api/tests names it
+            refusal = {"detail": str(exc), "field": field, "value": _jsonable(exc.value), "limit": exc.limit}
+        except ApiError as exc:
+            refusal = {"detail": exc.detail, "field": exc.field, "value": _jsonable(exc.value), "limit": exc.limit}
+        except (IsolatorError, ProtocolError) as exc:
+            refusal = {"detail": str(exc), "field": "profile" if isinstance(exc, ProtocolError) else "isolator"}
     out = {"ok": refusal is None, **(refusal or {"detail": "within the rig envelope"})}
-    rig = request.app.state.rig
+    rig = env.rig
     if refusal is None and earthquake is not None:  # what the history asks of the rig (hybrid: as predicted)
         from sim.history import history_motion_summary
 
-        isolator = resolve_isolator(session, body.isolator)
         out.update(history_motion_summary(earthquake.target, rig.with_changes(vertical_load_n=load), isolator))
         out["profile"] = clean_json(earthquake.description)
     elif refusal is None:  # what the motion asks of the rig, for the confirmation before the valve opens
         blocks = profile_blocks(body.profile)
-        scenario = Scenario(resolve_isolator(session, body.isolator), body.supply_bar * BAR_PA, blocks, rig=rig,
+        scenario = Scenario(isolator, body.supply_bar * BAR_PA, blocks, rig=rig,
                             vertical_load_n=body.vertical_load_n)
         loaded = rig.with_changes(vertical_load_n=scenario.effective_vertical_load_n)
         out.update(motion_summary(blocks, loaded, scenario.isolator))
@@ -173,15 +198,27 @@ def check_test(body: TestCreate, request: Request, session: SessionDep) -> Envel
     if rig.min_supply_pa <= supply_pa <= rig.max_supply_pa:
         out["max_force_n"] = rig.max_force_n(supply_pa)
         out["max_vertical_load_n"] = rig.max_vertical_load_n
-        if isinstance(body.profile, SineProfileIn):
-            try:
-                isolator = resolve_isolator(session, body.isolator)
-            except (ApiError, IsolatorError):
-                isolator = None
-            if isolator is not None:
-                out["max_amplitude_m"] = max_amplitude_m(body.profile.frequency_hz, rig, isolator, supply_pa)
-                f_max = max_frequency_hz(body.profile.amplitude_m, rig, isolator, supply_pa)
-                out["max_frequency_hz"] = f_max if f_max > 0 else None  # None: no frequency fits this amplitude
+        if isinstance(body.profile, SineProfileIn) and isolator is not None:
+            out["max_amplitude_m"] = max_amplitude_m(body.profile.frequency_hz, rig, isolator, supply_pa)
+            f_max = max_frequency_hz(body.profile.amplitude_m, rig, isolator, supply_pa)
+            out["max_frequency_hz"] = f_max if f_max > 0 else None  # None: no frequency fits this amplitude
+    return out
+
+
+@router.post("/api/tests/check", summary="Check a test against the rig envelope without creating it (no token)",
+             responses={**ERROR_RESPONSES, 503: {"description": "busy: too many history or hybrid checks at once "
+                                                 "(Retry-After)"}})
+def check_test(body: TestCreate, request: Request, session: SessionDep) -> EnvelopeCheckOut:
+    """Answers 200 either way (``ok`` says which), so a form can ask at every keystroke; nothing is stored. A
+    history or hybrid profile is built in a check worker process (backend.checks: a few at a time, 503 with
+    Retry-After beyond)."""
+    isolator, refusal = isolator_or_refusal(session, body.isolator)
+    env = test_env(request)
+    if refusal is None and isinstance(body.profile, EARTHQUAKE_PROFILES):
+        out = request.app.state.checks.run(f"build a {body.profile.kind} profile", envelope_check, body, isolator,
+                                           refusal, env)
+    else:
+        out = envelope_check(body, isolator, refusal, env)
     return EnvelopeCheckOut(**out)
 
 
@@ -190,7 +227,7 @@ def check_test(body: TestCreate, request: Request, session: SessionDep) -> Envel
 def create_test(body: TestCreate, request: Request, session: SessionDep, actor: OperatorDep,
                 start: Annotated[bool, Query(description="start it at once; if the start is refused, nothing "
                                                          "is kept")] = False) -> TestOut:
-    fields = build_test(session, body, request)
+    fields = build_test(resolve_isolator(session, body.isolator), body, test_env(request))
     fields.pop("_earthquake")
     test = store.create_test(session, **fields)
     store.add_event(session, test.id, "operator", f"test {test.id} created by {actor}", {"action": "create"},
@@ -274,9 +311,23 @@ def stop_test(test_id: TestId, request: Request, session: SessionDep, actor: Any
 
 
 @router.post("/api/tests/{test_id}/abort", summary="Abort the running test at once (no token needed, like an "
-             "emergency stop; who asked is recorded)", responses=ERROR_RESPONSES)
-def abort_test(test_id: TestId, request: Request, session: SessionDep, actor: AnyoneDep) -> TestOut:
-    return _record_after(session, test_id, lambda: request.app.state.service.command(test_id, "abort", actor))
+             "emergency stop; who asked is recorded); answers once it has ended",
+             responses={**ERROR_RESPONSES, 202: {"description": "the abort is under way but the test had not ended "
+                                                 "within abort_wait_s: follow the Location (the record)"}})
+def abort_test(test_id: TestId, request: Request, response: Response, session: SessionDep,
+               actor: AnyoneDep) -> TestOut:
+    """200 with the final record once the test has ended (its worker gone, the rig free for the next test),
+    waiting at most ``abort_wait_s`` (5 s); if it has not ended by then, 202 with the record as it is and
+    ``Location: /api/tests/{id}`` to poll until its status is final."""
+    service = request.app.state.service
+
+    def abort() -> None:
+        service.command(test_id, "abort", actor)
+        if not service.wait_ended(test_id, request.app.state.settings.abort_wait_s):
+            response.status_code = 202
+            response.headers["Location"] = f"/api/tests/{test_id}"
+
+    return _record_after(session, test_id, abort)
 
 
 @router.delete("/api/tests/{test_id}", status_code=204, summary="Delete a test that never ran (operator token)",

@@ -27,6 +27,11 @@ def register(sub) -> None:
                    help="UDP rig: 2 (default: authenticated, needs --rig-key-file) or 1 (unauthenticated, for a lab's "
                         "bring-up or an existing v1 target; ISORIG_RIG_PROTOCOL); without a key only a rig on "
                         "loopback runs, unauthenticated, unless 1 is named")
+    p.add_argument("--allowed-host", action="append", default=[], metavar="NAME",
+                   help="a name the service is reached by, beyond localhost, 127.0.0.1, [::1] and --host (the Host "
+                        "header is checked against DNS rebinding; repeatable; ISORIG_ALLOWED_HOSTS)")
+    p.add_argument("--max-body-bytes", type=int, default=None, metavar="BYTES",
+                   help="largest request body accepted, bytes (default 16 MiB; 413 beyond; ISORIG_MAX_BODY_BYTES)")
     p.add_argument("--log-level", default="info", choices=("critical", "error", "warning", "info", "debug"))
     p.set_defaults(func=run)
 
@@ -51,8 +56,11 @@ def run(args) -> int:
 
     overrides = {k: v for k, v in (("host", args.host), ("port", args.port), ("database_url", args.database_url),
                                    ("data_dir", args.data_dir), ("rig", args.rig), ("rig_file", args.rig_file),
-                                   ("rig_key_file", args.rig_key_file), ("rig_protocol", args.rig_protocol))
+                                   ("rig_key_file", args.rig_key_file), ("rig_protocol", args.rig_protocol),
+                                   ("max_body_bytes", args.max_body_bytes))
                  if v is not None}
+    if args.allowed_host:  # as every flag: in place of the environment's ISORIG_ALLOWED_HOSTS
+        overrides["allowed_hosts"] = " ".join(args.allowed_host)
     if args.plant_set:
         overrides["plant_set"] = " ".join(args.plant_set)
     try:

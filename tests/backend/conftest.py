@@ -28,7 +28,9 @@ def sine_test(**overrides) -> dict:
 
 
 def make_settings(tmp: Path, **overrides) -> Settings:
-    values = {"data_dir": tmp, "operator_token": TOKEN, "viewer": False, "commit_interval_s": 0.2}
+    # TestClient sends Host: testserver; the service answers only to the names it is told (backend.doors)
+    values = {"data_dir": tmp, "operator_token": TOKEN, "viewer": False, "commit_interval_s": 0.2,
+              "allowed_hosts": "testserver"}
     values.update(overrides)
     return Settings(**values)
 

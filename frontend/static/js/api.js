@@ -87,7 +87,9 @@ export function errorField(detail) {
 }
 
 async function request(method, path, body, { auth = false, retryAuth = true } = {}) {
-  const headers = { Accept: "application/json" };
+  // X-Isorig-Client: the service refuses a browser request that changes state without JSON or this header (a
+  // foreign page cannot send it without a CORS preflight, which the service never grants): docs/backend.md
+  const headers = { Accept: "application/json", "X-Isorig-Client": "console" };
   if (body !== undefined) headers["Content-Type"] = "application/json";
   const token = getToken();
   if (auth && token) headers.Authorization = `Bearer ${token}`;

@@ -22,7 +22,7 @@ export const G = 9.80665; // m/s2 per g
 const MAX_SAMPLES = 200000; // the API's limit per inline array
 const MIN_ROWS = 10;
 const MAX_STOREYS = 50;
-const MAX_FILE_BYTES = 20e6;
+const MAX_FILE_BYTES = 12e6; // the service's limit (MAX_AT2_CHARS; its request body cap is 16 MiB)
 const MASS_MAX_KG = 1e8;
 const PLAUSIBLE_G = [0.005, 3]; // the service refuses a peak ground acceleration outside this (in the unit read)
 export const UNIT_TO_SI = { "m/s2": 1, g: G, "cm/s2": 0.01 };
@@ -327,7 +327,7 @@ export class EarthquakeForm {
     const kind = this.source() === "disp_csv" ? "displacement" : "acceleration";
     if (!file) return;
     if (file.size > MAX_FILE_BYTES) {
-      this.files[kind] = { name: file.name, record: { ok: false, error: `${file.name} is ${(file.size / 1e6).toFixed(1)} MB, more than 20 MB` } };
+      this.files[kind] = { name: file.name, record: { ok: false, error: `${file.name} is ${(file.size / 1e6).toFixed(1)} MB, more than 12 MB` } };
       this.renderFileNote();
       this.changed();
       return;
