@@ -206,7 +206,8 @@ def keyed(tmp_path_factory):
     flags = {"good": (), **{name: ("--defect", name) for name in V2_BROKEN}}
     with ThreadPoolExecutor(len(flags)) as pool:
         started = dict(zip(flags, pool.map(lambda item: Emulator(path, "--rig-key-file", str(key), *item[1],
-                                                                 name=item[0]), flags.items()), strict=True))
+                                                                 name=item[0], watchdog_ms=18.0), flags.items()),
+                           strict=True))
     yield started, key
     for emulator in started.values():
         emulator.stop()
