@@ -21,6 +21,23 @@ def raise_priority(rr_priority: int) -> str:
         return "normal"
 
 
+def current_priority() -> tuple:
+    """This process's scheduling (policy, its parameter, nice), to give back with ``restore_priority``."""
+    return os.sched_getscheduler(0), os.sched_getparam(0), os.getpriority(os.PRIO_PROCESS, 0)
+
+
+def restore_priority(saved: tuple) -> None:
+    """Give back the scheduling ``current_priority`` saved (always permitted: it lowers, never raises). A
+    process that runs a real-time loop and then goes on (a test suite, a script) must not leave it raised:
+    every process it starts afterwards (a browser, a service) would inherit SCHED_RR and starve real loops."""
+    policy, param, nice = saved
+    try:
+        os.sched_setscheduler(0, policy, param)
+        os.setpriority(os.PRIO_PROCESS, 0, nice)
+    except (AttributeError, OSError):
+        pass
+
+
 MCL_CURRENT = 1  # <sys/mman.h>
 
 

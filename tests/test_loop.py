@@ -343,3 +343,16 @@ def test_the_realtime_section_turns_the_collector_off_and_back_on():
     with RealtimeSection(lock=False) as section:
         assert not gc.isenabled() and "collector off" in section.granted
     assert gc.isenabled()
+
+
+def test_a_run_in_this_process_gives_its_priority_back():
+    """A script or test suite that runs a loop in-process and goes on must not stay at SCHED_RR: every process
+    it starts afterwards (chromium, a service) would inherit it and starve the real-time loops (seen in CI)."""
+    import os
+
+    from sim.realtime import current_priority, raise_priority, restore_priority
+
+    before = current_priority()
+    raise_priority(10)
+    restore_priority(before)
+    assert os.sched_getscheduler(0) == before[0] and os.getpriority(os.PRIO_PROCESS, 0) == before[2]
