@@ -100,7 +100,7 @@ def test_udp_rig_link_health(open_page, artifacts, tmp_path):
         page.fill("#f-supply", "100")
         page.fill("#f-amplitude", "10")
         page.fill("#f-frequency", "1")
-        page.fill("#f-cycles", "8")  # 8 s in real time: long enough to read its details under load
+        page.fill("#f-cycles", "20")  # 20 s in real time: 8 s ended before the page read its details under load
         page.fill("#f-taper_cycles", "1")
         start_from_form(page)
         page.wait_for_selector("#rig-link[data-source='test'][data-last-sequence]", timeout=15000)
@@ -125,7 +125,7 @@ def test_udp_rig_link_health(open_page, artifacts, tmp_path):
         page.screenshot(path=str(artifacts / "dashboard_udp_details.png"), clip=clip)
         page.keyboard.press("Escape")
         test_id = page.evaluate("window.__isorig.testId")
-        rec = srv.wait_status(test_id, {"completed"}, timeout_s=30)
+        rec = srv.wait_status(test_id, {"completed"}, timeout_s=60)
         assert rec["speed"] == 1.0 and rec["driver"] == emulator.url, rec
 
         # the rig goes away: not connected (red) within a poll, and Start says why it would fail
