@@ -20,13 +20,9 @@ def register(sub) -> None:
     p.add_argument("--plant-set", action="append", default=[], metavar="NAME=VALUE",
                    help="simulated rig only: the rig as it truly is, unlike its rig file (a rig or isolator "
                         "parameter, SI; repeatable; ISORIG_PLANT_SET): for demos and tests of commissioning")
-    p.add_argument("--rig-key-file", default=None, metavar="FILE",
-                   help="UDP rig: the lab's key file (rig protocol 2, every packet authenticated; `isorig rig-key new "
-                        "FILE` makes one; ISORIG_RIG_KEY_FILE)")
-    p.add_argument("--rig-protocol", default=None, choices=("1", "2"),
-                   help="UDP rig: 2 (default: authenticated, needs --rig-key-file) or 1 (unauthenticated, for a lab's "
-                        "bring-up or an existing v1 target; ISORIG_RIG_PROTOCOL); without a key only a rig on "
-                        "loopback runs, unauthenticated, unless 1 is named")
+    from .rig_key import add_link_flags
+
+    add_link_flags(p)  # --rig-key-file, --rig-protocol: as every rig command
     p.add_argument("--allowed-host", action="append", default=[], metavar="NAME",
                    help="a name the service is reached by, beyond localhost, 127.0.0.1, [::1] and --host (the Host "
                         "header is checked against DNS rebinding; repeatable; ISORIG_ALLOWED_HOSTS)")
