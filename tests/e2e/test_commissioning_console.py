@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from .harness import TOKEN, Server, poll, shots, sine_test
+from .harness import OPERATOR, Server, poll, shots, sine_test
 
 PLANT = ("mass_kg=3000", "bulk_modulus_pa=4.5e8")  # a heavier table on a softer oil column than the file says
 
@@ -31,7 +31,7 @@ def test_a_rig_unlike_what_the_controller_is_told_stops_the_test_with_the_advice
     the simulated plant plays; the service stops the test, and the console says why and what to do. (Runs first:
     the next test commissions this service's rig.)"""
     srv = plant_server
-    page, _watch = open_page(f"{srv.url}/", width=1366, height=768, token=TOKEN)
+    page, _watch = open_page(f"{srv.url}/", width=1366, height=768, login=OPERATOR)
     test_id = srv.start_test(sine_test(amplitude_m=0.01, frequency_hz=1.0, cycles=6, speed=4, isolator="IUT_a",
                                        supply_bar=100))
     rec = srv.wait_status(test_id, {"completed", "stopped", "aborted", "failed"})
@@ -57,7 +57,7 @@ def test_a_rig_unlike_what_the_controller_is_told_stops_the_test_with_the_advice
 
 def test_commissioning_from_the_page_on_a_rig_unlike_its_file(plant_server, open_page, artifacts):
     srv = plant_server
-    page, watch = open_page(f"{srv.url}/", width=1366, height=768, token=TOKEN)
+    page, watch = open_page(f"{srv.url}/", width=1366, height=768, login=OPERATOR)
     page.goto(f"{srv.url}/?viewer=off#/commission")
     page.wait_for_selector("body[data-ready='1']", timeout=15000)
     # the rig is said to be a simulated one that plays another rig, and nothing is commissioned yet
@@ -166,7 +166,7 @@ def test_commissioning_from_the_page_on_a_rig_unlike_its_file(plant_server, open
 
 def test_a_tests_page_history_and_live_view_show_its_tracking_verdict(plant_server, open_page, artifacts):
     srv = plant_server
-    page, _watch = open_page(f"{srv.url}/", width=1920, height=1080, token=TOKEN)
+    page, _watch = open_page(f"{srv.url}/", width=1920, height=1080, login=OPERATOR)
     test_id = srv.start_test(sine_test(amplitude_m=0.01, frequency_hz=1.0, cycles=6, speed=4, isolator="IUT_a",
                                        supply_bar=100))
     rec = srv.wait_status(test_id, {"completed", "stopped", "aborted", "failed"})

@@ -11,7 +11,7 @@ import re
 import time
 
 from .harness import (
-    TOKEN,
+    OPERATOR,
     fill_identity,
     poll,
     record_checks,
@@ -30,7 +30,7 @@ def _checks(page) -> list[dict]:
 def test_numbers_cannot_be_misread(server, open_page, artifacts):
     """A decimal comma is read as one and said so ("3,5" is 3.5 mm, never 35); an ambiguous "1,000" and text are
     refused with a message; every field shows its unit and range; the unit choice converts the values."""
-    page, _ = open_page(server.url + "/", width=1366, height=768, token=TOKEN)
+    page, _ = open_page(server.url + "/", width=1366, height=768, login=OPERATOR)
     record_checks(page)
     fill_identity(page)
     # every numeric field is a text field with a decimal keypad, its unit and its allowed range
@@ -128,7 +128,7 @@ def test_state_follows_the_running_test(server, open_page, browser, artifacts):
     """Start enabled only when a start can succeed; the confirmation; the strip, the readouts and the form follow
     the running test, also after a reload and in a second browser; Stop shows STOPPING; a refusal clears when
     its cause is gone; labelled plots; events in words; the banner never covers the header."""
-    page, watch = open_page(server.url + "/", width=1920, height=1080, token=TOKEN)
+    page, watch = open_page(server.url + "/", width=1920, height=1080, login=OPERATOR)
     page.wait_for_selector("#conn.conn-up", timeout=10000)
     assert page.is_disabled("#start")
     assert "a specimen id" in page.inner_text("#start-why") and "the operator's name" in page.inner_text("#start-why")
@@ -257,7 +257,7 @@ def test_state_follows_the_running_test(server, open_page, browser, artifacts):
 def test_records_delete_archive_restore(server, open_page, artifacts):
     """History lists who and what; a test that never ran is deleted, one that ran archived with who and why and
     restored, each after a confirmation, with the result said."""
-    page, _ = open_page(server.url + "/#/history", width=1366, height=768, token=TOKEN)
+    page, _ = open_page(server.url + "/#/history", width=1366, height=768, login=OPERATOR)
     body = {**sine_test(cycles=2, speed=10.0), "specimen_id": "REC-1", "operator_name": "Rec Operator",
             "vertical_load_n": 2e5}
     status, ready = server.call("POST", "/api/tests", body, token=True)  # created, never started

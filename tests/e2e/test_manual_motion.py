@@ -9,7 +9,7 @@ from __future__ import annotations
 import re
 import time
 
-from .harness import TOKEN, fill_identity, poll, record_checks, shots, sine_test, wait_start_enabled
+from .harness import OPERATOR, fill_identity, poll, record_checks, shots, sine_test, wait_start_enabled
 
 
 def _ids(server) -> set[int]:
@@ -39,7 +39,7 @@ def test_zero_and_move_from_the_console(server, open_page, artifacts):
     assert abs(rest) > 0.015, rest  # the valve closed beyond the limit: the table stays there
     at = f"{rest * 1e3:+.2f} mm"
 
-    page, _ = open_page(server.url + "/", width=1366, height=768, token=TOKEN)
+    page, _ = open_page(server.url + "/", width=1366, height=768, login=OPERATOR)
     fill_identity(page, "MM-1", "Motion Operator")
     page.wait_for_selector("#rig-warning[data-state='off-zero']", timeout=10000)
     warning = page.inner_text("#rig-warning")
@@ -141,7 +141,7 @@ def test_zero_and_move_from_the_console(server, open_page, artifacts):
 def test_manual_motion_limits_refusals_units_and_offset(server, open_page, artifacts):
     """Move follows the displacement limit of the form; the service's own refusal is shown; a running test
     disables Zero and Move; the fields follow the unit choice; the sine's offset is taken from the table."""
-    page, watch = open_page(server.url + "/", width=1920, height=1080, token=TOKEN)
+    page, watch = open_page(server.url + "/", width=1920, height=1080, login=OPERATOR)
     watch.allowed_status.add(422)  # the refusal below
     fill_identity(page, "MM-2", "Motion Operator")
     # the same limits as a test: the reach of a move follows the displacement limit of the form
