@@ -36,7 +36,8 @@ def test_an_approver_logs_in_and_approves_a_record(server, open_page, artifacts)
     page.fill("#confirm-body textarea", "loops as expected")
     page.click("#confirm-ok")
     page.wait_for_selector("#t-review-state:has-text('approved')", timeout=10000)
-    assert page.inner_text("#account-button") == f"{APPROVER[0]} (approver)"
+    assert page.inner_text("#account-button .acct-name") == APPROVER[0]
+    assert page.inner_text("#account-button .acct-role") == "approver"
     rec = server.call("GET", f"/api/tests/{test_id}")[1]
     assert rec["review"]["by"] == APPROVER[0] and rec["review"]["note"] == "loops as expected"
     assert rec["review"]["record_sha256"] in page.inner_text("#t-review-hash")

@@ -49,7 +49,8 @@ def test_operator_flow(server, open_page, artifacts):
 
     start_from_form(page, login=OPERATOR)  # nobody logged in yet: asked once, after the confirmation
     page.wait_for_selector("#account-button[data-role='operator']", timeout=5000)
-    assert page.inner_text("#account-button") == f"{OPERATOR[0]} (operator)"
+    assert page.inner_text("#account-button .acct-name") == OPERATOR[0]
+    assert page.inner_text("#account-button .acct-role") == "operator"
     assert page.input_value("#f-operator_name") == OPERATOR[0]
 
     known = {t["id"] for t in before}

@@ -37,7 +37,7 @@ def test_limits_with_actions_reach_the_record_and_indications_show(server, open_
     the strip and the record; the test goes on past the velocity limit and completes, its indications counted
     near the margins (10 kept as events, every one in the record's summary) and listed in words."""
     page, _ = open_page(server.url + "/", width=1366, height=768, login=OPERATOR)
-    fill_identity(page, "LIM-1", "Limit Operator")
+    fill_identity(page, "LIM-1")
     page.select_option("#f-isolator", "IUT_b")
     page.fill("#f-amplitude", "30")
     page.fill("#f-frequency", "0.5")
@@ -174,7 +174,7 @@ def test_protocols_listed_and_the_confirmation_uses_the_services_figures(server,
         text = dict(options)[f"protocol:{p['name']}"]
         assert text == f"protocol {p['name']} ({minutes}:{seconds:02d}, {p['cycles_total']} cycles)", text
     quick = next(p for p in protocols if p["name"] == "quick_check")
-    fill_identity(page, "PROT-1", "Protocol Operator")
+    fill_identity(page, "PROT-1")
     page.select_option("#f-isolator", "IUT_b")
     page.select_option("#f-profile", "protocol:quick_check")
     assert page.is_hidden("#sine-fields")

@@ -10,7 +10,7 @@ import { RigLink } from "./rig.js";
 import { runningTestId, SetupPanel } from "./setup.js";
 import { changed, onState, state } from "./state.js";
 import { StatusStrip } from "./strip.js";
-import { hideAlert, showAlert } from "./ui.js";
+import { el, hideAlert, showAlert } from "./ui.js";
 import { onUnits, setSystem, system } from "./units.js";
 import { watchLiveVerdict } from "./verdict.js";
 
@@ -181,7 +181,9 @@ function capFrameRate(w, maxFps) {
 /** The account button: "log in", or who is logged in and their role (a click logs out). */
 function showAccount() {
   const b = $("account-button");
-  b.textContent = account.name ? `${account.name} (${account.role})` : "log in";
+  b.replaceChildren(...(account.name
+    ? [el("span", { class: "acct-name", text: account.name }), el("span", { class: "acct-role", text: account.role })]
+    : ["log in"]));
   b.title = account.name ? `logged in as ${account.name}, role ${account.role}: click to log out` : "log in to run "
     + "tests, move the rig or approve records (ABORT and Stop need no login)";
   b.dataset.role = account.role || "";

@@ -923,6 +923,12 @@ export class SetupPanel {
       } catch (e) {
         if (e instanceof ApiError && e.status === 422) {
           result = { ok: false, key, message: e.message, field: errorField(e.detail), data: e.detail };
+        } else if (e instanceof ApiError && e.status === 503) { // the service's check pool is busy: ask again
+          if (seq === this.checkSeq) {
+            box.textContent = "Checking: the service is busy with other checks; asking again in 2 s ...";
+            this.scheduleCheck(2000);
+          }
+          return;
         } else {
           result = { ok: null, key, message: `envelope check not available (${e.message})` };
         }
