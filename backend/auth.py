@@ -54,21 +54,22 @@ def _resolve(request: Request, credentials: HTTPAuthorizationCredentials | None)
         service = app.service_token
         if service and secrets.compare_digest(token.encode(), service.encode()):
             return Actor(SERVICE_ACCOUNT, "operator", "service-token")
-        with app.sessions() as session:
-            actor = accounts.actor_for(session, token, "token")
-        if actor is None:
-            raise _unauthorised(f"this API token is not valid (unknown, revoked, or its account disabled): "
-                                f"{HOW_TO_LOG_IN}")
-        return actor
+        return _account(app, token, "token", "this API token is not valid (unknown, revoked, or its account "
+                        "disabled)")
     cookie = request.cookies.get(SESSION_COOKIE)
     if cookie:
-        with app.sessions() as session:
-            actor = accounts.actor_for(session, cookie, "session")
-        if actor is None:
-            raise _unauthorised(f"your login has ended (expired, logged out, or the account disabled): "
-                                f"{HOW_TO_LOG_IN}")
-        return actor
+        return _account(app, cookie, "session", "your login has ended (expired, logged out, or the account "
+                        "disabled)")
     return NOBODY
+
+
+def _account(app, secret: str, kind: str, why: str) -> Actor:
+    """The account a session secret or API token stands for now, else 401 saying ``why`` and how to log in."""
+    with app.sessions() as session:
+        actor = accounts.actor_for(session, secret, kind)
+    if actor is None:
+        raise _unauthorised(f"{why}: {HOW_TO_LOG_IN}")
+    return actor
 
 
 def require(request: Request, credentials: HTTPAuthorizationCredentials | None, role: str) -> Actor:

@@ -397,29 +397,29 @@ def restore_test(test_id: TestId, body: ArchiveIn, session: SessionDep, actor: O
     return store.test_record(session, test)
 
 
-@router.post("/api/tests/{test_id}/approve", summary="Approve a record that has ended (role approver, not who ran "
-             "it): it is locked and its SHA-256 kept", responses=ERROR_RESPONSES)
-def approve_test(test_id: TestId, session: SessionDep, actor: ApproverDep,
-                 body: Annotated[ApproveIn | None, Body()] = None) -> TestOut:
+def _reviewed(session, test_id: int, decide) -> TestOut:
+    """Approve or reject (``decide(test)``, backend.review) and answer with the record as it is then."""
     test = _test_or_404(session, test_id)
     try:
-        review.approve(session, test, actor.name, body.note if body else "")
+        decide(test)
     except review.ReviewError as exc:
         raise ApiError(exc.status, exc.detail) from None
     session.commit()
     return store.test_record(session, test)
+
+
+@router.post("/api/tests/{test_id}/approve", summary="Approve a record that has ended (role approver, not who ran "
+             "it): it is locked and its SHA-256 kept", responses=ERROR_RESPONSES)
+def approve_test(test_id: TestId, session: SessionDep, actor: ApproverDep,
+                 body: Annotated[ApproveIn | None, Body()] = None) -> TestOut:
+    note = body.note if body else ""
+    return _reviewed(session, test_id, lambda test: review.approve(session, test, actor.name, note))
 
 
 @router.post("/api/tests/{test_id}/reject", summary="Reject a record, with the reason (role approver, not who ran "
              "it)", responses=ERROR_RESPONSES)
 def reject_test(test_id: TestId, body: RejectIn, session: SessionDep, actor: ApproverDep) -> TestOut:
-    test = _test_or_404(session, test_id)
-    try:
-        review.reject(session, test, actor.name, body.reason)
-    except review.ReviewError as exc:
-        raise ApiError(exc.status, exc.detail) from None
-    session.commit()
-    return store.test_record(session, test)
+    return _reviewed(session, test_id, lambda test: review.reject(session, test, actor.name, body.reason))
 
 
 @router.get("/api/tests/{test_id}/approval", summary="The record's review, and for an approved one its SHA-256 "
