@@ -136,7 +136,7 @@ def test_batch_matches_serial_runs():
 
 def test_command_ramp_runs_open_loop_on_the_plant_and_leaves_the_controller_idle():
     from sim.plant import PLANT_SUBSTEPS
-    from sim.rig import N_STATES, rk4_step, valve_command
+    from sim.rig import rk4_step, valve_command
 
     sim = Simulation(Scenario.sine("IUT_a", 100.0, 0.02, 1.0, 2, controller="pid"))
     while abs(sim.loop.last_command_v) < 0.5 and sim.period < 1500:  # a command worth ramping down
@@ -154,11 +154,10 @@ def test_command_ramp_runs_open_loop_on_the_plant_and_leaves_the_controller_idle
     assert rows["voltage_v"][-1] == 0.0
     assert np.all(np.isnan(rows["target_m"]))
     # the same plant stepped by hand with each command held
-    work = [np.empty(N_STATES) for _ in range(5)]
     for i in range(100):
         assert rows["displacement_m"][i] == x[0]
         for _ in range(PLANT_SUBSTEPS):
-            rk4_step(x, valve_command(expected[i], sim.plant.params), sim.plant.params, 1e-3 / PLANT_SUBSTEPS, *work)
+            rk4_step(x, valve_command(expected[i], sim.plant.params), sim.plant.params, 1e-3 / PLANT_SUBSTEPS)
 
 
 def test_the_vertical_load_is_a_test_condition_and_sets_the_friction():
