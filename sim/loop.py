@@ -94,7 +94,7 @@ GUARD_MIN_MARGIN_M = 2e-5  # ... and at least this (what a braking servo oversho
 MODE_CLOSED, MODE_RAMP, MODE_BRAKE = 0.0, 1.0, 2.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def brake_periods(v0, a, dt):
     """Periods of a braking stop from speed |v0| at peak deceleration a: the speed falls as a raised cosine
     over T = pi |v0| / (2 a) (its peak deceleration), rounded up to whole periods."""
@@ -103,13 +103,13 @@ def brake_periods(v0, a, dt):
     return max(1, int(math.ceil(math.pi * abs(v0) / (2.0 * a) / dt - 1e-9)))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def brake_rest_m(r0, v0, n, dt):
     """Where a braking stop from (r0, v0) over n periods comes to rest: r0 + v0 n dt / 2."""
     return r0 + 0.5 * v0 * n * dt
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def brake_target(k, ls, dt):
     """The target of a braking stop in period k: speed v0 (1 + cos(pi j / n)) / 2 for j = k - k0 in [0, n], the
     position its integral; at rest from n on. Continuous in position and speed with the target it replaced."""
@@ -131,7 +131,7 @@ def brake_target(k, ls, dt):
     return r0 + v0 * (0.5 * j * dt + n * dt / (2.0 * math.pi) * math.sin(x)), 0.5 * v0 * (1.0 + math.cos(x))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def begin_brake(k, r0, v0, a, ls, dt):
     ls[LS_MODE] = MODE_BRAKE
     ls[LS_BRAKE_K0] = k
@@ -140,7 +140,7 @@ def begin_brake(k, r0, v0, a, ls, dt):
     ls[LS_BRAKE_N] = brake_periods(v0, a, dt)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def guard_trips(r, rdot, lp, margin_m):
     """The displacement guard: would a braking stop that begins one period from now bring the target to rest
     closer than ``margin_m`` (the table's recent tracking error) to +-L_GUARD_M, or beyond? Then the stop
@@ -152,7 +152,7 @@ def guard_trips(r, rdot, lp, margin_m):
     return abs(brake_rest_m(ahead, rdot, brake_periods(rdot, a, dt), dt)) > guard - margin_m
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def note_error(position_m, r, ls, dt):
     """Keep the recent peak |y - r| (LS_RECENT_ERROR): it decays with RECENT_ERROR_S."""
     e = abs(position_m - r)
@@ -160,7 +160,7 @@ def note_error(position_m, r, ls, dt):
     ls[LS_RECENT_ERROR] = e if e > decayed else decayed
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def saturate(u_raw, limit):
     """The command applied: u_raw clipped to +-limit; a non-finite command becomes 0 V."""
     if not np.isfinite(u_raw):
@@ -168,7 +168,7 @@ def saturate(u_raw, limit):
     return min(max(u_raw, -limit), limit)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def control_period(k, position_m, force_n, load_pressure_pa, supply_pressure_pa, status, lp, ls, kind, cparams,
                    cstate, blocks, table, meas, report, row):
     """One control period k from a measurement; fills ``row`` and returns the command in volts.

@@ -43,7 +43,7 @@ from .sensors import new_history, pack_sensors, sense
 PLANT_SUBSTEPS = 5  # 0.2 ms RK4 step
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def advance_period(x, v_c, p, substeps, h):
     """Hold the valve voltage v_c for one control period (substeps RK4 steps of h); False if x went non-finite."""
     rk4_steps(x, v_c, p, h, substeps)
@@ -53,7 +53,7 @@ def advance_period(x, v_c, p, substeps, h):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def advance_period_split(x, v_old, v_new, switch, p, substeps, h):
     """One period whose valve voltage changes from v_old to v_new after ``switch`` substeps (a command that
     arrived within the period, as the rig emulator applies it); False if x went non-finite."""
@@ -65,7 +65,7 @@ def advance_period_split(x, v_old, v_new, switch, p, substeps, h):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def run_closed(x, p, substeps, sp, history, lp, ls, kind, cparams, cstate, blocks, table, k0, n, out):
     """n closed-loop periods from period k0: sense, ``control_period``, plant. Returns the rows written
     (fewer than n if the plant state became non-finite)."""

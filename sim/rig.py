@@ -181,7 +181,7 @@ def pack_plant(rig: RigParameters, isolator: Isolator, supply_pa: float) -> np.n
     return p
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def valve_command(u, p):
     """v_c from the control action u, eq. (2)."""
     if u > 0.0:
@@ -191,7 +191,7 @@ def valve_command(u, p):
     return p[P_VE0]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def dead_zone(v, width):
     """DZ(v_e): zero inside +-width, shifted linear outside."""
     if v > width:
@@ -201,7 +201,7 @@ def dead_zone(v, width):
     return 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def regularised_sqrt(dp, dp_reg):
     """sqrt(dp) above dp_reg, the secant line dp / sqrt(dp_reg) below it (continuous, odd for dp < 0).
 
@@ -213,7 +213,7 @@ def regularised_sqrt(dp, dp_reg):
     return dp / np.sqrt(dp_reg)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def load_flow(v_e, p_load, p):
     """Q_L = K_q DZ(v_e) sqrt(P_s - sgn(v_e) P_L), eq. (3), second line, in m3/s."""
     opening = dead_zone(v_e, p[P_DZ])
@@ -223,7 +223,7 @@ def load_flow(v_e, p_load, p):
     return p[P_KQ] * opening * regularised_sqrt(p[P_SUPPLY] - sgn * p_load, p[P_DPREG])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def table_acceleration(v, net_force, p):
     """y'' from eq. (3), first line, with Coulomb friction and a stick band.
 
@@ -242,7 +242,7 @@ def table_acceleration(v, net_force, p):
     return (net_force - friction * direction) / p[P_MASS]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def rig_rates(y, v, p_load, v_e, v_e_dot, w, v_c, p):
     """Right-hand side of eq. (3) with eq. (4) for the isolator, on the six states as numbers; returns their
     rates (y', y'', P_L', v_e', v_e'', w'). Scalars in and out, so that compiled RK4 keeps the state in registers."""
@@ -257,21 +257,21 @@ def rig_rates(y, v, p_load, v_e, v_e_dot, w, v_c, p):
     return v, acceleration, p_load_rate, v_e_dot, v_e_ddot, w_rate
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def rig_derivatives(x, v_c, p, dx):
     """Right-hand side of eq. (3) with eq. (4) for the isolator (``rig_rates`` on the state vector); writes dx."""
     dx[X_Y], dx[X_V], dx[X_PL], dx[X_VE], dx[X_VED], dx[X_W] = rig_rates(
         x[X_Y], x[X_V], x[X_PL], x[X_VE], x[X_VED], x[X_W], v_c, p)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _rates_at(s, c, k, v_c, p):
     """``rig_rates`` at the state s + c k (an RK4 stage; s and k are 6-tuples)."""
     return rig_rates(s[0] + c * k[0], s[1] + c * k[1], s[2] + c * k[2], s[3] + c * k[3], s[4] + c * k[4],
                      s[5] + c * k[5], v_c, p)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def rk4_steps(x, v_c, p, h, n):
     """n classical Runge-Kutta steps of length h with v_c held (zero-order hold); in place on x.
 
@@ -294,7 +294,7 @@ def rk4_steps(x, v_c, p, h, n):
     x[X_Y], x[X_V], x[X_PL], x[X_VE], x[X_VED], x[X_W] = s
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def rk4_step(x, v_c, p, h):
     """One classical Runge-Kutta step of length h with v_c held (zero-order hold); in place."""
     rk4_steps(x, v_c, p, h, 1)
