@@ -150,14 +150,21 @@ class SimulatedPlant:
             self.diverged = not ok
         self.period += 1
 
-    def run_closed(self, loop: ClosedLoop, n_periods: int) -> Samples:
-        """Up to n periods of ``loop`` around this plant in one compiled call (the fast path)."""
+    def run_closed(self, loop: ClosedLoop, n_periods: int, out: np.ndarray | None = None) -> Samples:
+        """Up to n periods of ``loop`` around this plant in one compiled call (the fast path). ``out``: rows to
+        write into (a C-contiguous (m, N_FIELDS) array; at most m periods run), else new ones; the samples
+        returned are a view of them."""
         if loop.period != self.period:
             raise ValueError(f"loop at period {loop.period}, plant at period {self.period}: they must run together")
         n = loop.remaining(n_periods)
+        if out is not None:
+            if out.ndim != 2 or out.shape[1] != N_FIELDS or out.dtype != np.float64 or not out.flags.c_contiguous:
+                raise ValueError(f"out must be a C-contiguous float64 array of shape (m, {N_FIELDS}); got "
+                                 f"{out.dtype} {out.shape}")
+            n = min(n, out.shape[0])
         if n == 0 or self.diverged:
             return Samples.empty()
-        out = np.empty((n, N_FIELDS))
+        out = np.empty((n, N_FIELDS)) if out is None else out[:n]
         written = run_closed(self.state, self.params, self.substeps, self.sensors, self.history, loop.params,
                              loop.state, loop.controller.kind, loop.controller.params, loop.controller_state,
                              loop.blocks, loop.table, self.period, n, out)
