@@ -168,7 +168,7 @@ def saturate(u_raw, limit):
     return min(max(u_raw, -limit), limit)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def control_period(k, position_m, force_n, load_pressure_pa, supply_pressure_pa, status, lp, ls, kind, cparams,
                    cstate, blocks, table, meas, report, row):
     """One control period k from a measurement; fills ``row`` and returns the command in volts.

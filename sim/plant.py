@@ -43,7 +43,7 @@ from .sensors import new_history, pack_sensors, sense
 PLANT_SUBSTEPS = 5  # 0.2 ms RK4 step
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def advance_period(x, v_c, p, substeps, h):
     """Hold the valve voltage v_c for one control period (substeps RK4 steps of h); False if x went non-finite."""
     rk4_steps(x, v_c, p, h, substeps)

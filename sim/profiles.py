@@ -91,7 +91,7 @@ def _raised_cosine(x):
     return 0.5 * (1.0 - np.cos(np.pi * x)), 0.5 * np.pi * np.sin(np.pi * x)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def target(t, blocks):
     """Target displacement r(t) in m and its rate r'(t) in m/s."""
     n = blocks.shape[0]

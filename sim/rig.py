@@ -242,7 +242,7 @@ def table_acceleration(v, net_force, p):
     return (net_force - friction * direction) / p[P_MASS]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def rig_rates(y, v, p_load, v_e, v_e_dot, w, v_c, p):
     """Right-hand side of eq. (3) with eq. (4) for the isolator, on the six states as numbers; returns their
     rates (y', y'', P_L', v_e', v_e'', w'). Scalars in and out, so that compiled RK4 keeps the state in registers."""
@@ -264,14 +264,14 @@ def rig_derivatives(x, v_c, p, dx):
         x[X_Y], x[X_V], x[X_PL], x[X_VE], x[X_VED], x[X_W], v_c, p)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _rates_at(s, c, k, v_c, p):
     """``rig_rates`` at the state s + c k (an RK4 stage; s and k are 6-tuples)."""
     return rig_rates(s[0] + c * k[0], s[1] + c * k[1], s[2] + c * k[2], s[3] + c * k[3], s[4] + c * k[4],
                      s[5] + c * k[5], v_c, p)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def rk4_steps(x, v_c, p, h, n):
     """n classical Runge-Kutta steps of length h with v_c held (zero-order hold); in place on x.
 

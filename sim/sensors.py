@@ -91,7 +91,7 @@ def _delayed(history, row, k, latency_periods):
     return (1.0 - frac) * a + frac * history[row, i1 % HISTORY]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def sense(position_m, load_pressure_pa, k, sp, history, out):
     """Readings at period k: out[0] the position, out[1] the load pressure. Records the true values once
     per period (a second call in the same period reads without recording)."""
