@@ -82,8 +82,8 @@ BRAKE_TARGET_FACTOR = 2.0  # ... and at least this many times the test's own lar
 BRAKE_HARDEST_FACTOR = 8.0  # to stay within a bound, a stop brakes up to this many times harder
 
 # Loop parameters and state (packed for compiled code).
-L_DT, L_ULIM, L_GUARD_M, L_BRAKE_A = range(4)
-N_LOOP_PARAMS = 4
+L_DT, L_ULIM, L_GUARD_M, L_BRAKE_A, L_ERROR_DECAY = range(5)  # L_ERROR_DECAY: exp(-dt / RECENT_ERROR_S)
+N_LOOP_PARAMS = 5
 (LS_MODE, LS_RAMP_U0, LS_RAMP_K0, LS_RAMP_N, LS_LAST_U, LS_BRAKE_K0, LS_BRAKE_R0, LS_BRAKE_V0, LS_BRAKE_N,
  LS_RECENT_ERROR, LS_HOME_M, LS_RETURN_N, LS_LAST_ERROR) = range(13)
 N_LOOP_STATE = 13
@@ -153,10 +153,11 @@ def guard_trips(r, rdot, lp, margin_m):
 
 
 @njit(cache=True, error_model="numpy")
-def note_error(position_m, r, ls, dt):
-    """Keep the recent peak |y - r| (LS_RECENT_ERROR): it decays with RECENT_ERROR_S."""
+def note_error(position_m, r, ls, decay):
+    """Keep the recent peak |y - r| (LS_RECENT_ERROR): it decays by ``decay`` (exp(-dt / RECENT_ERROR_S), computed
+    once per loop, not per period) each period."""
     e = abs(position_m - r)
-    decayed = ls[LS_RECENT_ERROR] * math.exp(-dt / RECENT_ERROR_S)
+    decayed = ls[LS_RECENT_ERROR] * decay
     ls[LS_RECENT_ERROR] = e if e > decayed else decayed
 
 
@@ -203,7 +204,7 @@ def control_period(k, position_m, force_n, load_pressure_pa, supply_pressure_pa,
             else:
                 r, rdot = target(t, blocks)
             if np.isfinite(position_m) and np.isfinite(r) and not status & FLAG_PREDICTED:
-                note_error(position_m, r, ls, dt)
+                note_error(position_m, r, ls, lp[L_ERROR_DECAY])
             # the target would carry the table past the limit: brake now
             if guard_trips(r, rdot, lp, ls[LS_RECENT_ERROR] + GUARD_MIN_MARGIN_M):
                 begin_brake(k, r, rdot, lp[L_BRAKE_A], ls, dt)
@@ -311,7 +312,8 @@ class ClosedLoop:
         self.controller = controller
         self.controller_state = controller.new_state()
         self.control_period_s = float(control_period_s)
-        self.params = np.array([self.control_period_s, float(command_limit_v), math.inf, 0.0])
+        self.params = np.array([self.control_period_s, float(command_limit_v), math.inf, 0.0,
+                                math.exp(-self.control_period_s / RECENT_ERROR_S)])
         self.state = np.zeros(N_LOOP_STATE)
         self.period = 0
         self.total_periods = (self.table.shape[0] if table is not None
