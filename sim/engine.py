@@ -22,7 +22,7 @@ from .loop import CONTROL_PERIOD_S, ClosedLoop
 from .plant import PLANT_SUBSTEPS, SimulatedPlant
 from .profiles import SineProfile, check_vertical_load, profile_duration_s, validate_profile
 from .rig import BAR_PA, DEFAULT_RIG, RigParameters
-from .samples import Samples
+from .samples import N_FIELDS, Samples
 
 __all__ = ["CONTROL_PERIOD_S", "PLANT_SUBSTEPS", "Result", "Scenario", "Simulation", "run_batch", "run_scenario",
            "warm_up"]
@@ -202,29 +202,40 @@ class Simulation:
     def time_s(self) -> float:
         return self.loop.time_s
 
-    def advance(self, n_periods: int) -> Samples:
+    def advance(self, n_periods: int, out: np.ndarray | None = None) -> Samples:
         """Run up to n_periods more control periods; returns their rows. A timed plant change takes effect at
-        the first period at or after its time."""
-        parts = []
-        end = self.period + max(0, int(n_periods))
-        while self.period < end and not self.done:
+        the first period at or after its time. ``out``: write the rows into it (C-contiguous, N_FIELDS
+        columns; at most its length run) and return a view of them, instead of new arrays."""
+        if out is not None:
+            return self._advance_into(out[: max(0, int(n_periods))])
+        parts, left = [], max(0, int(n_periods))
+        while left > 0 and not self.done:  # more than one part only if a braking stop lengthens the test
+            parts.append(self._advance_into(np.empty((min(left, self.total_periods - self.period), N_FIELDS))))
+            left -= len(parts[-1])
+        return parts[0] if len(parts) == 1 else Samples.concatenate(parts)
+
+    def _advance_into(self, out: np.ndarray) -> Samples:
+        """Run as many periods as ``out`` has rows (fewer if the test ends); the rows written, a view of out."""
+        filled = 0
+        while filled < out.shape[0] and not self.done:
             if self.pending_changes and self.pending_changes[0][0] <= self.time_s + 1e-12:
                 _t, name, value = self.pending_changes.pop(0)
                 self.changes_applied[name] = value
                 rig, isolator = plant_at(self.scenario, self.changes_applied)
                 self.plant.rebuild(rig, isolator)
                 continue
-            stop = end
+            n = out.shape[0] - filled
             if self.pending_changes:
-                stop = min(stop, max(self.period + 1, int(np.ceil(self.pending_changes[0][0] / CONTROL_PERIOD_S
-                                                                  - 1e-9))))
-            parts.append(self.plant.run_closed(self.loop, stop - self.period))
-        return Samples.concatenate(parts)
+                n = min(n, max(1, int(np.ceil(self.pending_changes[0][0] / CONTROL_PERIOD_S - 1e-9)) - self.period))
+            filled += len(self.plant.run_closed(self.loop, n, out[filled:]))
+        return Samples(out[:filled])
 
     def run(self, chunk_periods: int = 5000, progress=None, follow: bool = False) -> Result:
         """Run to the end; ``progress(fraction)`` is called after each chunk. ``follow``: with the service's
         detector of a rig the controller cannot follow (sim.follow), checked every 10 periods as the worker
-        does; on a trip the valve closes at once (0 V for 0.1 s, open loop) and the run ends there."""
+        does; on a trip the valve closes at once (0 V for 0.1 s, open loop) and the run ends there.
+
+        The rows go into one buffer of the test's length (grown if a braking stop lengthens the test)."""
         from .follow import FollowMonitor, advice_for, limits_for, reference_for
 
         monitor = None
@@ -234,18 +245,22 @@ class Simulation:
             monitor = FollowMonitor(reference, s.rig.position_latency_s, limits_for(s.controller),
                                     advice_for(s.controller))
             chunk_periods = FOLLOW_CHECK_PERIODS
-        chunks, trip, next_progress = [], None, 0
+        rows = np.empty((max(0, self.total_periods - self.period), N_FIELDS))
+        filled, trip, next_progress = 0, None, 0
         while not self.done:
-            rows = self.advance(chunk_periods)
-            chunks.append(rows)
+            if filled == rows.shape[0]:  # the test runs longer than planned (a braking stop): more room
+                more = max(self.total_periods - self.period, chunk_periods)
+                rows = np.concatenate([rows, np.empty((more, N_FIELDS))])
+            chunk = self.advance(chunk_periods, out=rows[filled:])
+            filled += len(chunk)
             if monitor is not None and trip is None:
-                trip = monitor.check(rows)
+                trip = monitor.check(chunk)
                 if trip is not None:
                     self.loop.begin_command_ramp(at_once=True)
             if progress is not None and self.period >= next_progress:
                 progress(self.period / max(self.total_periods, 1))
                 next_progress = self.period + 5000
-        return Result(self.scenario, Samples.concatenate(chunks), self.diverged, trip)
+        return Result(self.scenario, Samples(rows[:filled]), self.diverged, trip)
 
 
 @dataclass

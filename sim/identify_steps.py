@@ -26,7 +26,7 @@ from scipy.optimize import least_squares
 from .identify import IdentificationError, as_record, read_record_csv
 from .isolator import Isolator
 from .models import K_VOLT, first_order_response
-from .rig import BAR_PA, N_STATES, X_Y, RigParameters, pack_plant, rk4_step, valve_command
+from .rig import BAR_PA, N_STATES, X_Y, RigParameters, pack_plant, rk4_steps, valve_command
 
 SAMPLE_HZ = 500.0  # the paper's sampling rate for the step tests
 STEP_DURATION_S = 10.0  # record length: eq. (7) with a_p ~ 0.5 1/s settles within ~3 s even at u = 2 V
@@ -91,16 +91,10 @@ class StepRecord:
 def _open_loop(plant, v_c, n_samples, substeps, h):
     """Fifth-order model from rest with the valve command v_c held; y at each sample."""
     x = np.zeros(N_STATES)
-    k1 = np.empty(N_STATES)
-    k2 = np.empty(N_STATES)
-    k3 = np.empty(N_STATES)
-    k4 = np.empty(N_STATES)
-    tmp = np.empty(N_STATES)
     y = np.empty(n_samples)
     for i in range(n_samples):
         y[i] = x[X_Y]
-        for _ in range(substeps):
-            rk4_step(x, v_c, plant, h, k1, k2, k3, k4, tmp)
+        rk4_steps(x, v_c, plant, h, substeps)
     return y
 
 

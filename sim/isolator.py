@@ -139,7 +139,7 @@ def load_isolator(spec: str | Path) -> Isolator:
     return isolator_from_dict(data)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def bouc_wen_rate(w, d_dot, rho, sigma, n):
     """dw/dt of eq. (4), written exactly as the paper does (|w|^n without a power call for n = 1, the
     exponent of Tables I-II: the same value, a fifth of the engine's time saved)."""
@@ -157,7 +157,7 @@ def simulate_loop(isolator: Isolator, d_m: np.ndarray, dt_s: float, substeps: in
     )
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def bouc_wen_step(w, d0, d1, dt, substeps, rho, sigma, nexp):
     """w after the displacement moves linearly from d0 to d1 (m) in dt (s): RK4, ``substeps`` substeps.
     The isolator force at d1 is then k_d d1 + k_w w (eq. 4)."""
@@ -172,7 +172,7 @@ def bouc_wen_step(w, d0, d1, dt, substeps, rho, sigma, nexp):
     return w
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _loop_forces(d, dt, substeps, rho, sigma, n, kd, kw):
     out = np.empty(d.size)
     w = 0.0

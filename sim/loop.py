@@ -82,8 +82,8 @@ BRAKE_TARGET_FACTOR = 2.0  # ... and at least this many times the test's own lar
 BRAKE_HARDEST_FACTOR = 8.0  # to stay within a bound, a stop brakes up to this many times harder
 
 # Loop parameters and state (packed for compiled code).
-L_DT, L_ULIM, L_GUARD_M, L_BRAKE_A = range(4)
-N_LOOP_PARAMS = 4
+L_DT, L_ULIM, L_GUARD_M, L_BRAKE_A, L_ERROR_DECAY = range(5)  # L_ERROR_DECAY: exp(-dt / RECENT_ERROR_S)
+N_LOOP_PARAMS = 5
 (LS_MODE, LS_RAMP_U0, LS_RAMP_K0, LS_RAMP_N, LS_LAST_U, LS_BRAKE_K0, LS_BRAKE_R0, LS_BRAKE_V0, LS_BRAKE_N,
  LS_RECENT_ERROR, LS_HOME_M, LS_RETURN_N, LS_LAST_ERROR) = range(13)
 N_LOOP_STATE = 13
@@ -94,7 +94,7 @@ GUARD_MIN_MARGIN_M = 2e-5  # ... and at least this (what a braking servo oversho
 MODE_CLOSED, MODE_RAMP, MODE_BRAKE = 0.0, 1.0, 2.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def brake_periods(v0, a, dt):
     """Periods of a braking stop from speed |v0| at peak deceleration a: the speed falls as a raised cosine
     over T = pi |v0| / (2 a) (its peak deceleration), rounded up to whole periods."""
@@ -103,13 +103,13 @@ def brake_periods(v0, a, dt):
     return max(1, int(math.ceil(math.pi * abs(v0) / (2.0 * a) / dt - 1e-9)))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def brake_rest_m(r0, v0, n, dt):
     """Where a braking stop from (r0, v0) over n periods comes to rest: r0 + v0 n dt / 2."""
     return r0 + 0.5 * v0 * n * dt
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def brake_target(k, ls, dt):
     """The target of a braking stop in period k: speed v0 (1 + cos(pi j / n)) / 2 for j = k - k0 in [0, n], the
     position its integral; at rest from n on. Continuous in position and speed with the target it replaced."""
@@ -131,7 +131,7 @@ def brake_target(k, ls, dt):
     return r0 + v0 * (0.5 * j * dt + n * dt / (2.0 * math.pi) * math.sin(x)), 0.5 * v0 * (1.0 + math.cos(x))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def begin_brake(k, r0, v0, a, ls, dt):
     ls[LS_MODE] = MODE_BRAKE
     ls[LS_BRAKE_K0] = k
@@ -140,7 +140,7 @@ def begin_brake(k, r0, v0, a, ls, dt):
     ls[LS_BRAKE_N] = brake_periods(v0, a, dt)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def guard_trips(r, rdot, lp, margin_m):
     """The displacement guard: would a braking stop that begins one period from now bring the target to rest
     closer than ``margin_m`` (the table's recent tracking error) to +-L_GUARD_M, or beyond? Then the stop
@@ -152,15 +152,16 @@ def guard_trips(r, rdot, lp, margin_m):
     return abs(brake_rest_m(ahead, rdot, brake_periods(rdot, a, dt), dt)) > guard - margin_m
 
 
-@njit(cache=True)
-def note_error(position_m, r, ls, dt):
-    """Keep the recent peak |y - r| (LS_RECENT_ERROR): it decays with RECENT_ERROR_S."""
+@njit(cache=True, error_model="numpy")
+def note_error(position_m, r, ls, decay):
+    """Keep the recent peak |y - r| (LS_RECENT_ERROR): it decays by ``decay`` (exp(-dt / RECENT_ERROR_S), computed
+    once per loop, not per period) each period."""
     e = abs(position_m - r)
-    decayed = ls[LS_RECENT_ERROR] * math.exp(-dt / RECENT_ERROR_S)
+    decayed = ls[LS_RECENT_ERROR] * decay
     ls[LS_RECENT_ERROR] = e if e > decayed else decayed
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def saturate(u_raw, limit):
     """The command applied: u_raw clipped to +-limit; a non-finite command becomes 0 V."""
     if not np.isfinite(u_raw):
@@ -168,7 +169,7 @@ def saturate(u_raw, limit):
     return min(max(u_raw, -limit), limit)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def control_period(k, position_m, force_n, load_pressure_pa, supply_pressure_pa, status, lp, ls, kind, cparams,
                    cstate, blocks, table, meas, report, row):
     """One control period k from a measurement; fills ``row`` and returns the command in volts.
@@ -203,7 +204,7 @@ def control_period(k, position_m, force_n, load_pressure_pa, supply_pressure_pa,
             else:
                 r, rdot = target(t, blocks)
             if np.isfinite(position_m) and np.isfinite(r) and not status & FLAG_PREDICTED:
-                note_error(position_m, r, ls, dt)
+                note_error(position_m, r, ls, lp[L_ERROR_DECAY])
             # the target would carry the table past the limit: brake now
             if guard_trips(r, rdot, lp, ls[LS_RECENT_ERROR] + GUARD_MIN_MARGIN_M):
                 begin_brake(k, r, rdot, lp[L_BRAKE_A], ls, dt)
@@ -311,7 +312,8 @@ class ClosedLoop:
         self.controller = controller
         self.controller_state = controller.new_state()
         self.control_period_s = float(control_period_s)
-        self.params = np.array([self.control_period_s, float(command_limit_v), math.inf, 0.0])
+        self.params = np.array([self.control_period_s, float(command_limit_v), math.inf, 0.0,
+                                math.exp(-self.control_period_s / RECENT_ERROR_S)])
         self.state = np.zeros(N_LOOP_STATE)
         self.period = 0
         self.total_periods = (self.table.shape[0] if table is not None

@@ -9,7 +9,7 @@ K_VOLT = 1.0  # k of eqs. (5)-(9): "voltage dimension and unitary value"
 ATANH_SERIES_BELOW = 1e-4  # |x| below which atanh(x)/x is taken from its series 1 + x^2/3
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def atanh_over_x(x):
     """atanh(x) / x with its removable singularity at x = 0 filled in (limit 1)."""
     if abs(x) < ATANH_SERIES_BELOW:
@@ -17,7 +17,7 @@ def atanh_over_x(x):
     return np.arctanh(x) / x
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def first_order_rate(y, u, a_p, a_s):
     """dy/dt of the first-order model, eq. (7): -a_p y + a_p y / (k atanh(y/a_s)) u.
 
@@ -35,7 +35,7 @@ def first_order_response(t_s: np.ndarray, u_v: np.ndarray, a_p: float, a_s: floa
     return _first_order_response(np.asarray(t_s, float), np.asarray(u_v, float), a_p, a_s, y0_m)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _first_order_response(t, u, a_p, a_s, y0):
     y = np.empty(t.size)
     y[0] = y0
@@ -52,7 +52,7 @@ def _first_order_response(t, u, a_p, a_s, y0):
     return y
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def reference_model_step(y_m, r, a_m, b_m, dt):
     """Exact zero-order-hold step of the reference model, eq. (8): y_m' = -a_m y_m + b_m r."""
     decay = np.exp(-a_m * dt)

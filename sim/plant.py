@@ -34,7 +34,7 @@ from .rig import (
     RigParameters,
     load_flow,
     pack_plant,
-    rk4_step,
+    rk4_steps,
     valve_command,
 )
 from .samples import _FLOW, _VALVE, _VEL, _Y, N_FIELDS, Samples
@@ -43,41 +43,35 @@ from .sensors import new_history, pack_sensors, sense
 PLANT_SUBSTEPS = 5  # 0.2 ms RK4 step
 
 
-@njit(cache=True)
-def advance_period(x, v_c, p, substeps, h, k1, k2, k3, k4, tmp):
+@njit(cache=True, error_model="numpy", inline="always")
+def advance_period(x, v_c, p, substeps, h):
     """Hold the valve voltage v_c for one control period (substeps RK4 steps of h); False if x went non-finite."""
-    for _ in range(substeps):
-        rk4_step(x, v_c, p, h, k1, k2, k3, k4, tmp)
+    rk4_steps(x, v_c, p, h, substeps)
     for j in range(N_STATES):
         if not np.isfinite(x[j]):
             return False
     return True
 
 
-@njit(cache=True)
-def advance_period_split(x, v_old, v_new, switch, p, substeps, h, k1, k2, k3, k4, tmp):
+@njit(cache=True, error_model="numpy")
+def advance_period_split(x, v_old, v_new, switch, p, substeps, h):
     """One period whose valve voltage changes from v_old to v_new after ``switch`` substeps (a command that
     arrived within the period, as the rig emulator applies it); False if x went non-finite."""
-    for i in range(substeps):
-        rk4_step(x, v_old if i < switch else v_new, p, h, k1, k2, k3, k4, tmp)
+    rk4_steps(x, v_old, p, h, switch)
+    rk4_steps(x, v_new, p, h, substeps - switch)
     for j in range(N_STATES):
         if not np.isfinite(x[j]):
             return False
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def run_closed(x, p, substeps, sp, history, lp, ls, kind, cparams, cstate, blocks, table, k0, n, out):
     """n closed-loop periods from period k0: sense, ``control_period``, plant. Returns the rows written
     (fewer than n if the plant state became non-finite)."""
     meas = np.empty(N_MEAS)
     report = np.full(N_REPORT, np.nan)
     sensed = np.empty(2)
-    k1 = np.empty(N_STATES)
-    k2 = np.empty(N_STATES)
-    k3 = np.empty(N_STATES)
-    k4 = np.empty(N_STATES)
-    tmp = np.empty(N_STATES)
     h = lp[0] / substeps
     for i in range(n):
         k = k0 + i
@@ -90,7 +84,7 @@ def run_closed(x, p, substeps, sp, history, lp, ls, kind, cparams, cstate, block
         row[_VEL] = x[X_V]
         row[_FLOW] = load_flow(x[X_VE], x[X_PL], p)
         row[_VALVE] = x[X_VE]
-        if not advance_period(x, valve_command(u, p), p, substeps, h, k1, k2, k3, k4, tmp):
+        if not advance_period(x, valve_command(u, p), p, substeps, h):
             return i + 1
     return n
 
@@ -110,7 +104,6 @@ class SimulatedPlant:
         self.state = np.zeros(N_STATES)
         self.period = 0
         self.diverged = False
-        self._work = tuple(np.empty(N_STATES) for _ in range(5))
         self._sensed = np.empty(2)
 
     def place(self, position_m: float) -> None:
@@ -149,22 +142,29 @@ class SimulatedPlant:
             v_old = valve_command(float(command_v), self.params)
             h = self.control_period_s / self.substeps
             if new_command_v is None:
-                ok = advance_period(self.state, v_old, self.params, self.substeps, h, *self._work)
+                ok = advance_period(self.state, v_old, self.params, self.substeps, h)
             else:
                 switch = min(self.substeps, max(0, int(np.ceil(switch_fraction * self.substeps - 1e-9))))
                 ok = advance_period_split(self.state, v_old, valve_command(float(new_command_v), self.params), switch,
-                                          self.params, self.substeps, h, *self._work)
+                                          self.params, self.substeps, h)
             self.diverged = not ok
         self.period += 1
 
-    def run_closed(self, loop: ClosedLoop, n_periods: int) -> Samples:
-        """Up to n periods of ``loop`` around this plant in one compiled call (the fast path)."""
+    def run_closed(self, loop: ClosedLoop, n_periods: int, out: np.ndarray | None = None) -> Samples:
+        """Up to n periods of ``loop`` around this plant in one compiled call (the fast path). ``out``: rows to
+        write into (a C-contiguous (m, N_FIELDS) array; at most m periods run), else new ones; the samples
+        returned are a view of them."""
         if loop.period != self.period:
             raise ValueError(f"loop at period {loop.period}, plant at period {self.period}: they must run together")
         n = loop.remaining(n_periods)
+        if out is not None:
+            if out.ndim != 2 or out.shape[1] != N_FIELDS or out.dtype != np.float64 or not out.flags.c_contiguous:
+                raise ValueError(f"out must be a C-contiguous float64 array of shape (m, {N_FIELDS}); got "
+                                 f"{out.dtype} {out.shape}")
+            n = min(n, out.shape[0])
         if n == 0 or self.diverged:
             return Samples.empty()
-        out = np.empty((n, N_FIELDS))
+        out = np.empty((n, N_FIELDS)) if out is None else out[:n]
         written = run_closed(self.state, self.params, self.substeps, self.sensors, self.history, loop.params,
                              loop.state, loop.controller.kind, loop.controller.params, loop.controller_state,
                              loop.blocks, loop.table, self.period, n, out)

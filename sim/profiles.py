@@ -81,7 +81,7 @@ def profile_duration_s(blocks: list[SineProfile]) -> float:
     return sum(b.duration_s for b in blocks)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _raised_cosine(x):
     """0 at x <= 0, 1 at x >= 1, smooth in between; returns (value, derivative)."""
     if x <= 0.0:
@@ -91,7 +91,7 @@ def _raised_cosine(x):
     return 0.5 * (1.0 - np.cos(np.pi * x)), 0.5 * np.pi * np.sin(np.pi * x)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def target(t, blocks):
     """Target displacement r(t) in m and its rate r'(t) in m/s."""
     n = blocks.shape[0]

@@ -181,7 +181,7 @@ def pack_plant(rig: RigParameters, isolator: Isolator, supply_pa: float) -> np.n
     return p
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def valve_command(u, p):
     """v_c from the control action u, eq. (2)."""
     if u > 0.0:
@@ -191,7 +191,7 @@ def valve_command(u, p):
     return p[P_VE0]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def dead_zone(v, width):
     """DZ(v_e): zero inside +-width, shifted linear outside."""
     if v > width:
@@ -201,7 +201,7 @@ def dead_zone(v, width):
     return 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def regularised_sqrt(dp, dp_reg):
     """sqrt(dp) above dp_reg, the secant line dp / sqrt(dp_reg) below it (continuous, odd for dp < 0).
 
@@ -213,7 +213,7 @@ def regularised_sqrt(dp, dp_reg):
     return dp / np.sqrt(dp_reg)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def load_flow(v_e, p_load, p):
     """Q_L = K_q DZ(v_e) sqrt(P_s - sgn(v_e) P_L), eq. (3), second line, in m3/s."""
     opening = dead_zone(v_e, p[P_DZ])
@@ -223,7 +223,7 @@ def load_flow(v_e, p_load, p):
     return p[P_KQ] * opening * regularised_sqrt(p[P_SUPPLY] - sgn * p_load, p[P_DPREG])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def table_acceleration(v, net_force, p):
     """y'' from eq. (3), first line, with Coulomb friction and a stick band.
 
@@ -242,39 +242,62 @@ def table_acceleration(v, net_force, p):
     return (net_force - friction * direction) / p[P_MASS]
 
 
-@njit(cache=True)
-def rig_derivatives(x, v_c, p, dx):
-    """Right-hand side of eq. (3) with eq. (4) for the isolator; writes dx."""
-    y = x[X_Y]
-    v = x[X_V]
-    p_load = x[X_PL]
-    f_bw = p[P_KD] * y + p[P_KW] * x[X_W]
+@njit(cache=True, error_model="numpy", inline="always")
+def rig_rates(y, v, p_load, v_e, v_e_dot, w, v_c, p):
+    """Right-hand side of eq. (3) with eq. (4) for the isolator, on the six states as numbers; returns their
+    rates (y', y'', P_L', v_e', v_e'', w'). Scalars in and out, so that compiled RK4 keeps the state in registers."""
+    f_bw = p[P_KD] * y + p[P_KW] * w
     net = p[P_AREA] * p_load - f_bw - p[P_VISCOUS] * v
-    dx[X_Y] = v
-    dx[X_V] = table_acceleration(v, net, p)
-    q = load_flow(x[X_VE], p_load, p)
-    dx[X_PL] = 2.0 * p[P_BETA] / p[P_VOLUME] * (-p[P_AREA] * v + q)
+    acceleration = table_acceleration(v, net, p)
+    q = load_flow(v_e, p_load, p)
+    p_load_rate = 2.0 * p[P_BETA] / p[P_VOLUME] * (-p[P_AREA] * v + q)
     wv = p[P_WV]
-    dx[X_VE] = x[X_VED]
-    dx[X_VED] = -wv * wv * x[X_VE] - 2.0 * p[P_XIV] * wv * x[X_VED] + wv * wv * v_c
-    dx[X_W] = bouc_wen_rate(x[X_W], v, p[P_RHO], p[P_SIGMA], p[P_N])
+    v_e_ddot = -wv * wv * v_e - 2.0 * p[P_XIV] * wv * v_e_dot + wv * wv * v_c
+    w_rate = bouc_wen_rate(w, v, p[P_RHO], p[P_SIGMA], p[P_N])
+    return v, acceleration, p_load_rate, v_e_dot, v_e_ddot, w_rate
 
 
-@njit(cache=True)
-def rk4_step(x, v_c, p, h, k1, k2, k3, k4, tmp):
+@njit(cache=True, error_model="numpy")
+def rig_derivatives(x, v_c, p, dx):
+    """Right-hand side of eq. (3) with eq. (4) for the isolator (``rig_rates`` on the state vector); writes dx."""
+    dx[X_Y], dx[X_V], dx[X_PL], dx[X_VE], dx[X_VED], dx[X_W] = rig_rates(
+        x[X_Y], x[X_V], x[X_PL], x[X_VE], x[X_VED], x[X_W], v_c, p)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rates_at(s, c, k, v_c, p):
+    """``rig_rates`` at the state s + c k (an RK4 stage; s and k are 6-tuples)."""
+    return rig_rates(s[0] + c * k[0], s[1] + c * k[1], s[2] + c * k[2], s[3] + c * k[3], s[4] + c * k[4],
+                     s[5] + c * k[5], v_c, p)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def rk4_steps(x, v_c, p, h, n):
+    """n classical Runge-Kutta steps of length h with v_c held (zero-order hold); in place on x.
+
+    The state lives in local numbers between the stages and steps (no arrays in the inner loop): the
+    same operations in the same order as stage arrays would give, so the same result to the last bit.
+    """
+    s = (x[X_Y], x[X_V], x[X_PL], x[X_VE], x[X_VED], x[X_W])
+    half = 0.5 * h
+    for _ in range(n):
+        k1 = rig_rates(s[0], s[1], s[2], s[3], s[4], s[5], v_c, p)
+        k2 = _rates_at(s, half, k1, v_c, p)
+        k3 = _rates_at(s, half, k2, v_c, p)
+        k4 = _rates_at(s, h, k3, v_c, p)
+        s = (s[0] + h * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0]) / 6.0,
+             s[1] + h * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1]) / 6.0,
+             s[2] + h * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2]) / 6.0,
+             s[3] + h * (k1[3] + 2.0 * k2[3] + 2.0 * k3[3] + k4[3]) / 6.0,
+             s[4] + h * (k1[4] + 2.0 * k2[4] + 2.0 * k3[4] + k4[4]) / 6.0,
+             s[5] + h * (k1[5] + 2.0 * k2[5] + 2.0 * k3[5] + k4[5]) / 6.0)
+    x[X_Y], x[X_V], x[X_PL], x[X_VE], x[X_VED], x[X_W] = s
+
+
+@njit(cache=True, error_model="numpy")
+def rk4_step(x, v_c, p, h):
     """One classical Runge-Kutta step of length h with v_c held (zero-order hold); in place."""
-    rig_derivatives(x, v_c, p, k1)
-    for i in range(N_STATES):
-        tmp[i] = x[i] + 0.5 * h * k1[i]
-    rig_derivatives(tmp, v_c, p, k2)
-    for i in range(N_STATES):
-        tmp[i] = x[i] + 0.5 * h * k2[i]
-    rig_derivatives(tmp, v_c, p, k3)
-    for i in range(N_STATES):
-        tmp[i] = x[i] + h * k3[i]
-    rig_derivatives(tmp, v_c, p, k4)
-    for i in range(N_STATES):
-        x[i] += h * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]) / 6.0
+    rk4_steps(x, v_c, p, h, 1)
 
 
 def rig_derivatives_py(t, x, v_c, p):

@@ -55,7 +55,7 @@ def new_history() -> np.ndarray:
     return h
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _splitmix64(z):
     z = z + np.uint64(0x9E3779B97F4A7C15)
     z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
@@ -63,7 +63,7 @@ def _splitmix64(z):
     return z ^ (z >> np.uint64(31))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def standard_normal(seed, period, channel):
     """A standard normal number that depends only on (seed, period, channel)."""
     key = np.uint64(seed) * np.uint64(0x100000001B3) + np.uint64(period) * np.uint64(8) + np.uint64(channel)
@@ -74,7 +74,7 @@ def standard_normal(seed, period, channel):
     return math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * u2)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _delayed(history, row, k, latency_periods):
     """The recorded value of ``row`` latency_periods before period k (interpolated)."""
     whole = int(latency_periods)
@@ -91,7 +91,7 @@ def _delayed(history, row, k, latency_periods):
     return (1.0 - frac) * a + frac * history[row, i1 % HISTORY]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def sense(position_m, load_pressure_pa, k, sp, history, out):
     """Readings at period k: out[0] the position, out[1] the load pressure. Records the true values once
     per period (a second call in the same period reads without recording)."""

@@ -63,7 +63,8 @@ def test_bad_arguments_exit_2_with_one_line(args, words, tmp_path, monkeypatch):
 def test_bench_json_short(capsys):
     assert main(["bench", "--json", "--duration-s", "0.3"]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert set(out) == {"engine_rtf", "solve_ivp_rtf", "speedup", "max_abs_dy_m"}
+    assert set(out) == {"engine_rtf", "engine_cpu_rtf", "solve_ivp_rtf", "speedup", "max_abs_dy_m"}
+    assert out["engine_cpu_rtf"] > 0 and out["engine_rtf"] > 0
     assert out["max_abs_dy_m"] < 1e-5
     assert out["speedup"] > 1
 

@@ -3,7 +3,7 @@ import pytest
 
 from sim.engine import Scenario, Simulation, run_batch
 from sim.profiles import ProfileError, SineProfile, pack_profile, target, target_series
-from sim.samples import Samples
+from sim.samples import SAMPLE_FIELDS, Samples
 
 
 def test_taper_profile_starts_and_ends_at_rest():
@@ -107,6 +107,42 @@ def test_chunks_equal_one_run_and_are_deterministic():
     assert len(whole) == 3000
 
 
+def test_rows_written_into_a_given_buffer_equal_new_ones():
+    s = Scenario.sine("IUT_a", 100.0, 0.02, 1.0, 2, controller="pid")
+    fresh = Simulation(s).advance(1500)
+    buffer = np.full((2000, len(SAMPLE_FIELDS)), -1.0)
+    sim = Simulation(s)
+    first = sim.advance(700, out=buffer)
+    second = sim.advance(800, out=buffer[700:])
+    assert len(first) == 700 and len(second) == 800 and np.shares_memory(second.array, buffer)
+    np.testing.assert_array_equal(buffer[:1500], fresh.array)
+    assert np.all(buffer[1500:] == -1.0)  # nothing written past the periods run
+    assert len(sim.advance(10_000, out=buffer[1500:])) == 500 and sim.done  # the buffer bounds the periods run
+    with pytest.raises(ValueError, match="C-contiguous"):
+        Simulation(s).plant.run_closed(Simulation(s).loop, 10, out=buffer[:, :5])
+
+
+def test_a_run_that_grows_longer_while_it_runs_keeps_every_row():
+    """run() writes into one buffer of the planned length; a stop that lengthens the test (brake, return home,
+    hold) grows it, and the rows equal a run advanced by hand."""
+    s = Scenario.sine("IUT_a", 100.0, 0.02, 1.0, 6)
+    sim = Simulation(s)
+
+    def shutdown_late(_fraction):  # progress is called after the first chunk and then every 5000 periods
+        if sim.period >= 5000:
+            sim.loop.brake(home_m=0.0)
+
+    grown = sim.run(chunk_periods=100, progress=shutdown_late).samples
+    by_hand = Simulation(s)
+    rows = [by_hand.advance(5100)]
+    by_hand.loop.brake(home_m=0.0)
+    rows.append(by_hand.advance(100_000))
+    expected = Samples.concatenate(rows)
+    assert len(grown) > 6000 and sim.done and by_hand.done
+    np.testing.assert_array_equal(grown.array, expected.array)
+    assert grown["target_m"][-1] == 0.0
+
+
 def test_pid_closed_loop_tracks_the_target():
     s = Scenario.sine("IUT_a", 100.0, 0.02, 0.5, 4, controller="pid")
     res = Simulation(s).run()
@@ -136,7 +172,7 @@ def test_batch_matches_serial_runs():
 
 def test_command_ramp_runs_open_loop_on_the_plant_and_leaves_the_controller_idle():
     from sim.plant import PLANT_SUBSTEPS
-    from sim.rig import N_STATES, rk4_step, valve_command
+    from sim.rig import rk4_step, valve_command
 
     sim = Simulation(Scenario.sine("IUT_a", 100.0, 0.02, 1.0, 2, controller="pid"))
     while abs(sim.loop.last_command_v) < 0.5 and sim.period < 1500:  # a command worth ramping down
@@ -154,11 +190,10 @@ def test_command_ramp_runs_open_loop_on_the_plant_and_leaves_the_controller_idle
     assert rows["voltage_v"][-1] == 0.0
     assert np.all(np.isnan(rows["target_m"]))
     # the same plant stepped by hand with each command held
-    work = [np.empty(N_STATES) for _ in range(5)]
     for i in range(100):
         assert rows["displacement_m"][i] == x[0]
         for _ in range(PLANT_SUBSTEPS):
-            rk4_step(x, valve_command(expected[i], sim.plant.params), sim.plant.params, 1e-3 / PLANT_SUBSTEPS, *work)
+            rk4_step(x, valve_command(expected[i], sim.plant.params), sim.plant.params, 1e-3 / PLANT_SUBSTEPS)
 
 
 def test_the_vertical_load_is_a_test_condition_and_sets_the_friction():

@@ -35,6 +35,23 @@ def per_period(scenario: Scenario, n: int) -> Samples:
     return Samples.concatenate(parts)
 
 
+def test_a_command_within_the_period_switches_at_its_plant_step():
+    """advance(u_old, u_new, fraction): u_old for the plant steps before ``fraction`` of the period, then u_new
+    (the rig emulator's command that arrives within a period), as the same steps taken one at a time."""
+    from sim.rig import rk4_step, valve_command
+
+    for fraction, switch in ((0.0, 0), (0.3, 2), (0.4, 2), (1.0, 5)):
+        plant = SimulatedPlant(DEFAULT_RIG, PRESETS["IUT_a"], 100e5)
+        plant.advance(3.0)  # moving, so the two commands make different states
+        x = plant.state.copy()
+        plant.advance(3.0, -2.0, fraction)
+        h = plant.control_period_s / plant.substeps
+        for i in range(plant.substeps):
+            rk4_step(x, valve_command(3.0 if i < switch else -2.0, plant.params), plant.params, h)
+        np.testing.assert_array_equal(plant.state, x)
+        assert plant.period == 2
+
+
 @pytest.mark.parametrize("controller", CONTROLLER_NAMES)
 @pytest.mark.parametrize("rig", [DEFAULT_RIG, NOISY_RIG], ids=["ideal sensors", "late noisy sensors"])
 def test_per_period_path_equals_the_compiled_engine(controller, rig):

@@ -20,3 +20,19 @@ def test_numba_uses_the_fingerprinted_folder():
     expected = os.environ.get("NUMBA_CACHE_DIR")
     assert expected
     assert numba.config.CACHE_DIR == expected
+
+
+def test_every_kernel_of_the_engine_loop_divides_as_numpy_does():
+    """The engine's kernels are compiled with error_model="numpy": no zero-divisor check before each division
+    (a sixth of the loop's time), and a division by zero gives inf or NaN, which the loop's NaN guard
+    (sim.loop.saturate) and the plant's finiteness check handle, in every kernel alike."""
+    from numba.core.registry import CPUDispatcher
+
+    from sim import controllers, isolator, loop, models, plant, profiles, rig, sensors
+    from sim.controllers import excitation, mrac, pid, servo
+
+    kernels = [(m.__name__, name, f) for m in (controllers, excitation, mrac, pid, servo, isolator, loop, models,
+                                                plant, profiles, rig, sensors)
+               for name, f in vars(m).items() if isinstance(f, CPUDispatcher) and f.__module__ == m.__name__]
+    assert len(kernels) > 30
+    assert [(m, name) for m, name, f in kernels if f.targetoptions.get("error_model") != "numpy"] == []

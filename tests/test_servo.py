@@ -112,7 +112,6 @@ def run_with_noisy_measurements(noise_position_m, noise_pressure_pa, cycles=5, f
     plant = pack_plant(scenario.rig, scenario.isolator, scenario.supply_pa)
     blocks = pack_profile(scenario.profile)
     x = np.zeros(N_STATES)
-    work = [np.zeros(N_STATES) for _ in range(5)]
     rng = np.random.default_rng(7)
     n = scenario.n_periods
     error = np.empty(n)
@@ -132,7 +131,7 @@ def run_with_noisy_measurements(noise_position_m, noise_pressure_pa, cycles=5, f
         error[i] = x[X_Y] - r
         v_c = valve_command(u, plant)
         for _ in range(PLANT_SUBSTEPS):
-            rk4_step(x, v_c, plant, h, *work)
+            rk4_step(x, v_c, plant, h)
     per = int(round(1 / frequency_hz / CONTROL_PERIOD_S))
     rms = [np.sqrt(np.mean(error[j * per:(j + 1) * per] ** 2)) / amplitude_m for j in range(cycles)]
     return rms, saturated / n

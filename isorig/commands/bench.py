@@ -18,10 +18,12 @@ def run(args) -> int:
 
     res = bench(duration_s=args.duration_s, progress=None if args.json else lambda m: print(m, file=sys.stderr))
     if args.json:
-        print(json.dumps({k: res[k] for k in ("engine_rtf", "solve_ivp_rtf", "speedup", "max_abs_dy_m")}))
+        print(json.dumps({k: res[k] for k in ("engine_rtf", "engine_cpu_rtf", "solve_ivp_rtf", "speedup",
+                                             "max_abs_dy_m")}))
     else:
         print(f"scenario: {res['scenario']}")
-        print(f"engine (numba RK4, 0.2 ms): {res['engine_rtf']:8.1f} x real time")
+        print(f"engine (numba RK4, 0.2 ms): {res['engine_rtf']:8.1f} x real time "
+              f"({res['engine_cpu_rtf']:.1f} x per CPU second of this process)")
         print(f"solve_ivp (LSODA, rtol 1e-6): {res['solve_ivp_rtf']:6.2f} x real time")
         print(f"speed-up: {res['speedup']:.1f} x;  "
               f"largest |y_engine - y_solve_ivp|: {res['max_abs_dy_m'] * 1e6:.3f} um")

@@ -41,7 +41,7 @@ def make_controller(name: str, rig=None, **options) -> Controller:
     return factory(rig=rig, **options)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def controller_step(kind, params, state, meas, dt, report):
     """Dispatch one control period to the controller's compiled kernel."""
     if kind == mrac.KIND:

@@ -160,7 +160,7 @@ def excitation_duration_s(options: dict) -> float:
     return o["sweep_max_s"] + o["dither_s"] + o["return_s"] + 0.2
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _ring_velocity(s, y, dt):
     """Push y into the ring of the last 6 readings; the velocity over 5 periods (0 until the ring is full)."""
     head = int(s[S_HEAD])
@@ -171,7 +171,7 @@ def _ring_velocity(s, y, dt):
     return (y - s[S_RING + (head - 5) % 6]) / (5.0 * dt)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _inverse(p, s, v_ff, v_fb):
     """The command for a velocity demand v_ff + v_fb through the valve the sweeps found: each side's slope (V per
     m/s, from the commands at which the table started and at which it reached the sweep's level) and its edge
@@ -193,7 +193,7 @@ def _inverse(p, s, v_ff, v_fb):
     return mid + half * x + slope_n * v
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _start_sweep(p, s, direction):
     s[S_DIR] = direction
     s[S_OPENED] = 0.0
@@ -209,7 +209,7 @@ def _start_sweep(p, s, direction):
         s[S_U] = u
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def excitation_step(p, s, meas, dt, report):
     t = meas[M_TIME]
     y0 = meas[M_TARGET]

@@ -73,7 +73,7 @@ def make_mrac(rig=None, **options) -> Controller:
     return Controller("mrac", KIND, params, state, o)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def mrac_step(p, s, meas, dt, report):
     """One control period of eqs. (8), (9), (18)-(20); Euler update of the adapted parameters."""
     y = meas[M_POSITION]

@@ -38,7 +38,7 @@ def make_pid(rig=None, **options) -> Controller:
     return Controller("pid", KIND, params, np.zeros(4), o)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def pid_step(p, s, meas, dt, report):
     y = meas[M_POSITION]
     e = meas[M_TARGET] - y

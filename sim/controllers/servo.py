@@ -450,7 +450,7 @@ def _design(values: tuple) -> tuple:
             ("loop_damping_without", without), ("loop_damping", best[0]))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def orifice_root(dp, dp_reg):
     """The orifice law's sqrt(dp), linear below the regularisation drop dp_reg as in the rig model (sim.rig:
     dp / sqrt(dp_reg) there; dp_reg = 0: the plain square root)."""
@@ -459,14 +459,14 @@ def orifice_root(dp, dp_reg):
     return dp / np.sqrt(dp_reg)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def valve_inverse(v, p_load, p_supply, area, kq, dz, dz_ramp, dp_min_share, dp_reg=0.0):
     """Command u that makes the nominal valve pass the flow area * v: inverse of eq. (3) with the dead zone."""
     u_lin, ramp = valve_inverse_ramp(v, p_load, p_supply, area, kq, dz_ramp, dp_min_share, dp_reg, 0.0, 0.0)
     return u_lin + dz * ramp
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def valve_inverse_ramp(v, p_load, p_supply, area, kq, dz_ramp, dp_min_share, dp_reg, v_fb, fb_ramp):
     """The two parts of ``valve_inverse``: the command u_l of the valve without dead zone, and the share (-1..1)
     of the dead zone added to it (the ramp; -1 or 1: the whole dead zone, the valve opens). Where ``fb_ramp`` is
@@ -491,7 +491,7 @@ def valve_inverse_ramp(v, p_load, p_supply, area, kq, dz_ramp, dp_min_share, dp_
     return u_lin, ramp
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _delayed(s, base, head, lag):
     """The value ``lag`` periods (fractional) before the newest one of a ring of DELAY_LINE in s[base:]."""
     whole = int(lag)
@@ -502,7 +502,7 @@ def _delayed(s, base, head, lag):
     return (1.0 - frac) * a + frac * s[base + (head - whole - 1) % DELAY_LINE]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _solve3(m11, m12, m13, m22, m23, m33, b1, b2, b3):
     """Solution of the symmetric 3x3 system M t = b (Cramer's rule) and det(M)."""
     c11 = m22 * m33 - m23 * m23
@@ -520,7 +520,7 @@ def _solve3(m11, m12, m13, m22, m23, m33, b1, b2, b3):
     return t1, t2, t3, det
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def compression_feedforward(p, s, theta, omega, kp, p_meas, steady, dt):
     """The oil's compression flow (V_0 / (2 beta)) P_L' (eq. 3, second line) that the test's periodic load pressure
     needs, as a velocity demand (m/s): (V_0 / (2 beta A)) Re sum_k sigma_k j k w P_k exp(j k theta) / V(j k w) over
@@ -565,7 +565,7 @@ def compression_feedforward(p, s, theta, omega, kp, p_meas, steady, dt):
     return p[P_COMP] * acc
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def servo_step(p, s, meas, dt, report):
     """One control period of the learning servo controller (see the module docstring)."""
     r = meas[M_TARGET]
