@@ -127,6 +127,10 @@ def test_udp_rig_link_health(open_page, artifacts, tmp_path):
         test_id = page.evaluate("window.__isorig.testId")
         rec = srv.wait_status(test_id, {"completed"}, timeout_s=60)
         assert rec["speed"] == 1.0 and rec["driver"] == emulator.url, rec
+        # between tests FORCE is the rig's own reading, COMMAND 0 V (not armed: the valve is closed)
+        page.wait_for_function("document.getElementById('r-f').dataset.source === 'the rig (probe)'", timeout=10000)
+        assert "the rig's reading" in page.get_attribute("#r-f", "title")
+        page.wait_for_function("document.getElementById('r-v').textContent === '0.000 V'", timeout=10000)
 
         # the rig goes away: not connected (red) within a poll, and Start says why it would fail
         emulator.stop()
@@ -137,6 +141,11 @@ def test_udp_rig_link_health(open_page, artifacts, tmp_path):
         page.wait_for_selector("#start[disabled]", timeout=5000)  # a start cannot succeed: disabled, saying why
         assert "the rig is not connected" in page.inner_text("#start-why")
         page.wait_for_selector("#s-rig-cell[data-state='not-connected']", timeout=5000)
+        # no force or command to show: a dash, the tooltip says why (not the figures of before)
+        for readout in ("#r-f", "#r-v"):
+            page.wait_for_selector(f"{readout}[data-source='none']", timeout=10000)
+            assert page.inner_text(readout) == "-"
+            assert "no reading: the rig does not answer" in page.get_attribute(readout, "title")
         _fits_top_bar(page)
         _shots(page, artifacts, "dashboard_udp_not_connected")
     finally:

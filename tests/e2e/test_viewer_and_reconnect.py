@@ -9,6 +9,8 @@ import json
 import time
 import urllib.request
 
+import pytest
+
 from .harness import TOKEN, PageWatch, sine_test, watch_rejections
 
 
@@ -59,6 +61,9 @@ def test_reconnects_after_service_restart(server, browser, artifacts):
         running = srv.start_test(sine_test(cycles=30, speed=1.0))
         page.wait_for_function(f"window.__isorig.testId === {running} && window.__isorig.samples > 200",
                                timeout=15000)
+        # the readouts show the running test's latest sample (no source: live)
+        page.wait_for_function("['r-y', 'r-f', 'r-v'].every((id) => !document.getElementById(id).dataset.source "
+                               "&& document.getElementById(id).textContent !== '-')", timeout=10000)
         srv.stop()  # the service goes away in the middle of a test
         page.wait_for_selector("#conn.conn-down", timeout=10000)
         # the strip says so, and nothing can be started meanwhile
@@ -85,6 +90,18 @@ def test_reconnects_after_service_restart(server, browser, artifacts):
         page.wait_for_function(f"document.getElementById('r-y').dataset.source === {source!r}", timeout=10000)
         assert page.inner_text("#r-y") == page.inner_text("#s-position").split()[0] + " mm", (
             page.inner_text("#r-y"), page.inner_text("#s-position"))
+        # so do FORCE (the service's figure of where that test left the rig) and COMMAND (no test runs: the
+        # valve is closed, 0 V), not the last sample before the restart
+        assert state["force_source"] == source and state["command_v"] == 0.0, state
+        page.wait_for_function(f"document.getElementById('r-f').dataset.source === {source!r}", timeout=10000)
+        force_text = page.inner_text("#r-f")
+        assert force_text.endswith(" kN") and float(force_text.split()[0]) == pytest.approx(
+            state["force_n"] / 1e3, abs=0.006), (force_text, state)  # kN with 2 decimals
+        assert "where test" in page.get_attribute("#r-f", "title"), page.get_attribute("#r-f", "title")
+        closed = state["command_source"]
+        page.wait_for_function(f"document.getElementById('r-v').dataset.source === {closed!r}", timeout=10000)
+        assert page.inner_text("#r-v") in ("0.000 V", "+0.000 V"), page.inner_text("#r-v")
+        assert "valve is closed" in page.get_attribute("#r-v", "title")
         page.fill("#f-mm_speed", "50")
         page.click("#mm-zero")
         page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
