@@ -12,6 +12,8 @@ import pytest
 
 from .harness import TOKEN, WAIT_MS, fill_identity, poll, sine_test, start_from_form, wait_start_enabled
 
+LOOPS_KEPT = 40  # finished cycles the live loop plot keeps (frontend/static/js/plots.js, LoopPlot.maxPast)
+
 
 def _metrics(page) -> dict:
     return page.evaluate("() => ({...window.__isorig})")
@@ -157,7 +159,8 @@ def test_live_view_follows_test_started_through_api(server, open_page, artifacts
 
     # a page opened while a test runs: time from navigation to the first live frame (recorded, not asserted);
     # it draws the loops stored before it joined, each once
-    test_id = server.start_test(sine_test(amplitude_m=0.02, frequency_hz=1.0, cycles=60, speed=2.0,
+    # (100 cycles, 50 s: it still runs when aborted below, however slow the page is to open on a loaded machine)
+    test_id = server.start_test(sine_test(amplitude_m=0.02, frequency_hz=1.0, cycles=100, speed=2.0,
                                           isolator="IUT_a", supply_bar=100))
     server.wait_status(test_id, {"running"}, timeout_s=15)
     # 14 s of test (14 cycles at 1 Hz) on record: more than the 10 s of samples a late client gets
@@ -169,8 +172,9 @@ def test_live_view_follows_test_started_through_api(server, open_page, artifacts
     _, rec = server.call("GET", f"/api/tests/{test_id}")
     stored = rec["cycles_done"]
     assert stored >= 12, rec
-    # the history alone would give at most 10 loops; the page drew the stored ones too
-    late.wait_for_function(f"window.__isorig.loopCycles >= {stored - 1}", timeout=WAIT_MS)
+    # the history alone would give at most 10 loops; the page drew the stored ones too (the loop plot keeps the
+    # latest 40: plots.js maxPast)
+    late.wait_for_function(f"window.__isorig.loopCycles >= {min(stored, LOOPS_KEPT) - 1}", timeout=WAIT_MS)
     status, body = server.call("POST", f"/api/tests/{test_id}/abort", token=True)
     assert status == 200, body
     rec = server.wait_status(test_id, {"aborted"})
