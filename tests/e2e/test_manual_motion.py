@@ -102,8 +102,9 @@ def test_zero_and_move_from_the_console(server, open_page, artifacts):
     page.goto(f"{server.url}/?viewer=off#/live")
     fill_identity(page, "MM-1", "Motion Operator")
 
-    # Move to "12,5" mm at the default 5 mm/s: the decimal comma is read as one; the form is locked meanwhile
-    page.fill("#f-mm_speed", "5")
+    # Move to "12,5" mm at 1 mm/s: the decimal comma is read as one; the form is locked meanwhile (24 s: the move
+    # still runs while a loaded machine's page shows its progress; at 5 mm/s it had ended before)
+    page.fill("#f-mm_speed", "1")
     page.fill("#f-mm_target", "12,5")
     assert page.inner_text("[data-field='mm_target'] .msg") == "read as 12.5 mm"
     known = _ids(server)
@@ -111,24 +112,24 @@ def test_zero_and_move_from_the_console(server, open_page, artifacts):
     page.wait_for_selector("#confirm-dialog[open]", timeout=WAIT_MS)
     assert page.inner_text("#confirm-title").startswith("Move the table to +12.50 mm?")
     confirm = page.inner_text("#confirm-body")
-    assert "12.50 mm" in confirm and "5 mm/s" in confirm and "5.2 s" in confirm, confirm  # 1.875 x 12.5 / 5 + 0.5
+    assert "12.50 mm" in confirm and "1 mm/s" in confirm and "23.9 s" in confirm, confirm  # 1.875 x 12.5 / 1 + 0.5
     page.click("#confirm-ok")
     move = _new_record(server, known)
-    assert move["profile"]["end_m"] == 0.0125 and move["profile"]["speed_m_per_s"] == 0.005, move["profile"]
+    assert move["profile"]["end_m"] == 0.0125 and move["profile"]["speed_m_per_s"] == 0.001, move["profile"]
     page.wait_for_selector("#s-rig-cell[data-state='running']", timeout=WAIT_MS)
     assert page.inner_text("#s-rig-why") == f"manual move #{move['id']}"
     page.wait_for_selector("#mm-status[data-kind='running']", timeout=WAIT_MS)
     poll(lambda: re.search(r"now \+\d+\.\d\d mm \(\d+ % of the way\)", page.inner_text("#mm-status")), 5,
           "the move's progress")
-    assert re.match(rf"Moving \(manual move #{move['id']}\) [+-]?\d+\.\d\d mm to \+12\.50 mm at 5 mm/s",
+    assert re.match(rf"Moving \(manual move #{move['id']}\) [+-]?\d+\.\d\d mm to \+12\.50 mm at 1 mm/s",
                     page.inner_text("#mm-status")), page.inner_text("#mm-status")
     assert page.is_disabled("#mm-zero") and page.is_disabled("#mm-move") and page.is_disabled("#start")
     assert f"manual move #{move['id']} is running" in page.inner_text("#start-why")
     assert f"Manual move #{move['id']} is running" in page.inner_text("#form-lock")
     assert page.is_enabled("#stop")  # a stop holds the table where it is
-    assert re.fullmatch(r"manual move [+-]?\d+\.\d\d mm to \+12\.50 mm at 5\.0 mm/s", page.inner_text("#l-profile"))
+    assert re.fullmatch(r"manual move [+-]?\d+\.\d\d mm to \+12\.50 mm at 1\.0 mm/s", page.inner_text("#l-profile"))
     shots(page, artifacts, "dashboard_manual_move")
-    server.wait_status(move["id"], {"completed"}, timeout_s=30)
+    server.wait_status(move["id"], {"completed"}, timeout_s=60)
     page.wait_for_selector("#mm-status[data-kind='ok']", timeout=WAIT_MS)
     assert abs(_table(server) - 0.0125) < 0.0003
     page.wait_for_selector("#rig-warning[data-state='off-zero']", timeout=WAIT_MS)  # no test starts there
