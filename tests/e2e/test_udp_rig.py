@@ -100,13 +100,15 @@ def test_udp_rig_link_health(open_page, artifacts, tmp_path):
         _fits_top_bar(page)
         _shots(page, artifacts, "dashboard_udp_idle")
 
-        # a short test at speed 1 from the form: the link figures of the running test update
+        # a test at speed 1 from the form: the link figures of the running test update
         page.select_option("#f-isolator", "IUT_a")
         fill_identity(page)
         page.fill("#f-supply", "100")
         page.fill("#f-amplitude", "10")
         page.fill("#f-frequency", "1")
-        page.fill("#f-cycles", "20")  # 20 s in real time: 8 s ended before the page read its details under load
+        # 120 s in real time, ended by Stop once the page has shown it: 8 s and 20 s ended before a loaded machine's
+        # page read its running details
+        page.fill("#f-cycles", "120")
         page.fill("#f-taper_cycles", "1")
         start_from_form(page)
         page.wait_for_selector("#rig-link[data-source='test'][data-last-sequence]", timeout=WAIT_MS)
@@ -130,7 +132,8 @@ def test_udp_rig_link_health(open_page, artifacts, tmp_path):
         page.screenshot(path=str(artifacts / "dashboard_udp_details.png"), clip=clip)
         page.keyboard.press("Escape")
         test_id = page.evaluate("window.__isorig.testId")
-        rec = srv.wait_status(test_id, {"completed"}, timeout_s=60)
+        page.click("#stop")  # a ramp-out over the link, then the rig disarmed
+        rec = srv.wait_status(test_id, {"stopped"})
         assert rec["speed"] == 1.0 and rec["driver"] == emulator.url, rec
         # between tests FORCE is the rig's own reading, COMMAND 0 V (not armed: the valve is closed)
         page.wait_for_function("document.getElementById('r-f').dataset.source === 'the rig (probe)'", timeout=WAIT_MS)
