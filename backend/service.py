@@ -39,6 +39,7 @@ MAX_CHUNK_ROWS = 1000  # one stored chunk holds at most ~1 s of samples
 SHUTDOWN_GRACE_S = 20.0  # a shutdown waits this long for the controlled stop and the return home (<= 30 mm: ~5 s)
 
 
+CLOSED_VALVE = "no test runs: the valve is closed (0 V)"  # the command between tests (GET /api/rig/state)
 LOOP_POINTS_MAX = 2000  # points of a cycle's loop streamed and stored (decimated beyond this)
 
 
@@ -224,17 +225,18 @@ class RigService:
     @staticmethod
     def _row_state(row: np.ndarray | None) -> dict:
         if row is None:
-            return {"table_position_m": None, "force_n": None, "supply_pressure_pa": None}
+            return {"table_position_m": None, "force_n": None, "supply_pressure_pa": None, "command_v": None}
         named = dict(zip(SAMPLE_FIELDS, (float(v) for v in row), strict=False))
         return {key: named[field] if np.isfinite(named[field]) else None for key, field in (
             ("table_position_m", "measured_displacement_m"), ("force_n", "force_n"),
-            ("supply_pressure_pa", "supply_pressure_pa"))}
+            ("supply_pressure_pa", "supply_pressure_pa"), ("command_v", "voltage_v"))}
 
     def rig_state(self) -> dict:
-        """What the status strip shows: the rig's status (running, stopping, idle, not_connected, faulted),
-        the running test, where the table is and where that figure comes from (live, the end of the last
-        test, the rig's answer to a probe), supply pressure, vertical load, the limits in force, the last
-        event."""
+        """What the status strip and the console's readouts show: the rig's status (running, stopping, idle,
+        not_connected, faulted), the running test, where the table is and where that figure comes from (live, the
+        end of the last test, the rig's answer to a probe), the force and the valve command now with where each
+        comes from (``force_source``, ``command_source``; a null figure's source says why there is none), supply
+        pressure, vertical load, the limits in force, the last event."""
         from .drivers import SIMULATED
 
         run = self.active
@@ -242,24 +244,37 @@ class RigService:
         if run is not None and not run.finished.is_set():
             out.update(status="stopping" if run.stopping else "running", test_id=run.test_id, armed=True,
                        time_s=run.time_s, stopping_reason=run.stopping, **self._row_state(run.last_row),
-                       position_source="live", vertical_load_n=run.vertical_load_n, limits=run.job["limits"])
+                       position_source="live", force_source="live", command_source="live",
+                       vertical_load_n=run.vertical_load_n, limits=run.job["limits"])
             return out
+        # no test runs: this service drives no valve, so the valve is closed (0 V) unless a rig says it is armed
         out.update(status="idle", test_id=None, armed=False, vertical_load_n=None, limits=None,
-                   table_position_m=None, force_n=None, supply_pressure_pa=None, position_source="unknown")
+                   table_position_m=None, force_n=None, supply_pressure_pa=None, position_source="unknown",
+                   force_source="no reading: no test has run on this rig", command_v=0.0,
+                   command_source=CLOSED_VALVE)
         if self._last_end() is not None:
-            out.update({k: self.last_end[k] for k in ("table_position_m", "force_n")},
-                       position_source=f"end of test {self.last_end['test_id']} ({self.last_end['status']})")
+            ended = f"end of test {self.last_end['test_id']} ({self.last_end['status']})"
+            out.update(table_position_m=self.last_end["table_position_m"], force_n=self.last_end["force_n"],
+                       position_source=ended, force_source=ended)
         if self.driver != SIMULATED:
             from .drivers.udp import probe
 
             answer = probe(self.driver, timeout_s=0.2, **self.settings.rig_security_options())
             if not answer["connected"]:
-                out.update(status="not_connected", detail=answer["detail"])
+                # the last known position stays (the strip says where from); a force or command of before is
+                # not the rig's now
+                out.update(status="not_connected", detail=answer["detail"], force_n=None, command_v=None,
+                           force_source=f"no reading: the rig does not answer ({answer['detail']})",
+                           command_source="no reading: the rig does not answer (its watchdog closes the valve "
+                           "when commands stop)")
             else:
                 out.update(status="faulted" if answer.get("fault") else "idle", armed=answer["armed"],
                            rig_status=answer["status"], table_position_m=answer.get("position_m"),
                            force_n=answer.get("force_n"), supply_pressure_pa=answer.get("supply_pressure_pa"),
-                           position_source="the rig (probe)")
+                           position_source="the rig (probe)", force_source="the rig (probe)")
+                if answer["armed"]:  # armed, yet by no test of this service: its command is not known here
+                    out.update(command_v=None, command_source="no reading: the rig says it is armed, but no test "
+                               "of this service runs; the rig does not report its valve command")
         return out
 
     # --- operator actions ----------------------------------------------------------------------------

@@ -48,6 +48,11 @@ def register(sub) -> None:
     d.add_argument("--defect", action="append", default=[], choices=tuple(DEFECTS), metavar="NAME",
                    help="break one rule of docs/rig-protocol.md on purpose (repeatable): "
                         + "; ".join(f"{name}: {what}" for name, what in DEFECTS.items()))
+    a = p.add_argument_group("the lab network as an attacker sees it (only for the link-attack tests)")
+    a.add_argument("--tap-port", type=int, metavar="PORT",
+                   help="send a copy of every datagram the rig receives or sends to 127.0.0.1:PORT, and open a "
+                        "loopback port (printed) through which a forged datagram reaches the rig as if from its "
+                        "host, or the host from the rig")
     p.set_defaults(func=run)
 
 
@@ -87,9 +92,11 @@ def run(args) -> int:
                             watchdog_s=args.watchdog_ms / 1e3, seed=args.seed, faults=faults,
                             status_file=Path(args.status_file) if args.status_file else None,
                             plant_name=plant_name, plant_source=plant_source, defects=tuple(dict.fromkeys(args.defect)),
-                            security=security)
+                            security=security, tap_port=args.tap_port)
     try:
         emulator = RigEmulator(config)
+    except ValueError as exc:  # a value out of its range (period, watchdog, tap port, ...): said, no traceback
+        raise UsageError(f"isorig rig-emulator: {exc}") from None
     except OSError as exc:
         raise UsageError(f"isorig rig-emulator: cannot listen on {args.host}:{args.port}: {exc.strerror}") from None
     priority = raise_priority(20)  # above the worker's: the rig is the real-time target
@@ -99,6 +106,9 @@ def run(args) -> int:
     changed = config.plant()["changed"]
     plant_text = config.plant_name + (f" ({', '.join(f'{k}={v:g}' for k, v in changed.items())})" if changed else "")
     defects = f", DEFECTS {', '.join(config.defects)} (for testing check-rig)" if config.defects else ""
+    if emulator.forge_port is not None:
+        defects += (f", TAPPED to 127.0.0.1:{config.tap_port}, forging port {emulator.forge_port} (for the "
+                    "link-attack tests)")
     link = (f"protocol 2, authenticated with {security.key_file}" if security.authenticated else
             f"protocol 1, NOT AUTHENTICATED ({security.why})")
     print(f"isorig rig-emulator: udp://{args.host}:{emulator.port}, {link}, isolator {config.isolator.name}, plant "

@@ -15,7 +15,10 @@ stuck, NaN or out of range (silent: the host must see it in the values), and sup
 The link is protocol version 2 (every packet tagged with the lab's key, the session's key derived from the
 rig's challenge at ARM: sim.emulator.auth) or, when ``security`` says so, the unauthenticated version 1.
 ``defects`` break the protocol on purpose (sim.emulator.defects): a rig that does not conform, for testing
-``isorig check-rig``. The plant is any rig (``rig``: a lab's rig file), not only isorig's default.
+``isorig check-rig``. ``tap_port`` plays the lab network as an attacker on it sees it, for the link-attack
+tests: a copy of every datagram the rig receives or sends, and a loopback port through which a forged datagram
+reaches the rig as if from its host's address, or the host from the rig's (``TAP_*``). The plant is any rig
+(``rig``: a lab's rig file), not only isorig's default.
 
 Counters and timings go to ``status()`` and, if asked, to a JSON file a thread rewrites twice a second (file
 I/O never runs in the loop: a slow disk once stalled it for 131 ms). Timings are fixed-size histograms
@@ -46,6 +49,10 @@ from . import protocol as proto
 from .defects import check_defects
 
 SENSOR_FAULTS = ("stuck", "nan", "out-of-range")
+# the network tap (``EmulatorConfig.tap_port``): each copy is b">" (to the rig) or b"<" (from the rig), the peer's
+# port (u16, little-endian), the datagram; on the forging port b"R" + datagram reaches the rig as if from its host,
+# b"H" + datagram goes to the host from the rig's address
+TAP_IN, TAP_OUT, FORGE_TO_RIG, FORGE_TO_HOST = b">", b"<", b"R", b"H"
 OUT_OF_RANGE_M = 1.0  # what a broken position sensor reads in the out-of-range fault
 SUPPLY_DECAY_S = 0.05  # time constant of the supply pressure after a pump loss
 SUPPLY_LOW_FRACTION = 0.5
@@ -106,6 +113,9 @@ class EmulatorConfig:
     defects: tuple[str, ...] = ()
     #: the link's protection (sim.emulator.auth): version 2 with the lab's key, or version 1 without
     security: auth.LinkSecurity = field(default_factory=lambda: auth.LinkSecurity(1, why="no key given"))
+    #: for the link-attack tests only: copies of every datagram to 127.0.0.1:tap_port, and a forging port (what an
+    #: attacker on the lab network sees and can send, without a relay in the rig's real-time path); None: off
+    tap_port: int | None = None
 
     def check(self) -> None:
         if not (1e-4 <= self.period_s <= 0.1):
@@ -114,6 +124,8 @@ class EmulatorConfig:
             raise ValueError(f"watchdog = {self.watchdog_s!r} s must be in [one period, 1] s")
         if not (0 <= self.port <= 65535):
             raise ValueError(f"port {self.port!r} is outside [0, 65535]")
+        if self.tap_port is not None and not (1 <= self.tap_port <= 65535):
+            raise ValueError(f"tap port {self.tap_port!r} is outside [1, 65535]")
         check_defects(self.defects)
         if self.security.protocol_version == 2 and self.security.key is None:
             raise ValueError("rig protocol 2 needs the lab's key")
@@ -157,6 +169,16 @@ class RigEmulator:
         if "reply-from-other-port" in self.defects:
             self.send_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
             self.send_sock.bind((config.host, 0))
+        self.tap = self.forge_sock = None
+        self.forge_port = None
+        self.last_host_addr = None  # where the last accepted ARM came from (a forged "R" datagram's source)
+        if config.tap_port is not None:
+            self.tap = ("127.0.0.1", config.tap_port)
+            self.forge_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            self.forge_sock.bind(("127.0.0.1", 0))  # loopback only, whatever the rig's own interface
+            self.forge_sock.setblocking(False)
+            self.forge_port = self.forge_sock.getsockname()[1]
+        self.sockets = [self.sock] + ([self.forge_sock] if self.forge_sock is not None else [])
         self.delayed: list[tuple[float, int, bytes, tuple]] = []
         self.stopped = False
         self.counters = {"ticks": 0, "arms": 0, "disarms": 0, "measurements_sent": 0, "measurements_dropped": 0,
@@ -282,7 +304,7 @@ class RigEmulator:
         self._reset_session()  # a finished session is not remembered: its ARM again starts it anew, at 0
         self.armed = True
         self.session = packet.session
-        self.host_addr = addr
+        self.host_addr = self.last_host_addr = addr
         self.arm_time = arrival
         self.last_command_time = arrival
         self.supply_set_pa = supply
@@ -438,6 +460,32 @@ class RigEmulator:
             self.counters["measurements_sent"] += 1
         except OSError:
             self.counters["measurements_dropped"] += 1
+            return
+        self._copy(TAP_OUT, addr, packet)
+
+    # --- the network tap (attack tests) ---------------------------------------------------------------
+    def _copy(self, direction: bytes, addr, data: bytes) -> None:
+        if self.tap is not None:
+            try:
+                self.forge_sock.sendto(direction + addr[1].to_bytes(2, "little") + data, self.tap)
+            except OSError:
+                pass  # nobody listens: a tap never holds the rig
+
+    def _forged(self, now: float) -> None:
+        """Datagrams of the forging port: to the rig as if from its host, or to the host from the rig."""
+        while True:
+            try:
+                data = self.forge_sock.recv(self.codec.max_packet + 64)
+            except (BlockingIOError, InterruptedError, OSError):
+                return
+            kind, packet = data[:1], data[1:]
+            if kind == FORGE_TO_RIG and self.last_host_addr is not None:
+                self.receive(packet, self.last_host_addr, now)
+            elif kind == FORGE_TO_HOST and self.last_host_addr is not None:
+                try:
+                    self.send_sock.sendto(packet, self.last_host_addr)
+                except OSError:
+                    pass
 
     # --- the real-time loop ---------------------------------------------------------------------------
     def _pump_until(self, due: float) -> None:
@@ -453,8 +501,8 @@ class RigEmulator:
             wait = due - now - (SPIN_S if self.armed else 0.0)  # an idle rig need not be on time to the us
             if self.delayed:
                 wait = min(wait, self.delayed[0][0] - now)
-            readable, _, _ = select.select([self.sock], [], [], max(0.0, wait))
-            if readable:
+            readable, _, _ = select.select(self.sockets, [], [], max(0.0, wait))
+            if self.sock in readable:
                 while True:
                     try:
                         data, addr = self.sock.recvfrom(self.codec.max_packet + 64)
@@ -462,7 +510,10 @@ class RigEmulator:
                         break
                     except OSError:
                         break
+                    self._copy(TAP_IN, addr, data)
                     self.receive(data, addr, time.perf_counter())
+            if self.forge_sock is not None and self.forge_sock in readable:
+                self._forged(time.perf_counter())
 
     def serve(self, duration_s: float | None = None) -> None:
         """Run ticks until ``stop()`` (or for ``duration_s``)."""
@@ -515,6 +566,8 @@ class RigEmulator:
         self.sock.close()
         if self.send_sock is not self.sock:
             self.send_sock.close()
+        if self.forge_sock is not None:
+            self.forge_sock.close()
 
     def status(self) -> dict:
         return {"pid": os.getpid(), "port": self.port, **self.security.describe(),

@@ -36,6 +36,8 @@ class Emulator:
             raise AssertionError(f"the emulator did not start: {line}{self.proc.stderr.read()}")
         self.port = int(match.group(2))
         self.url = f"udp://127.0.0.1:{self.port}"
+        forging = re.search(r"forging port (\d+)", line)  # --tap-port: the tap's port for forged datagrams
+        self.forge_port = int(forging.group(1)) if forging else None
         self.status()  # the status file exists once the loop runs
 
     def status(self, timeout_s: float = 10.0) -> dict:

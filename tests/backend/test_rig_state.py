@@ -16,6 +16,9 @@ def test_the_state_follows_a_test_from_idle_to_its_end(client):
     idle = client.get("/api/rig/state").json()
     assert idle["status"] == "idle" and idle["test_id"] is None and idle["armed"] is False
     assert idle["table_position_m"] is None and idle["position_source"] == "unknown" and idle["last_event"] is None
+    # no test has run: no force to show, and no test drives the valve
+    assert idle["force_n"] is None and idle["force_source"].startswith("no reading: no test has run")
+    assert idle["command_v"] == 0.0 and "valve is closed" in idle["command_source"]
     test_id = create_and_start(client, speed=1.0, vertical_load_n=2e5,
                                limits={"force_n": 1e5, "actions": {"force_n": "indicate"}})
     deadline = time.monotonic() + 10
@@ -25,6 +28,8 @@ def test_the_state_follows_a_test_from_idle_to_its_end(client):
             break
         time.sleep(0.05)
     assert state["test_id"] == test_id and state["armed"] and state["position_source"] == "live"
+    assert state["force_source"] == state["command_source"] == "live"
+    assert state["force_n"] is not None and state["command_v"] is not None
     assert state["vertical_load_n"] == 2e5 and state["limits"]["actions"]["force_n"] == "indicate"
     assert abs(state["table_position_m"]) <= 0.0101 and state["supply_pressure_pa"] == pytest.approx(100e5, rel=0.05)
     assert state["last_event"]["kind"] == "operator" and "started" in state["last_event"]["message"]
@@ -38,6 +43,12 @@ def test_the_state_follows_a_test_from_idle_to_its_end(client):
     assert after["status"] == "idle" and after["limits"] is None
     assert after["position_source"] == f"end of test {test_id} ({rec['status']})"
     assert abs(after["table_position_m"]) < 1e-3  # a stop ramps the table back to zero
+    # the force where the test left the rig (its last sample, stored), the valve closed: not the last command
+    rows = client.get(f"/api/tests/{test_id}/data.csv").text.strip().splitlines()
+    last = dict(zip(rows[0].split(","), (float(v) for v in rows[-1].split(",")), strict=True))
+    assert after["force_source"] == after["position_source"]
+    assert after["force_n"] == pytest.approx(last["force_n"], rel=1e-6, abs=1e-3)  # the CSV keeps 7 digits
+    assert after["command_v"] == 0.0 and after["command_source"] == "no test runs: the valve is closed (0 V)"
     assert after["last_event"]["kind"] == "status"
 
 
@@ -51,6 +62,9 @@ def test_after_a_restart_the_table_is_where_the_last_test_left_it(tmp_path):
         after = client.get("/api/rig/state").json()
     assert after["position_source"] == f"end of test {test_id} (aborted)"
     assert after["table_position_m"] == pytest.approx(before["table_position_m"], abs=1e-7)  # as stored
+    assert after["force_source"] == f"end of test {test_id} (aborted)"
+    assert after["force_n"] == pytest.approx(before["force_n"], abs=1e-3) and after["force_n"] != 0.0
+    assert before["command_v"] == after["command_v"] == 0.0  # the trip closed the valve; no test drives it
     assert abs(after["table_position_m"]) > 1e-4
 
 

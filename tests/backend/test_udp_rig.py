@@ -453,6 +453,9 @@ def test_the_service_runs_a_test_on_the_emulator_and_shows_the_link(tmp_path):
             state = client.get("/api/rig/state").json()  # idle: where the rig says its table is
             assert state["status"] == "idle" and state["position_source"] == "the rig (probe)"
             assert abs(state["table_position_m"]) < 1e-3 and state["supply_pressure_pa"] >= 0 and not state["armed"]
+            assert state["force_source"] == "the rig (probe)" and math.isfinite(state["force_n"])  # the rig's own
+            assert state["command_v"] == 0.0 and "valve is closed" in state["command_source"]  # not armed
+            assert emulator.fresh_status()["command_v"] == 0.0  # as the rig has it
             r = client.post("/api/tests", json=sine_test(speed=2.0), headers=AUTH)
             assert r.status_code == 422 and "real time" in r.json()["detail"]  # no faster than real time
             r = client.post("/api/tests", json=sine_test(speed=1.0, vertical_load_n=3e5), headers=AUTH)
@@ -483,6 +486,9 @@ def test_the_service_runs_a_test_on_the_emulator_and_shows_the_link(tmp_path):
             assert gone["status"] == "not_connected"
             assert "no answer" in gone["detail"] or "nothing listens" in gone["detail"]
             assert gone["position_source"] == f"end of test {test_id} (completed)"  # the last known position
+            # ... but no force or command: the rig's of before are not its now
+            assert gone["force_n"] is None and gone["force_source"].startswith("no reading: the rig does not answer")
+            assert gone["command_v"] is None and gone["command_source"].startswith("no reading")
     finally:
         status = emulator.stop()
     assert status["vertical_load_n"] == 3e5 and status["supply_pa"] == 100e5  # ARM carried the conditions

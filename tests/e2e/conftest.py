@@ -9,12 +9,21 @@ machine or the console shows an error. Screenshots go to artifacts/e2e/ (git-ign
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import pytest
 
-from .harness import ARTIFACTS, PageWatch, Server, chromium_available, launch, log_in, watch_rejections
+from .harness import (
+    ARTIFACTS,
+    WAIT_MS,
+    PageWatch,
+    Server,
+    chromium_available,
+    launch,
+    log_in,
+    poll,
+    watch_rejections,
+)
 
 try:
     from playwright import sync_api as playwright_api
@@ -79,7 +88,7 @@ def open_page(browser):
         if cookie is not None:
             context.add_cookies([{"name": "isorig_session", "value": cookie, "url": origin}])
         page.goto(url)
-        page.wait_for_selector("body[data-ready='1']", timeout=15000)
+        page.wait_for_selector("body[data-ready='1']", timeout=WAIT_MS)
         opened.append((context, page, watch))
         return page, watch
 
@@ -102,8 +111,6 @@ def table_at_zero(request):
         yield
         return
     srv = request.getfixturevalue("server")
-    deadline = time.monotonic() + 60
-    while srv.call("GET", "/api/rig/state")[1].get("status") != "idle" and time.monotonic() < deadline:
-        time.sleep(0.2)
+    poll(lambda: srv.call("GET", "/api/rig/state")[1].get("status") == "idle", 60, "the rig idle")
     srv.zero_table()
     yield

@@ -30,6 +30,11 @@ CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-backg
                  "--disable-component-update", "--disable-sync", "--no-first-run"]
 TOKEN = "e2e-operator-token"  # the service account's token: the tests' own API calls
 OPERATOR = ("e2e-operator", "e2e-operator-password")  # the account a browser logs in as (role operator)
+# Upper bounds of the waits on the service or the page: a wait ends as soon as the state it waits for is there, so
+# a loaded machine makes a test slower, never wrong; a state that never comes still fails it, after this long.
+WAIT_MS = 30000  # a page state (Playwright's wait_for_selector / wait_for_function)
+WAIT_S = 30.0  # the least that poll() waits
+RECORD_WAIT_S = 60.0  # the least that Server.wait_status waits for a record's status
 LOCAL_HOSTS = {"127.0.0.1", "localhost", "[::1]", "::1"}
 
 
@@ -157,7 +162,9 @@ class Server:
             assert code == 201, (code, move)
             self.wait_status(move["id"], {"completed"})
 
-    def wait_status(self, test_id: int, statuses: set[str], timeout_s: float = 60.0) -> dict:
+    def wait_status(self, test_id: int, statuses: set[str], timeout_s: float = RECORD_WAIT_S) -> dict:
+        """The record once its status is one of ``statuses`` (GET /api/tests/{id}); waits at least RECORD_WAIT_S."""
+        timeout_s = max(timeout_s, RECORD_WAIT_S)
         deadline = time.monotonic() + timeout_s
         rec = None
         while time.monotonic() < deadline:
@@ -285,7 +292,9 @@ VIEWPORTS = [(1366, 768), (1920, 1080)]
 
 
 def poll(predicate, timeout_s: float, what: str, interval_s: float = 0.1):
-    """Poll ``predicate`` until it returns something true (returned), else fail saying what was awaited."""
+    """Poll ``predicate`` until it returns something true (returned), else fail saying what was awaited; waits
+    at least WAIT_S (``timeout_s`` is how long it should take, not a window the service must meet)."""
+    timeout_s = max(timeout_s, WAIT_S)
     deadline = time.monotonic() + timeout_s
     last = None
     while time.monotonic() < deadline:
@@ -301,24 +310,29 @@ def fill_identity(page, specimen: str = "E2E-SPEC-1") -> None:
     page.fill("#f-specimen_id", specimen)
 
 
-def wait_start_enabled(page, timeout_ms: int = 10000) -> None:
-    page.wait_for_selector("#start:not([disabled])", timeout=timeout_ms)
+def wait_start_enabled(page, timeout_ms: int = WAIT_MS) -> None:
+    page.wait_for_selector("#start:not([disabled])", timeout=max(timeout_ms, WAIT_MS))
+
+
+def settle(page) -> None:
+    """Wait until the page has laid out and painted what it has (two animation frames), e.g. after a resize."""
+    page.evaluate("() => new Promise((done) => requestAnimationFrame(() => requestAnimationFrame(done)))")
 
 
 def log_in_dialog(page, account: tuple[str, str]) -> None:
     """Answer the console's login dialog with (name, password)."""
-    page.wait_for_selector("#login-dialog[open]", timeout=5000)
+    page.wait_for_selector("#login-dialog[open]", timeout=WAIT_MS)
     page.fill("#login-name", account[0])
     page.fill("#login-password", account[1])
     page.click("#login-ok")
-    page.wait_for_selector("#login-dialog:not([open])", state="hidden", timeout=10000)
+    page.wait_for_selector("#login-dialog:not([open])", state="hidden", timeout=WAIT_MS)
 
 
 def start_from_form(page, login: tuple[str, str] | None = None) -> str:
     """Start, read the confirmation (returned as text), confirm; log in if the console asks for it."""
     wait_start_enabled(page)
     page.click("#start")
-    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    page.wait_for_selector("#confirm-dialog[open]", timeout=WAIT_MS)
     summary = page.inner_text("#confirm-body")
     for tick in page.query_selector_all("#confirm-body .warning-tick"):
         tick.check()
@@ -349,5 +363,6 @@ def shots(page, artifacts: Path, name: str, full_page: bool = False) -> None:
     """Screenshots at both viewports, the larger first (the page ends at 1366x768)."""
     for width, height in reversed(VIEWPORTS):
         page.set_viewport_size({"width": width, "height": height})
-        time.sleep(0.3)
+        page.wait_for_function(f"window.innerWidth === {width} && window.innerHeight === {height}", timeout=WAIT_MS)
+        settle(page)
         page.screenshot(path=str(artifacts / f"{name}_{width}x{height}.png"), full_page=full_page)

@@ -6,11 +6,10 @@ History and the live view show the test's tracking verdict; a not-following trip
 from __future__ import annotations
 
 import re
-import time
 
 import pytest
 
-from .harness import OPERATOR, Server, poll, shots, sine_test
+from .harness import OPERATOR, WAIT_MS, Server, poll, shots, sine_test
 
 PLANT = ("mass_kg=3000", "bulk_modulus_pa=4.5e8")  # a heavier table on a softer oil column than the file says
 
@@ -49,7 +48,7 @@ def test_a_rig_unlike_what_the_controller_is_told_stops_the_test_with_the_advice
     assert "LIMIT TRIP: the table does not follow" in events and "Advice: the rig is not what" in events
     shots(page, artifacts, "dashboard_not_following_trip")
     page.goto(f"{srv.url}/?viewer=off#/tests/{test_id}")
-    block = page.wait_for_selector(".tracking-verdict[data-verdict='did_not_follow']", timeout=10000)
+    block = page.wait_for_selector(".tracking-verdict[data-verdict='did_not_follow']", timeout=WAIT_MS)
     assert "DID NOT FOLLOW" in block.inner_text() and "the table did not follow its target" in block.inner_text()
     assert page.locator(".tracking-verdict a[href='#/commission']").count() == 1
     srv.zero_table()  # the trip left the table where it was
@@ -59,7 +58,7 @@ def test_commissioning_from_the_page_on_a_rig_unlike_its_file(plant_server, open
     srv = plant_server
     page, watch = open_page(f"{srv.url}/", width=1366, height=768, login=OPERATOR)
     page.goto(f"{srv.url}/?viewer=off#/commission")
-    page.wait_for_selector("body[data-ready='1']", timeout=15000)
+    page.wait_for_selector("body[data-ready='1']", timeout=WAIT_MS)
     # the rig is said to be a simulated one that plays another rig, and nothing is commissioned yet
     assert "plays a rig unlike its rig file (mass_kg=3000" in page.inner_text("#rig-link")
     poll(lambda: "Not a real rig" in page.inner_text("#c-in-force"), 10, "the page naming the simulated plant")
@@ -77,7 +76,7 @@ def test_commissioning_from_the_page_on_a_rig_unlike_its_file(plant_server, open
         "label[data-field='max_stroke_m'] .msg"), 5, "the stroke refused at the field")
     assert "valid values" in page.inner_text("#c-why")
     page.fill("#c-stroke", "2")
-    page.wait_for_selector("#c-start:not([disabled])", timeout=10000)
+    page.wait_for_selector("#c-start:not([disabled])", timeout=WAIT_MS)
     # what will move and why, with the service's own figures for this form
     body = {"supply_bar": 100, "isolator": "none", "max_stroke_m": 0.002, "max_velocity_m_per_s": 0.02,
             "speed": 10, "operator_name": OPERATOR[0]}
@@ -91,14 +90,14 @@ def test_commissioning_from_the_page_on_a_rig_unlike_its_file(plant_server, open
     # the confirmation says it again; Cancel sends nothing
     before = srv.call("GET", "/api/tests")[1]
     page.click("#c-start")
-    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    page.wait_for_selector("#confirm-dialog[open]", timeout=WAIT_MS)
     confirm = page.inner_text("#confirm-body")
     assert "\u00b12.00 mm about" in confirm and "below 20.0 mm/s" in confirm and OPERATOR[0] in confirm
     assert "the valve, the oil column, the moving mass and the sensor delay" in confirm
     page.click("#confirm-cancel")
     assert srv.call("GET", "/api/tests")[1] == before
     page.click("#c-start")
-    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    page.wait_for_selector("#confirm-dialog[open]", timeout=WAIT_MS)
     page.click("#confirm-ok")
     poll(lambda: re.match(r"Commissioning #\d+ started|Not started, refused", page.inner_text("#c-message")), 15,
          f"the start's answer (now: {page.inner_text('#c-message')!r})")
@@ -116,7 +115,7 @@ def test_commissioning_from_the_page_on_a_rig_unlike_its_file(plant_server, open
     poll(lambda: commissioning_state(srv, cid) != "fitting", 120, "the fit to end")
     res = srv.call("GET", f"/api/commissioning/{cid}")[1]
     assert res["state"] == "trusted", res["words"]
-    page.wait_for_selector("#c-verdict[data-state='trusted']", timeout=10000)
+    page.wait_for_selector("#c-verdict[data-state='trusted']", timeout=WAIT_MS)
     described = page.evaluate("window.__isorigCommission()")
     assert described["live"] > 100  # the run's displacement and command reached the page while it ran
     assert [s["cls"] for s in described["steps"]] == ["done", "done", "done", "done", "now"]
@@ -147,7 +146,7 @@ def test_commissioning_from_the_page_on_a_rig_unlike_its_file(plant_server, open
     shots(page, artifacts, "dashboard_commissioning_result")
     # make it the service's rig: a confirmation with what changes, then the strip says so
     page.click("#c-apply")
-    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    page.wait_for_selector("#confirm-dialog[open]", timeout=WAIT_MS)
     assert re.search(r"moving mass: 1200 \u2192 \d{4} kg", page.inner_text("#confirm-body"))
     page.click("#confirm-ok")
     name = res["rig_file"]["name"]
@@ -172,24 +171,24 @@ def test_a_tests_page_history_and_live_view_show_its_tracking_verdict(plant_serv
     verdict = rec["summary"]["tracking_verdict"]
     assert verdict["verdict"] in ("followed", "outside_target", "did_not_follow") and verdict["words"]
     # the live view at the test's end: the header and the end banner
-    page.wait_for_selector("#l-verdict-kv:not(.hidden)", timeout=15000)
+    page.wait_for_selector("#l-verdict-kv:not(.hidden)", timeout=WAIT_MS)
     assert page.inner_text("#l-verdict") == verdict["words"]
     assert page.get_attribute("#l-verdict-kv", "data-verdict") == verdict["verdict"]
     if rec["status"] == "completed":
         poll(lambda: f"tracking: {verdict['words']}" in page.inner_text("#alert-text"), 10, "the end banner's verdict")
     # the test page
     page.goto(f"{srv.url}/?viewer=off#/tests/{test_id}")
-    page.wait_for_selector(".tracking-verdict", timeout=10000)
+    page.wait_for_selector(".tracking-verdict", timeout=WAIT_MS)
     block = page.inner_text(".tracking-verdict")
     assert verdict["words"].split("; ")[0] in block
     assert page.get_attribute(".tracking-verdict", "data-verdict") == verdict["verdict"]
     if verdict["verdict"] == "did_not_follow":
         assert page.locator(".tracking-verdict a[href='#/commission']").count() == 1
-    time.sleep(0.5)
+    page.wait_for_load_state("networkidle")  # the page's plots have their data (shots() waits for the paint)
     shots(page, artifacts, "dashboard_test_page_verdict")
     # History: a badge beside the status
     page.goto(f"{srv.url}/?viewer=off#/history")
-    pill = page.wait_for_selector(f"#history-table tr[data-id='{test_id}'] .pill.tracking", timeout=10000)
+    pill = page.wait_for_selector(f"#history-table tr[data-id='{test_id}'] .pill.tracking", timeout=WAIT_MS)
     assert pill.get_attribute("data-verdict") == verdict["verdict"] and pill.get_attribute("title") == verdict["words"]
     # a not-following trip reads in order: what, the action, then the advice
     message = ("the table does not follow its target at t = 3.200 s: a sustained oscillation near 38 Hz: 0.21 mm RMS "

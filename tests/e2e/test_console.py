@@ -8,13 +8,14 @@ from __future__ import annotations
 
 import json
 import re
-import time
 
 from .harness import (
     OPERATOR,
+    WAIT_MS,
     fill_identity,
     poll,
     record_checks,
+    settle,
     shots,
     sine_test,
     start_from_form,
@@ -58,7 +59,7 @@ def test_numbers_cannot_be_misread(server, open_page, artifacts):
     wait_start_enabled(page)
     assert _checks(page)[-1]["profile"]["amplitude_m"] == 0.0035  # never 35 mm
     page.click("#start")
-    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    page.wait_for_selector("#confirm-dialog[open]", timeout=WAIT_MS)
     assert "\u00b13.50 mm" in page.inner_text("#confirm-body")
     page.screenshot(path=str(artifacts / "dashboard_confirm_1366x768.png"))
     page.click("#confirm-cancel")
@@ -66,7 +67,7 @@ def test_numbers_cannot_be_misread(server, open_page, artifacts):
     page.fill("#f-offset", "10")
     wait_start_enabled(page)
     page.click("#start")
-    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    page.wait_for_selector("#confirm-dialog[open]", timeout=WAIT_MS)
     confirm = page.inner_text("#confirm-body")
     assert "+6.50 mm to +13.50 mm" in confirm and "\u00b113.50 mm" not in confirm, confirm
     page.click("#confirm-cancel")
@@ -97,7 +98,7 @@ def test_numbers_cannot_be_misread(server, open_page, artifacts):
     assert "wrong unit" in page.inner_text("[data-field='vertical_load'] .msg")
     wait_start_enabled(page)
     page.click("#start")
-    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    page.wait_for_selector("#confirm-dialog[open]", timeout=WAIT_MS)
     assert page.locator("#confirm-body .warning-tick").count() == 1
     assert page.is_disabled("#confirm-ok")
     page.check("#confirm-body .warning-tick")
@@ -116,7 +117,7 @@ def test_numbers_cannot_be_misread(server, open_page, artifacts):
     page.fill("#f-amplitude", "0,02")
     assert page.inner_text("[data-field='amplitude'] .msg") == "read as 0.02 m"
     page.reload()
-    page.wait_for_selector("body[data-ready='1']", timeout=15000)
+    page.wait_for_selector("body[data-ready='1']", timeout=WAIT_MS)
     assert page.input_value("#units") == "si"
     assert page.input_value("#f-amplitude") == "0.02"  # the draft survives a reload, in SI
     page.select_option("#units", "lab")
@@ -129,7 +130,7 @@ def test_state_follows_the_running_test(server, open_page, browser, artifacts):
     the running test, also after a reload and in a second browser; Stop shows STOPPING; a refusal clears when
     its cause is gone; labelled plots; events in words; the banner never covers the header."""
     page, watch = open_page(server.url + "/", width=1920, height=1080, login=OPERATOR)
-    page.wait_for_selector("#conn.conn-up", timeout=10000)
+    page.wait_for_selector("#conn.conn-up", timeout=WAIT_MS)
     assert page.is_disabled("#start")
     assert "a specimen id" in page.inner_text("#start-why")
     assert "operator" not in page.inner_text("#start-why")  # who acts is the logged-in account, never typed
@@ -145,14 +146,14 @@ def test_state_follows_the_running_test(server, open_page, browser, artifacts):
     for what in ("\u00b130.00 mm", "94.2 mm/s", "about", "the service's upper estimate", "1:00", "30 cycles"):
         assert what in summary, summary
     assert re.search(r"tracking error \|y-r\|\s+20 mm\s+valve close", summary), summary  # each limit, its action
-    page.wait_for_selector("#rig-status[data-status='running']", timeout=15000)
+    page.wait_for_selector("#rig-status[data-status='running']", timeout=WAIT_MS)
     test_id = page.evaluate("window.__isorig.testId")
     rec = server.call("GET", f"/api/tests/{test_id}")[1]
     assert rec["specimen_id"] == "B-2024-017" and rec["operator_name"] == OPERATOR[0], rec
     assert rec["notes"] == "first run after the seal change" and rec["limits"]["tracking_error_m"] == 0.02, rec
 
     # the strip, the header, the readouts, the margins, the form (locked) and the buttons
-    page.wait_for_selector("#s-rig-cell[data-state='running']", timeout=5000)
+    page.wait_for_selector("#s-rig-cell[data-state='running']", timeout=WAIT_MS)
     # the setting, with the measured supply pressure once GET /api/rig/state has answered
     supply = page.inner_text("#s-supply")
     assert re.fullmatch(r"70\.0 bar set|\d+\.\d bar \(set 70\.0\)", supply), supply
@@ -163,7 +164,12 @@ def test_state_follows_the_running_test(server, open_page, browser, artifacts):
     assert "started" in page.inner_text("#s-event").lower()
     assert page.inner_text("#l-specimen") == "B-2024-017" and page.inner_text("#l-operator") == OPERATOR[0]
     assert page.inner_text("#l-profile") == "sine 30.00 mm at 0.5 Hz x 30"
-    time.sleep(2.5)
+    # the readouts with the running test's samples and the current cycle's peak and valley
+    page.wait_for_function("['y', 'f', 'v'].every((ch) => /^[+-]?\\d+\\.\\d+ (mm|kN|V)$/.test("
+                           "document.getElementById(`r-${ch}`).textContent) && ['max', 'min'].every((k) => "
+                           "document.getElementById(`r-${ch}-${k}`).textContent !== '-'))", timeout=WAIT_MS)
+    poll(lambda: re.search(r"\|d\|\s+1[12]\d\.\d\d mm left", page.inner_text("#margins")), 10,
+         "the displacement margin of a full-amplitude cycle")
     for ch in ("y", "f", "v"):
         assert re.fullmatch(r"[+-]?\d+\.\d+ (mm|kN|V)", page.inner_text(f"#r-{ch}")), page.inner_text(f"#r-{ch}")
         assert page.inner_text(f"#r-{ch}-max") != "-" and page.inner_text(f"#r-{ch}-min") != "-"
@@ -193,30 +199,30 @@ def test_state_follows_the_running_test(server, open_page, browser, artifacts):
 
     # a reload and a second browser come back to the true state of the running test
     page.reload()
-    page.wait_for_selector("body[data-ready='1']", timeout=15000)
-    page.wait_for_selector("#s-rig-cell[data-state='running']", timeout=10000)
-    page.wait_for_function("document.getElementById('f-specimen_id').value === 'B-2024-017'", timeout=5000)
+    page.wait_for_selector("body[data-ready='1']", timeout=WAIT_MS)
+    page.wait_for_selector("#s-rig-cell[data-state='running']", timeout=WAIT_MS)
+    page.wait_for_function("document.getElementById('f-specimen_id').value === 'B-2024-017'", timeout=WAIT_MS)
     assert page.input_value("#f-amplitude") == "30" and page.input_value("#f-lim_tracking") == "20"
     assert page.is_disabled("#start") and page.is_enabled("#stop")
     other, _ = open_page(server.url + "/", width=1366, height=768)
-    other.wait_for_selector("#s-rig-cell[data-state='running']", timeout=10000)
-    other.wait_for_function("document.getElementById('f-specimen_id').value === 'B-2024-017'", timeout=5000)
+    other.wait_for_selector("#s-rig-cell[data-state='running']", timeout=WAIT_MS)
+    other.wait_for_function("document.getElementById('f-specimen_id').value === 'B-2024-017'", timeout=WAIT_MS)
     assert other.is_disabled("#start")
 
     # Stop: STOPPING here at once and in the other browser, which learns of it from the live stream's event
     page.click("#stop")
-    page.wait_for_selector("#s-rig-cell[data-state='stopping']", timeout=5000)
+    page.wait_for_selector("#s-rig-cell[data-state='stopping']", timeout=WAIT_MS)
     assert page.is_disabled("#stop")
-    other.wait_for_selector("#s-rig-cell[data-state='stopping']", timeout=8000)
+    other.wait_for_selector("#s-rig-cell[data-state='stopping']", timeout=WAIT_MS)
     other.wait_for_selector(f"#live-events li.operator[data-source='stream']:has-text('Stop requested by "
-                            f"{OPERATOR[0]}')", timeout=5000)  # streamed, not read from the record
+                            f"{OPERATOR[0]}')", timeout=WAIT_MS)  # streamed, not read from the record
     other.wait_for_function(f"document.getElementById('s-rig-why').textContent === 'stop requested by {OPERATOR[0]}'",
-                            timeout=5000)
+                            timeout=WAIT_MS)
     assert other.is_disabled("#start")
     other.screenshot(path=str(artifacts / "dashboard_stopping_1366x768.png"))
     server.wait_status(test_id, {"stopped"}, timeout_s=30)
-    page.wait_for_selector("#rig-status[data-status='stopped']", timeout=10000)
-    page.wait_for_selector("#s-rig-cell[data-state='idle']", timeout=5000)
+    page.wait_for_selector("#rig-status[data-status='stopped']", timeout=WAIT_MS)
+    page.wait_for_selector("#s-rig-cell[data-state='idle']", timeout=WAIT_MS)
     poll(lambda: re.search(r"\u00b7 end of test \d+", page.inner_text("#s-position")), 5, "where the table stopped")
     poll(lambda: "stopped" in page.inner_text("#s-event").lower(), 10, "the end in the strip's last event")
     assert page.is_enabled("#f-amplitude") and page.is_hidden("#form-lock")
@@ -238,21 +244,22 @@ def test_state_follows_the_running_test(server, open_page, browser, artifacts):
     assert strip["y"] >= bar["y"] + bar["height"] - 1, (bar, strip)
     assert alert["y"] >= strip["y"] + strip["height"] - 1, (strip, alert)
     page.mouse.wheel(0, 600)  # scrolled, the header block stays on top and whole
-    time.sleep(0.2)
+    page.wait_for_function("window.scrollY > 0", timeout=WAIT_MS)
+    settle(page)
     assert page.locator("#topbar").bounding_box()["y"] == 0
     assert page.locator("#alert").bounding_box()["y"] >= page.locator("#strip").bounding_box()["y"] + 10
 
     # a refusal whose cause goes away is cleared: a test started elsewhere while the dialog was open
     page.mouse.wheel(0, -600)
     page.click("#start")
-    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    page.wait_for_selector("#confirm-dialog[open]", timeout=WAIT_MS)
     other_id = server.start_test(sine_test(cycles=10, speed=2.0))
-    page.wait_for_selector("#rig-status[data-status='running']", timeout=10000)
+    page.wait_for_selector("#rig-status[data-status='running']", timeout=WAIT_MS)
     page.click("#confirm-ok")
-    page.wait_for_function("document.getElementById('setup-message').dataset.cause === 'busy'", timeout=5000)
+    page.wait_for_function("document.getElementById('setup-message').dataset.cause === 'busy'", timeout=WAIT_MS)
     assert f"test #{other_id} is running" in page.inner_text("#setup-message")
     assert server.call("POST", f"/api/tests/{other_id}/abort", token=True)[0] == 200  # the cause goes away
-    page.wait_for_function("document.getElementById('setup-message').textContent === ''", timeout=10000)
+    page.wait_for_function("document.getElementById('setup-message').textContent === ''", timeout=WAIT_MS)
     assert not watch.unexpected_errors()
 
 
@@ -267,7 +274,7 @@ def test_records_delete_archive_restore(server, open_page, artifacts):
     ran = server.start_test({**body, "specimen_id": "REC-2"})
     server.wait_status(ran, {"completed"}, timeout_s=30)
     page.click("#history-filter button[type='submit']")
-    row = page.wait_for_selector(f"#history-table tr[data-id='{ran}']", timeout=10000)
+    row = page.wait_for_selector(f"#history-table tr[data-id='{ran}']", timeout=WAIT_MS)
     for what in ("REC-2", "Rec Operator", "200 kN", "completed"):
         assert what in row.inner_text(), row.inner_text()
     assert page.locator(f"#history-table tr[data-id='{ready['id']}'] button[data-action='delete']").count() == 1
@@ -276,42 +283,42 @@ def test_records_delete_archive_restore(server, open_page, artifacts):
 
     # delete what never ran
     page.click(f"#history-table tr[data-id='{ready['id']}'] button[data-action='delete']")
-    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    page.wait_for_selector("#confirm-dialog[open]", timeout=WAIT_MS)
     assert "never ran" in page.inner_text("#confirm-title")
     page.click("#confirm-ok")
-    page.wait_for_selector(f"#history-table tr[data-id='{ready['id']}']", state="detached", timeout=5000)
+    page.wait_for_selector(f"#history-table tr[data-id='{ready['id']}']", state="detached", timeout=WAIT_MS)
     assert f"Test #{ready['id']} deleted." in page.inner_text("#history-message")
     assert server.call("GET", f"/api/tests/{ready['id']}")[0] == 404
 
     # archive what ran: who and why are required
     page.click(f"#history-table tr[data-id='{ran}'] button[data-action='archive']")
-    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    page.wait_for_selector("#confirm-dialog[open]", timeout=WAIT_MS)
     assert page.is_disabled("#confirm-ok")  # no reason yet
     page.fill("#confirm-reason", "duplicate of an earlier run")
     page.screenshot(path=str(artifacts / "dashboard_archive_1366x768.png"))
     page.click("#confirm-ok")
-    page.wait_for_selector(f"#history-table tr[data-id='{ran}']", state="detached", timeout=5000)
+    page.wait_for_selector(f"#history-table tr[data-id='{ran}']", state="detached", timeout=WAIT_MS)
     assert f"archived by {OPERATOR[0]}: duplicate of an earlier run" in page.inner_text("#history-message")
     rec = server.call("GET", f"/api/tests/{ran}")[1]
     assert rec["archived"]["by"] == OPERATOR[0] and rec["status"] == "completed", rec
 
     # the archived ones on their own, restorable
     page.check("#h-archived")
-    row = page.wait_for_selector(f"#history-table tr[data-id='{ran}']", timeout=5000)
+    row = page.wait_for_selector(f"#history-table tr[data-id='{ran}']", timeout=WAIT_MS)
     assert f"archived by {OPERATOR[0]}" in row.inner_text()
     page.click(f"#history-table tr[data-id='{ran}'] button[data-action='restore']")
-    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    page.wait_for_selector("#confirm-dialog[open]", timeout=WAIT_MS)
     assert page.locator("#confirm-by").count() == 0  # who restores is the logged-in account
     page.fill("#confirm-reason", "archived by mistake")
     page.click("#confirm-ok")
-    page.wait_for_selector(f"#history-table tr[data-id='{ran}']", state="detached", timeout=5000)
+    page.wait_for_selector(f"#history-table tr[data-id='{ran}']", state="detached", timeout=WAIT_MS)
     assert "restored" in page.inner_text("#history-message")
     page.uncheck("#h-archived")
-    page.wait_for_selector(f"#history-table tr[data-id='{ran}']", timeout=5000)
+    page.wait_for_selector(f"#history-table tr[data-id='{ran}']", timeout=WAIT_MS)
 
     # the test page: who and what, the action, digits that fit the measurement
     page.click(f"#history-table tr[data-id='{ran}']")
-    page.wait_for_selector("#t-cycles tbody tr", timeout=10000)
+    page.wait_for_selector("#t-cycles tbody tr", timeout=WAIT_MS)
     summary = page.inner_text("#t-summary")
     assert "REC-2" in summary and "Rec Operator" in summary and "200 kN" in summary, summary
     assert page.get_attribute("#t-action", "data-action") == "archive"

@@ -7,11 +7,12 @@ from __future__ import annotations
 
 import csv
 import io
-import time
 
 import pytest
 
-from .harness import OPERATOR, fill_identity, poll, sine_test, start_from_form, wait_start_enabled
+from .harness import OPERATOR, WAIT_MS, fill_identity, poll, sine_test, start_from_form, wait_start_enabled
+
+LOOPS_KEPT = 40  # finished cycles the live loop plot keeps (frontend/static/js/plots.js, LoopPlot.maxPast)
 
 
 def _metrics(page) -> dict:
@@ -38,7 +39,7 @@ def test_operator_flow(server, open_page, artifacts):
 
     # the confirmation summarises the motion before the valve opens; cancel sends nothing
     page.click("#start")
-    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    page.wait_for_selector("#confirm-dialog[open]", timeout=WAIT_MS)
     summary = page.inner_text("#confirm-body")
     assert "±30.00 mm" in summary, summary  # peak displacement
     assert "94.2 mm/s" in summary, summary  # 2 pi f A = 2 pi 0.5 Hz 30 mm
@@ -57,17 +58,19 @@ def test_operator_flow(server, open_page, artifacts):
     new = poll(lambda: {t["id"] for t in server.call("GET", "/api/tests")[1]} - known, 15, "the new test")
     test_id = max(new)
     poll(lambda: _metrics(page).get("testId") == test_id, 15, "the live view to pick up the new test")
-    page.wait_for_selector("#rig-status[data-status='running']", timeout=15000)
-    points = []
-    for _ in range(6):  # the loop grows: more points in the current cycle or more finished cycles
+    page.wait_for_selector("#rig-status[data-status='running']", timeout=WAIT_MS)
+    def loop_size():
         m = _metrics(page)
-        points.append((m.get("loopCycles", 0), m.get("loopPoints", 0)))
-        time.sleep(0.25)
-    assert len(set(points)) > 1 and points[-1] > points[0], points
+        return (m.get("loopCycles", 0), m.get("loopPoints", 0))
+
+    first = loop_size()  # the loop grows: more points in the current cycle or more finished cycles
+    grown = poll(lambda: (lambda now: now if now > first else None)(loop_size()), 15, "the loop to grow")
+    assert grown > first, (first, grown)
     page.screenshot(path=str(artifacts / "dashboard_running.png"))
 
     page.wait_for_selector("#rig-status[data-status='completed']", timeout=60000)
-    time.sleep(0.3)
+    # the last samples and the last loop are drawn after the status came
+    page.wait_for_function("window.__isorig.loopCycles >= 3 && window.__isorig.samples >= 7000", timeout=WAIT_MS)
     m = _metrics(page)
     assert m["loopCycles"] >= 3, m  # 4 target cycles: at least 3 closed loops drawn in grey
     assert m["samples"] >= 7000, m  # 8 s of test at 1 kHz, every sample
@@ -75,14 +78,14 @@ def test_operator_flow(server, open_page, artifacts):
     page.screenshot(path=str(artifacts / "dashboard_completed.png"))
 
     page.click("nav a[data-view='history']")
-    row = page.wait_for_selector(f"#history-table tr[data-id='{test_id}']", timeout=10000)
+    row = page.wait_for_selector(f"#history-table tr[data-id='{test_id}']", timeout=WAIT_MS)
     text = row.inner_text()
     for what in ("completed", "IUT_b", "E2E-FLOW", OPERATOR[0], "125 kN"):  # status, who, what
         assert what in text, text
     # filters: status, isolator and today's date keep it; another status hides it
     page.select_option("#h-status", "aborted")
     page.click("#history-filter button[type='submit']")
-    page.wait_for_selector(f"#history-table tr[data-id='{test_id}']", state="detached", timeout=5000)
+    page.wait_for_selector(f"#history-table tr[data-id='{test_id}']", state="detached", timeout=WAIT_MS)
     today = page.evaluate("(() => { const d = new Date(); const p = (x) => String(x).padStart(2, '0');"
                           " return `${d.getFullYear()}-${p(d.getMonth() + 1)}-${p(d.getDate())}`; })()")
     page.select_option("#h-status", "completed")
@@ -90,9 +93,9 @@ def test_operator_flow(server, open_page, artifacts):
     page.fill("#h-since", today)
     page.fill("#h-until", today)
     page.click("#history-filter button[type='submit']")
-    row = page.wait_for_selector(f"#history-table tr[data-id='{test_id}']", timeout=5000)
+    row = page.wait_for_selector(f"#history-table tr[data-id='{test_id}']", timeout=WAIT_MS)
     row.click()
-    page.wait_for_selector("#t-cycles tbody tr", timeout=10000)
+    page.wait_for_selector("#t-cycles tbody tr", timeout=WAIT_MS)
     assert page.locator("#t-cycles tbody tr").count() >= 3
     summary = page.inner_text("#t-summary")
     for what in ("completed", "E2E-FLOW", OPERATOR[0], "operator flow", "|d| 150 mm"):
@@ -115,7 +118,7 @@ def test_refused_profile_shows_reason(server, open_page, artifacts):
     fill_identity(page)
     page.select_option("#f-isolator", "IUT_b")
     page.fill("#f-amplitude", "200")  # beyond the +-150 mm stroke: the field's own range says so
-    page.wait_for_selector("#envelope[data-state='refused']", timeout=5000)
+    page.wait_for_selector("#envelope[data-state='refused']", timeout=WAIT_MS)
     assert "up to 150 mm" in page.inner_text("[data-field='amplitude'] .msg")
     assert "invalid" in (page.get_attribute("#f-amplitude", "class") or "")
     assert page.is_disabled("#start")
@@ -124,7 +127,8 @@ def test_refused_profile_shows_reason(server, open_page, artifacts):
     # inside the stroke but more flow than the pump gives: explained by the service before Start
     page.fill("#f-amplitude", "100")
     page.fill("#f-frequency", "2")
-    page.wait_for_function("document.getElementById('envelope').textContent.includes('peak flow demand')", timeout=5000)
+    page.wait_for_function("document.getElementById('envelope').textContent.includes('peak flow demand')",
+                           timeout=WAIT_MS)
     early = page.inner_text("#envelope")
     assert "frequency_hz" in early and "313" in early and "l/min" in early, early
     assert page.get_attribute("#envelope", "data-state") == "refused"
@@ -144,39 +148,41 @@ def test_refused_profile_shows_reason(server, open_page, artifacts):
 def test_live_view_follows_test_started_through_api(server, open_page, artifacts):
     """A test started by a script (REST) shows up in an open dashboard, with its status changes."""
     page, _ = open_page(server.url + "/")
-    page.wait_for_selector("#conn.conn-up", timeout=10000)
+    page.wait_for_selector("#conn.conn-up", timeout=WAIT_MS)
     test_id = server.start_test(sine_test(amplitude_m=0.02, frequency_hz=1.0, cycles=6, speed=2.0,
                                           isolator="IUT_a", supply_bar=100))
     page.wait_for_function(f"window.__isorig.testId === {test_id} && window.__isorig.samples > 500",
-                           timeout=15000)
+                           timeout=WAIT_MS)
     assert page.inner_text("#l-test") == f"#{test_id}"
     poll(lambda: page.inner_text("#l-isolator") == "IUT_a", 5, "the isolator in the header")
-    page.wait_for_selector("#rig-status[data-status='running']", timeout=10000)
+    page.wait_for_selector("#rig-status[data-status='running']", timeout=WAIT_MS)
     server.wait_status(test_id, {"completed"}, timeout_s=60)
-    page.wait_for_selector("#rig-status[data-status='completed']", timeout=10000)
+    page.wait_for_selector("#rig-status[data-status='completed']", timeout=WAIT_MS)
     assert f"Test {test_id} completed" in page.inner_text("#alert-text")
 
     # a page opened while a test runs: time from navigation to the first live frame (recorded, not asserted);
     # it draws the loops stored before it joined, each once
-    test_id = server.start_test(sine_test(amplitude_m=0.02, frequency_hz=1.0, cycles=60, speed=2.0,
+    # (100 cycles, 50 s: it still runs when aborted below, however slow the page is to open on a loaded machine)
+    test_id = server.start_test(sine_test(amplitude_m=0.02, frequency_hz=1.0, cycles=100, speed=2.0,
                                           isolator="IUT_a", supply_bar=100))
     server.wait_status(test_id, {"running"}, timeout_s=15)
-    time.sleep(7.0)  # 14 s of test: more than the 10 s of samples a late client gets
+    # 14 s of test (14 cycles at 1 Hz) on record: more than the 10 s of samples a late client gets
+    poll(lambda: server.call("GET", f"/api/tests/{test_id}")[1]["cycles_done"] >= 14, 15, "14 cycles on record")
     late, _ = open_page(server.url + "/")
-    late.wait_for_function("window.__isorig.firstLiveFrameMs !== null", timeout=10000)
+    late.wait_for_function("window.__isorig.firstLiveFrameMs !== null", timeout=WAIT_MS)
     first = _metrics(late)["firstLiveFrameMs"]
     (artifacts / "first_live_frame_ms.txt").write_text(f"{first:.0f}\n")
     _, rec = server.call("GET", f"/api/tests/{test_id}")
     stored = rec["cycles_done"]
     assert stored >= 12, rec
-    # the history alone would give at most 10 loops; the page drew the stored ones too
-    late.wait_for_function(f"window.__isorig.loopCycles >= {stored - 1}", timeout=10000)
+    # the history alone would give at most 10 loops; the page drew the stored ones too (the loop plot keeps the
+    # latest 40: plots.js maxPast)
+    late.wait_for_function(f"window.__isorig.loopCycles >= {min(stored, LOOPS_KEPT) - 1}", timeout=WAIT_MS)
     status, body = server.call("POST", f"/api/tests/{test_id}/abort", token=True)
     assert status == 200, body
-    _, rec = server.call("GET", f"/api/tests/{test_id}")
-    time.sleep(0.5)
+    rec = server.wait_status(test_id, {"aborted"})
+    late.wait_for_selector("#rig-status[data-status='aborted']", timeout=WAIT_MS)  # the page has the end too
     assert _metrics(late)["loopCycles"] <= rec["cycles_done"] + 1, (_metrics(late), rec["cycles_done"])
-    late.wait_for_selector("#rig-status[data-status='aborted']", timeout=10000)
     late.screenshot(path=str(artifacts / "dashboard_aborted.png"))
 
 
@@ -186,12 +192,12 @@ def test_abort_button_stops_the_rig(server, open_page, cookie):
     needed (a second console without one, an ended one), no dialog in the way; the events say who asked."""
     page, _ = open_page(server.url + "/", cookie=cookie)
     test_id = server.start_test(sine_test(cycles=20, speed=1.0))
-    page.wait_for_selector("#rig-status[data-status='running']", timeout=15000)
+    page.wait_for_selector("#rig-status[data-status='running']", timeout=WAIT_MS)
     page.click("#abort")
     rec = server.wait_status(test_id, {"aborted"}, timeout_s=15)
     assert rec["status"] == "aborted"
     assert not page.is_visible("#login-dialog")
-    page.wait_for_selector("#rig-status[data-status='aborted']", timeout=10000)
+    page.wait_for_selector("#rig-status[data-status='aborted']", timeout=WAIT_MS)
     assert "ABORTED" in page.inner_text("#alert-text")
     asked = [e for e in rec["events"] if (e["values"] or {}).get("action") == "abort"]
     assert asked[0]["actor"] == "a console without login (127.0.0.1)", asked
@@ -201,12 +207,12 @@ def test_stop_button_ramps_out(server, open_page):
     """Stop finishes the running test with a ramp-out: status 'stopped'; a console without a login may stop."""
     page, _ = open_page(server.url + "/")
     test_id = server.start_test(sine_test(cycles=30, speed=1.0))
-    page.wait_for_function(f"window.__isorig.testId === {test_id}", timeout=15000)
-    page.wait_for_selector("#rig-status[data-status='running']", timeout=15000)
+    page.wait_for_function(f"window.__isorig.testId === {test_id}", timeout=WAIT_MS)
+    page.wait_for_selector("#rig-status[data-status='running']", timeout=WAIT_MS)
     page.click("#stop")
     rec = server.wait_status(test_id, {"stopped"}, timeout_s=20)
     assert rec["status"] == "stopped"
-    page.wait_for_selector("#rig-status[data-status='stopped']", timeout=10000)
+    page.wait_for_selector("#rig-status[data-status='stopped']", timeout=WAIT_MS)
 
 
 def test_add_isolator_plausibility_api_refusal_and_delete(server, open_page, artifacts):
@@ -224,7 +230,7 @@ def test_add_isolator_plausibility_api_refusal_and_delete(server, open_page, art
     assert "read as 0.2 1/mm" in page.inner_text("[data-field='iso-rho_bw_per_m'] .msg")
     assert "wrong unit" in page.inner_text("[data-field='iso-kd_n_per_m'] .msg")
     page.click("#iso-save")
-    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    page.wait_for_selector("#confirm-dialog[open]", timeout=WAIT_MS)
     assert "post-yield stiffness 500 kN/mm" in page.inner_text("#confirm-body"), page.inner_text("#confirm-body")
     assert page.is_disabled("#confirm-ok")  # the warning must be ticked
     page.click("#confirm-cancel")
@@ -233,15 +239,15 @@ def test_add_isolator_plausibility_api_refusal_and_delete(server, open_page, art
     page.fill("#iso-kd_n_per_m", "0.5")
     page.fill("#iso-kw_n", "5e5")  # 5e8 N: beyond the API's range; ticked through, the API refuses it
     page.click("#iso-save")
-    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    page.wait_for_selector("#confirm-dialog[open]", timeout=WAIT_MS)
     page.check("#confirm-body .warning-tick")
     page.click("#confirm-ok")
-    page.wait_for_function("document.getElementById('iso-error').textContent.length > 0", timeout=5000)
+    page.wait_for_function("document.getElementById('iso-error').textContent.length > 0", timeout=WAIT_MS)
     assert "kw_n" in page.inner_text("#iso-error"), page.inner_text("#iso-error")
 
     page.fill("#iso-kw_n", "20")
     page.click("#iso-save")
-    page.wait_for_function("document.getElementById('f-isolator').value === 'e2e_LRB'", timeout=5000)
+    page.wait_for_function("document.getElementById('f-isolator').value === 'e2e_LRB'", timeout=WAIT_MS)
     assert page.inner_text("#iso-error") == ""
     params = page.inner_text("#isolator-params")
     assert "0.5" in params and "20" in params and "user-defined" in params, params
@@ -251,10 +257,10 @@ def test_add_isolator_plausibility_api_refusal_and_delete(server, open_page, art
 
     assert page.is_enabled("#iso-delete")
     page.click("#iso-delete")
-    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    page.wait_for_selector("#confirm-dialog[open]", timeout=WAIT_MS)
     page.screenshot(path=str(artifacts / "dashboard_delete_isolator.png"))
     page.click("#confirm-ok")
-    page.wait_for_function("document.getElementById('setup-message').textContent.includes('deleted')", timeout=5000)
+    page.wait_for_function("document.getElementById('setup-message').textContent.includes('deleted')", timeout=WAIT_MS)
     assert page.locator("#f-isolator option[value='e2e_LRB']").count() == 0
     assert server.call("GET", "/api/isolators/e2e_LRB")[0] == 404
     assert server.call("DELETE", "/api/isolators/IUT_a", token=True)[0] == 409  # presets stay
@@ -263,15 +269,15 @@ def test_add_isolator_plausibility_api_refusal_and_delete(server, open_page, art
 def test_limit_trip_is_shown_prominently(server, open_page, artifacts):
     """A tracking-error trip (bound set low through the API) raises the red banner with the limit's values."""
     page, _ = open_page(server.url + "/")
-    page.wait_for_selector("#conn.conn-up", timeout=10000)
+    page.wait_for_selector("#conn.conn-up", timeout=WAIT_MS)
     body = sine_test(cycles=10, speed=1.0, controller="mrac")
     body["limits"] = {"tracking_error_m": 0.0005}  # 0.5 mm: the MRAC's start-up transient exceeds it
     test_id = server.start_test(body)
     rec = server.wait_status(test_id, {"aborted"}, timeout_s=30)
     assert rec["reason"], rec
-    page.wait_for_selector("#rig-status[data-status='aborted']", timeout=10000)
+    page.wait_for_selector("#rig-status[data-status='aborted']", timeout=WAIT_MS)
     page.wait_for_function("document.getElementById('alert-text').textContent.includes('LIMIT TRIP')",
-                           timeout=10000)
+                           timeout=WAIT_MS)
     assert page.get_attribute("#alert", "data-kind") == "bad"
     assert page.locator("#live-events li.limit_trip").count() >= 1
     events = page.inner_text("#live-events")
@@ -284,11 +290,12 @@ def test_limit_trip_is_shown_prominently(server, open_page, artifacts):
     # dismissed, then the page reloaded: the old trip is no news (the badge and the strip still say how it ended)
     page.click("#alert-close")
     page.reload()
-    page.wait_for_selector("body[data-ready='1']", timeout=15000)
-    page.wait_for_selector("#rig-status[data-status='aborted']", timeout=10000)
-    time.sleep(1.0)  # the stream's hello and the record have come
+    page.wait_for_selector("body[data-ready='1']", timeout=WAIT_MS)
+    page.wait_for_selector("#rig-status[data-status='aborted']", timeout=WAIT_MS)
+    # the stream's hello and the record have come (its events, the trip among them)
+    page.wait_for_function("document.getElementById('live-events').textContent.includes('LIMIT TRIP')",
+                           timeout=WAIT_MS)
     assert page.is_hidden("#alert"), page.inner_text("#alert-text")
-    assert "LIMIT TRIP" in page.inner_text("#live-events")
 
 
 def test_vertical_load_is_entered_in_kn_within_the_jacks_range(server, open_page, artifacts):
@@ -303,11 +310,11 @@ def test_vertical_load_is_entered_in_kn_within_the_jacks_range(server, open_page
     page.fill("#f-cycles", "4")
     page.fill("#f-speed", "4")
     page.fill("#f-vertical_load", "900")
-    page.wait_for_function("document.getElementById('envelope').dataset.state === 'refused'", timeout=10000)
+    page.wait_for_function("document.getElementById('envelope').dataset.state === 'refused'", timeout=WAIT_MS)
     assert "850 kN" in page.inner_text("[data-field='vertical_load'] .msg")
     assert "invalid" in (page.get_attribute("#f-vertical_load", "class") or "")
     page.fill("#f-vertical_load", "300")
-    page.wait_for_function("document.getElementById('envelope').dataset.state === 'ok'", timeout=10000)
+    page.wait_for_function("document.getElementById('envelope').dataset.state === 'ok'", timeout=WAIT_MS)
     before = {t["id"] for t in server.call("GET", "/api/tests")[1]}
     summary = start_from_form(page)
     assert "300 kN" in summary, summary

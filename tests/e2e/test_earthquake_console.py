@@ -11,7 +11,7 @@ import re
 
 import pytest
 
-from .harness import OPERATOR, fill_identity, poll, shots, start_from_form, wait_start_enabled
+from .harness import OPERATOR, WAIT_MS, fill_identity, poll, shots, start_from_form, wait_start_enabled
 
 
 def _earthquake_plots(page) -> dict:
@@ -21,7 +21,7 @@ def _earthquake_plots(page) -> dict:
 def _criteria_on_the_test_page(server, page, test_id: int) -> dict:
     """The test page's J criteria: one row per verdict of GET /api/tests/{id}/earthquake, its value (4 digits),
     bound and verdict; returns that answer."""
-    page.wait_for_selector("#t-eq:not(.hidden) #t-eq-criteria tbody tr", timeout=10000)
+    page.wait_for_selector("#t-eq:not(.hidden) #t-eq-criteria tbody tr", timeout=WAIT_MS)
     eq = server.call("GET", f"/api/tests/{test_id}/earthquake?points=200")[1]
     verdicts = eq["record"]["verdicts"]
     rows = page.locator("#t-eq-criteria tbody tr")
@@ -83,9 +83,9 @@ def test_time_history_from_a_preset_runs_to_completion(server, open_page, artifa
     assert f"about {check['peak_force_n'] / 1e3:.1f} kN" in summary or "peak force (estimate)" in summary, summary
     assert "0:15" in summary and "wall time at 10x" in summary, summary
     assert "0 cycles" not in summary, summary
-    page.wait_for_selector("#rig-status[data-status='running']", timeout=15000)
+    page.wait_for_selector("#rig-status[data-status='running']", timeout=WAIT_MS)
     test_id = page.evaluate("window.__isorig.testId")
-    page.wait_for_selector("#eq-panel:not(.hidden)", timeout=10000)  # once the record of the running test came
+    page.wait_for_selector("#eq-panel:not(.hidden)", timeout=WAIT_MS)  # once the record of the running test came
     assert page.is_hidden("#stab-card") and page.is_hidden("#hy-drift-panel")
     poll(lambda: page.inner_text("#l-cycle") == "none (a time history)", 10, "the header saying there are no cycles")
     assert "time history: near_field_short x 0.5" in page.inner_text("#l-profile")
@@ -100,7 +100,7 @@ def test_time_history_from_a_preset_runs_to_completion(server, open_page, artifa
     rec = server.wait_status(test_id, {"completed"}, timeout_s=60)
     assert rec["profile"]["kind"] == "history" and rec["profile"]["ground_motion"]["preset"] == "near_field_short"
     assert rec["specimen_id"] == "EQ-SPEC-1" and rec["speed"] == 10
-    page.wait_for_selector("#rig-status[data-status='completed']", timeout=15000)
+    page.wait_for_selector("#rig-status[data-status='completed']", timeout=WAIT_MS)
     # the whole record was drawn, to its end
     plots = poll(lambda: (lambda d: d if d["filled"] >= 0.97 * d["points"] else None)(_earthquake_plots(page)),
                   10, "the whole record drawn")
@@ -115,10 +115,10 @@ def test_time_history_from_a_preset_runs_to_completion(server, open_page, artifa
     # History: the kind of test; its page: the profile, the report link
     page.goto(f"{server.url}/?viewer=off#/history")
     row = page.locator(f"#history-table tr[data-id='{test_id}']")
-    row.wait_for(timeout=10000)
+    row.wait_for(timeout=WAIT_MS)
     assert "time history: near_field_short x 0.5 (0:15)" in row.inner_text(), row.inner_text()
     row.click()
-    page.wait_for_selector("#t-summary .kv", timeout=10000)
+    page.wait_for_selector("#t-summary .kv", timeout=WAIT_MS)
     assert "time history: near_field_short x 0.5" in page.inner_text("#t-summary")
     assert page.is_visible("#t-pdf") and page.get_attribute("#t-pdf", "href") == f"/api/tests/{test_id}/report.pdf"
     # its J criteria with their verdicts, and the measured displacement over the target
@@ -166,9 +166,9 @@ def test_hybrid_simulation_shows_drifts_and_the_stability_monitor(server, open_p
     assert "fixed-base periods 0.296, 0.12, 0.0794 s" in summary, summary
     assert "predicted base displacement" in summary and "ground motion near_field_short x 0.6" in summary, summary
     assert "trips at E_err > max(100 J, 50.00 % of the input energy)" in summary, summary
-    page.wait_for_selector("#rig-status[data-status='running']", timeout=15000)
+    page.wait_for_selector("#rig-status[data-status='running']", timeout=WAIT_MS)
     test_id = page.evaluate("window.__isorig.testId")
-    page.wait_for_selector("#stab-card:not(.hidden)", timeout=10000)
+    page.wait_for_selector("#stab-card:not(.hidden)", timeout=WAIT_MS)
     assert page.is_visible("#hy-drift-panel") and page.is_visible("#hy-stab-panel")
     plots = poll(lambda: (lambda d: d if d["drifts"] > 50 and d["stabilityPoints"] > 3 else None)(
         _earthquake_plots(page)), 20, "drifts and the monitor's indicator")
@@ -186,12 +186,12 @@ def test_hybrid_simulation_shows_drifts_and_the_stability_monitor(server, open_p
     shots(page, artifacts, "dashboard_earthquake_hybrid")
     rec = server.wait_status(test_id, {"completed"}, timeout_s=60)
     assert rec["profile"]["kind"] == "hybrid" and rec["summary"]["stability"]["tripped"] is False
-    page.wait_for_selector("#rig-status[data-status='completed']", timeout=15000)
+    page.wait_for_selector("#rig-status[data-status='completed']", timeout=WAIT_MS)
     assert page.get_attribute("#stab-card", "data-level") in ("ok", "warn", "bad")
 
     # the same building with a threshold it cannot keep: the monitor trips, in red with its reason
     server.zero_table()  # the structure leaves the isolator's residual displacement
-    page.wait_for_selector("#rig-warning.hidden", state="attached", timeout=10000)
+    page.wait_for_selector("#rig-warning.hidden", state="attached", timeout=WAIT_MS)
     page.fill("#f-hy_limit_j", "0,5")
     assert page.inner_text("[data-field='hy_limit_j'] .msg") == "read as 0.5 J"
     page.fill("#f-hy_relative", "0.1")
@@ -199,7 +199,7 @@ def test_hybrid_simulation_shows_drifts_and_the_stability_monitor(server, open_p
     summary = start_from_form(page)
     assert "trips at E_err > max(0.5 J, 0.10 % of the input energy)" in summary, summary
     page.wait_for_selector("#rig-status[data-status='aborted']", timeout=30000)
-    page.wait_for_selector("#stab-card[data-level='tripped']", timeout=10000)
+    page.wait_for_selector("#stab-card[data-level='tripped']", timeout=WAIT_MS)
     assert page.inner_text("#stab-value") == "TRIPPED"
     detail = page.get_attribute("#stab-detail", "title")
     assert re.search(r"Tripped at t = [\d.]+ s: RTHS stability monitor: the tracking error added [\d.]+ J",
@@ -323,7 +323,7 @@ def test_refusals_and_records_are_said_in_words(server, open_page, artifacts, tm
     page.fill("#f-eq_scale", "2")
     assert "up to 100" in page.inner_text("[data-field='eq_scale'] .range")
     _envelope(page, "ok")
-    wait_start_enabled(page, timeout_ms=10000)
+    wait_start_enabled(page)
     shots(page, artifacts, "dashboard_earthquake_csv")
     assert len(server.call("GET", "/api/tests")[1]) == before  # nothing was created
     watch.allowed_status.add(422)

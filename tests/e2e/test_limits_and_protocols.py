@@ -14,6 +14,7 @@ import numpy as np
 
 from .harness import (
     OPERATOR,
+    WAIT_MS,
     fill_identity,
     poll,
     record_checks,
@@ -28,7 +29,7 @@ def _confirmation(page) -> str:
     """Open the confirmation and return its text (the dialog stays open)."""
     wait_start_enabled(page)
     page.click("#start")
-    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    page.wait_for_selector("#confirm-dialog[open]", timeout=WAIT_MS)
     return page.inner_text("#confirm-body")
 
 
@@ -66,7 +67,7 @@ def test_limits_with_actions_reach_the_record_and_indications_show(server, open_
     assert page.is_disabled("#confirm-ok")  # the indicating limit must be ticked
     page.click("#confirm-cancel")
     start_from_form(page)
-    page.wait_for_selector("#rig-status[data-status='running']", timeout=15000)
+    page.wait_for_selector("#rig-status[data-status='running']", timeout=WAIT_MS)
     test_id = page.evaluate("window.__isorig.testId")
 
     rec = server.call("GET", f"/api/tests/{test_id}")[1]
@@ -100,7 +101,7 @@ def test_limits_with_actions_reach_the_record_and_indications_show(server, open_
 
     # the test page: limits grouped by action, how often each indicating limit was exceeded, the events
     page.goto(f"{server.url}/?viewer=off#/tests/{test_id}")
-    page.wait_for_selector("#t-events li.limit_indicate", timeout=10000)
+    page.wait_for_selector("#t-events li.limit_indicate", timeout=WAIT_MS)
     summary = page.inner_text("#t-summary")
     assert "indicate: |v| 50 mm/s" in summary and "controlled stop: |y-r| 50 mm" in summary, summary
     assert f"|v| {total} times" in summary, summary
@@ -110,7 +111,7 @@ def test_trips_say_which_action_was_taken(server, open_page, artifacts):
     """A controlled-stop trip: the target brakes to rest, the banner says so; a valve-close limit tripping during
     that controlled stop closes the valve, and the banner says both."""
     page, _ = open_page(server.url + "/", width=1920, height=1080)
-    page.wait_for_selector("#conn.conn-up", timeout=10000)
+    page.wait_for_selector("#conn.conn-up", timeout=WAIT_MS)
 
     # no taper-in: the target starts at its top speed, so the velocity limit trips at once, moving outwards
     body = sine_test(cycles=10, speed=2.0, taper_cycles=0)
@@ -118,8 +119,8 @@ def test_trips_say_which_action_was_taken(server, open_page, artifacts):
     test_id = server.start_test(body)
     rec = server.wait_status(test_id, {"aborted"}, timeout_s=30)
     assert rec["reason"].startswith("velocity limit tripped (controlled stop)"), rec["reason"]
-    page.wait_for_selector("#rig-status[data-status='aborted']", timeout=10000)
-    page.wait_for_function("document.getElementById('alert-text').textContent.includes('ABORTED')", timeout=10000)
+    page.wait_for_selector("#rig-status[data-status='aborted']", timeout=WAIT_MS)
+    page.wait_for_function("document.getElementById('alert-text').textContent.includes('ABORTED')", timeout=WAIT_MS)
     banner = page.inner_text("#alert-text")
     assert re.fullmatch(rf"LIMIT TRIP - Test {test_id} ABORTED: velocity [\d.]+ mm/s beyond the limit of 80 mm/s; "
                         r"controlled stop: the target brakes to rest within every displacement limit and holds there "
@@ -127,7 +128,7 @@ def test_trips_say_which_action_was_taken(server, open_page, artifacts):
     assert page.get_attribute("#alert", "data-kind") == "bad"
 
     # that controlled stop braked the table to rest off zero: where it rests, no test starts until it is zeroed
-    page.wait_for_selector("#rig-warning[data-state='off-zero']", timeout=10000)
+    page.wait_for_selector("#rig-warning[data-state='off-zero']", timeout=WAIT_MS)
     with urllib.request.urlopen(f"{server.url}/api/tests/{test_id}/data.csv", timeout=30) as r:
         lines = r.read().decode().splitlines()
     header = lines[0].split(",")
@@ -146,7 +147,7 @@ def test_trips_say_which_action_was_taken(server, open_page, artifacts):
     trips = [e["values"] for e in rec["events"] if e["kind"] == "limit_trip"]
     assert [t["action"] for t in trips] == ["controlled_stop", "valve_close"] and trips[1]["escalation"], trips
     page.wait_for_function("document.getElementById('alert-text').textContent"
-                           f".startsWith('LIMIT TRIP - Test {test_id}')", timeout=10000)
+                           f".startsWith('LIMIT TRIP - Test {test_id}')", timeout=WAIT_MS)
     banner = page.inner_text("#alert-text")
     assert "velocity" in banner and "controlled stop: the target brakes to rest" in banner, banner
     assert re.search(r"then, during the controlled stop: force [\d.]+ kN beyond the limit of [\d.]+ kN; "
@@ -156,7 +157,7 @@ def test_trips_say_which_action_was_taken(server, open_page, artifacts):
     assert "{" not in events and "escalation" not in events, events  # words, no internals
     page.screenshot(path=str(artifacts / "dashboard_limit_escalation_1920x1080.png"))
     # the valve closed mid-stroke: the table rests off zero, where no test may start
-    page.wait_for_selector("#rig-warning[data-state='off-zero']", timeout=10000)
+    page.wait_for_selector("#rig-warning[data-state='off-zero']", timeout=WAIT_MS)
     assert f"where test {test_id} left it" in page.inner_text("#rig-warning")
     assert page.is_disabled("#start") and "the table at zero" in page.inner_text("#start-why")
 
@@ -258,13 +259,13 @@ def test_a_protocol_tests_page_says_its_verdict_and_its_levels(server, open_page
         server.wait_status(ids[name], {"completed"}, timeout_s=60)
     page, _ = open_page(server.url + "/#/history", width=1366, height=768)
     row = page.locator(f"#history-table tr[data-id='{ids['passed']}']")
-    row.wait_for(timeout=10000)
+    row.wait_for(timeout=WAIT_MS)
     assert "PASSED" in row.inner_text() and "by level (test page)" in row.inner_text(), row.inner_text()
     assert "FAILED" in page.locator(f"#history-table tr[data-id='{ids['failed']}']").inner_text()
 
     acc = server.call("GET", f"/api/tests/{ids['passed']}/acceptance")[1]
     page.goto(f"{server.url}/?viewer=off#/tests/{ids['passed']}")
-    page.wait_for_selector("#t-acc:not(.hidden) #t-acc-levels tbody tr", timeout=10000)
+    page.wait_for_selector("#t-acc:not(.hidden) #t-acc-levels tbody tr", timeout=WAIT_MS)
     assert page.inner_text("#t-acc-verdict") == "PASSED" and acc["verdict"] == "PASSED"
     assert page.inner_text("#t-acc-note").startswith(f"{acc['summary']['verdicts']} checks on ")
     assert page.locator("#t-acc-rules li").count() == len(acc["rules"]) == 2
@@ -281,7 +282,7 @@ def test_a_protocol_tests_page_says_its_verdict_and_its_levels(server, open_page
     page.screenshot(path=str(artifacts / "dashboard_protocol_test_page_1366x768.png"), full_page=True)
 
     page.goto(f"{server.url}/?viewer=off#/tests/{ids['failed']}")
-    page.wait_for_selector("#t-acc-verdict.unmet", timeout=10000)
+    page.wait_for_selector("#t-acc-verdict.unmet", timeout=WAIT_MS)
     assert page.inner_text("#t-acc-verdict") == "FAILED"
     failed = page.inner_text("#t-acc-failed")
     assert "keff_vs_3rd_cycle:" in failed and "cycle(s)" in failed, failed

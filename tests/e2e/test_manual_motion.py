@@ -7,9 +7,8 @@ table rests. The service: POST /api/rig/zero and /api/rig/move (docs/backend.md)
 from __future__ import annotations
 
 import re
-import time
 
-from .harness import OPERATOR, fill_identity, poll, record_checks, shots, sine_test, wait_start_enabled
+from .harness import OPERATOR, WAIT_MS, fill_identity, poll, record_checks, shots, sine_test, wait_start_enabled
 
 
 def _ids(server) -> set[int]:
@@ -39,9 +38,9 @@ def test_zero_and_move_from_the_console(server, open_page, artifacts):
     assert abs(rest) > 0.015, rest  # the valve closed beyond the limit: the table stays there
     at = f"{rest * 1e3:+.2f} mm"
 
-    page, _ = open_page(server.url + "/", width=1366, height=768, login=OPERATOR)
+    page, watch = open_page(server.url + "/", width=1366, height=768, login=OPERATOR)
     fill_identity(page, "MM-1")
-    page.wait_for_selector("#rig-warning[data-state='off-zero']", timeout=10000)
+    page.wait_for_selector("#rig-warning[data-state='off-zero']", timeout=WAIT_MS)
     warning = page.inner_text("#rig-warning")
     assert f"The table rests at {at} (where test {tripped} left it)" in warning, warning
     assert page.is_disabled("#start") and "the table at zero" in page.inner_text("#start-why")
@@ -60,7 +59,7 @@ def test_zero_and_move_from_the_console(server, open_page, artifacts):
     page.fill("#f-mm_speed", "50")
     known = _ids(server)
     page.click("#warning-zero")
-    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    page.wait_for_selector("#confirm-dialog[open]", timeout=WAIT_MS)
     assert page.inner_text("#confirm-title").startswith("Return the table to zero?")
     confirm = page.inner_text("#confirm-body")
     for what in (at, "0.00 mm", "50 mm/s", "minimum-jerk", "s moving, then 0.5 s holding", "IUT_b",
@@ -71,13 +70,13 @@ def test_zero_and_move_from_the_console(server, open_page, artifacts):
     page.screenshot(path=str(artifacts / "dashboard_zero_confirm_1366x768.png"))
     page.click("#confirm-cancel")
     assert page.inner_text("#mm-status") == "Zero cancelled: nothing was sent to the rig."
-    time.sleep(0.5)
+    assert not [u for u in watch.requests if "/api/rig/" in u and ("/zero" in u or "/move" in u)], watch.requests
     assert _ids(server) == known
 
     # Zero (the manual-motion block's own button): a move record with the form's conditions and limits
     page.fill("#f-lim_tracking", "30")
     page.click("#mm-zero")
-    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    page.wait_for_selector("#confirm-dialog[open]", timeout=WAIT_MS)
     page.click("#confirm-ok")
     move = _new_record(server, known)
     assert move["profile"]["kind"] == "move" and move["profile"]["end_m"] == 0.0, move["profile"]
@@ -85,10 +84,10 @@ def test_zero_and_move_from_the_console(server, open_page, artifacts):
     assert move["isolator"] == "IUT_b" and move["operator_name"] == OPERATOR[0], move
     assert move["limits"]["tracking_error_m"] == 0.03 and move["limits"]["actions"]["force_n"] == "valve_close"
     server.wait_status(move["id"], {"completed"}, timeout_s=30)
-    page.wait_for_selector("#mm-status[data-kind='ok']", timeout=10000)
+    page.wait_for_selector("#mm-status[data-kind='ok']", timeout=WAIT_MS)
     assert page.inner_text("#mm-status").startswith(f"Move #{move['id']} completed ({at} to 0.00 mm at 50 mm/s)")
     assert abs(_table(server)) < 0.0005
-    page.wait_for_selector("#rig-warning[data-state='ok']", state="attached", timeout=10000)
+    page.wait_for_selector("#rig-warning[data-state='ok']", state="attached", timeout=WAIT_MS)
     assert page.is_hidden("#rig-warning")
     wait_start_enabled(page)  # the table at zero: a test may start
     assert page.inner_text("#alert-text") == f"Manual move {move['id']} completed"
@@ -96,43 +95,44 @@ def test_zero_and_move_from_the_console(server, open_page, artifacts):
     # the move's events say it was a move, not a test
     poll(lambda: page.inner_text("#s-event").endswith("Manual move completed"), 10, "the strip's last event")
     page.goto(f"{server.url}/?viewer=off#/tests/{move['id']}")
-    page.wait_for_selector("#t-events li", timeout=10000)
+    page.wait_for_selector("#t-events li", timeout=WAIT_MS)
     events = page.inner_text("#t-events")
     assert "Move started: the valve opens" in events and "Manual move completed" in events, events
     assert "Test started" not in events and "Test completed" not in events, events
     page.goto(f"{server.url}/?viewer=off#/live")
     fill_identity(page, "MM-1")
 
-    # Move to "12,5" mm at the default 5 mm/s: the decimal comma is read as one; the form is locked meanwhile
-    page.fill("#f-mm_speed", "5")
+    # Move to "12,5" mm at 1 mm/s: the decimal comma is read as one; the form is locked meanwhile (24 s: the move
+    # still runs while a loaded machine's page shows its progress; at 5 mm/s it had ended before)
+    page.fill("#f-mm_speed", "1")
     page.fill("#f-mm_target", "12,5")
     assert page.inner_text("[data-field='mm_target'] .msg") == "read as 12.5 mm"
     known = _ids(server)
     page.click("#mm-move")
-    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    page.wait_for_selector("#confirm-dialog[open]", timeout=WAIT_MS)
     assert page.inner_text("#confirm-title").startswith("Move the table to +12.50 mm?")
     confirm = page.inner_text("#confirm-body")
-    assert "12.50 mm" in confirm and "5 mm/s" in confirm and "5.2 s" in confirm, confirm  # 1.875 x 12.5 / 5 + 0.5
+    assert "12.50 mm" in confirm and "1 mm/s" in confirm and "23.9 s" in confirm, confirm  # 1.875 x 12.5 / 1 + 0.5
     page.click("#confirm-ok")
     move = _new_record(server, known)
-    assert move["profile"]["end_m"] == 0.0125 and move["profile"]["speed_m_per_s"] == 0.005, move["profile"]
-    page.wait_for_selector("#s-rig-cell[data-state='running']", timeout=10000)
+    assert move["profile"]["end_m"] == 0.0125 and move["profile"]["speed_m_per_s"] == 0.001, move["profile"]
+    page.wait_for_selector("#s-rig-cell[data-state='running']", timeout=WAIT_MS)
     assert page.inner_text("#s-rig-why") == f"manual move #{move['id']}"
-    page.wait_for_selector("#mm-status[data-kind='running']", timeout=5000)
+    page.wait_for_selector("#mm-status[data-kind='running']", timeout=WAIT_MS)
     poll(lambda: re.search(r"now \+\d+\.\d\d mm \(\d+ % of the way\)", page.inner_text("#mm-status")), 5,
           "the move's progress")
-    assert re.match(rf"Moving \(manual move #{move['id']}\) [+-]?\d+\.\d\d mm to \+12\.50 mm at 5 mm/s",
+    assert re.match(rf"Moving \(manual move #{move['id']}\) [+-]?\d+\.\d\d mm to \+12\.50 mm at 1 mm/s",
                     page.inner_text("#mm-status")), page.inner_text("#mm-status")
     assert page.is_disabled("#mm-zero") and page.is_disabled("#mm-move") and page.is_disabled("#start")
     assert f"manual move #{move['id']} is running" in page.inner_text("#start-why")
     assert f"Manual move #{move['id']} is running" in page.inner_text("#form-lock")
     assert page.is_enabled("#stop")  # a stop holds the table where it is
-    assert re.fullmatch(r"manual move [+-]?\d+\.\d\d mm to \+12\.50 mm at 5\.0 mm/s", page.inner_text("#l-profile"))
+    assert re.fullmatch(r"manual move [+-]?\d+\.\d\d mm to \+12\.50 mm at 1\.0 mm/s", page.inner_text("#l-profile"))
     shots(page, artifacts, "dashboard_manual_move")
-    server.wait_status(move["id"], {"completed"}, timeout_s=30)
-    page.wait_for_selector("#mm-status[data-kind='ok']", timeout=10000)
+    server.wait_status(move["id"], {"completed"}, timeout_s=60)
+    page.wait_for_selector("#mm-status[data-kind='ok']", timeout=WAIT_MS)
     assert abs(_table(server) - 0.0125) < 0.0003
-    page.wait_for_selector("#rig-warning[data-state='off-zero']", timeout=10000)  # no test starts there
+    page.wait_for_selector("#rig-warning[data-state='off-zero']", timeout=WAIT_MS)  # no test starts there
     assert page.is_hidden("#form-lock") and page.input_value("#f-specimen_id") == "MM-1"  # the draft is back
     poll(lambda: re.fullmatch(rf"\+12\.\d\d mm \u00b7 end of test {move['id']} \(completed\)",
                                page.inner_text("#s-position")), 5, "the strip's table position")
@@ -146,7 +146,7 @@ def test_manual_motion_limits_refusals_units_and_offset(server, open_page, artif
     fill_identity(page, "MM-2")
     # the same limits as a test: the reach of a move follows the displacement limit of the form
     page.fill("#f-mm_target", "120")
-    page.wait_for_selector("#mm-move:not([disabled])", timeout=10000)
+    page.wait_for_selector("#mm-move:not([disabled])", timeout=WAIT_MS)
     page.fill("#f-lim_displacement", "100")
     page.fill("#f-mm_target", "120")
     assert page.inner_text("[data-field='mm_target'] .range").startswith("-100 to 100 mm")
@@ -166,10 +166,10 @@ def test_manual_motion_limits_refusals_units_and_offset(server, open_page, artif
     known = _ids(server)
     page.fill("#f-mm_target", "10")
     page.press("#f-mm_target", "Enter")  # Enter in the field asks for this move (not for a test)
-    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    page.wait_for_selector("#confirm-dialog[open]", timeout=WAIT_MS)
     assert page.inner_text("#confirm-title").startswith("Move the table to +10.00 mm?")
     page.click("#confirm-ok")
-    page.wait_for_selector("#mm-status[data-kind='error']", timeout=10000)
+    page.wait_for_selector("#mm-status[data-kind='error']", timeout=WAIT_MS)
     status = page.inner_text("#mm-status")
     assert status.startswith("Not moved, refused by the service: speed_m_per_s = 0.2"), status
     assert "0.05 m/s" in status, status
@@ -186,7 +186,7 @@ def test_manual_motion_limits_refusals_units_and_offset(server, open_page, artif
 
     # a test runs: no manual motion
     running = server.start_test(sine_test(cycles=20, speed=1.0))
-    page.wait_for_selector("#s-rig-cell[data-state='running']", timeout=15000)
+    page.wait_for_selector("#s-rig-cell[data-state='running']", timeout=WAIT_MS)
     poll(lambda: f"no test running (test #{running} runs)" in page.inner_text("#mm-why"), 5, "why not now")
     assert page.is_disabled("#mm-zero") and page.is_disabled("#mm-move")
     server.call("POST", f"/api/tests/{running}/stop", token=True)
@@ -199,7 +199,7 @@ def test_manual_motion_limits_refusals_units_and_offset(server, open_page, artif
     assert code == 201, move
     server.wait_status(move["id"], {"completed"}, timeout_s=30)
     at = _table(server)
-    page.wait_for_selector(f"#s-position[data-source^='end of test {move['id']}']", timeout=10000)
+    page.wait_for_selector(f"#s-position[data-source^='end of test {move['id']}']", timeout=WAIT_MS)
     record_checks(page)
     assert page.input_value("#f-offset") == ""
     page.click("#offset-from-table")
@@ -214,7 +214,7 @@ def test_manual_motion_limits_refusals_units_and_offset(server, open_page, artif
 
     poll(lambda: any(taken(c) for c in page.evaluate("window.__checks")), 10,
           "the envelope check with the offset and the start where the table rests")
-    page.wait_for_selector("#envelope[data-state='ok']", timeout=10000)
+    page.wait_for_selector("#envelope[data-state='ok']", timeout=WAIT_MS)
     # the test starts where the table rests (start_m): the table is where it must be, so Start is not held
     # back by it
     poll(lambda: "the table at" not in page.inner_text("#start-why"), 10, "Start no longer waiting for the table")
@@ -231,14 +231,14 @@ def test_manual_motion_limits_refusals_units_and_offset(server, open_page, artif
     # the offset taken from the table, then the table zeroed elsewhere: the warning names the test's start and
     # offers the way out (start from zero) instead of Zero, which would not help
     page.click("#offset-from-table")
-    page.wait_for_selector("#envelope[data-state='ok']", timeout=10000)
+    page.wait_for_selector("#envelope[data-state='ok']", timeout=WAIT_MS)
     server.zero_table()
-    page.wait_for_selector("#rig-warning[data-state='off-zero']", timeout=10000)
+    page.wait_for_selector("#rig-warning[data-state='off-zero']", timeout=WAIT_MS)
     warning = page.inner_text("#rig-warning")
     assert f"Table not where this test starts ({offset * 1e3:+.2f} mm)" in warning, warning
     assert page.is_visible("#warning-from-zero") and page.locator("#warning-zero").count() == 0
     page.click("#warning-from-zero")
-    page.wait_for_selector("#rig-warning[data-state='ok']", state="attached", timeout=10000)
+    page.wait_for_selector("#rig-warning[data-state='ok']", state="attached", timeout=WAIT_MS)
     assert page.inner_text("#offset-note") == ""
     assert abs(float(page.input_value("#f-offset")) - offset * 1e3) < 1e-9  # the offset stays, reached from zero
     poll(lambda: "the table at" not in page.inner_text("#start-why"), 10, "Start no longer waiting for the table")

@@ -8,9 +8,19 @@ from __future__ import annotations
 
 import json
 import re
-import time
 
-from .harness import OPERATOR, RigEmulator, Server, fill_identity, sine_test, start_from_form, wait_start_enabled
+from .harness import (
+    OPERATOR,
+    WAIT_MS,
+    RigEmulator,
+    Server,
+    fill_identity,
+    poll,
+    settle,
+    sine_test,
+    start_from_form,
+    wait_start_enabled,
+)
 
 VIEWPORTS = [(1366, 768), (1920, 1080)]
 MS = r"\d+(\.\d{1,2})? ms"  # a latency: at most 2 decimals
@@ -20,19 +30,15 @@ def _shots(page, artifacts, name: str) -> None:
     """Screenshots at both viewports (the page ends at the first one)."""
     for width, height in reversed(VIEWPORTS):
         page.set_viewport_size({"width": width, "height": height})
-        time.sleep(0.2)
+        page.wait_for_function(f"window.innerWidth === {width}", timeout=WAIT_MS)
+        settle(page)
         page.screenshot(path=str(artifacts / f"{name}_{width}x{height}.png"))
 
 
 def _wait_new_test(srv, known: set, timeout_s: float = 15.0) -> int:
     """The id of a record created since ``known`` (a test or a manual move)."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        new = {t["id"] for t in srv.call("GET", "/api/tests")[1]} - known
-        if new:
-            return max(new)
-        time.sleep(0.1)
-    raise AssertionError(f"no new record within {timeout_s} s")
+    return max(poll(lambda: {t["id"] for t in srv.call("GET", "/api/tests")[1]} - known, timeout_s,
+                    "a new record"))
 
 
 def _link(page) -> dict:
@@ -51,7 +57,7 @@ def _fits_top_bar(page) -> None:
 def test_simulated_rig_is_named(server, open_page, artifacts):
     """The default service drives the simulated rig: named in the top bar, speed editable, no warning."""
     page, _ = open_page(server.url + "/", width=1366, height=768)
-    page.wait_for_selector("#rig-link[data-kind='simulated'][data-connected='true']", timeout=10000)
+    page.wait_for_selector("#rig-link[data-kind='simulated'][data-connected='true']", timeout=WAIT_MS)
     assert page.inner_text("#rig-name") == "simulated rig"
     assert page.is_enabled("#f-speed")
     assert page.is_hidden("#rig-warning")
@@ -73,7 +79,7 @@ def test_udp_rig_link_health(open_page, artifacts, tmp_path):
     try:
         srv = Server(tmp_path / "serve", rig=emulator.url).start()
         page, _ = open_page(srv.url + "/", width=1366, height=768, login=OPERATOR)
-        page.wait_for_selector("#rig-link[data-kind='udp'][data-connected='true']", timeout=10000)
+        page.wait_for_selector("#rig-link[data-kind='udp'][data-connected='true']", timeout=WAIT_MS)
         assert page.inner_text("#rig-name") == emulator.url
         assert page.inner_text("#rig-state") == "connected"
         assert re.search(f"round trip {MS}", page.inner_text("#rig-figs")), page.inner_text("#rig-figs")
@@ -94,20 +100,21 @@ def test_udp_rig_link_health(open_page, artifacts, tmp_path):
         _fits_top_bar(page)
         _shots(page, artifacts, "dashboard_udp_idle")
 
-        # a short test at speed 1 from the form: the link figures of the running test update
+        # a test at speed 1 from the form: the link figures of the running test update
         page.select_option("#f-isolator", "IUT_a")
         fill_identity(page)
         page.fill("#f-supply", "100")
         page.fill("#f-amplitude", "10")
         page.fill("#f-frequency", "1")
-        page.fill("#f-cycles", "20")  # 20 s in real time: 8 s ended before the page read its details under load
+        # 120 s in real time, ended by Stop once the page has shown it: 8 s and 20 s ended before a loaded machine's
+        # page read its running details
+        page.fill("#f-cycles", "120")
         page.fill("#f-taper_cycles", "1")
         start_from_form(page)
-        page.wait_for_selector("#rig-link[data-source='test'][data-last-sequence]", timeout=15000)
+        page.wait_for_selector("#rig-link[data-source='test'][data-last-sequence]", timeout=WAIT_MS)
         first = _link(page)
-        time.sleep(1.0)
         page.wait_for_function("Number(document.getElementById('rig-link').dataset.lastSequence) > "
-                               f"{int(first['lastSequence']) + 200}", timeout=5000)
+                               f"{int(first['lastSequence']) + 200}", timeout=WAIT_MS)
         figs = page.inner_text("#rig-figs")
         assert re.search(f"round trip p50 {MS}, p99 {MS}", figs), figs
         for what in ("lost ", "rejected ", "rig missed ", "seq "):
@@ -125,18 +132,28 @@ def test_udp_rig_link_health(open_page, artifacts, tmp_path):
         page.screenshot(path=str(artifacts / "dashboard_udp_details.png"), clip=clip)
         page.keyboard.press("Escape")
         test_id = page.evaluate("window.__isorig.testId")
-        rec = srv.wait_status(test_id, {"completed"}, timeout_s=60)
+        page.click("#stop")  # a ramp-out over the link, then the rig disarmed
+        rec = srv.wait_status(test_id, {"stopped"})
         assert rec["speed"] == 1.0 and rec["driver"] == emulator.url, rec
+        # between tests FORCE is the rig's own reading, COMMAND 0 V (not armed: the valve is closed)
+        page.wait_for_function("document.getElementById('r-f').dataset.source === 'the rig (probe)'", timeout=WAIT_MS)
+        assert "the rig's reading" in page.get_attribute("#r-f", "title")
+        page.wait_for_function("document.getElementById('r-v').textContent === '0.000 V'", timeout=WAIT_MS)
 
         # the rig goes away: not connected (red) within a poll, and Start says why it would fail
         emulator.stop()
-        page.wait_for_selector("#rig-link[data-connected='false']", timeout=10000)
+        page.wait_for_selector("#rig-link[data-connected='false']", timeout=WAIT_MS)
         assert page.inner_text("#rig-state") == "NOT CONNECTED"
         assert page.is_visible("#rig-warning")
         assert "Start is disabled" in page.inner_text("#rig-warning")
-        page.wait_for_selector("#start[disabled]", timeout=5000)  # a start cannot succeed: disabled, saying why
+        page.wait_for_selector("#start[disabled]", timeout=WAIT_MS)  # a start cannot succeed: disabled, saying why
         assert "the rig is not connected" in page.inner_text("#start-why")
-        page.wait_for_selector("#s-rig-cell[data-state='not-connected']", timeout=5000)
+        page.wait_for_selector("#s-rig-cell[data-state='not-connected']", timeout=WAIT_MS)
+        # no force or command to show: a dash, the tooltip says why (not the figures of before)
+        for readout in ("#r-f", "#r-v"):
+            page.wait_for_selector(f"{readout}[data-source='none']", timeout=WAIT_MS)
+            assert page.inner_text(readout) == "-"
+            assert "no reading: the rig does not answer" in page.get_attribute(readout, "title")
         _fits_top_bar(page)
         _shots(page, artifacts, "dashboard_udp_not_connected")
     finally:
@@ -163,8 +180,8 @@ def test_udp_rig_table_off_zero_keeps_start_disabled(open_page, artifacts, tmp_p
 
         page, watch = open_page(srv.url + "/", width=1366, height=768, login=OPERATOR)
         watch.allowed_status.add(409)  # the refused start below
-        page.wait_for_selector("#rig-link[data-connected='true']", timeout=10000)
-        page.wait_for_selector("#s-position[data-source='the rig (probe)']", timeout=10000)
+        page.wait_for_selector("#rig-link[data-connected='true']", timeout=WAIT_MS)
+        page.wait_for_selector("#s-position[data-source='the rig (probe)']", timeout=WAIT_MS)
         assert page.inner_text("#s-position") == f"{position} \u00b7 the rig (probe)"
         fill_identity(page)
         page.select_option("#f-isolator", "IUT_a")
@@ -172,10 +189,10 @@ def test_udp_rig_table_off_zero_keeps_start_disabled(open_page, artifacts, tmp_p
         page.fill("#f-amplitude", "10")
         page.fill("#f-frequency", "1")
         page.fill("#f-cycles", "3")
-        page.wait_for_selector("#envelope[data-state='ok']", timeout=10000)
-        page.wait_for_selector("#rig-warning[data-state='off-zero']", timeout=5000)
+        page.wait_for_selector("#envelope[data-state='ok']", timeout=WAIT_MS)
+        page.wait_for_selector("#rig-warning[data-state='off-zero']", timeout=WAIT_MS)
         page.wait_for_function("!document.getElementById('start-why').textContent.includes('envelope check')",
-                               timeout=10000)  # the set-up checked: only the table keeps Start disabled
+                               timeout=WAIT_MS)  # the set-up checked: only the table keeps Start disabled
         assert page.is_disabled("#start")
         why = page.inner_text("#start-why")
         assert f"Start needs: the table at zero (it rests at {position}, see above: Zero brings it back)" in why, why
@@ -194,15 +211,15 @@ def test_udp_rig_table_off_zero_keeps_start_disabled(open_page, artifacts, tmp_p
             route.fulfill(status=200, content_type="application/json", body=json.dumps(data))
 
         page.route("**/api/rig/state", at_zero)
-        wait_start_enabled(page, timeout_ms=10000)
+        wait_start_enabled(page)
         start_from_form(page)
-        page.wait_for_function("document.getElementById('setup-message').dataset.cause === 'position'", timeout=10000)
+        page.wait_for_function("document.getElementById('setup-message').dataset.cause === 'position'", timeout=WAIT_MS)
         message = page.inner_text("#setup-message")
         assert message.startswith("Not started, refused by the service: the table is at"), message
         assert "nothing moved" in message, message
         assert [t["id"] for t in srv.call("GET", "/api/tests")[1]] == [first]  # nothing created
         page.unroute("**/api/rig/state")
-        page.wait_for_selector("#start[disabled]", timeout=10000)  # the rig's reading again
+        page.wait_for_selector("#start[disabled]", timeout=WAIT_MS)  # the rig's reading again
         assert "the table at zero" in page.inner_text("#start-why")
         assert page.inner_text("#setup-message") == message  # the refusal stays: its cause is still there
         page.screenshot(path=str(artifacts / "dashboard_udp_off_zero_refused_1366x768.png"))
@@ -211,7 +228,7 @@ def test_udp_rig_table_off_zero_keeps_start_disabled(open_page, artifacts, tmp_p
         # Zero: the console moves the table back on the rig (POST /api/rig/zero), after a confirmation
         page.fill("#f-mm_speed", "10")
         page.click("#warning-zero")
-        page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+        page.wait_for_selector("#confirm-dialog[open]", timeout=WAIT_MS)
         confirm = page.inner_text("#confirm-body")
         assert position in confirm and "10 mm/s" in confirm, confirm
         page.click("#confirm-ok")
@@ -219,15 +236,15 @@ def test_udp_rig_table_off_zero_keeps_start_disabled(open_page, artifacts, tmp_p
         rec = srv.wait_status(move, {"completed"}, timeout_s=30)
         assert rec["profile"]["kind"] == "move" and rec["profile"]["end_m"] == 0.0, rec["profile"]
         assert rec["driver"].startswith("udp://") and rec["profile"]["speed_m_per_s"] == 0.01, rec
-        page.wait_for_selector("#mm-status[data-kind='ok']", timeout=10000)
+        page.wait_for_selector("#mm-status[data-kind='ok']", timeout=WAIT_MS)
         assert page.inner_text("#mm-status").startswith(f"Move #{move} completed"), page.inner_text("#mm-status")
         _, state = srv.call("GET", "/api/rig/state")
         assert abs(state["table_position_m"]) < 0.001, state  # the rig's own reading
         page.wait_for_function("(() => { const w = document.getElementById('rig-warning');"
                                " return w.dataset.state === 'ok' && w.classList.contains('hidden'); })()",
-                               timeout=10000)
-        wait_start_enabled(page, timeout_ms=10000)
-        page.wait_for_function("document.getElementById('setup-message').textContent === ''", timeout=10000)
+                               timeout=WAIT_MS)
+        wait_start_enabled(page)
+        page.wait_for_function("document.getElementById('setup-message').textContent === ''", timeout=WAIT_MS)
     finally:
         emulator.stop()
         if srv is not None:

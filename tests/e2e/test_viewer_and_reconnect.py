@@ -6,14 +6,16 @@ Both use the session's `isorig serve` (3D view on); the restart test runs last a
 from __future__ import annotations
 
 import json
-import time
+import re
 import urllib.request
 
-from .harness import OPERATOR, PageWatch, log_in, sine_test, watch_rejections
+import pytest
+
+from .harness import OPERATOR, WAIT_MS, PageWatch, log_in, poll, sine_test, watch_rejections
 
 
 def test_3d_view_is_relayed_and_follows_the_rig(server, open_page, artifacts):
-    with urllib.request.urlopen(f"{server.url}/viewer/status", timeout=5) as r:
+    with urllib.request.urlopen(f"{server.url}/viewer/status", timeout=30) as r:
         assert json.load(r)["enabled"] is True
     page, watch = open_page(server.url + "/", height=1700, viewer=True)  # tall enough to show the 3D panel
     assert page.get_attribute("#viewer-box iframe", "src") == "/viewer/"
@@ -21,8 +23,7 @@ def test_3d_view_is_relayed_and_follows_the_rig(server, open_page, artifacts):
     frame.locator("canvas").first.wait_for(timeout=30000)  # viser's client runs, served by the relay
     test_id = server.start_test(sine_test(cycles=10, speed=1.0))
     # the scene's GUI text follows the live stream (hub -> viser -> relay -> iframe)
-    frame.get_by_text(f"test #{test_id}", exact=False).first.wait_for(timeout=20000)
-    time.sleep(1.0)
+    frame.get_by_text(f"test #{test_id}", exact=False).first.wait_for(timeout=WAIT_MS)  # its panel is drawn
     assert frame.locator("[aria-label*='share' i], [title*='share' i]").count() == 0  # share button hidden
     page.locator("#viewer-box").screenshot(path=str(artifacts / "dashboard_3d.png"))  # scrolled into view
     page.screenshot(path=str(artifacts / "dashboard_with_3d.png"))
@@ -54,40 +55,57 @@ def test_reconnects_after_service_restart(server, browser, artifacts):
         # ... and the rig's state it asks for every 2 s (and records), refused while the service is down
         watch.allowed_patterns.append(r"^Failed to load resource: net::ERR_CONNECTION_REFUSED$")
         page.goto(srv.url + "/?viewer=off")
-        page.wait_for_selector("body[data-ready='1']", timeout=15000)
-        page.wait_for_selector("#conn.conn-up", timeout=10000)
+        page.wait_for_selector("body[data-ready='1']", timeout=WAIT_MS)
+        page.wait_for_selector("#conn.conn-up", timeout=WAIT_MS)
         running = srv.start_test(sine_test(cycles=30, speed=1.0))
         page.wait_for_function(f"window.__isorig.testId === {running} && window.__isorig.samples > 200",
-                               timeout=15000)
+                               timeout=WAIT_MS)
+        # the readouts show the running test's latest sample (no source: live)
+        page.wait_for_function("['r-y', 'r-f', 'r-v'].every((id) => !document.getElementById(id).dataset.source "
+                               "&& document.getElementById(id).textContent !== '-')", timeout=WAIT_MS)
         srv.stop()  # the service goes away in the middle of a test
-        page.wait_for_selector("#conn.conn-down", timeout=10000)
+        page.wait_for_selector("#conn.conn-down", timeout=WAIT_MS)
         # the strip says so, and nothing can be started meanwhile
-        page.wait_for_selector("#s-rig-cell[data-state='no-connection']", timeout=5000)
+        page.wait_for_selector("#s-rig-cell[data-state='no-connection']", timeout=WAIT_MS)
         assert page.is_disabled("#start") and "no connection" in page.inner_text("#start-why")
-        time.sleep(0.5)  # at least one failed attempt
+        # at least one failed attempt (the browser logs each refused websocket connection)
+        refused = re.compile(watch.allowed_patterns[0])
+        poll(lambda: any(refused.search(e) for e in watch.console_errors), 10, "a failed reconnection attempt")
         srv.start()
-        page.wait_for_selector("#conn.conn-up", timeout=15000)
+        page.wait_for_selector("#conn.conn-up", timeout=WAIT_MS)
         assert page.evaluate("window.__isorig.connects") >= 2
         _, rec = srv.call("GET", f"/api/tests/{running}")
         assert rec["status"] in ("interrupted", "aborted"), rec
         # the page keeps that test on screen and says how it ended
-        page.wait_for_selector(f"#rig-status[data-status='{rec['status']}']", timeout=10000)
+        page.wait_for_selector(f"#rig-status[data-status='{rec['status']}']", timeout=WAIT_MS)
         assert rec["status"].upper() in page.inner_text("#alert-text")
         page.screenshot(path=str(artifacts / "dashboard_interrupted.png"))
         # the interrupted test left the table where it was, and the restarted service knows where: Zero
         _, state = srv.call("GET", "/api/rig/state")
         assert state["position_source"] == f"end of test {running} ({rec['status']})", state
         source = f"end of test {running} ({rec['status']})"  # the service's figure, not the page's last sample
-        page.wait_for_function(f"document.getElementById('s-position').dataset.source === {source!r}", timeout=10000)
+        page.wait_for_function(f"document.getElementById('s-position').dataset.source === {source!r}", timeout=WAIT_MS)
         # told to stop, the service brought the table back before it exited (issue 21), and the DISPLACEMENT
         # readout says where the table is now, as the strip does, not the last sample before the restart
         assert abs(state["table_position_m"]) < 0.001, state
-        page.wait_for_function(f"document.getElementById('r-y').dataset.source === {source!r}", timeout=10000)
+        page.wait_for_function(f"document.getElementById('r-y').dataset.source === {source!r}", timeout=WAIT_MS)
         assert page.inner_text("#r-y") == page.inner_text("#s-position").split()[0] + " mm", (
             page.inner_text("#r-y"), page.inner_text("#s-position"))
+        # so do FORCE (the service's figure of where that test left the rig) and COMMAND (no test runs: the
+        # valve is closed, 0 V), not the last sample before the restart
+        assert state["force_source"] == source and state["command_v"] == 0.0, state
+        page.wait_for_function(f"document.getElementById('r-f').dataset.source === {source!r}", timeout=WAIT_MS)
+        force_text = page.inner_text("#r-f")
+        assert force_text.endswith(" kN") and float(force_text.split()[0]) == pytest.approx(
+            state["force_n"] / 1e3, abs=0.006), (force_text, state)  # kN with 2 decimals
+        assert "where test" in page.get_attribute("#r-f", "title"), page.get_attribute("#r-f", "title")
+        closed = state["command_source"]
+        page.wait_for_function(f"document.getElementById('r-v').dataset.source === {closed!r}", timeout=WAIT_MS)
+        assert page.inner_text("#r-v") in ("0.000 V", "+0.000 V"), page.inner_text("#r-v")
+        assert "valve is closed" in page.get_attribute("#r-v", "title")
         page.fill("#f-mm_speed", "50")
         page.click("#mm-zero")
-        page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+        page.wait_for_selector("#confirm-dialog[open]", timeout=WAIT_MS)
         assert f"{abs(state['table_position_m']) * 1e3:.2f} mm" in page.inner_text("#confirm-body")
         page.click("#confirm-ok")
         page.wait_for_selector("#mm-status[data-kind='ok']:has-text('completed')", timeout=30000)
@@ -98,7 +116,7 @@ def test_reconnects_after_service_restart(server, browser, artifacts):
         status, started = srv.call("POST", f"/api/tests/{rec['id']}/start", token=True)
         assert status == 200, started
         page.wait_for_function(f"window.__isorig.testId === {rec['id']} && window.__isorig.samples > 200",
-                               timeout=15000)
+                               timeout=WAIT_MS)
         srv.wait_status(rec["id"], {"completed"}, timeout_s=30)
         page.screenshot(path=str(artifacts / "dashboard_after_restart.png"))
         assert not watch.foreign(), watch.foreign()

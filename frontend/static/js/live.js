@@ -8,7 +8,9 @@
 import { EarthquakeLive } from "./eqlive.js";
 import { LoopPlot, lowerBound, PlotStack, TimePlot } from "./plots.js";
 import { actionName, actionOf, LIMITS } from "./limits.js";
-import { changed, isCommissioning, isMove, onState, sourceWords, state, tablePosition, testRunning } from "./state.js";
+import {
+  changed, isCommissioning, isMove, onState, rigReadings, sourceWords, state, tablePosition, testRunning,
+} from "./state.js";
 import { eventLine, eventWords, fmtDuration, profileText, setStatusBadge, showAlert } from "./ui.js";
 import { factorIn, fmt, fmtU, onUnits, system, toDisplay, unit } from "./units.js";
 
@@ -119,20 +121,31 @@ export class LiveView {
     this.events = []; // [{key, e}] in order
     this.eq = new EarthquakeLive(); // a time-history or hybrid test: the whole record, drifts, stability
     onUnits(() => this.onUnitsChanged());
-    // between tests the displacement readout is where the table is now, as the rig (or the service) says, never
-    // the last sample of a test that ended before the service restarted
-    onState((what) => { if (what === "rigState" || what === "status" || what === "conn") this.showTableNow(); });
+    // between tests the readouts are the rig now (where the table is, its force, the valve command), as the rig
+    // (or the service) says, never the last sample of a test that ended before the service restarted
+    onState((what) => { if (what === "rigState" || what === "status" || what === "conn") this.showRigNow(); });
   }
 
-  /** No test running: the DISPLACEMENT readout shows the table's position now (the strip's), with its source. */
-  showTableNow() {
+  /**
+   * No test running: the DISPLACEMENT readout shows the table's position now (the strip's), FORCE and COMMAND
+   * the service's figures of the rig now (GET /api/rig/state), each with its source; a dash says why not.
+   */
+  showRigNow() {
     if (testRunning()) return;
     const where = tablePosition();
     const el = $("r-y");
-    if (!where || where.source === "live") return;
-    el.textContent = fmtU("length", where.m, { sign: true });
-    el.title = `the table now: ${sourceWords(where.source)}`;
-    el.dataset.source = where.source;
+    if (!where) {
+      el.textContent = "-";
+      el.title = "the table now: no reading: no run on record and no reading of the rig";
+      el.dataset.source = "none";
+    } else if (where.source !== "live") {
+      el.textContent = fmtU("length", where.m, { sign: true });
+      el.title = `the table now: ${sourceWords(where.source)}`;
+      el.dataset.source = where.source;
+    }
+    const now = rigReadings();
+    showReading($("r-f"), "force", "the force now", now.force);
+    showReading($("r-v"), "voltage", "the valve command now", now.command);
   }
 
   // ---------------------------------------------------------------- plots
@@ -228,6 +241,7 @@ export class LiveView {
     this.renderMargins(true);
     this.renderEvents();
     this.readoutAt = 0;
+    this.showRigNow();
   }
 
   startRenderLoop() {
@@ -328,21 +342,23 @@ export class LiveView {
       $(id).textContent = num(shown) ? fmtU(quantity, si(quantity, shown), { sign: true }) : "-";
     };
     put("r-y", L, a.y[k]);
-    delete $("r-y").dataset.source;
-    $("r-y").title = "";
+    put("r-f", "force", a.f[k]);
+    put("r-v", "voltage", a.v[k]);
+    for (const id of ["r-y", "r-f", "r-v"]) { // the running test's latest sample (showRigNow below, between tests)
+      delete $(id).dataset.source;
+      $(id).title = "";
+    }
     put("r-y-max", L, c.yMax);
     put("r-y-min", L, c.yMin);
-    put("r-f", "force", a.f[k]);
     put("r-f-max", "force", c.fMax);
     put("r-f-min", "force", c.fMin);
-    put("r-v", "voltage", a.v[k]);
     put("r-v-max", "voltage", c.vMax);
     put("r-v-min", "voltage", c.vMin);
     const live = this.status === "running";
     state.position = { m: si(L, a.y[k]), testId: this.testId, t: a.t[k], live };
     changed("position");
     this.renderMargins(false);
-    this.showTableNow();
+    this.showRigNow();
   }
 
   /**
@@ -947,6 +963,19 @@ export class LiveView {
     this.retryAt = 0;
     this.tick();
   }
+}
+
+/** A readout of the rig now (between tests): the figure with its source in the tooltip, or a dash saying why not. */
+function showReading(el, quantity, what, reading) {
+  if (reading.value === null) {
+    el.textContent = "-";
+    el.title = `${what}: ${reading.why}`;
+    el.dataset.source = "none";
+    return;
+  }
+  el.textContent = fmtU(quantity, reading.value, { sign: true });
+  el.title = `${what}: ${sourceWords(reading.source)}`;
+  el.dataset.source = reading.source;
 }
 
 function setConn(up) {

@@ -8,7 +8,7 @@ import { LabPage } from "./labpage.js";
 import { LiveView } from "./live.js";
 import { RigLink } from "./rig.js";
 import { runningTestId, SetupPanel } from "./setup.js";
-import { changed, onState, state } from "./state.js";
+import { changed, onState, state, testRunning } from "./state.js";
 import { StatusStrip } from "./strip.js";
 import { el, hideAlert, showAlert } from "./ui.js";
 import { onUnits, setSystem, system } from "./units.js";
@@ -217,8 +217,13 @@ async function pollRigState() {
     }
   };
   const timer = setInterval(poll, 2000);
-  onState((what) => { // back in touch with the service (a reconnect, a restart): ask at once
+  let running = false;
+  onState((what) => { // back in touch with the service (a reconnect, a restart), or a run ended: ask at once
     if (what === "conn" && state.conn) poll();
+    if (what !== "status") return;
+    const was = running;
+    running = testRunning();
+    if (was && !running) poll(); // the readouts show the rig now at once, not 2 s later
   });
   await poll();
 }

@@ -80,6 +80,26 @@ export function tablePosition() {
   return null;
 }
 
+/**
+ * The force and the valve command now, while no test runs: GET /api/rig/state's figures, each {value, source},
+ * or {value: null, why} when the service has none (no test yet, a UDP rig that does not answer) or its answer
+ * is of before the end of the last run the live stream saw (a new answer is asked at once).
+ */
+export function rigReadings() {
+  const num = (v) => typeof v === "number" && Number.isFinite(v);
+  const rs = state.rigState;
+  const ended = /^end of test (\d+)/.exec((rs && rs.force_source) || "");
+  const p = state.position;
+  const outdated = !rs || rs.status === "running" || rs.status === "stopping" ||
+    (ended && p && p.testId > Number(ended[1]));
+  const reading = (value, source) => {
+    if (outdated) return { value: null, why: "no reading yet: waiting for the service's answer on the rig now" };
+    return num(value) ? { value, source: source || "" } : { value: null, why: source || "no reading" };
+  };
+  return { force: reading(rs && rs.force_n, rs && rs.force_source),
+    command: reading(rs && rs.command_v, rs && rs.command_source) };
+}
+
 /** Where a position figure comes from, in words: "live", "where test 4 left it", "the rig's reading". */
 export function sourceWords(source) {
   if (source === "the rig (probe)") return "the rig's reading";
