@@ -1,9 +1,9 @@
 """``create_app(settings)``: the FastAPI application with its store, rig service, stream hub and routes.
 
-At creation the database is migrated (Alembic) and any test left ``running`` by a dead service is marked
-``interrupted``. The operator token is loaded or generated. Routes: ``/api/...`` (REST, OpenAPI at
-``/docs``), ``/ws/...`` (websocket schema v1), the 3D viewer if ``backend.viewer`` is installed, and the
-dashboard's static files at ``/``.
+At creation the database is migrated (Alembic) and any test of this service's rig left ``running`` by a dead
+service is marked ``interrupted`` (another rig's service may share the database: its tests are left alone).
+The operator token is loaded or generated. Routes: ``/api/...`` (REST, OpenAPI at ``/docs``), ``/ws/...``
+(websocket schema v1), the 3D viewer if ``backend.viewer`` is installed, and the dashboard's static files at ``/``.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ def create_app(settings: Settings | None = None, driver: str | None = None) -> F
     db.upgrade(engine)
     sessions = db.session_factory(engine)
     with sessions() as session:
-        interrupted = store.mark_running_interrupted(session)
+        interrupted = store.mark_running_interrupted(session, settings.rig_name)  # this rig's only
         session.commit()
     if interrupted:
         log.warning("tests %s were running when the service stopped: marked interrupted", interrupted)

@@ -141,8 +141,8 @@ def _store_test(url: str) -> int:
     engine = make_engine(url)
     upgrade(engine)
     with session_factory(engine)() as session:
-        test = store.create_test(session, label="stored", isolator="IUT_a", supply_bar=100.0, controller="pid",
-                                 speed=1.0, driver="simulated",
+        test = store.create_test(session, rig_name="rig-1", label="stored", isolator="IUT_a", supply_bar=100.0,
+                                 controller="pid", speed=1.0, driver="simulated",
                                  request={"profile": {"kind": "protocol", "name": "quick_check"}},
                                  scenario=bundle.record["scenario"], limits={}, duration_s=10.0, cycles_total=10)
         for i in range(0, len(bundle.samples), 1000):
