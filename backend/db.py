@@ -6,7 +6,8 @@ owner-only (0700). A directory that already exists is left as it is (it may be s
 data directory); an existing database file readable by group or others is logged as a warning and made 0600.
 
 SQLite gets WAL mode (readers never block the writer), ``synchronous=NORMAL`` (a committed transaction
-survives a killed process) and foreign keys. Any other SQLAlchemy URL (PostgreSQL) is used as given.
+survives a killed process) and foreign keys. Any other SQLAlchemy URL (PostgreSQL) is used as given; there,
+several services (one per rig) may share the database and start together: migrations run under an advisory lock.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ if TYPE_CHECKING:
     from alembic.config import Config
 
 MIGRATIONS_DIR = Path(__file__).resolve().parent / "migrations"
+MIGRATION_LOCK = 0x69736F726967  # PostgreSQL advisory lock key held while migrating ("isorig" in ASCII)
 
 log = logging.getLogger("isorig")
 
@@ -98,6 +100,9 @@ def upgrade(engine: Engine, revision: str = "head") -> None:
             connection.commit()  # transaction, where SQLite ignores the pragma), checked after, back on
         try:
             with connection.begin():
+                if connection.dialect.name == "postgresql":  # several rigs' services may start at once on one
+                    connection.exec_driver_sql(f"SELECT pg_advisory_xact_lock({MIGRATION_LOCK})")  # database:
+                    # one migrates, the others wait here and then find the schema at head
                 cfg.attributes["connection"] = connection
                 command.upgrade(cfg, revision)
                 if sqlite:

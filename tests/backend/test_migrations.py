@@ -147,3 +147,35 @@ def test_0007_downgrades_and_upgrades_again_keeping_the_records(url):
         records_survive(conn, rows, "0007 (again)")
         assert conn.execute(text("SELECT rig_name FROM tests WHERE id = 3")).scalar() == DEFAULT_RIG_NAME
     engine.dispose()
+
+
+def test_services_starting_together_on_postgresql_migrate_once(postgres):
+    """Several rigs' services start at once on a new database: one migrates, the others wait for it (an advisory
+    lock) and find the schema at head, instead of failing on tables the first has just created."""
+    import threading
+
+    url = postgres.database()
+    errors: list[BaseException] = []
+    go = threading.Barrier(4)
+
+    def start_service() -> None:
+        engine = make_engine(url)
+        try:
+            go.wait()
+            upgrade(engine)
+        except BaseException as exc:  # noqa: BLE001 (collected and asserted below)
+            errors.append(exc)
+        finally:
+            engine.dispose()
+
+    threads = [threading.Thread(target=start_service) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(120)
+    assert errors == []
+    engine = make_engine(url)
+    with engine.connect() as conn:
+        assert conn.execute(text("SELECT version_num FROM alembic_version")).scalars().all() == ["0007"]
+        assert compare_metadata(MigrationContext.configure(conn), Base.metadata) == []
+    engine.dispose()
