@@ -88,7 +88,7 @@ def records_survive(conn, rows: np.ndarray, revision: str) -> None:
 
 def test_every_migration_keeps_the_records_and_ends_at_the_models(url):
     all_revisions = revisions(url)
-    assert all_revisions[0] == "0001" and all_revisions[-1] == "0007"
+    assert all_revisions[0] == "0001" and "0007" in all_revisions  # later revisions are stepped through too
     engine = make_engine(url)
     rows = samples_rows(1500)
     upgrade(engine, "0001")
@@ -136,7 +136,7 @@ def test_0007_downgrades_and_upgrades_again_keeping_the_records(url):
             conn.commit()
         with conn.begin():
             cfg.attributes["connection"] = conn
-            command.downgrade(cfg, "0006")
+            command.downgrade(cfg, "0006")  # and any revision after 0007 first
         records_survive(conn, rows, "0006 (down)")
         columns = {r[1] for r in conn.exec_driver_sql("PRAGMA table_info(tests)")} if sqlite else set(
             conn.execute(text("SELECT column_name FROM information_schema.columns WHERE table_name = 'tests'"))
@@ -176,6 +176,6 @@ def test_services_starting_together_on_postgresql_migrate_once(postgres):
     assert errors == []
     engine = make_engine(url)
     with engine.connect() as conn:
-        assert conn.execute(text("SELECT version_num FROM alembic_version")).scalars().all() == ["0007"]
+        assert conn.execute(text("SELECT version_num FROM alembic_version")).scalars().all() == [revisions(url)[-1]]
         assert compare_metadata(MigrationContext.configure(conn), Base.metadata) == []
     engine.dispose()
