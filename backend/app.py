@@ -2,8 +2,10 @@
 
 At creation the database is migrated (Alembic) and any test of this service's rig left ``running`` by a dead
 service is marked ``interrupted`` (another rig's service may share the database: its tests are left alone).
-The operator token is loaded or generated. Routes: ``/api/...`` (REST, OpenAPI at ``/docs``), ``/ws/...``
-(websocket schema v1), the 3D viewer if ``backend.viewer`` is installed, and the dashboard's static files at ``/``.
+Accounts (backend.accounts): the first start creates ``admin`` and prints its password on the server's terminal;
+``ISORIG_OPERATOR_TOKEN``, where set, is the token of the service account ``automation``. Routes: ``/api/...``
+(REST, OpenAPI at ``/docs``), ``/ws/...`` (websocket schema v1), the 3D viewer if ``backend.viewer`` is
+installed, and the dashboard's static files at ``/``.
 """
 
 from __future__ import annotations
@@ -17,9 +19,9 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
 
-from . import db, errors, store
-from .api import commissioning, ground_motions, isolators, meta, motion, protocols, tests, ws
-from .auth import load_or_create_token
+from . import accounts, db, errors, store
+from .api import commissioning, ground_motions, isolators, lab, login, meta, motion, protocols, tests, ws
+from .auth import LoginThrottle
 from .checks import CheckPool, HeavyBodyGate
 from .commissioning import Fitter
 from .doors import ServiceDoors
@@ -41,7 +43,12 @@ def create_app(settings: Settings | None = None, driver: str | None = None) -> F
         session.commit()
     if interrupted:
         log.warning("tests %s were running when the service stopped: marked interrupted", interrupted)
-    token, token_source = load_or_create_token(settings)
+    service_token = settings.operator_token.get_secret_value() if settings.operator_token else ""
+    with sessions() as session:
+        if service_token:
+            accounts.ensure_service_account(session)
+        first = accounts.first_admin(session)
+        session.commit()
     hub = Hub(settings.stream_history_s)
     service = RigService(settings, sessions, hub, driver)
     checks = CheckPool(service.context, settings.check_workers, settings.check_queue,  # heavy token-free work
@@ -54,7 +61,10 @@ def create_app(settings: Settings | None = None, driver: str | None = None) -> F
         hub.bind(asyncio.get_running_loop())
         threading.Thread(target=service.prepare, daemon=True, name="isorig-forkserver-start").start()
         threading.Thread(target=fitter.resume, daemon=True, name="isorig-fit-resume").start()
-        print(f"isorig: operator token in {token_source}", file=sys.stderr, flush=True)
+        if first is not None:  # told once, on the server's terminal only (never to a browser)
+            print(f"isorig: first start: created the account '{first[0]}' (role admin) with the password "
+                  f"{first[1]}\n        log in at http://{settings.host}:{settings.port}/ and add the lab's accounts "
+                  "with `isorig user add NAME --role operator` (`isorig user --help`)", file=sys.stderr, flush=True)
         try:
             yield
         finally:
@@ -64,7 +74,8 @@ def create_app(settings: Settings | None = None, driver: str | None = None) -> F
 
     app = FastAPI(title="isorig", version="0.1.0", lifespan=lifespan,
                   description="Control and test service for a hydraulic seismic-isolator test rig. Actions that "
-                              "move the rig or change records need the operator token (Authorization: Bearer).")
+                              "move the rig or change records need an account with the right role: a login session "
+                              "(POST /api/session) or an API token (Authorization: Bearer).")
     app.state.settings = settings
     # --rig-file, else the rig file applied from a commissioning (kept across a restart), else the defaults
     app.state.rig_description, app.state.rig_origin = rig_in_force(settings)
@@ -72,8 +83,8 @@ def create_app(settings: Settings | None = None, driver: str | None = None) -> F
     app.state.fitter = fitter
     app.state.engine = engine
     app.state.sessions = sessions
-    app.state.token = token
-    app.state.token_source = token_source
+    app.state.service_token = service_token
+    app.state.login_throttle = LoginThrottle()
     app.state.hub = hub
     app.state.service = service
     app.state.checks = checks
@@ -84,6 +95,8 @@ def create_app(settings: Settings | None = None, driver: str | None = None) -> F
     app.add_middleware(ServiceDoors, max_body_bytes=settings.max_body_bytes,
                        allowed_hosts=settings.host_allow_list())
     app.include_router(meta.router)
+    app.include_router(login.router)
+    app.include_router(lab.router)
     app.include_router(isolators.router)
     app.include_router(tests.router)
     app.include_router(protocols.router)

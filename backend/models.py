@@ -63,6 +63,13 @@ class TestRecord(Base):
     archived_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
     archived_by: Mapped[str | None] = mapped_column(String(64))
     archive_reason: Mapped[str | None] = mapped_column(Text)
+    # review (backend.review): unreviewed | approved | rejected; an approved record is locked, its SHA-256 kept
+    review_state: Mapped[str] = mapped_column(String(16), default="unreviewed", index=True)
+    reviewed_by: Mapped[str | None] = mapped_column(String(64))
+    reviewed_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    review_note: Mapped[str | None] = mapped_column(Text)  # the reason of a rejection, a note on an approval
+    record_sha256: Mapped[str | None] = mapped_column(String(64))  # of the approved record (backend.review)
+    review_events_upto: Mapped[int | None] = mapped_column(Integer)  # the last event the hash covers
 
     chunks: Mapped[list[SampleChunk]] = relationship(back_populates="test", cascade="all, delete-orphan",
                                                      passive_deletes=True)
@@ -123,3 +130,48 @@ class UserIsolator(Base):
     name: Mapped[str] = mapped_column(String(64), primary_key=True)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
     definition: Mapped[dict] = mapped_column(JSON)
+
+
+class UserAccount(Base):
+    """A person (or a named service account) who may act: their role and their password's argon2 hash."""
+
+    __tablename__ = "users"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    name: Mapped[str] = mapped_column(String(64), unique=True)
+    role: Mapped[str] = mapped_column(String(16))  # backend.accounts.ROLES
+    password_hash: Mapped[str | None] = mapped_column(String(200))  # None: no password login (token only)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+    disabled_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+
+
+class Credential(Base):
+    """A login session (a browser's cookie) or an API token (scripts), stored as the SHA-256 of the secret."""
+
+    __tablename__ = "credentials"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    secret_sha256: Mapped[str] = mapped_column(String(64), unique=True)
+    kind: Mapped[str] = mapped_column(String(16))  # session | token
+    user_id: Mapped[int] = mapped_column(ForeignKey("users.id", ondelete="CASCADE"), index=True)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+    expires_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))  # None: until revoked
+    revoked_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+
+    user: Mapped[UserAccount] = relationship()
+
+
+class LabSettings(Base):
+    """The lab's settings, set in the console by an admin (one row, id 1): its name, address and logo in every
+    report, and the units a console shows until a person chooses others (backend.lab)."""
+
+    __tablename__ = "lab_settings"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    name: Mapped[str] = mapped_column(String(200), default="")
+    address: Mapped[str] = mapped_column(Text, default="")
+    units: Mapped[str] = mapped_column(String(8), default="lab")  # lab (mm, kN) | si
+    logo: Mapped[bytes | None] = mapped_column(LargeBinary)  # PNG or JPEG as uploaded
+    logo_type: Mapped[str | None] = mapped_column(String(32))  # image/png | image/jpeg
+    updated_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    updated_by: Mapped[str | None] = mapped_column(String(64))

@@ -167,10 +167,23 @@ class TestCreate(StrictModel):
         "profile": {"kind": "sine", "amplitude_m": 0.03, "frequency_hz": 1.0, "cycles": 10, "taper_cycles": 1}}]})
 
 
+class ApproveIn(StrictModel):
+    """``POST /api/tests/{id}/approve``: an approver's note (optional)."""
+
+    note: str = Field("", max_length=400, description="a note printed with the approval")
+
+
+class RejectIn(StrictModel):
+    """``POST /api/tests/{id}/reject``: why the record needs another look."""
+
+    reason: str = Field(min_length=3, max_length=400, description="why (at least 3 characters)")
+
+
 class ArchiveIn(StrictModel):
     """Who archives (or restores) a test and why: a test that ran is never erased through the API."""
 
-    by: str = Field(min_length=1, max_length=64, description="the person's name")
+    by: str = Field("", max_length=64, description="who: the logged-in account (leave it out; another name is "
+                    "refused, except through the service account 'automation', which keeps it beside its own)")
     reason: str = Field(min_length=3, max_length=400, description="why")
 
 
@@ -260,6 +273,8 @@ class TestOut(BaseModel):
     scenario: dict
     summary: dict | None
     archived: dict | None = None
+    review: dict | None = Field(None, description="state (unreviewed, approved, rejected), by, at, note, and for an "
+                                "approved record the SHA-256 it was approved with (backend.review)")
     events: list[dict] | None = None
 
 
@@ -278,7 +293,8 @@ class IsolatorOut(BaseModel):
 
 
 ERROR_RESPONSES = {
-    401: {"model": ErrorOut, "description": "missing or wrong operator token"},
+    401: {"model": ErrorOut, "description": "not logged in, or the credential is not valid"},
+    403: {"model": ErrorOut, "description": "the account's role does not allow this (or a cross-site request)"},
     404: {"model": ErrorOut, "description": "no such record"},
     409: {"model": ErrorOut, "description": "not allowed in the current state"},
     422: {"model": ErrorOut, "description": "invalid input: names the field, the value and the limit"},

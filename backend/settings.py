@@ -29,10 +29,11 @@ class Settings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix="ISORIG_", extra="ignore")
 
     data_dir: Path = Field(default_factory=lambda: Path(platformdirs.user_data_dir("isorig")),
-                           description="where the SQLite database and the operator token file live")
+                           description="where the SQLite database lives")
     database_url: str | None = Field(default=None, description="any SQLAlchemy URL; default SQLite in data_dir")
-    operator_token: SecretStr | None = Field(default=None, description="bearer token for actions that move the "
-                                             "rig or change records; generated and saved in data_dir if unset")
+    operator_token: SecretStr | None = Field(default=None, description="the API token of the service account "
+                                             "'automation' (role operator), for a lab's automation; unset: no "
+                                             "such account acts (people log in, scripts use `isorig user token`)")
     host: str = "127.0.0.1"
     port: int = 8000
     allowed_hosts: str = Field(default="", max_length=2000, description="more names the service answers to in the "
@@ -181,9 +182,6 @@ class Settings(BaseSettings):
             return self.database_url
         return f"sqlite:///{self.data_dir / 'isorig.db'}"
 
-    @property
-    def token_file(self) -> Path:
-        return self.data_dir / "operator-token"
 
 
 def plant_changes_of(text: str) -> dict:

@@ -112,23 +112,33 @@ def test_record(session: Session, test: TestRecord, with_events: bool = True) ->
         "summary": test.summary,
         "archived": None if test.archived_at is None else {"at": _iso(test.archived_at), "by": test.archived_by,
                                                             "reason": test.archive_reason},
+        "review": review_fields(test),
     }
     if with_events:
         record["events"] = load_events(session, test.id)
     return clean_json(record)
 
 
+def review_fields(test: TestRecord) -> dict:
+    """The record's review (backend.review): state, who, when, the note or reason, the approved SHA-256."""
+    return {"state": test.review_state or "unreviewed", "by": test.reviewed_by, "at": _iso(test.reviewed_at),
+            "note": test.review_note, "record_sha256": test.record_sha256}
+
+
 def list_tests(session: Session, status: str | None = None, isolator: str | None = None,
                since: datetime | None = None, until: datetime | None = None,
                limit: int = 100, offset: int = 0, archived: bool = False,
-               rig_name: str | None = None) -> list[TestRecord]:
-    """Tests of every rig (or of ``rig_name``) newest first; archived ones only if ``archived`` (then only they)."""
+               review: str | None = None, rig_name: str | None = None) -> list[TestRecord]:
+    """Tests of every rig (or of ``rig_name``) newest first; archived ones only if ``archived`` (then only they);
+    ``review`` a review state."""
     query = select(TestRecord).where(TestRecord.archived_at.is_not(None) if archived
                                      else TestRecord.archived_at.is_(None))
     if status:
         query = query.where(TestRecord.status == status)
     if isolator:
         query = query.where(TestRecord.isolator == isolator)
+    if review:
+        query = query.where(TestRecord.review_state == review)
     if rig_name:
         query = query.where(TestRecord.rig_name == rig_name)
     if since:

@@ -12,7 +12,7 @@ import sys
 import time
 
 COMMAND_MODULES = ("simulate", "bench", "analyze", "report", "serve", "bench_stream", "identify", "compare",
-                   "rig_emulator", "check_rig", "bench_rig", "hybrid", "move", "rig_key")
+                   "rig_emulator", "check_rig", "bench_rig", "hybrid", "move", "rig_key", "user")
 
 
 class UsageError(Exception):

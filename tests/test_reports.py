@@ -185,6 +185,27 @@ def test_report_of_a_stored_test_via_the_cli(tmp_path, capsys):
     assert "test 999 does not exist" in capsys.readouterr().err
 
 
+def test_the_cli_report_of_a_stored_test_names_the_lab_the_service_was_given(tmp_path):
+    """The Lab page's settings (backend.lab, in the database) head `isorig report` as the service's reports."""
+    pytest.importorskip("backend.store")
+    from backend import db, lab
+    from isorig.cli import main
+
+    url = f"sqlite:///{tmp_path / 'store.db'}"
+    test_id = _store_test(url)
+    engine = db.make_engine(url)
+    with db.session_factory(engine)() as session:
+        lab.update(session, "adam", "Database Lab", "Road 5", None)
+        session.commit()
+    engine.dispose()
+    assert main(["report", str(test_id), "--out", str(tmp_path / "r.pdf"), "--database-url", url, "--json",
+                 str(tmp_path / "r.json"), "--no-identify"]) == 0
+    assert json.loads((tmp_path / "r.json").read_text())["lab"]["name"] == "Database Lab"
+    assert main(["report", str(test_id), "--out", str(tmp_path / "r.pdf"), "--database-url", url, "--json",
+                 str(tmp_path / "r.json"), "--no-identify", "--lab", "Flag Lab"]) == 0
+    assert json.loads((tmp_path / "r.json").read_text())["lab"]["name"] == "Flag Lab"  # a flag still wins
+
+
 @pytest.mark.parametrize("argv, message", [
     (["report", "--out", "x.pdf"], "exactly one of TEST_ID"),
     (["report", "3", "--csv", "a.csv", "--out", "x.pdf"], "exactly one of TEST_ID"),

@@ -13,7 +13,7 @@ from sim.errors import FieldError
 from .. import commissioning, rig_in_force, store
 from ..errors import ApiError, _jsonable
 from ..schemas import ERROR_RESPONSES, ApplyRigIn, CommissioningIn, TestOut
-from .deps import OperatorDep, SessionDep, TestId, not_found
+from .deps import OperatorDep, SessionDep, TestId, acting_name, not_found
 
 router = APIRouter(tags=["commissioning"])
 
@@ -26,16 +26,17 @@ def _commissioning_or_404(session, test_id: int):
 
 
 @router.post("/api/commissioning", status_code=201, summary="Commission the rig: a bounded excitation about "
-             "where the table rests, then a fit of the rig's parameters (operator token)", responses=ERROR_RESPONSES)
+             "where the table rests, then a fit of the rig's parameters (role operator)", responses=ERROR_RESPONSES)
 def start(body: CommissioningIn, request: Request, session: SessionDep, actor: OperatorDep) -> TestOut:
     """Starts at once; recorded as a run of its own (profile kind ``commissioning``), streamed, stoppable and
     abortable like a test. 409 while a test runs or when a UDP rig does not answer; 422 names a bound outside
     what commissioning takes. Once the run ends, ``GET /api/commissioning/{id}`` says ``fitting``, then the
     result."""
+    body = body.model_copy(update={"operator_name": acting_name(actor, body.operator_name, "operator_name")})
     return commissioning.start(session, body, request, actor)
 
 
-@router.post("/api/commissioning/check", summary="What a commissioning would do, without starting it (no token)",
+@router.post("/api/commissioning/check", summary="What a commissioning would do, without starting it (no login)",
              responses=ERROR_RESPONSES)
 def check(body: CommissioningIn, request: Request, session: SessionDep) -> dict:
     """Always 200: ``ok``, and either what would move (``start_m``, ``duration_s``, ``limits``,
@@ -72,7 +73,7 @@ def rig_json(test_id: TestId, session: SessionDep) -> JSONResponse:
 
 
 @router.post("/api/commissioning/{test_id}/apply", summary="Make the commissioned rig file the service's rig "
-             "(operator token; only a trusted one, only when no test runs)", responses=ERROR_RESPONSES)
+             "(role operator; only a trusted one, only when no test runs)", responses=ERROR_RESPONSES)
 def apply(test_id: TestId, request: Request, session: SessionDep, actor: OperatorDep,
           body: Annotated[ApplyRigIn | None, Body()] = None) -> dict:
     """Writes the rig file into the data directory and switches the rig the next tests and ``GET /api/rig``
@@ -89,7 +90,7 @@ def apply(test_id: TestId, request: Request, session: SessionDep, actor: Operato
     if running is not None:
         raise ApiError(409, f"test {running} is running; the service's rig changes only when no test runs")
     data = commissioning.rig_file_of(test)
-    by = ((body.operator_name if body else "") or "").strip() or actor
+    by = acting_name(actor, body.operator_name if body else "", "operator_name")
     described, origin = rig_in_force.apply(request.app.state.settings, data, test_id, by)
     request.app.state.rig_description = described
     request.app.state.rig = described.parameters

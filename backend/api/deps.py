@@ -1,4 +1,5 @@
-"""Shared route dependencies: a database session per request, the operator check, the app's services."""
+"""Shared route dependencies: a database session per request, who acts and the role a route needs, the app's
+services."""
 
 from __future__ import annotations
 
@@ -9,10 +10,14 @@ from fastapi import Depends, Path, Request
 from fastapi.security import HTTPAuthorizationCredentials
 from sqlalchemy.orm import Session
 
-from ..auth import bearer, require_operator
+from .. import accounts
+from ..accounts import Actor
+from ..auth import actor_of, bearer, require
 from ..errors import ApiError
 
 MAX_ID = 2**53  # ids beyond any database's integer range are simply not found
+
+Credentials = Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)]
 
 
 def get_session(request: Request) -> Iterator[Session]:
@@ -20,27 +25,48 @@ def get_session(request: Request) -> Iterator[Session]:
         yield session
 
 
-def operator(request: Request,
-             credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)]) -> str:
-    return require_operator(request, credentials)
+def operator(request: Request, credentials: Credentials) -> str:
+    """The name of the acting account, which must hold the role operator or above."""
+    return require(request, credentials, "operator").name
 
 
-def anyone(request: Request,
-           credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)]) -> str:
-    """Who asks to end a test (stop, abort): the operator with the token, else anyone at a console, named by
-    address. Ending a test only takes energy out of the rig, like an emergency stop button: it is never refused
-    for a missing or stale token."""
+def approver(request: Request, credentials: Credentials) -> Actor:
+    return require(request, credentials, "approver")
+
+
+def admin(request: Request, credentials: Credentials) -> Actor:
+    return require(request, credentials, "admin")
+
+
+def anyone(request: Request, credentials: Credentials) -> str:
+    """Who asks to end a test (stop, abort): the logged-in account, else anyone at a console, named by address.
+    Ending a test only takes energy out of the rig, like an emergency stop button: it is never refused for a
+    missing, stale or wrong credential."""
     try:
-        return require_operator(request, credentials)
+        actor = actor_of(request, credentials)
     except ApiError:
-        host = request.client.host if request.client else "unknown address"
-        return f"a console without the token ({host})"
+        actor = None
+    if actor is not None and actor.role is not None:
+        return actor.name
+    host = request.client.host if request.client else "unknown address"
+    return f"a console without login ({host})"
 
 
 SessionDep = Annotated[Session, Depends(get_session)]
 OperatorDep = Annotated[str, Depends(operator)]
+ApproverDep = Annotated[Actor, Depends(approver)]
+AdminDep = Annotated[Actor, Depends(admin)]
 AnyoneDep = Annotated[str, Depends(anyone)]
 TestId = Annotated[int, Path(ge=1, le=MAX_ID, description="test id")]
+
+
+def acting_name(actor: str, given: str, field: str) -> str:
+    """The name a record keeps for who acted (backend.accounts.acting_name); a person's account giving another
+    name is 422 on that field."""
+    try:
+        return accounts.acting_name(actor, given, field)
+    except accounts.AccountError as exc:
+        raise ApiError(422, str(exc), field=field, value=given, limit=f"'{actor}' or left out") from None
 
 
 def not_found(what: str) -> ApiError:

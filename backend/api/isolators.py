@@ -40,7 +40,7 @@ def list_isolators(session: SessionDep) -> list[IsolatorOut]:
     return out
 
 
-@router.post("/api/isolators", status_code=201, summary="Add a user isolator (operator token)",
+@router.post("/api/isolators", status_code=201, summary="Add a user isolator (role operator)",
              responses=ERROR_RESPONSES)
 def create_isolator(body: IsolatorIn, session: SessionDep, actor: OperatorDep) -> IsolatorOut:
     iso = isolator_from_dict(body.model_dump())  # ranges: IsolatorError -> 422
@@ -55,7 +55,7 @@ def create_isolator(body: IsolatorIn, session: SessionDep, actor: OperatorDep) -
     return _out(iso, "user")
 
 
-@router.delete("/api/isolators/{name}", status_code=204, summary="Delete a user isolator (operator token)",
+@router.delete("/api/isolators/{name}", status_code=204, summary="Delete a user isolator (role operator)",
                responses=ERROR_RESPONSES)
 def delete_isolator(name: str, session: SessionDep, actor: OperatorDep) -> Response:
     """Presets cannot be deleted; a user isolator can (the records of its tests keep their own copy)."""

@@ -19,7 +19,7 @@ from ..errors import ApiError
 from ..safety import make_limits
 from ..schemas import ERROR_RESPONSES, MoveIn, TestOut
 from ..store import clean_json
-from .deps import OperatorDep, SessionDep
+from .deps import OperatorDep, SessionDep, acting_name
 from .isolators import resolve_isolator
 
 router = APIRouter(tags=["rig"])
@@ -87,16 +87,18 @@ def start_move(session, body: MoveIn, request: Request, actor: str) -> dict:
     return store.test_record(session, store.get_test(session, test_id))
 
 
-@router.post("/api/rig/move", status_code=201, summary="Move the table to a position at a safe speed (operator "
-             "token; only when no test runs)", responses=ERROR_RESPONSES)
+@router.post("/api/rig/move", status_code=201, summary="Move the table to a position at a safe speed (role "
+             "operator; only when no test runs)", responses=ERROR_RESPONSES)
 def move(body: MoveIn, request: Request, session: SessionDep, actor: OperatorDep) -> TestOut:
     """Starts at once; the run is a record of its own (profile kind ``move``) with the same limits, stop and
     abort as a test: stop holds the table where it is. 409 while a test runs or when the rig does not answer."""
+    body = body.model_copy(update={"operator_name": acting_name(actor, body.operator_name, "operator_name")})
     return start_move(session, body, request, actor)
 
 
-@router.post("/api/rig/zero", status_code=201, summary="Return the table to zero at a safe speed (operator token)",
+@router.post("/api/rig/zero", status_code=201, summary="Return the table to zero at a safe speed (role operator)",
              responses=ERROR_RESPONSES)
 def zero(body: MoveIn, request: Request, session: SessionDep, actor: OperatorDep) -> TestOut:
     """As ``/api/rig/move`` with ``position_m`` = 0."""
-    return start_move(session, body.model_copy(update={"position_m": 0.0}), request, actor)
+    name = acting_name(actor, body.operator_name, "operator_name")
+    return start_move(session, body.model_copy(update={"position_m": 0.0, "operator_name": name}), request, actor)

@@ -1,4 +1,4 @@
-"""Tests: create, list, read, start (operator token), stop/abort (anyone), cycles, samples as CSV, reports, delete."""
+"""Tests: create, list, read, start (role operator), stop/abort (anyone), cycles, samples as CSV, reports, delete."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from datetime import datetime
 from typing import Annotated, Literal
 
 import numpy as np
-from fastapi import APIRouter, Query, Request
+from fastapi import APIRouter, Body, Query, Request
 from fastapi.responses import Response, StreamingResponse
 
 from sim.controllers import CONTROLLER_NAMES, make_controller
@@ -20,26 +20,30 @@ from sim.rig import BAR_PA, RigParameters
 from sim.samples import RECORD_FIELDS, Samples
 from sim.tracking import cycle_windows
 
-from .. import store
+from .. import lab as lab_settings
+from .. import review, store
 from ..errors import ApiError, ProtocolError, _jsonable
 from ..safety import make_limits
 from ..schemas import (
     EARTHQUAKE_PROFILES,
     ERROR_RESPONSES,
+    ApproveIn,
     ArchiveIn,
     EnvelopeCheckOut,
     ProtocolProfileIn,
+    RejectIn,
     SineProfileIn,
     TestCreate,
     TestOut,
 )
 from ..store import clean_json
-from .deps import AnyoneDep, OperatorDep, SessionDep, TestId, not_found
+from .deps import AnyoneDep, ApproverDep, OperatorDep, SessionDep, TestId, acting_name, not_found
 from .isolators import resolve_isolator
 
 router = APIRouter(tags=["tests"])
 
 Status = Literal["ready", "running", "completed", "stopped", "aborted", "interrupted", "failed"]
+ReviewState = Literal["unreviewed", "approved", "rejected"]
 
 
 def profile_blocks(profile: SineProfileIn | ProtocolProfileIn) -> list[SineProfile]:
@@ -205,7 +209,7 @@ def envelope_check(body: TestCreate, isolator, isolator_refusal: dict | None, en
     return out
 
 
-@router.post("/api/tests/check", summary="Check a test against the rig envelope without creating it (no token)",
+@router.post("/api/tests/check", summary="Check a test against the rig envelope without creating it (no login)",
              responses={**ERROR_RESPONSES, 503: {"description": "busy: too many history or hybrid checks at once "
                                                  "(Retry-After)"}})
 def check_test(body: TestCreate, request: Request, session: SessionDep) -> EnvelopeCheckOut:
@@ -222,13 +226,14 @@ def check_test(body: TestCreate, request: Request, session: SessionDep) -> Envel
     return EnvelopeCheckOut(**out)
 
 
-@router.post("/api/tests", status_code=201, summary="Create a test (operator token); status 'ready' (start=true: "
+@router.post("/api/tests", status_code=201, summary="Create a test (role operator); status 'ready' (start=true: "
              "and start it, or leave nothing behind)", responses=ERROR_RESPONSES)
 def create_test(body: TestCreate, request: Request, session: SessionDep, actor: OperatorDep,
                 start: Annotated[bool, Query(description="start it at once; if the start is refused, nothing "
                                                          "is kept")] = False) -> TestOut:
     fields = build_test(resolve_isolator(session, body.isolator), body, test_env(request))
     fields.pop("_earthquake")
+    fields["operator_name"] = acting_name(actor, body.operator_name, "operator_name")
     rig_name = request.app.state.service.rig_name  # a test of this service's rig
     test = store.create_test(session, rig_name=rig_name, **fields)
     store.add_event(session, test.id, "operator", f"test {test.id} created by {actor}", {"action": "create"},
@@ -263,8 +268,11 @@ def list_tests(session: SessionDep,
                since: Annotated[datetime | None, Query(description="created at or after (ISO 8601)")] = None,
                until: Annotated[datetime | None, Query(description="created at or before (ISO 8601)")] = None,
                limit: Annotated[int, Query(ge=1, le=1000)] = 100,
-               offset: Annotated[int, Query(ge=0, le=10**9)] = 0) -> list[TestOut]:
-    tests = store.list_tests(session, status, isolator, since, until, limit, offset, archived, rig_name)
+               offset: Annotated[int, Query(ge=0, le=10**9)] = 0,
+               review: Annotated[ReviewState | None, Query(description="only records in this review state")] = None,
+               ) -> list[TestOut]:
+    tests = store.list_tests(session, status, isolator, since, until, limit, offset, archived, review,
+                             rig_name=rig_name)
     return [store.test_record(session, t, with_events=False) for t in tests]
 
 
@@ -279,6 +287,13 @@ def samples_csv(block: Samples, header: bool) -> str:
     if len(block):
         np.savetxt(buf, block.select(RECORD_FIELDS), fmt=CSV_FORMATS, delimiter=",")
     return buf.getvalue().replace("nan", "")
+
+
+def _unlocked(test, action: str) -> None:
+    try:
+        review.check_unlocked(test, action)
+    except review.ReviewError as exc:
+        raise ApiError(exc.status, exc.detail) from None
 
 
 def _test_or_404(session, test_id: int):
@@ -302,7 +317,7 @@ def _record_after(session, test_id: int, action) -> TestOut:
     return store.test_record(session, _test_or_404(session, test_id))
 
 
-@router.post("/api/tests/{test_id}/start", summary="Start a ready test (operator token)", responses=ERROR_RESPONSES)
+@router.post("/api/tests/{test_id}/start", summary="Start a ready test (role operator)", responses=ERROR_RESPONSES)
 def start_test(test_id: TestId, request: Request, session: SessionDep, actor: OperatorDep) -> TestOut:
     return _record_after(session, test_id, lambda: request.app.state.service.start(test_id, actor))
 
@@ -333,7 +348,7 @@ def abort_test(test_id: TestId, request: Request, response: Response, session: S
     return _record_after(session, test_id, abort)
 
 
-@router.delete("/api/tests/{test_id}", status_code=204, summary="Delete a test that never ran (operator token)",
+@router.delete("/api/tests/{test_id}", status_code=204, summary="Delete a test that never ran (role operator)",
                responses=ERROR_RESPONSES)
 def delete_test(test_id: TestId, request: Request, session: SessionDep, actor: OperatorDep) -> Response:
     """Only a test that never ran (status ``ready``) is erased; the record of a test that ran is a lab's
@@ -348,7 +363,7 @@ def delete_test(test_id: TestId, request: Request, session: SessionDep, actor: O
                        test.rig_name, rig_name)
     if test.status != "ready":
         raise ApiError(409, f"test {test_id} ran ({test.status}): its record is kept; archive it instead with "
-                            f"POST /api/tests/{test_id}/archive and {{\"by\": <your name>, \"reason\": <why>}}",
+                            f"POST /api/tests/{test_id}/archive and {{\"reason\": <why>}}",
                        "status", test.status, "ready (a test that never ran)")
     store.delete_test(session, test)
     store.add_event(session, test_id, "operator", f"test {test_id} deleted by {actor}", {"action": "delete"},
@@ -359,7 +374,7 @@ def delete_test(test_id: TestId, request: Request, session: SessionDep, actor: O
 
 
 @router.post("/api/tests/{test_id}/archive", summary="Archive a test that ran: hidden from the list, kept, "
-             "restorable (operator token)", responses=ERROR_RESPONSES)
+             "restorable (role operator)", responses=ERROR_RESPONSES)
 def archive_test(test_id: TestId, body: ArchiveIn, request: Request, session: SessionDep,
                  actor: OperatorDep) -> TestOut:
     test = _test_or_404(session, test_id)
@@ -367,24 +382,59 @@ def archive_test(test_id: TestId, body: ArchiveIn, request: Request, session: Se
         raise ApiError(409, f"test {test_id} is running; it can be archived once it has ended")
     if test.archived_at is not None:
         raise ApiError(409, f"test {test_id} is archived already (by {test.archived_by})")
-    store.archive_test(session, test, body.by, body.reason)
-    store.add_event(session, test_id, "operator", f"test {test_id} archived by {body.by}: {body.reason}",
-                    {"action": "archive", "by": body.by, "reason": body.reason}, actor=actor)
+    _unlocked(test, "archived")
+    by = acting_name(actor, body.by, "by")
+    store.archive_test(session, test, by, body.reason)
+    store.add_event(session, test_id, "operator", f"test {test_id} archived by {by}: {body.reason}",
+                    {"action": "archive", "by": by, "reason": body.reason}, actor=actor)
     session.commit()
     return store.test_record(session, test)
 
 
-@router.post("/api/tests/{test_id}/restore", summary="Restore an archived test (operator token)",
+@router.post("/api/tests/{test_id}/restore", summary="Restore an archived test (role operator)",
              responses=ERROR_RESPONSES)
 def restore_test(test_id: TestId, body: ArchiveIn, session: SessionDep, actor: OperatorDep) -> TestOut:
     test = _test_or_404(session, test_id)
     if test.archived_at is None:
         raise ApiError(409, f"test {test_id} is not archived")
+    _unlocked(test, "restored")
+    by = acting_name(actor, body.by, "by")
     store.restore_test(session, test)
-    store.add_event(session, test_id, "operator", f"test {test_id} restored by {body.by}: {body.reason}",
-                    {"action": "restore", "by": body.by, "reason": body.reason}, actor=actor)
+    store.add_event(session, test_id, "operator", f"test {test_id} restored by {by}: {body.reason}",
+                    {"action": "restore", "by": by, "reason": body.reason}, actor=actor)
     session.commit()
     return store.test_record(session, test)
+
+
+@router.post("/api/tests/{test_id}/approve", summary="Approve a record that has ended (role approver, not who ran "
+             "it): it is locked and its SHA-256 kept", responses=ERROR_RESPONSES)
+def approve_test(test_id: TestId, session: SessionDep, actor: ApproverDep,
+                 body: Annotated[ApproveIn | None, Body()] = None) -> TestOut:
+    test = _test_or_404(session, test_id)
+    try:
+        review.approve(session, test, actor.name, body.note if body else "")
+    except review.ReviewError as exc:
+        raise ApiError(exc.status, exc.detail) from None
+    session.commit()
+    return store.test_record(session, test)
+
+
+@router.post("/api/tests/{test_id}/reject", summary="Reject a record, with the reason (role approver, not who ran "
+             "it)", responses=ERROR_RESPONSES)
+def reject_test(test_id: TestId, body: RejectIn, session: SessionDep, actor: ApproverDep) -> TestOut:
+    test = _test_or_404(session, test_id)
+    try:
+        review.reject(session, test, actor.name, body.reason)
+    except review.ReviewError as exc:
+        raise ApiError(exc.status, exc.detail) from None
+    session.commit()
+    return store.test_record(session, test)
+
+
+@router.get("/api/tests/{test_id}/approval", summary="The record's review, and for an approved one its SHA-256 "
+            "recomputed now against the approved one (intact: true when they agree)", responses=ERROR_RESPONSES)
+def get_approval(test_id: TestId, session: SessionDep) -> dict:
+    return review.verify(session, _test_or_404(session, test_id))
 
 
 @router.get("/api/tests/{test_id}/cycles", summary="Per-cycle loop metrics (arrays=true adds the loops)",
@@ -534,7 +584,7 @@ def report_pdf(test_id: TestId, request: Request, session: SessionDep) -> Respon
     _reportable(session, test_id)
     reports = _reports()
     buf = io.BytesIO()
-    lab = reports.lab_header(settings=request.app.state.settings)
+    lab = lab_settings.header(session, request.app.state.settings)
     reports.render_report_pdf(store.load_test_bundle(session, test_id), buf, lab=lab)
     return Response(buf.getvalue(), media_type="application/pdf",
                     headers={"Content-Disposition": f'inline; filename="test-{test_id}-report.pdf"'})
@@ -545,7 +595,7 @@ def report_pdf(test_id: TestId, request: Request, session: SessionDep) -> Respon
 def report_json(test_id: TestId, request: Request, session: SessionDep) -> dict:
     _reportable(session, test_id)
     reports = _reports()
-    lab = reports.lab_header(settings=request.app.state.settings)
+    lab = lab_settings.header(session, request.app.state.settings)
     return clean_json(reports.report_json(store.load_test_bundle(session, test_id), lab=lab))
 
 
@@ -553,11 +603,11 @@ def report_json(test_id: TestId, request: Request, session: SessionDep) -> dict:
             "samples.csv, cycles.csv, report.pdf", response_class=Response,
             responses={**ERROR_RESPONSES, 503: {"description": "reports not available"}})
 def bundle_zip(test_id: TestId, request: Request, session: SessionDep) -> Response:
-    """The record as GET /api/tests/{id}, the report (JSON and PDF, with the lab header of the settings), every
+    """The record as GET /api/tests/{id}, the report (JSON and PDF, with the lab's header: backend.lab), every
     sample (the columns of data.csv) and every cycle with its phase (CSV, SI units), and a README."""
     _reportable(session, test_id)
     reports = _reports()
-    lab = reports.lab_header(settings=request.app.state.settings)
+    lab = lab_settings.header(session, request.app.state.settings)
     data = reports.bundle_zip_bytes(store.load_test_bundle(session, test_id), lab=lab)
     return Response(data, media_type="application/zip",
                     headers={"Content-Disposition": f'attachment; filename="test-{test_id}-bundle.zip"'})

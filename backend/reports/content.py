@@ -269,8 +269,7 @@ def report_json(bundle, identify: bool = True, meta: dict | None = None, identif
         "events": events,
         "limit_trips": [e for e in events if e.get("kind") == "limit_trip"],
         "limit_indications": (record.get("summary") or {}).get("limit_indications") or {},
-        "approval": {"tested_by": operator_of(bundle), "reviewed_by": None, "approved_by": None,
-                     "started_by": starter_of(bundle)},
+        "approval": approval_of(bundle),
         "software": {"isorig": _version()},
     }
     return clean_json(out)
@@ -291,6 +290,19 @@ def _with_record(bundle, record: dict):
     from .data import ReportBundle
 
     return ReportBundle(record=record, samples=bundle.samples, cycles=bundle.cycles, events=bundle.events)
+
+
+def approval_of(bundle) -> dict:
+    """Who tested, reviewed and approved the record, when, and the SHA-256 it was approved with (backend.review):
+    the report's approval block. Before an approval only the operator is filled in."""
+    record = bundle.record
+    review = record.get("review") or {}
+    approved = review.get("state") == "approved"
+    by, at = (review.get("by"), review.get("at")) if approved else (None, None)
+    return {"tested_by": operator_of(bundle), "tested_at": record.get("started_at"),
+            "reviewed_by": by, "reviewed_at": at, "approved_by": by, "approved_at": at,
+            "state": review.get("state") or "unreviewed", "note": review.get("note"),
+            "record_sha256": review.get("record_sha256") if approved else None, "started_by": starter_of(bundle)}
 
 
 def operator_of(bundle) -> str | None:

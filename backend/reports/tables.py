@@ -185,7 +185,7 @@ def event_lines(events: list[dict]) -> list:
 
 
 LINE_PITCH = 10.5
-APPROVAL_PT = 18 + 3 * 11 + 14 + 3 * 36 + 10  # heading, statement, column captions, three rows
+APPROVAL_PT = 18 + 3 * 11 + 14 + 3 * 36 + 16 + 2 * 11 + 10  # heading, statement, captions, three rows, hash
 
 
 def pages_verdicts_events(plt, bundle, report, protocol=None):
@@ -226,12 +226,25 @@ def approval_block(flow: Flow, record: dict, report: dict) -> None:
     fig.text(0.52, flow.y, "date", fontsize=7.5, color="0.45")
     fig.text(0.68, flow.y, "signature", fontsize=7.5, color="0.45")
     names = report.get("approval") or {}
-    for role, key in (("Tested by", "tested_by"), ("Reviewed by", "reviewed_by"), ("Approved by", "approved_by")):
+    for role, key in (("Tested by", "tested"), ("Reviewed by", "reviewed"), ("Approved by", "approved")):
         flow.skip(36)
         y = flow.y
         fig.text(0.06, y + flow.frac(2), role, fontsize=9, weight="bold")
-        if names.get(key):
-            fig.text(0.20, y + flow.frac(3), str(names[key]), fontsize=9)
+        if names.get(f"{key}_by"):
+            fig.text(0.20, y + flow.frac(3), str(names[f"{key}_by"]), fontsize=9)
+        if names.get(f"{key}_at"):
+            fig.text(0.52, y + flow.frac(3), str(names[f"{key}_at"])[:16].replace("T", " ") + " UTC", fontsize=8)
         for x0, x1 in ((0.20, 0.49), (0.52, 0.65), (0.68, 0.94)):
             rule(fig, y, x0, x1, color="0.2", lw=0.6)
+    flow.skip(16)
+    if names.get("record_sha256"):
+        flow.text(0.06, f"Approved record, SHA-256 {names['record_sha256']}", pitch=11, fontsize=7.5,
+                  family="monospace")
+        check = f"GET /api/tests/{tid}/approval" if tid is not None else "the service"
+        flow.text(0.06, f"Check it against the record as it is now: {check} (intact: true when they agree).",
+                  pitch=11, fontsize=7.5, color="0.3")
+    else:
+        state = names.get("state") or "unreviewed"
+        flow.text(0.06, f"Review state: {state}. An approval in the service locks the record and prints its "
+                  "SHA-256 here.", pitch=11, fontsize=7.5, color="0.3")
     flow.y = max(flow.y, PAGE_BOTTOM)

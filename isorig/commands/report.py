@@ -79,6 +79,36 @@ def _load_stored(test_id: int, database_url: str | None):
         engine.dispose()
 
 
+def _stored_lab(database_url: str | None):
+    """The lab header the service's reports use (backend.lab: the database's settings over the environment's)."""
+    from sqlalchemy.engine import make_url
+
+    from backend import lab
+    from backend.db import make_engine, session_factory
+    from backend.reports.lab import lab_header
+
+    if database_url is None:
+        from backend.settings import Settings
+
+        database_url = Settings().resolved_database_url
+    try:
+        url = make_url(database_url)
+        missing = url.get_backend_name() == "sqlite" and url.database not in (None, "", ":memory:") \
+            and not Path(url.database).expanduser().exists()
+    except Exception:
+        missing = True
+    if missing:  # _load_stored says what is wrong (never create a database here)
+        return lab_header()
+    engine = make_engine(database_url)
+    try:
+        with session_factory(engine)() as session:
+            return lab.header(session, None)
+    except Exception:  # an older store without the table: the environment's settings
+        return lab_header()
+    finally:
+        engine.dispose()
+
+
 def _load(args):
     """The bundle of a stored test or of a CSV record, as the arguments say."""
     from backend.reports import bundle_from_csv
@@ -115,7 +145,10 @@ def run(args) -> int:
     meta = {"rig": args.rig, "operator": args.operator}
     from backend.reports.lab import lab_header
 
-    lab = lab_header(args.lab_name, args.lab_address, args.lab_logo)
+    if args.test_id is not None and (args.lab_name, args.lab_address, args.lab_logo) == (None, None, None):
+        lab = _stored_lab(args.database_url)  # the lab as the service's Lab page set it, as the service's reports
+    else:
+        lab = lab_header(args.lab_name, args.lab_address, args.lab_logo)
     if lab.warning:  # one line, and the report is made without the logo
         import sys
 

@@ -50,10 +50,11 @@ def test_a_test_starts_only_with_the_table_at_zero_and_zero_brings_it_back(tmp_p
         moved = wait_for(client, r.json()["id"])
         assert moved["status"] == "completed" and moved["profile"]["kind"] == "move"
         assert moved["label"].startswith("manual move 0.00 mm -> 10.00 mm at 20 mm/s")
-        assert moved["cycles_total"] == 0 and moved["operator_name"] == "A. Rossi"
+        assert moved["cycles_total"] == 0 and moved["operator_name"] == "A. Rossi (through automation)"
         events = client.get(f"/api/tests/{moved['id']}").json()["events"]  # said as a move, not as a test
         start = next(e for e in events if (e["values"] or {}).get("action") == "start")
-        assert start["message"] == f"manual move {moved['id']} started by operator" and start["values"]["move"] is True
+        assert start["message"] == f"manual move {moved['id']} started by automation"
+        assert start["values"]["move"] is True
         assert events[-1]["message"] == f"manual move {moved['id']} completed"
         state = client.get("/api/rig/state").json()
         assert state["table_position_m"] == pytest.approx(0.01, abs=2e-4)
@@ -74,7 +75,7 @@ def test_a_test_starts_only_with_the_table_at_zero_and_zero_brings_it_back(tmp_p
         assert r.status_code == 201 and wait_for(client, r.json()["id"])["status"] == "completed"
         events = client.get(f"/api/tests/{r.json()['id']}").json()["events"]
         started = next(e for e in events if (e["values"] or {}).get("action") == "start")
-        assert started["message"] == f"test {r.json()['id']} started by operator" and "move" not in started["values"]
+        assert started["message"] == f"test {r.json()['id']} started by automation" and "move" not in started["values"]
         assert events[-1]["message"] == f"test {r.json()['id']} completed"
 
 

@@ -48,7 +48,7 @@ def test_the_bundle_of_a_test_that_ran(tmp_path):
     assert record["summary"]["loop_metrics_mean"]["k_eff_n_per_m"] == report["headline"]["means"]["k_eff_n_per_m"]
     assert report["lab"]["name"] == "Prove Lab" and report["lab"]["logo_shown"] is False
     assert "no such file" in report["lab"]["logo_warning"]  # the report is made all the same
-    assert report["approval"]["tested_by"] == "A. Rossi"
+    assert report["approval"]["tested_by"] == "A. Rossi (through automation)"
     assert pdf[:5] == b"%PDF-"
 
 

@@ -1,8 +1,7 @@
-"""The operator token: generated owner-only at first start, kept across restarts, required to act."""
+"""The service token (ISORIG_OPERATOR_TOKEN, the account 'automation'): required to act without a login; no
+shared token exists without it. Accounts and roles: test_accounts.py."""
 
 from __future__ import annotations
-
-import stat
 
 import pytest
 from conftest import AUTH, make_settings, sine_test
@@ -19,20 +18,12 @@ MUTATING = [
 ]
 
 
-def test_generated_token_file_is_owner_only_and_reused(tmp_path):
+def test_without_the_service_token_no_shared_token_acts_and_none_is_written(tmp_path):
     settings = make_settings(tmp_path, operator_token=None)
     with TestClient(create_app(settings)) as c:
-        path = tmp_path / "operator-token"
-        assert path.exists()
-        assert stat.S_IMODE(path.stat().st_mode) == 0o600
-        token = path.read_text().strip()
-        assert len(token) >= 32
-        r = c.post("/api/tests", json=sine_test(), headers={"Authorization": f"Bearer {token}"})
-        assert r.status_code == 201
+        assert not (tmp_path / "operator-token").exists()  # the shared token file of old is retired
         assert c.post("/api/tests", json=sine_test(), headers=AUTH).status_code == 401
-    with TestClient(create_app(make_settings(tmp_path, operator_token=None))) as c:
-        assert (tmp_path / "operator-token").read_text().strip() == token
-        assert c.post("/api/tests", json=sine_test(), headers={"Authorization": f"Bearer {token}"}).status_code == 201
+        assert c.post("/api/tests", json=sine_test(), headers={"Authorization": "Bearer "}).status_code == 401
 
 
 @pytest.mark.parametrize(("method", "path", "body"), MUTATING)
@@ -42,7 +33,7 @@ def test_mutating_endpoints_need_the_token(client, method, path, body):
     for headers in ({}, {"Authorization": "Bearer wrong"}, {"Authorization": "Basic dXNlcjpwdw=="}):
         r = getattr(client, method)(path, headers=headers, **kwargs)
         assert r.status_code == 401, (path, headers, r.text)
-        assert "operator token" in r.json()["detail"]
+        assert "needs an account with the role operator" in r.json()["detail"] or "not valid" in r.json()["detail"]
         assert r.headers.get("www-authenticate") == "Bearer"
     assert client.get("/api/tests/1").json()["status"] == "ready"  # nothing moved
 
@@ -76,6 +67,6 @@ def test_a_running_test_is_ended_by_anyone_and_who_asked_is_recorded(client, act
         rec = wait_for(client, test_id)
         assert rec["status"] == ("stopped" if action == "stop" else "aborted"), rec
         asked = [e for e in rec["events"] if (e["values"] or {}).get("action") == action]
-        who = "operator" if headers is AUTH else "a console without the token (testclient)"
+        who = "automation" if headers is AUTH else "a console without login (testclient)"
         assert asked[0]["actor"] == who and asked[0]["message"] == f"{action} requested by {who}", asked
         zero_table(client)  # an abort leaves the table where it was

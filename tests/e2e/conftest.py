@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from .harness import ARTIFACTS, PageWatch, Server, chromium_available, launch, watch_rejections
+from .harness import ARTIFACTS, PageWatch, Server, chromium_available, launch, log_in, watch_rejections
 
 try:
     from playwright import sync_api as playwright_api
@@ -65,14 +65,19 @@ def open_page(browser):
     """open_page(url) -> (page, watch); the page's console and requests are checked when the test ends."""
     opened = []
 
-    def _open(url: str, width: int = 1500, height: int = 1000, token: str | None = None, viewer: bool = False):
+    def _open(url: str, width: int = 1500, height: int = 1000, login: tuple[str, str] | None = None,
+              viewer: bool = False, cookie: str | None = None):
+        """``login`` (name, password): the page opens logged in; ``cookie``: a login cookie of its own (stale)."""
         url += ("&" if "?" in url else "?") + ("viewer=on" if viewer else "viewer=off")
         context = browser.new_context(viewport={"width": width, "height": height}, accept_downloads=True)
         watch_rejections(context)
         page = context.new_page()
         watch = PageWatch(page)
-        if token is not None:
-            context.add_init_script(f"localStorage.setItem('isorig.operator_token', {token!r});")
+        origin = "/".join(url.split("/")[:3])
+        if login is not None:
+            log_in(context, origin, login)
+        if cookie is not None:
+            context.add_cookies([{"name": "isorig_session", "value": cookie, "url": origin}])
         page.goto(url)
         page.wait_for_selector("body[data-ready='1']", timeout=15000)
         opened.append((context, page, watch))

@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from .harness import TOKEN, Server, poll, shots, sine_test
+from .harness import OPERATOR, Server, poll, shots, sine_test
 
 PLANT = ("mass_kg=3000", "bulk_modulus_pa=4.5e8")  # a heavier table on a softer oil column than the file says
 
@@ -31,7 +31,7 @@ def test_a_rig_unlike_what_the_controller_is_told_stops_the_test_with_the_advice
     the simulated plant plays; the service stops the test, and the console says why and what to do. (Runs first:
     the next test commissions this service's rig.)"""
     srv = plant_server
-    page, _watch = open_page(f"{srv.url}/", width=1366, height=768, token=TOKEN)
+    page, _watch = open_page(f"{srv.url}/", width=1366, height=768, login=OPERATOR)
     test_id = srv.start_test(sine_test(amplitude_m=0.01, frequency_hz=1.0, cycles=6, speed=4, isolator="IUT_a",
                                        supply_bar=100))
     rec = srv.wait_status(test_id, {"completed", "stopped", "aborted", "failed"})
@@ -57,7 +57,7 @@ def test_a_rig_unlike_what_the_controller_is_told_stops_the_test_with_the_advice
 
 def test_commissioning_from_the_page_on_a_rig_unlike_its_file(plant_server, open_page, artifacts):
     srv = plant_server
-    page, watch = open_page(f"{srv.url}/", width=1366, height=768, token=TOKEN)
+    page, watch = open_page(f"{srv.url}/", width=1366, height=768, login=OPERATOR)
     page.goto(f"{srv.url}/?viewer=off#/commission")
     page.wait_for_selector("body[data-ready='1']", timeout=15000)
     # the rig is said to be a simulated one that plays another rig, and nothing is commissioned yet
@@ -70,7 +70,7 @@ def test_commissioning_from_the_page_on_a_rig_unlike_its_file(plant_server, open
     assert page.inner_text("label[data-field='max_velocity_m_per_s'] .unit") == "(mm/s)"
     assert "0.20 mm to 10.00 mm" in page.inner_text("label[data-field='max_stroke_m'] .range")
     page.fill("#c-speed", "10")
-    page.fill("#c-operator", "e2e commissioner")
+    assert page.input_value("#c-operator") == OPERATOR[0]  # the logged-in account, read-only
     # a bound beyond what commissioning takes is refused at the field; Start says why
     page.fill("#c-stroke", "20")
     poll(lambda: page.is_disabled("#c-start") and "outside the allowed" in page.inner_text(
@@ -80,7 +80,7 @@ def test_commissioning_from_the_page_on_a_rig_unlike_its_file(plant_server, open
     page.wait_for_selector("#c-start:not([disabled])", timeout=10000)
     # what will move and why, with the service's own figures for this form
     body = {"supply_bar": 100, "isolator": "none", "max_stroke_m": 0.002, "max_velocity_m_per_s": 0.02,
-            "speed": 10, "operator_name": "e2e commissioner"}
+            "speed": 10, "operator_name": OPERATOR[0]}
     _, check = srv.call("POST", "/api/commissioning/check", body)
     assert check["ok"], check
     what = page.inner_text("#c-what")
@@ -93,7 +93,7 @@ def test_commissioning_from_the_page_on_a_rig_unlike_its_file(plant_server, open
     page.click("#c-start")
     page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
     confirm = page.inner_text("#confirm-body")
-    assert "\u00b12.00 mm about" in confirm and "below 20.0 mm/s" in confirm and "e2e commissioner" in confirm
+    assert "\u00b12.00 mm about" in confirm and "below 20.0 mm/s" in confirm and OPERATOR[0] in confirm
     assert "the valve, the oil column, the moving mass and the sensor delay" in confirm
     page.click("#confirm-cancel")
     assert srv.call("GET", "/api/tests")[1] == before
@@ -106,7 +106,7 @@ def test_commissioning_from_the_page_on_a_rig_unlike_its_file(plant_server, open
     cid = int(poll(lambda: re.search(r"#/commission/(\d+)", page.url), 10, "the page on the new commissioning")
               .group(1))
     rec = srv.call("GET", f"/api/tests/{cid}")[1]
-    assert rec["profile"]["kind"] == "commissioning" and rec["operator_name"] == "e2e commissioner"
+    assert rec["profile"]["kind"] == "commissioning" and rec["operator_name"] == OPERATOR[0]
     # the run goes on (its phase from the stream), then the fit: waited on the record's state
     poll(lambda: commissioning_state(srv, cid) not in ("ready", "running"), 60, "the run to end")
     if commissioning_state(srv, cid) == "fitting":
@@ -149,16 +149,15 @@ def test_commissioning_from_the_page_on_a_rig_unlike_its_file(plant_server, open
     page.click("#c-apply")
     page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
     assert re.search(r"moving mass: 1200 \u2192 \d{4} kg", page.inner_text("#confirm-body"))
-    page.fill("#confirm-by", "e2e commissioner")
     page.click("#confirm-ok")
     name = res["rig_file"]["name"]
     poll(lambda: name in page.inner_text("#s-rigfile"), 10, "the strip naming the applied rig file")
     assert page.get_attribute("#s-rigfile", "data-commissioned") == res["started_at"][:10]
     assert f'The service\'s rig is now "{name}"' in page.inner_text("#c-apply-message")
     rig = srv.call("GET", "/api/rig")[1]
-    assert rig["rig_file"]["name"] == name and rig["rig_file"]["in_force"]["by"] == "e2e commissioner"
+    assert rig["rig_file"]["name"] == name and rig["rig_file"]["in_force"]["by"] == OPERATOR[0]
     events = srv.call("GET", f"/api/tests/{cid}")[1]["events"]
-    assert any("made the service's rig by e2e commissioner" in e["message"] for e in events)
+    assert any(f"made the service's rig by {OPERATOR[0]}" in e["message"] for e in events)
     page.evaluate("window.scrollTo(0, 0)")
     shots(page, artifacts, "dashboard_commissioning_applied")
     assert not watch.unexpected_errors()
@@ -166,7 +165,7 @@ def test_commissioning_from_the_page_on_a_rig_unlike_its_file(plant_server, open
 
 def test_a_tests_page_history_and_live_view_show_its_tracking_verdict(plant_server, open_page, artifacts):
     srv = plant_server
-    page, _watch = open_page(f"{srv.url}/", width=1920, height=1080, token=TOKEN)
+    page, _watch = open_page(f"{srv.url}/", width=1920, height=1080, login=OPERATOR)
     test_id = srv.start_test(sine_test(amplitude_m=0.01, frequency_hz=1.0, cycles=6, speed=4, isolator="IUT_a",
                                        supply_bar=100))
     rec = srv.wait_status(test_id, {"completed", "stopped", "aborted", "failed"})

@@ -11,7 +11,7 @@ import re
 import time
 
 from .harness import (
-    TOKEN,
+    OPERATOR,
     fill_identity,
     poll,
     record_checks,
@@ -30,7 +30,7 @@ def _checks(page) -> list[dict]:
 def test_numbers_cannot_be_misread(server, open_page, artifacts):
     """A decimal comma is read as one and said so ("3,5" is 3.5 mm, never 35); an ambiguous "1,000" and text are
     refused with a message; every field shows its unit and range; the unit choice converts the values."""
-    page, _ = open_page(server.url + "/", width=1366, height=768, token=TOKEN)
+    page, _ = open_page(server.url + "/", width=1366, height=768, login=OPERATOR)
     record_checks(page)
     fill_identity(page)
     # every numeric field is a text field with a decimal keypad, its unit and its allowed range
@@ -128,11 +128,12 @@ def test_state_follows_the_running_test(server, open_page, browser, artifacts):
     """Start enabled only when a start can succeed; the confirmation; the strip, the readouts and the form follow
     the running test, also after a reload and in a second browser; Stop shows STOPPING; a refusal clears when
     its cause is gone; labelled plots; events in words; the banner never covers the header."""
-    page, watch = open_page(server.url + "/", width=1920, height=1080, token=TOKEN)
+    page, watch = open_page(server.url + "/", width=1920, height=1080, login=OPERATOR)
     page.wait_for_selector("#conn.conn-up", timeout=10000)
     assert page.is_disabled("#start")
-    assert "a specimen id" in page.inner_text("#start-why") and "the operator's name" in page.inner_text("#start-why")
-    fill_identity(page, "B-2024-017", "Ann Operator")
+    assert "a specimen id" in page.inner_text("#start-why")
+    assert "operator" not in page.inner_text("#start-why")  # who acts is the logged-in account, never typed
+    fill_identity(page, "B-2024-017")
     page.fill("#f-notes", "first run after the seal change")
     page.select_option("#f-isolator", "IUT_b")
     page.fill("#f-amplitude", "30")
@@ -147,7 +148,7 @@ def test_state_follows_the_running_test(server, open_page, browser, artifacts):
     page.wait_for_selector("#rig-status[data-status='running']", timeout=15000)
     test_id = page.evaluate("window.__isorig.testId")
     rec = server.call("GET", f"/api/tests/{test_id}")[1]
-    assert rec["specimen_id"] == "B-2024-017" and rec["operator_name"] == "Ann Operator", rec
+    assert rec["specimen_id"] == "B-2024-017" and rec["operator_name"] == OPERATOR[0], rec
     assert rec["notes"] == "first run after the seal change" and rec["limits"]["tracking_error_m"] == 0.02, rec
 
     # the strip, the header, the readouts, the margins, the form (locked) and the buttons
@@ -160,7 +161,7 @@ def test_state_follows_the_running_test(server, open_page, browser, artifacts):
     poll(lambda: re.fullmatch(r"[+-]?\d+\.\d\d mm \u00b7 live", page.inner_text("#s-position")), 5,
           "the table position, live")
     assert "started" in page.inner_text("#s-event").lower()
-    assert page.inner_text("#l-specimen") == "B-2024-017" and page.inner_text("#l-operator") == "Ann Operator"
+    assert page.inner_text("#l-specimen") == "B-2024-017" and page.inner_text("#l-operator") == OPERATOR[0]
     assert page.inner_text("#l-profile") == "sine 30.00 mm at 0.5 Hz x 30"
     time.sleep(2.5)
     for ch in ("y", "f", "v"):
@@ -207,9 +208,10 @@ def test_state_follows_the_running_test(server, open_page, browser, artifacts):
     page.wait_for_selector("#s-rig-cell[data-state='stopping']", timeout=5000)
     assert page.is_disabled("#stop")
     other.wait_for_selector("#s-rig-cell[data-state='stopping']", timeout=8000)
-    other.wait_for_selector("#live-events li.operator[data-source='stream']:has-text('Stop requested by operator')",
-                            timeout=5000)  # streamed, not read from the record
-    assert other.inner_text("#s-rig-why") == "stop requested by operator", other.inner_text("#s-rig-why")
+    other.wait_for_selector(f"#live-events li.operator[data-source='stream']:has-text('Stop requested by "
+                            f"{OPERATOR[0]}')", timeout=5000)  # streamed, not read from the record
+    other.wait_for_function(f"document.getElementById('s-rig-why').textContent === 'stop requested by {OPERATOR[0]}'",
+                            timeout=5000)
     assert other.is_disabled("#start")
     other.screenshot(path=str(artifacts / "dashboard_stopping_1366x768.png"))
     server.wait_status(test_id, {"stopped"}, timeout_s=30)
@@ -257,7 +259,7 @@ def test_state_follows_the_running_test(server, open_page, browser, artifacts):
 def test_records_delete_archive_restore(server, open_page, artifacts):
     """History lists who and what; a test that never ran is deleted, one that ran archived with who and why and
     restored, each after a confirmation, with the result said."""
-    page, _ = open_page(server.url + "/#/history", width=1366, height=768, token=TOKEN)
+    page, _ = open_page(server.url + "/#/history", width=1366, height=768, login=OPERATOR)
     body = {**sine_test(cycles=2, speed=10.0), "specimen_id": "REC-1", "operator_name": "Rec Operator",
             "vertical_load_n": 2e5}
     status, ready = server.call("POST", "/api/tests", body, token=True)  # created, never started
@@ -284,23 +286,22 @@ def test_records_delete_archive_restore(server, open_page, artifacts):
     # archive what ran: who and why are required
     page.click(f"#history-table tr[data-id='{ran}'] button[data-action='archive']")
     page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
-    page.fill("#confirm-by", "Ann Operator")
     assert page.is_disabled("#confirm-ok")  # no reason yet
     page.fill("#confirm-reason", "duplicate of an earlier run")
     page.screenshot(path=str(artifacts / "dashboard_archive_1366x768.png"))
     page.click("#confirm-ok")
     page.wait_for_selector(f"#history-table tr[data-id='{ran}']", state="detached", timeout=5000)
-    assert "archived by Ann Operator: duplicate of an earlier run" in page.inner_text("#history-message")
+    assert f"archived by {OPERATOR[0]}: duplicate of an earlier run" in page.inner_text("#history-message")
     rec = server.call("GET", f"/api/tests/{ran}")[1]
-    assert rec["archived"]["by"] == "Ann Operator" and rec["status"] == "completed", rec
+    assert rec["archived"]["by"] == OPERATOR[0] and rec["status"] == "completed", rec
 
     # the archived ones on their own, restorable
     page.check("#h-archived")
     row = page.wait_for_selector(f"#history-table tr[data-id='{ran}']", timeout=5000)
-    assert "archived by Ann Operator" in row.inner_text()
+    assert f"archived by {OPERATOR[0]}" in row.inner_text()
     page.click(f"#history-table tr[data-id='{ran}'] button[data-action='restore']")
     page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
-    assert page.input_value("#confirm-by") == "Ann Operator"  # remembered in this browser
+    assert page.locator("#confirm-by").count() == 0  # who restores is the logged-in account
     page.fill("#confirm-reason", "archived by mistake")
     page.click("#confirm-ok")
     page.wait_for_selector(f"#history-table tr[data-id='{ran}']", state="detached", timeout=5000)

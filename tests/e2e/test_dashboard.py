@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from .harness import TOKEN, fill_identity, poll, sine_test, start_from_form, wait_start_enabled
+from .harness import OPERATOR, fill_identity, poll, sine_test, start_from_form, wait_start_enabled
 
 
 def _metrics(page) -> dict:
@@ -19,12 +19,12 @@ def _metrics(page) -> dict:
 
 
 def test_operator_flow(server, open_page, artifacts):
-    """Choose IUT_b, 30 mm at 0.5 Hz, start after the confirmation with the token, see the loop grow, finish,
-    find it in history with who and what, CSV."""
+    """Choose IUT_b, 30 mm at 0.5 Hz, start after the confirmation (the console asks for a login), see the loop
+    grow, finish, find it in history with who (the logged-in account) and what, CSV."""
     page, _ = open_page(server.url + "/")
     page.select_option("#f-isolator", "IUT_b")
     assert "0.68" in page.inner_text("#isolator-params")  # k_d of IUT_b (paper Table II), in kN/mm
-    fill_identity(page, "E2E-FLOW", "flow operator")
+    fill_identity(page, "E2E-FLOW")
     page.fill("#f-notes", "operator flow")
     page.fill("#f-supply", "70")
     page.fill("#f-amplitude", "30")
@@ -47,8 +47,11 @@ def test_operator_flow(server, open_page, artifacts):
     assert "cancelled" in page.inner_text("#setup-message")
     assert len(server.call("GET", "/api/tests")[1]) == len(before)
 
-    start_from_form(page, token=TOKEN)  # no token in this browser yet: asked once, after the confirmation
-    assert page.evaluate("localStorage.getItem('isorig.operator_token')") == TOKEN
+    start_from_form(page, login=OPERATOR)  # nobody logged in yet: asked once, after the confirmation
+    page.wait_for_selector("#account-button[data-role='operator']", timeout=5000)
+    assert page.inner_text("#account-button .acct-name") == OPERATOR[0]
+    assert page.inner_text("#account-button .acct-role") == "operator"
+    assert page.input_value("#f-operator_name") == OPERATOR[0]
 
     known = {t["id"] for t in before}
     new = poll(lambda: {t["id"] for t in server.call("GET", "/api/tests")[1]} - known, 15, "the new test")
@@ -74,7 +77,7 @@ def test_operator_flow(server, open_page, artifacts):
     page.click("nav a[data-view='history']")
     row = page.wait_for_selector(f"#history-table tr[data-id='{test_id}']", timeout=10000)
     text = row.inner_text()
-    for what in ("completed", "IUT_b", "E2E-FLOW", "flow operator", "125 kN"):  # status, who, what
+    for what in ("completed", "IUT_b", "E2E-FLOW", OPERATOR[0], "125 kN"):  # status, who, what
         assert what in text, text
     # filters: status, isolator and today's date keep it; another status hides it
     page.select_option("#h-status", "aborted")
@@ -92,7 +95,7 @@ def test_operator_flow(server, open_page, artifacts):
     page.wait_for_selector("#t-cycles tbody tr", timeout=10000)
     assert page.locator("#t-cycles tbody tr").count() >= 3
     summary = page.inner_text("#t-summary")
-    for what in ("completed", "E2E-FLOW", "flow operator", "operator flow", "|d| 150 mm"):
+    for what in ("completed", "E2E-FLOW", OPERATOR[0], "operator flow", "|d| 150 mm"):
         assert what in summary, summary
     page.screenshot(path=str(artifacts / "dashboard_test_page.png"), full_page=True)
 
@@ -107,7 +110,7 @@ def test_operator_flow(server, open_page, artifacts):
 def test_refused_profile_shows_reason(server, open_page, artifacts):
     """A profile outside the envelope is explained before Start, with field, value and limit; Start stays
     disabled and says why; nothing is created."""
-    page, _ = open_page(server.url + "/", token=TOKEN)
+    page, _ = open_page(server.url + "/", login=OPERATOR)
     _, before = server.call("GET", "/api/tests")
     fill_identity(page)
     page.select_option("#f-isolator", "IUT_b")
@@ -177,26 +180,25 @@ def test_live_view_follows_test_started_through_api(server, open_page, artifacts
     late.screenshot(path=str(artifacts / "dashboard_aborted.png"))
 
 
-@pytest.mark.parametrize("token", [None, "not-the-token"])
-def test_abort_button_stops_the_rig(server, open_page, token):
-    """ABORT ends a running test at once from any console, like an emergency stop: no token asked for, none needed
-    (a second console without one, a stale one), no dialog in the way; the events say who asked."""
-    page, _ = open_page(server.url + "/", token=token)
+@pytest.mark.parametrize("cookie", [None, "iss_a-stale-login"])
+def test_abort_button_stops_the_rig(server, open_page, cookie):
+    """ABORT ends a running test at once from any console, like an emergency stop: no login asked for, none
+    needed (a second console without one, an ended one), no dialog in the way; the events say who asked."""
+    page, _ = open_page(server.url + "/", cookie=cookie)
     test_id = server.start_test(sine_test(cycles=20, speed=1.0))
     page.wait_for_selector("#rig-status[data-status='running']", timeout=15000)
     page.click("#abort")
     rec = server.wait_status(test_id, {"aborted"}, timeout_s=15)
     assert rec["status"] == "aborted"
-    assert not page.is_visible("#token-dialog")
+    assert not page.is_visible("#login-dialog")
     page.wait_for_selector("#rig-status[data-status='aborted']", timeout=10000)
     assert "ABORTED" in page.inner_text("#alert-text")
     asked = [e for e in rec["events"] if (e["values"] or {}).get("action") == "abort"]
-    assert asked[0]["actor"] == "a console without the token (127.0.0.1)", asked
-    assert page.evaluate("localStorage.getItem('isorig.operator_token')") == token  # left as it was
+    assert asked[0]["actor"] == "a console without login (127.0.0.1)", asked
 
 
 def test_stop_button_ramps_out(server, open_page):
-    """Stop finishes the running test with a ramp-out: status 'stopped'; a console without the token may stop."""
+    """Stop finishes the running test with a ramp-out: status 'stopped'; a console without a login may stop."""
     page, _ = open_page(server.url + "/")
     test_id = server.start_test(sine_test(cycles=30, speed=1.0))
     page.wait_for_function(f"window.__isorig.testId === {test_id}", timeout=15000)
@@ -210,7 +212,7 @@ def test_stop_button_ramps_out(server, open_page):
 def test_add_isolator_plausibility_api_refusal_and_delete(server, open_page, artifacts):
     """Values a thousand times off ask for a confirmation; the API's refusal (field and range) is shown; a valid
     isolator is saved in the console's units; a user isolator can be deleted after a confirmation, a preset not."""
-    page, watch = open_page(server.url + "/", width=1366, height=768, token=TOKEN)
+    page, watch = open_page(server.url + "/", width=1366, height=768, login=OPERATOR)
     watch.allowed_status.add(422)
     assert page.is_disabled("#iso-delete")  # IUT_b is a preset
     page.click("#add-isolator summary")
@@ -291,7 +293,7 @@ def test_limit_trip_is_shown_prominently(server, open_page, artifacts):
 
 def test_vertical_load_is_entered_in_kn_within_the_jacks_range(server, open_page, artifacts):
     """The field shows its range and default; 900 kN is refused before Start; 300 kN travels with the test."""
-    page, _ = open_page(server.url + "/", token=TOKEN)
+    page, _ = open_page(server.url + "/", login=OPERATOR)
     page.select_option("#f-isolator", "IUT_a")
     assert page.inner_text("#vertical-load-note") == "0 to 850 kN; empty: 125 kN"
     fill_identity(page)

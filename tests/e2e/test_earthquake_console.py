@@ -11,7 +11,7 @@ import re
 
 import pytest
 
-from .harness import TOKEN, fill_identity, poll, shots, start_from_form, wait_start_enabled
+from .harness import OPERATOR, fill_identity, poll, shots, start_from_form, wait_start_enabled
 
 
 def _earthquake_plots(page) -> dict:
@@ -43,7 +43,7 @@ def _envelope(page, state: str, contains: str = "", timeout_s: float = 20) -> st
 
 
 def _set_up(page, isolator="IUT_a", supply="100", speed="10"):
-    fill_identity(page, "EQ-SPEC-1", "quake operator")
+    fill_identity(page, "EQ-SPEC-1")
     page.select_option("#f-isolator", isolator)
     page.fill("#f-supply", supply)
     page.fill("#f-speed", speed)
@@ -57,7 +57,7 @@ def test_time_history_from_a_preset_runs_to_completion(server, open_page, artifa
     """1920x1080: near_field_short x 0.5 on IUT_a at speed 10: the fields say their units and ranges, the
     confirmation has the service's figures for exactly this profile, the whole record is drawn (planned target and
     measured) while it runs and to its end, the loop and the displacement plots fill, History names the kind."""
-    page, _ = open_page(server.url + "/", width=1920, height=1080, token=TOKEN)
+    page, _ = open_page(server.url + "/", width=1920, height=1080, login=OPERATOR)
     _set_up(page)
     page.select_option("#f-profile", "history")
     assert page.is_hidden("#sine-fields") and page.is_visible("#eq-fields") and page.is_hidden("#hy-fields")
@@ -106,7 +106,7 @@ def test_time_history_from_a_preset_runs_to_completion(server, open_page, artifa
                   10, "the whole record drawn")
     assert page.evaluate("window.__isorig.loopPoints") > 0 or page.evaluate("window.__isorig.loopCycles") > 0
     # a page opened after the end draws the whole record too, not only what the stream still holds
-    late, _ = open_page(server.url + "/", width=1366, height=768, token=TOKEN)
+    late, _ = open_page(server.url + "/", width=1366, height=768, login=OPERATOR)
     poll(lambda: (lambda d: d if d["plannedLoaded"] and d["firstMeasuredS"] is not None and d["firstMeasuredS"] < 0.5
                   and d["filled"] >= 0.97 * d["points"] else None)(_earthquake_plots(late)),
          15, "the whole record drawn on a page opened after the end")
@@ -138,7 +138,7 @@ def test_hybrid_simulation_shows_drifts_and_the_stability_monitor(server, open_p
     building's fields, the confirmation says the building, the prediction and the monitor's threshold; live: the
     storey drifts, the monitor's indicator against its threshold; it completes untripped. Then the same with a
     threshold of 0.5 J and 0.1 %: the monitor trips, shown in red with its reason, the banner says it."""
-    page, _ = open_page(server.url + "/", width=1366, height=768, token=TOKEN)
+    page, _ = open_page(server.url + "/", width=1366, height=768, login=OPERATOR)
     _set_up(page)
     page.select_option("#f-profile", "hybrid")
     assert page.is_visible("#hy-fields") and page.is_hidden("#eq-history-only")
@@ -232,7 +232,7 @@ def test_refusals_and_records_are_said_in_words(server, open_page, artifacts, tm
     a file in cm/s2 without a unit in its header is read as m/s2, said as assumed and warned about, and the
     service refuses it in words; choosing cm/s2 makes it fit; a header naming g against a chosen m/s2 is refused;
     a gap is refused with its line; a semicolon file with decimal commas is read. Nothing is created."""
-    page, watch = open_page(server.url + "/", width=1366, height=768, token=TOKEN)
+    page, watch = open_page(server.url + "/", width=1366, height=768, login=OPERATOR)
     before = len(server.call("GET", "/api/tests")[1])
     _set_up(page, isolator="IUT_b")
     page.select_option("#f-profile", "history")
@@ -344,7 +344,7 @@ def test_a_page_that_joins_a_running_history_late_draws_it_from_its_start(server
         t = so_far["so_far"]["time_s"]
         assert t[0] == 0.0 and t[-1] > 11.9 and all(b > a for a, b in zip(t[:-1], t[1:], strict=True))
         assert len(t) <= 500 * t[-1] / 45 + 2  # at the planned series' step
-        page, _ = open_page(server.url + "/", width=1366, height=768, token=TOKEN)
+        page, _ = open_page(server.url + "/", width=1366, height=768, login=OPERATOR)
         plots = poll(lambda: (lambda d: d if d["plannedLoaded"] and d["firstMeasuredS"] is not None
                               and d["firstMeasuredS"] < 0.5 else None)(_earthquake_plots(page)),
                      15, "the record drawn from its start")

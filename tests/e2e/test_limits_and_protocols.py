@@ -13,7 +13,7 @@ import urllib.request
 import numpy as np
 
 from .harness import (
-    TOKEN,
+    OPERATOR,
     fill_identity,
     poll,
     record_checks,
@@ -36,8 +36,8 @@ def test_limits_with_actions_reach_the_record_and_indications_show(server, open_
     """A velocity limit that only indicates, a tracking limit that stops under control: both in the confirmation,
     the strip and the record; the test goes on past the velocity limit and completes, its indications counted
     near the margins (10 kept as events, every one in the record's summary) and listed in words."""
-    page, _ = open_page(server.url + "/", width=1366, height=768, token=TOKEN)
-    fill_identity(page, "LIM-1", "Limit Operator")
+    page, _ = open_page(server.url + "/", width=1366, height=768, login=OPERATOR)
+    fill_identity(page, "LIM-1")
     page.select_option("#f-isolator", "IUT_b")
     page.fill("#f-amplitude", "30")
     page.fill("#f-frequency", "0.5")
@@ -165,7 +165,7 @@ def test_protocols_listed_and_the_confirmation_uses_the_services_figures(server,
     """The shipped protocols from GET /api/protocols with their duration; the chosen one's title and levels; the
     confirmation shows the figures of the service's check (peak displacement, velocity, force, duration), and
     says when the service gave none."""
-    page, watch = open_page(server.url + "/", width=1920, height=1080, token=TOKEN)
+    page, watch = open_page(server.url + "/", width=1920, height=1080, login=OPERATOR)
     _, protocols = server.call("GET", "/api/protocols")
     assert len(protocols) >= 2
     options = page.eval_on_selector_all("#f-profile option", "els => els.map(e => [e.value, e.textContent])")
@@ -174,7 +174,7 @@ def test_protocols_listed_and_the_confirmation_uses_the_services_figures(server,
         text = dict(options)[f"protocol:{p['name']}"]
         assert text == f"protocol {p['name']} ({minutes}:{seconds:02d}, {p['cycles_total']} cycles)", text
     quick = next(p for p in protocols if p["name"] == "quick_check")
-    fill_identity(page, "PROT-1", "Protocol Operator")
+    fill_identity(page, "PROT-1")
     page.select_option("#f-isolator", "IUT_b")
     page.select_option("#f-profile", "protocol:quick_check")
     assert page.is_hidden("#sine-fields")

@@ -9,7 +9,7 @@ from __future__ import annotations
 import re
 import time
 
-from .harness import TOKEN, fill_identity, poll, record_checks, shots, sine_test, wait_start_enabled
+from .harness import OPERATOR, fill_identity, poll, record_checks, shots, sine_test, wait_start_enabled
 
 
 def _ids(server) -> set[int]:
@@ -39,8 +39,8 @@ def test_zero_and_move_from_the_console(server, open_page, artifacts):
     assert abs(rest) > 0.015, rest  # the valve closed beyond the limit: the table stays there
     at = f"{rest * 1e3:+.2f} mm"
 
-    page, _ = open_page(server.url + "/", width=1366, height=768, token=TOKEN)
-    fill_identity(page, "MM-1", "Motion Operator")
+    page, _ = open_page(server.url + "/", width=1366, height=768, login=OPERATOR)
+    fill_identity(page, "MM-1")
     page.wait_for_selector("#rig-warning[data-state='off-zero']", timeout=10000)
     warning = page.inner_text("#rig-warning")
     assert f"The table rests at {at} (where test {tripped} left it)" in warning, warning
@@ -64,7 +64,7 @@ def test_zero_and_move_from_the_console(server, open_page, artifacts):
     assert page.inner_text("#confirm-title").startswith("Return the table to zero?")
     confirm = page.inner_text("#confirm-body")
     for what in (at, "0.00 mm", "50 mm/s", "minimum-jerk", "s moving, then 0.5 s holding", "IUT_b",
-                 "Motion Operator"):
+                 OPERATOR[0]):
         assert what in confirm, (what, confirm)
     assert re.search(r"displacement \|d\|\s+150 mm\s+valve close", confirm), confirm  # the limits that apply
     assert "the move ends aborted" in confirm and "the test ends" not in confirm, confirm
@@ -82,7 +82,7 @@ def test_zero_and_move_from_the_console(server, open_page, artifacts):
     move = _new_record(server, known)
     assert move["profile"]["kind"] == "move" and move["profile"]["end_m"] == 0.0, move["profile"]
     assert abs(move["profile"]["start_m"] - rest) < 1e-6 and move["profile"]["speed_m_per_s"] == 0.05, move
-    assert move["isolator"] == "IUT_b" and move["operator_name"] == "Motion Operator", move
+    assert move["isolator"] == "IUT_b" and move["operator_name"] == OPERATOR[0], move
     assert move["limits"]["tracking_error_m"] == 0.03 and move["limits"]["actions"]["force_n"] == "valve_close"
     server.wait_status(move["id"], {"completed"}, timeout_s=30)
     page.wait_for_selector("#mm-status[data-kind='ok']", timeout=10000)
@@ -101,7 +101,7 @@ def test_zero_and_move_from_the_console(server, open_page, artifacts):
     assert "Move started: the valve opens" in events and "Manual move completed" in events, events
     assert "Test started" not in events and "Test completed" not in events, events
     page.goto(f"{server.url}/?viewer=off#/live")
-    fill_identity(page, "MM-1", "Motion Operator")
+    fill_identity(page, "MM-1")
 
     # Move to "12,5" mm at the default 5 mm/s: the decimal comma is read as one; the form is locked meanwhile
     page.fill("#f-mm_speed", "5")
@@ -141,9 +141,9 @@ def test_zero_and_move_from_the_console(server, open_page, artifacts):
 def test_manual_motion_limits_refusals_units_and_offset(server, open_page, artifacts):
     """Move follows the displacement limit of the form; the service's own refusal is shown; a running test
     disables Zero and Move; the fields follow the unit choice; the sine's offset is taken from the table."""
-    page, watch = open_page(server.url + "/", width=1920, height=1080, token=TOKEN)
+    page, watch = open_page(server.url + "/", width=1920, height=1080, login=OPERATOR)
     watch.allowed_status.add(422)  # the refusal below
-    fill_identity(page, "MM-2", "Motion Operator")
+    fill_identity(page, "MM-2")
     # the same limits as a test: the reach of a move follows the displacement limit of the form
     page.fill("#f-mm_target", "120")
     page.wait_for_selector("#mm-move:not([disabled])", timeout=10000)

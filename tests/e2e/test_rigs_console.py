@@ -3,7 +3,7 @@ column, filters by rig, and offers no delete for another rig's test; the test pa
 
 from __future__ import annotations
 
-from .harness import TOKEN, Server, shots, sine_test
+from .harness import OPERATOR, Server, shots, sine_test
 
 
 def test_history_shows_and_filters_every_rigs_tests(tmp_path, open_page, artifacts):
@@ -19,7 +19,7 @@ def test_history_shows_and_filters_every_rigs_tests(tmp_path, open_page, artifac
             a.wait_status(ran_a, {"completed"}, timeout_s=60)
             b.wait_status(ran_b, {"completed"}, timeout_s=60)
 
-            page, _ = open_page(a.url + "/#/history", width=1366, height=768, token=TOKEN)
+            page, _ = open_page(a.url + "/#/history", width=1366, height=768, login=OPERATOR)
             row_b = page.wait_for_selector(f"#history-table tr[data-id='{ran_b}']", timeout=10000)
             row_a = page.wait_for_selector(f"#history-table tr[data-id='{ran_a}']", timeout=10000)
             assert row_a.query_selector("td.rig").inner_text() == "rig-a"

@@ -10,7 +10,7 @@ import json
 import re
 import time
 
-from .harness import TOKEN, RigEmulator, Server, fill_identity, sine_test, start_from_form, wait_start_enabled
+from .harness import OPERATOR, RigEmulator, Server, fill_identity, sine_test, start_from_form, wait_start_enabled
 
 VIEWPORTS = [(1366, 768), (1920, 1080)]
 MS = r"\d+(\.\d{1,2})? ms"  # a latency: at most 2 decimals
@@ -72,7 +72,7 @@ def test_udp_rig_link_health(open_page, artifacts, tmp_path):
     srv = None
     try:
         srv = Server(tmp_path / "serve", rig=emulator.url).start()
-        page, _ = open_page(srv.url + "/", width=1366, height=768, token=TOKEN)
+        page, _ = open_page(srv.url + "/", width=1366, height=768, login=OPERATOR)
         page.wait_for_selector("#rig-link[data-kind='udp'][data-connected='true']", timeout=10000)
         assert page.inner_text("#rig-name") == emulator.url
         assert page.inner_text("#rig-state") == "connected"
@@ -161,7 +161,7 @@ def test_udp_rig_table_off_zero_keeps_start_disabled(open_page, artifacts, tmp_p
         assert state["position_source"] == "the rig (probe)" and abs(state["table_position_m"]) > 0.002, state
         position = f"{state['table_position_m'] * 1e3:+.2f} mm"
 
-        page, watch = open_page(srv.url + "/", width=1366, height=768, token=TOKEN)
+        page, watch = open_page(srv.url + "/", width=1366, height=768, login=OPERATOR)
         watch.allowed_status.add(409)  # the refused start below
         page.wait_for_selector("#rig-link[data-connected='true']", timeout=10000)
         page.wait_for_selector("#s-position[data-source='the rig (probe)']", timeout=10000)

@@ -9,7 +9,7 @@ import json
 import time
 import urllib.request
 
-from .harness import TOKEN, PageWatch, sine_test, watch_rejections
+from .harness import OPERATOR, PageWatch, log_in, sine_test, watch_rejections
 
 
 def test_3d_view_is_relayed_and_follows_the_rig(server, open_page, artifacts):
@@ -45,7 +45,7 @@ def test_reconnects_after_service_restart(server, browser, artifacts):
     srv = server
     context = browser.new_context(viewport={"width": 1400, "height": 900})
     watch_rejections(context)
-    context.add_init_script(f"localStorage.setItem('isorig.operator_token', {TOKEN!r});")
+    log_in(context, srv.url, OPERATOR)
     try:
         page = context.new_page()
         watch = PageWatch(page)

@@ -1,6 +1,4 @@
-// REST client: same-origin fetch, the operator token kept in localStorage and asked for once.
-
-const TOKEN_KEY = "isorig.operator_token";
+// REST client: same-origin fetch; who acts is the login session (a cookie the service sets, HttpOnly).
 
 export class ApiError extends Error {
   constructor(status, detail, message) {
@@ -10,23 +8,41 @@ export class ApiError extends Error {
   }
 }
 
-export function getToken() {
-  return localStorage.getItem(TOKEN_KEY) || "";
+/** Who is logged in on this console (GET /api/session): {name, role} or {name: null}. */
+export const account = { name: null, role: null };
+const accountListeners = [];
+
+export function onAccount(fn) { accountListeners.push(fn); }
+
+function setAccount(who) {
+  account.name = (who && who.name) || null;
+  account.role = (who && who.role) || null;
+  for (const fn of accountListeners) fn(account);
 }
 
-export function setToken(token) {
-  if (token) localStorage.setItem(TOKEN_KEY, token);
-  else localStorage.removeItem(TOKEN_KEY);
+/** Ask the service who this browser is logged in as (the login cookie is HttpOnly: no script reads it). */
+export async function refreshAccount() {
+  try {
+    setAccount(await request("GET", "/api/session"));
+  } catch {
+    /* the service is down: keep what we knew */
+  }
+  return account;
 }
 
-/** Ask the operator for the token in a modal dialog; resolves to the token or "" if cancelled. */
-export function askToken(reason) {
-  const dialog = document.getElementById("token-dialog");
-  const input = document.getElementById("token-input");
-  const cancel = document.getElementById("token-cancel");
-  const form = document.getElementById("token-form");
-  document.getElementById("token-reason").textContent = reason || "";
-  input.value = "";
+/**
+ * Ask for a name and password in a modal dialog and log in (POST /api/session sets the login cookie).
+ * Resolves true once logged in, false if cancelled; a refusal is shown in the dialog, which stays open.
+ */
+export function askLogin(reason) {
+  const dialog = document.getElementById("login-dialog");
+  const name = document.getElementById("login-name");
+  const password = document.getElementById("login-password");
+  const why = document.getElementById("login-reason");
+  const cancel = document.getElementById("login-cancel");
+  const form = document.getElementById("login-form");
+  why.textContent = reason || "";
+  password.value = "";
   return new Promise((resolve) => {
     const done = (value) => {
       form.removeEventListener("submit", onSubmit);
@@ -34,19 +50,30 @@ export function askToken(reason) {
       dialog.close();
       resolve(value);
     };
-    const onSubmit = (ev) => {
+    const onSubmit = async (ev) => {
       ev.preventDefault();
-      const token = input.value.trim();
-      if (!token) return;
-      setToken(token);
-      done(token);
+      if (!name.value.trim() || !password.value) return;
+      try {
+        setAccount(await request("POST", "/api/session", { name: name.value.trim(), password: password.value }));
+        password.value = "";
+        done(true);
+      } catch (e) {
+        why.textContent = e.message;
+        password.value = "";
+        password.focus();
+      }
     };
-    const onCancel = () => done("");
+    const onCancel = () => done(false);
     form.addEventListener("submit", onSubmit);
     cancel.addEventListener("click", onCancel);
     dialog.showModal();
-    input.focus();
+    (name.value ? password : name).focus();
   });
+}
+
+export async function logOut() {
+  await request("DELETE", "/api/session");
+  setAccount(null);
 }
 
 /** Turn a FastAPI error body into one readable sentence (422 lists carry field, value and limit). */
@@ -88,19 +115,22 @@ export function errorField(detail) {
 
 async function request(method, path, body, { auth = false, retryAuth = true } = {}) {
   // X-Isorig-Client: the service refuses a browser request that changes state without JSON or this header (a
-  // foreign page cannot send it without a CORS preflight, which the service never grants): docs/backend.md
+  // foreign page cannot send it without a CORS preflight, which the service never grants): docs/backend.md.
+  // Who acts is the login cookie (HttpOnly, SameSite=Strict), sent by the browser itself.
   const headers = { Accept: "application/json", "X-Isorig-Client": "console" };
   if (body !== undefined) headers["Content-Type"] = "application/json";
-  const token = getToken();
-  if (auth && token) headers.Authorization = `Bearer ${token}`;
   const res = await fetch(path, {
     method,
     headers,
+    credentials: "same-origin",
     body: body === undefined ? undefined : JSON.stringify(body),
   });
-  if ((res.status === 401 || res.status === 403) && auth && retryAuth) {
-    const fresh = await askToken(token ? "the stored token was refused" : "");
-    if (fresh) return request(method, path, body, { auth, retryAuth: false });
+  if (res.status === 401 && auth && retryAuth) {
+    const wasIn = account.name;
+    setAccount(null);
+    if (await askLogin(wasIn ? "your login has ended: log in again" : "this needs an account with the right role")) {
+      return request(method, path, body, { auth, retryAuth: false });
+    }
   }
   let data = null;
   const text = await res.text();
@@ -114,19 +144,22 @@ async function request(method, path, body, { auth = false, retryAuth = true } = 
 export const api = {
   get: (path) => request("GET", path),
   post: (path, body) => request("POST", path, body, { auth: true }),
-  /** POST that never asks for the token (read-only checks). */
+  /** POST that never asks for a login (read-only checks). */
   postQuiet: (path, body) => request("POST", path, body),
-  /** Stop and abort: the token goes along if this browser has one, but is never asked for: the service ends a
-   * test for anyone (like an emergency stop) and records who asked. */
+  /** Stop and abort: never ask for a login: the service ends a test for anyone (like an emergency stop) and
+   * records who asked (the logged-in account, else the console's address). */
   endTest: (path) => request("POST", path, undefined, { auth: true, retryAuth: false }),
   del: (path) => request("DELETE", path, undefined, { auth: true }),
 };
 
-/** Operator commands always carry the token; ask for it first if this browser has none. */
-export async function operatorPost(path, body) {
-  if (!getToken()) {
-    const token = await askToken("");
-    if (!token) throw new ApiError(0, null, "no operator token given");
+/** A request that needs an account (operator commands, an admin's settings): ask for a login first if nobody is
+ * logged in on this console. */
+export async function asAccount(method, path, body) {
+  if (!account.name) {
+    await refreshAccount();
+    if (!account.name && !(await askLogin(""))) throw new ApiError(0, null, "not logged in: nothing was sent");
   }
-  return api.post(path, body);
+  return request(method, path, body, { auth: true });
 }
+
+export const operatorPost = (path, body) => asAccount("POST", path, body);

@@ -8,12 +8,13 @@
 // (POST /api/commissioning/{id}/apply).
 
 import uPlot from "../vendor/uplot/uPlot.esm.js";
-import { api, errorField, operatorPost } from "./api.js";
+import { account, api, errorField, operatorPost } from "./api.js";
 import { confirmDialog, summaryTable } from "./dialogs.js";
 import { parseNumber } from "./parse.js";
 import { onState, sourceWords, state, tablePosition, testRunning } from "./state.js";
 import { el, fmtDuration, fmtTime, showAlert } from "./ui.js";
 import { fmtU, inputText, onUnits, sigDigits, system, toSI, unit } from "./units.js";
+import { bindAccountField } from "./who.js";
 
 const $ = (id) => document.getElementById(id);
 const num = (v) => typeof v === "number" && Number.isFinite(v);
@@ -115,7 +116,7 @@ function readForm(rigAnswer) {
   out.max_velocity_m_per_s = field("c-velocity", "velocity", { min: RANGES.velocity[0], max: RANGES.velocity[1] });
   out.speed = $("c-speed").disabled ? 1 : field("c-speed", null, { min: 1, max: env.max_speed || 100 });
   out.isolator = $("c-isolator").value || "none";
-  out.operator_name = $("c-operator").value.trim();
+  out.operator_name = account.name || ""; // the logged-in account (the service records it in any case)
   if (out.vertical_load_n === null) delete out.vertical_load_n;
   return problems.length ? { ok: false, problems, body: out } : { ok: true, body: out };
 }
@@ -154,9 +155,7 @@ export class CommissionPage {
     $("c-supply").value = inputText("pressure", DEFAULTS.supply);
     $("c-stroke").value = inputText("length", DEFAULTS.stroke);
     $("c-velocity").value = inputText("velocity", DEFAULTS.velocity);
-    try {
-      $("c-operator").value = localStorage.getItem("isorig.operator_name") || "";
-    } catch { /* private mode */ }
+    bindAccountField($("c-operator"));
     await this.loadIsolators();
     this.setRig(rigAnswer);
     onUnits((sys) => this.unitsChanged(sys));
@@ -227,9 +226,6 @@ export class CommissionPage {
   formChanged() {
     const r = readForm(this.rig);
     this.form = r;
-    try {
-      if (r.body.operator_name) localStorage.setItem("isorig.operator_name", r.body.operator_name);
-    } catch { /* fine */ }
     if (!r.ok) {
       this.check = null;
       this.renderWhat();
@@ -766,14 +762,14 @@ export class CommissionPage {
         "with --rig-file). A running test is not affected (none may run)." }),
       ...(moved.length ? [el("p", { text: "What changes (beyond two uncertainties):" }), el("ul", {}, ...moved.map((m) => el("li", { text: m })))] : []));
     const answer = await confirmDialog({ title: `Make commissioning #${res.id}'s rig file the service's rig?`, body,
-      ok: "Make it the service's rig", fields: [{ name: "by", label: "your name", value: $("c-operator").value.trim(), minLength: 1, maxLength: 64 }] });
+      ok: "Make it the service's rig" });
     if (!answer) {
       $("c-apply-message").textContent = "Not applied: cancelled.";
       $("c-apply-message").className = "message";
       return;
     }
     try {
-      const out = await operatorPost(`/api/commissioning/${res.id}/apply`, { operator_name: answer.values.by });
+      const out = await operatorPost(`/api/commissioning/${res.id}/apply`, {});
       this.current = out.commissioning;
       this.renderResult(this.current);
       $("c-apply-message").textContent = `The service's rig is now "${out.rig_file.name}".${out.in_force.note ? ` Note: ${out.in_force.note}` : ""}`;

@@ -3,11 +3,12 @@
 // the record actions: delete a test of this rig that never ran, archive a test that ran (who and why), restore
 // an archived one. Each asks first and says what happened.
 
-import { api, askToken, getToken } from "./api.js";
+import { account, api, askLogin, refreshAccount } from "./api.js";
 import { confirmDialog, summaryTable } from "./dialogs.js";
 import { indicationsText, limitsText } from "./limits.js";
 import { isProtocol, ProtocolAcceptance, VERDICT_CLASS } from "./acceptance.js";
 import { EarthquakeRecord } from "./eqrecord.js";
+import { ReviewPanel, reviewOf, reviewPill } from "./review.js";
 import { verdictBlock, verdictPill as trackingPill } from "./verdict.js";
 import { LoopPlot } from "./plots.js";
 import { el, eventLine, fmtTime, profileText } from "./ui.js";
@@ -72,8 +73,10 @@ function statusPill(status) {
   return el("span", { class: `pill status-${status}`, text: status });
 }
 
-/** What an operator may do with a record: delete (never ran), archive (ran), restore (archived), nothing (running). */
+/** What an operator may do with a record: delete (never ran, this rig's), archive (ran), restore (archived), nothing
+ * (running, another rig's that never ran, or approved: an approved record is locked). */
 export function recordAction(t, thisRig = null) {
+  if (reviewOf(t).state === "approved") return "";
   if (t.archived) return "restore";
   if (t.status === "ready") return thisRig && t.rig_name && t.rig_name !== thisRig ? "" : "delete"; // its rig's
   if (t.status === "running") return "";
@@ -87,6 +90,7 @@ export class History {
     this.acceptance = new ProtocolAcceptance(); // a protocol test's verdict and levels (js/acceptance.js)
     this.current = null; // the test page's record
     this.thisRig = null; // the rig this service drives (GET /api/rigs): another rig's tests are its service's
+    this.review = new ReviewPanel(() => this.showTest(this.current.id, true)); // approve / reject (js/review.js)
     $("history-filter").addEventListener("submit", (ev) => {
       ev.preventDefault();
       this.showList();
@@ -130,6 +134,7 @@ export class History {
     if ($("h-rig").value) q.set("rig_name", $("h-rig").value);
     if ($("h-isolator").value) q.set("isolator", $("h-isolator").value);
     if ($("h-status").value) q.set("status", $("h-status").value);
+    if ($("h-review").value) q.set("review", $("h-review").value);
     // the dates are the operator's local days; the service keeps UTC
     if ($("h-since").value) q.set("since", new Date(`${$("h-since").value}T00:00:00`).toISOString());
     if ($("h-until").value) q.set("until", new Date(`${$("h-until").value}T23:59:59.999`).toISOString());
@@ -172,7 +177,7 @@ export class History {
         el("td", { text: profileText(t) }),
         el("td", { text: controllerName(t) }),
         el("td", { text: num(t.vertical_load_n) ? fmtU("force", t.vertical_load_n, { sig: 4 }) : "-" }),
-        el("td", {}, statusPill(t.status), ...verdictPill(t), ...trackingPill(t), ...commissioningPill(t),
+        el("td", {}, statusPill(t.status), ...reviewPill(t), ...verdictPill(t), ...trackingPill(t), ...commissioningPill(t),
           ...(t.archived ? [el("small", { class: "muted", text: ` archived by ${t.archived.by}: ${t.archived.reason}` })] : [])),
         ...(isProtocol(t) ? [el("td", { class: "muted", colspan: "2", text: "by level (test page)" })]
           : [el("td", { text: fmtU("stiffness", s.k_eff_n_per_m) }), el("td", { text: fmtU("energy", s.edc_j) })]),
@@ -191,7 +196,6 @@ export class History {
       ["specimen / operator", `${t.specimen_id || "-"} / ${t.operator_name || "-"}`],
       ["isolator / motion", `${isolatorName(t)} / ${profileText(t)}`],
     ]);
-    const me = (() => { try { return localStorage.getItem("isorig.operator_name") || ""; } catch { return ""; } })();
     let answer;
     if (action === "delete") {
       answer = await confirmDialog({ title: `Delete test #${t.id}? It never ran.`, body: rows, ok: "Delete test", danger: true });
@@ -199,20 +203,18 @@ export class History {
       const note = el("div", {}, rows, el("p", { text: "An archived test is hidden from the list, kept with its " +
         "samples, and can be restored. The service logs who archived it and why." }));
       answer = await confirmDialog({ title: `Archive test #${t.id}?`, body: note, ok: "Archive test",
-        fields: [{ name: "by", label: "your name", value: me, minLength: 1, maxLength: 64 },
-          { name: "reason", label: "why (at least 3 characters)", minLength: 3, maxLength: 400, multiline: true }] });
+        fields: [{ name: "reason", label: "why (at least 3 characters)", minLength: 3, maxLength: 400, multiline: true }] });
     } else {
       answer = await confirmDialog({ title: `Restore test #${t.id} into the list?`, body: rows, ok: "Restore test",
-        fields: [{ name: "by", label: "your name", value: me, minLength: 1, maxLength: 64 },
-          { name: "reason", label: "why (at least 3 characters)", minLength: 3, maxLength: 400, multiline: true }] });
+        fields: [{ name: "reason", label: "why (at least 3 characters)", minLength: 3, maxLength: 400, multiline: true }] });
     }
     if (!answer) {
       this.message(messageId, `Test #${t.id}: nothing changed.`);
       return false;
     }
-    if (!getToken()) {
-      if (!(await askToken(""))) {
-        this.message(messageId, `Test #${t.id}: nothing changed (no operator token).`, "error");
+    if (!account.name && !(await refreshAccount()).name) {
+      if (!(await askLogin(""))) {
+        this.message(messageId, `Test #${t.id}: nothing changed (not logged in).`, "error");
         return false;
       }
     }
@@ -221,10 +223,9 @@ export class History {
         await api.del(`/api/tests/${t.id}`);
         this.message(messageId, `Test #${t.id} deleted.`, "ok");
       } else {
-        const body = { by: answer.values.by, reason: answer.values.reason };
-        await api.post(`/api/tests/${t.id}/${action}`, body);
-        try { localStorage.setItem("isorig.operator_name", body.by); } catch { /* fine */ }
-        this.message(messageId, `Test #${t.id} ${action === "archive" ? "archived" : "restored"} by ${body.by}: ${body.reason}`, "ok");
+        const done = await api.post(`/api/tests/${t.id}/${action}`, { reason: answer.values.reason });
+        const by = done.archived ? done.archived.by : account.name;
+        this.message(messageId, `Test #${t.id} ${action === "archive" ? `archived by ${by}` : `restored by ${account.name}`}: ${answer.values.reason}`, "ok");
       }
     } catch (e) {
       this.message(messageId, `Test #${t.id} not ${action === "delete" ? "deleted" : action + "d"}: ${e.message}`, "error");
@@ -294,6 +295,7 @@ export class History {
     const arch = $("t-archived");
     arch.classList.toggle("hidden", !t.archived);
     arch.textContent = t.archived ? `Archived by ${t.archived.by} on ${fmtTime(t.archived.at)}: ${t.archived.reason}` : "";
+    this.review.show(t);
     const action = recordAction(t, this.thisRig);
     const button = $("t-action");
     button.classList.toggle("hidden", !action);

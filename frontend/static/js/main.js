@@ -1,15 +1,16 @@
 // Dashboard entry point: views (live, history, one test, commissioning), the status strip, the always-visible
-// Abort, the token, the unit choice, the 3D view.
+// Abort, the login, the unit choice, the 3D view.
 
-import { api, askToken, getToken } from "./api.js";
+import { account, api, askLogin, logOut, onAccount, refreshAccount } from "./api.js";
 import { CommissionPage } from "./commission.js";
 import { History } from "./history.js";
+import { LabPage } from "./labpage.js";
 import { LiveView } from "./live.js";
 import { RigLink } from "./rig.js";
 import { runningTestId, SetupPanel } from "./setup.js";
 import { changed, onState, state } from "./state.js";
 import { StatusStrip } from "./strip.js";
-import { hideAlert, showAlert } from "./ui.js";
+import { el, hideAlert, showAlert } from "./ui.js";
 import { onUnits, setSystem, system } from "./units.js";
 import { watchLiveVerdict } from "./verdict.js";
 
@@ -30,6 +31,7 @@ const live = new LiveView({
 });
 const setup = new SetupPanel({ live });
 const historyView = new History();
+const labPage = new LabPage();
 const strip = new StatusStrip();
 strip.nextLimits = () => setup.nextLimits();
 const commission = new CommissionPage({ onApplied: () => reloadRig() });
@@ -39,15 +41,17 @@ function route() {
   const hash = location.hash || "#/live";
   const m = hash.match(/^#\/tests\/(\d+)/);
   const c = hash.match(/^#\/commission(?:\/(\d+))?/);
-  const view = m ? "test" : c ? "commission" : hash.startsWith("#/history") ? "history" : "live";
+  const view = m ? "test" : c ? "commission" : hash.startsWith("#/history") ? "history"
+    : hash.startsWith("#/lab") ? "lab" : "live";
   currentView = view;
-  for (const v of ["live", "history", "test", "commission"]) $(`view-${v}`).classList.toggle("hidden", v !== view);
+  for (const v of ["live", "history", "test", "commission", "lab"]) $(`view-${v}`).classList.toggle("hidden", v !== view);
   document.querySelectorAll("nav a").forEach((a) => {
     a.classList.toggle("active", a.dataset.view === (view === "test" ? "history" : view));
   });
   live.visible = view === "live" && !document.hidden;
   live.dirty = true;
   if (view === "history") historyView.showList();
+  if (view === "lab") labPage.load();
   if (view === "test") historyView.showTest(Number(m[1]));
   if (view === "commission" && commissionReady) commission.show(c[1] ? Number(c[1]) : null);
   else commission.hide();
@@ -174,8 +178,15 @@ function capFrameRate(w, maxFps) {
   w.__isorigCapped = true;
 }
 
-function updateTokenButton() {
-  $("token-button").textContent = getToken() ? "token set" : "set token";
+/** The account button: "log in", or who is logged in and their role (a click logs out). */
+function showAccount() {
+  const b = $("account-button");
+  b.replaceChildren(...(account.name
+    ? [el("span", { class: "acct-name", text: account.name }), el("span", { class: "acct-role", text: account.role })]
+    : ["log in"]));
+  b.title = account.name ? `logged in as ${account.name}, role ${account.role}: click to log out` : "log in to run "
+    + "tests, move the rig or approve records (ABORT and Stop need no login)";
+  b.dataset.role = account.role || "";
 }
 
 /** The sticky block (top bar, strip, banner) has a height the panels below must leave free. */
@@ -221,12 +232,14 @@ async function main() {
   window.addEventListener("hashchange", route);
   $("abort").addEventListener("click", abort);
   $("alert-close").addEventListener("click", hideAlert);
-  $("token-button").addEventListener("click", async () => {
-    await askToken("");
-    updateTokenButton();
+  onAccount(showAccount);
+  $("account-button").addEventListener("click", async () => {
+    if (account.name) await logOut();
+    else await askLogin("");
   });
-  updateTokenButton();
-  window.addEventListener("storage", updateTokenButton);
+  showAccount();
+  refreshAccount();
+  labPage.load(); // the lab's default units apply to a browser that has not chosen its own
 
   live.createPlots();
   live.connect();

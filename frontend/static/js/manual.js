@@ -1,5 +1,5 @@
 // Manual motion: the table moved to a position, or back to zero, at a safe speed when no test runs
-// (POST /api/rig/move, POST /api/rig/zero, with the operator token). A move uses the set-up's isolator, supply
+// (POST /api/rig/move, POST /api/rig/zero, by a logged-in operator). A move uses the set-up's isolator, supply
 // pressure, vertical load and limits with their actions (the same detectors as a test) and asks for a
 // confirmation first: from where to where, the peak speed, how long, the limits. The service runs it as a run
 // of its own (profile kind "move", a minimum-jerk target, then 0.5 s holding the position, the valve closed at

@@ -8,7 +8,7 @@
 // Manual motion (js/manual.js) lives in this panel too: it moves the table with the set-up's conditions and
 // limits, and a sine's offset can be taken from where the table rests.
 
-import { api, ApiError, errorField, operatorPost } from "./api.js";
+import { account, api, ApiError, errorField, operatorPost } from "./api.js";
 import { confirmDialog, summaryTable } from "./dialogs.js";
 import { EarthquakeForm, G } from "./earthquake.js";
 import { actionHelp, actionName, actionOf, ACTION_ORDER, DEFAULT_ACTION, LIMITS, limitValue, setActionHelp } from "./limits.js";
@@ -18,6 +18,7 @@ import { fmtPeriod, rigKind } from "./rig.js";
 import { changed, isCommissioning, isMove, onState, runName, sourceWords, state, tablePosition, testRunning } from "./state.js";
 import { el, fmtDuration, showAlert } from "./ui.js";
 import { fmt, fmtU, inputText, onUnits, sigDigits, toDisplay, toSI, unit } from "./units.js";
+import { bindAccountField } from "./who.js";
 
 const $ = (id) => document.getElementById(id);
 const num = (v) => typeof v === "number" && Number.isFinite(v);
@@ -289,6 +290,7 @@ export class SetupPanel {
   // ------------------------------------------------------------------------------------------ init
 
   async init() {
+    bindAccountField($("f-operator_name"));
     await Promise.all([this.loadRig(), this.loadIsolators(), this.loadProtocols(), this.eq.loadPresets()]);
     this.eq.init();
     this.renderFieldMeta();
@@ -834,7 +836,7 @@ export class SetupPanel {
       speed: this.realTimeOnly ? 1 : v.speed,
       profile,
       specimen_id: $("f-specimen_id").value.trim(),
-      operator_name: $("f-operator_name").value.trim(),
+      operator_name: account.name || "", // the logged-in account (the service records it in any case)
       notes: $("f-notes").value.trim(),
     };
     if (num(v.vertical_load)) body.vertical_load_n = v.vertical_load;
@@ -921,6 +923,12 @@ export class SetupPanel {
       } catch (e) {
         if (e instanceof ApiError && e.status === 422) {
           result = { ok: false, key, message: e.message, field: errorField(e.detail), data: e.detail };
+        } else if (e instanceof ApiError && e.status === 503) { // the service's check pool is busy: ask again
+          if (seq === this.checkSeq) {
+            box.textContent = "Checking: the service is busy with other checks; asking again in 2 s ...";
+            this.scheduleCheck(2000);
+          }
+          return;
         } else {
           result = { ok: null, key, message: `envelope check not available (${e.message})` };
         }
@@ -993,6 +1001,7 @@ export class SetupPanel {
     this.locked = true;
     this.lockedTestId = t.id;
     $("f-specimen_id").value = t.specimen_id || "";
+    $("f-operator_name").dataset.following = "1";
     $("f-operator_name").value = t.operator_name || "";
     $("f-notes").value = t.notes || "";
     if (t.isolator && this.isolators.some((i) => i.name === t.isolator)) $("f-isolator").value = t.isolator;
@@ -1054,6 +1063,8 @@ export class SetupPanel {
     this.locked = false;
     this.lockedTestId = null;
     $("setup-fields").disabled = false;
+    delete $("f-operator_name").dataset.following; // back to the logged-in account
+    $("f-operator_name").value = account.name || "";
     // a test started elsewhere (another console, a script) does not replace this operator's set-up
     if (!mine) {
       this.restoreDraft();
@@ -1079,7 +1090,6 @@ export class SetupPanel {
     if (!this.locked) {
       const { body, problems } = this.body();
       if (!body.specimen_id) out.push("a specimen id");
-      if (!body.operator_name) out.push("the operator's name");
       const bad = Object.keys(problems);
       if (bad.length) out.push(`valid values (${bad.map((k) => k.replace(/^lim_/, "limit ").replace(/_/g, " ")).join(", ")})`);
       else if (this.lastCheck.ok === false) out.push(this.lastCheck.local ? "valid values (see the fields)" : "a set-up within the rig envelope (see above)");
@@ -1143,7 +1153,7 @@ export class SetupPanel {
     if (this.locked) return;
     const draft = { values: {}, isolator: $("f-isolator").value, profile: $("f-profile").value,
       controller: $("f-controller").value, specimen_id: $("f-specimen_id").value,
-      operator_name: $("f-operator_name").value, notes: $("f-notes").value, actions: this.actions(),
+      notes: $("f-notes").value, actions: this.actions(),
       eq: { source: $("f-eq_source").value, preset: $("f-eq_preset").value, unit: $("f-eq_acc_unit").value,
         storeys: this.eq.storeys } }; // a record file is not kept: it is chosen again after a reload
     for (const [key, v] of Object.entries(this.values)) if (num(v) || v === null) draft.values[key] = v;
@@ -1160,7 +1170,7 @@ export class SetupPanel {
       $("f-controller").value = draft.controller;
       this.showControllerOptions();
     }
-    for (const k of ["specimen_id", "operator_name", "notes"]) if (typeof draft[k] === "string") $(`f-${k}`).value = draft[k];
+    for (const k of ["specimen_id", "notes"]) if (typeof draft[k] === "string") $(`f-${k}`).value = draft[k];
     const eq = draft.eq || {};
     for (const [id, v] of [["f-eq_source", eq.source], ["f-eq_preset", eq.preset], ["f-eq_acc_unit", eq.unit]]) {
       if (v && [...$(id).options].some((o) => o.value === v)) $(id).value = v;

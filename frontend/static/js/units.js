@@ -46,6 +46,17 @@ export function system() {
   return current;
 }
 
+/** The lab's default (GET /api/lab units): taken only while this browser has made no choice of its own. */
+export function applyLabDefault(name) {
+  let stored = null;
+  try { stored = localStorage.getItem(KEY); } catch { stored = null; }
+  if (stored !== null) return;
+  const next = name === "si" ? "si" : "lab";
+  if (next === system()) return;
+  current = next;
+  for (const fn of listeners) fn(next);
+}
+
 export function setSystem(name) {
   const next = name === "si" ? "si" : "lab";
   if (next === system()) return;

@@ -1,0 +1,80 @@
+"""Accounts in the console (issue 22): the login dialog and the account button, a wrong password said in the
+dialog, a viewer who may read but not start, and an approver who approves a record on its page (locked, its
+SHA-256 shown and checked), History filtered by review state. Screenshots at 1366x768 and 1920x1080."""
+
+from __future__ import annotations
+
+from .harness import shots, sine_test
+
+APPROVER = ("e2e-approver", "e2e-approver-password")
+VIEWER = ("e2e-viewer", "e2e-viewer-password")
+
+
+def test_an_approver_logs_in_and_approves_a_record(server, open_page, artifacts):
+    server.add_account(*APPROVER, role="approver")
+    test_id = server.start_test(sine_test(cycles=2, speed=4.0))  # run by the service account 'automation'
+    assert server.wait_status(test_id, {"completed"}, timeout_s=60)["status"] == "completed"
+
+    page, watch = open_page(f"{server.url}/#/tests/{test_id}", width=1366, height=768)
+    # the wrong password's answer is a 401, which the browser logs: expected here, nothing else is
+    watch.allowed_patterns.append(r"^Failed to load resource: the server responded with a status of 401 ")
+    page.wait_for_selector("#t-review-state:has-text('not reviewed')", timeout=10000)
+    assert page.inner_text("#account-button") == "log in"
+    page.click("#t-approve")  # nobody logged in: the console asks first
+    page.wait_for_selector("#login-dialog[open]", timeout=5000)
+    page.fill("#login-name", APPROVER[0])
+    page.fill("#login-password", "not the password")
+    page.click("#login-ok")
+    page.wait_for_selector("#login-reason:has-text('wrong name or password')", timeout=5000)
+    assert page.is_visible("#login-dialog")  # stays open, the password cleared
+    assert page.input_value("#login-password") == ""
+    shots(page, artifacts, "accounts_login_refused")
+    page.fill("#login-password", APPROVER[1])
+    page.click("#login-ok")
+    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    assert f"Approved by {APPROVER[0]}" in page.inner_text("#confirm-body")
+    page.fill("#confirm-body textarea", "loops as expected")
+    page.click("#confirm-ok")
+    page.wait_for_selector("#t-review-state:has-text('approved')", timeout=10000)
+    assert page.inner_text("#account-button .acct-name") == APPROVER[0]
+    assert page.inner_text("#account-button .acct-role") == "approver"
+    rec = server.call("GET", f"/api/tests/{test_id}")[1]
+    assert rec["review"]["by"] == APPROVER[0] and rec["review"]["note"] == "loops as expected"
+    assert rec["review"]["record_sha256"] in page.inner_text("#t-review-hash")
+    assert "locked" in page.inner_text("#t-review-words")
+    assert not page.is_visible("#t-action")  # no archive of an approved record
+    page.click("#t-verify")
+    page.wait_for_selector("#t-verify-result:has-text('intact')", timeout=10000)
+    shots(page, artifacts, "accounts_approved_record")
+
+    page.goto(f"{server.url}/#/history")
+    page.select_option("#h-review", "approved")
+    page.click("#history-filter button[type=submit]")
+    page.wait_for_selector(f"#history-table tr[data-id='{test_id}'] .review-approved", timeout=10000)
+    ids = page.eval_on_selector_all("#history-table tbody tr[data-id]", "rows => rows.map(r => r.dataset.id)")
+    assert ids == [str(test_id)], ids
+    shots(page, artifacts, "accounts_history_approved")
+
+    page.click("#account-button")  # logs out, on the server too
+    page.wait_for_selector("#account-button:has-text('log in')", timeout=5000)
+    who = page.evaluate("fetch('/api/session').then(r => r.json())")
+    assert who["name"] is None, who
+
+
+def test_a_viewer_reads_but_may_not_start(server, open_page, artifacts):
+    server.add_account(*VIEWER, role="viewer")
+    page, watch = open_page(server.url + "/", width=1920, height=1080, login=VIEWER)
+    watch.allowed_patterns.append(r"^Failed to load resource: the server responded with a status of 403 ")  # Start
+    page.wait_for_selector("#account-button[data-role='viewer']", timeout=5000)
+    assert page.input_value("#f-operator_name") == VIEWER[0]  # who acts is the account, not typed
+    assert page.get_attribute("#f-operator_name", "readonly") is not None
+    page.fill("#f-specimen_id", "VIEWER-1")
+    page.fill("#f-cycles", "2")
+    page.wait_for_selector("#start:not([disabled])", timeout=10000)
+    before = len(server.call("GET", "/api/tests")[1])
+    page.click("#start")
+    page.wait_for_selector("#confirm-dialog[open]", timeout=5000)
+    page.click("#confirm-ok")
+    page.wait_for_selector("#setup-message:has-text('needs the role operator')", timeout=10000)
+    assert len(server.call("GET", "/api/tests")[1]) == before  # nothing was created
+    shots(page, artifacts, "accounts_viewer_refused")
