@@ -33,6 +33,18 @@ from .stream import Hub
 log = logging.getLogger("isorig")
 
 
+def bootstrap_accounts(sessions, service_token: bool) -> tuple[str, str] | None:
+    """The service account (if a service token is set) and, on the first start, ``admin`` (its name and password
+    returned). Several rigs' services may start together on one database: one at a time (db.startup_lock)."""
+    with sessions() as session:
+        db.startup_lock(session)
+        if service_token:
+            accounts.ensure_service_account(session)
+        first = accounts.first_admin(session)
+        session.commit()
+    return first
+
+
 def create_app(settings: Settings | None = None, driver: str | None = None) -> FastAPI:
     settings = settings or Settings()
     engine = db.make_engine(settings.resolved_database_url)
@@ -44,11 +56,7 @@ def create_app(settings: Settings | None = None, driver: str | None = None) -> F
     if interrupted:
         log.warning("tests %s were running when the service stopped: marked interrupted", interrupted)
     service_token = settings.operator_token.get_secret_value() if settings.operator_token else ""
-    with sessions() as session:
-        if service_token:
-            accounts.ensure_service_account(session)
-        first = accounts.first_admin(session)
-        session.commit()
+    first = bootstrap_accounts(sessions, bool(service_token))
     hub = Hub(settings.stream_history_s)
     service = RigService(settings, sessions, hub, driver)
     checks = CheckPool(service.context, settings.check_workers, settings.check_queue,  # heavy token-free work

@@ -115,5 +115,18 @@ def upgrade(engine: Engine, revision: str = "head") -> None:
                 connection.commit()
 
 
+def startup_lock(session: Session) -> None:
+    """Hold, until ``session``'s transaction ends, the lock that makes services starting together on one database
+    (one per rig) do their start-up writes one at a time: PostgreSQL's advisory lock (as the migrations'), SQLite's
+    write lock (taken by a write that changes nothing)."""
+    from sqlalchemy import text
+
+    name = session.get_bind().dialect.name
+    if name == "postgresql":
+        session.execute(text(f"SELECT pg_advisory_xact_lock({MIGRATION_LOCK})"))
+    elif name == "sqlite":
+        session.execute(text("UPDATE alembic_version SET version_num = version_num"))
+
+
 def session_factory(engine: Engine) -> sessionmaker[Session]:
     return sessionmaker(engine, expire_on_commit=False)

@@ -12,7 +12,7 @@ from alembic import command
 from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
 from alembic.script import ScriptDirectory
-from sqlalchemy import text
+from sqlalchemy import select, text
 
 from backend import store
 from backend.codec import ARRAYS_CODEC, SAMPLES_CODEC, encode_arrays, encode_samples
@@ -178,4 +178,41 @@ def test_services_starting_together_on_postgresql_migrate_once(postgres):
     with engine.connect() as conn:
         assert conn.execute(text("SELECT version_num FROM alembic_version")).scalars().all() == [revisions(url)[-1]]
         assert compare_metadata(MigrationContext.configure(conn), Base.metadata) == []
+    engine.dispose()
+
+
+@pytest.mark.parametrize("dialect", ["sqlite", "postgresql"])
+def test_services_starting_together_create_the_first_accounts_once(dialect, tmp_path, request):
+    """The start-up writes of several rigs' services starting together (the service account, the first admin) are
+    done one at a time: each service starts, one admin is created and announced once."""
+    import threading
+
+    from backend.app import bootstrap_accounts
+    from backend.models import UserAccount
+
+    url = (f"sqlite:///{tmp_path / 'start.db'}" if dialect == "sqlite"
+           else request.getfixturevalue("postgres").database())
+    engine = make_engine(url)
+    upgrade(engine)
+    sessions = session_factory(engine)
+    results: list = []
+    go = threading.Barrier(3)
+
+    def start_service() -> None:
+        try:
+            go.wait()
+            results.append(bootstrap_accounts(sessions, True))
+        except BaseException as exc:  # noqa: BLE001 (asserted below)
+            results.append(exc)
+
+    threads = [threading.Thread(target=start_service) for _ in range(3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(120)
+    assert not [r for r in results if isinstance(r, BaseException)], results
+    assert len([r for r in results if r is not None]) == 1  # the admin's password told by one service only
+    with sessions() as s:
+        names = sorted(s.scalars(select(UserAccount.name)))
+    assert names == ["admin", "automation"]
     engine.dispose()
