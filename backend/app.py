@@ -1,11 +1,11 @@
 """``create_app(settings)``: the FastAPI application with its store, rig service, stream hub and routes.
 
-At creation the database is migrated (Alembic) and any test left ``running`` by a dead service is marked
-``interrupted``. Accounts (backend.accounts): the first start creates ``admin`` and prints its password on the
-server's terminal; ``ISORIG_OPERATOR_TOKEN``, where set, is the token of the service account ``automation``.
-Routes: ``/api/...`` (REST, OpenAPI at
-``/docs``), ``/ws/...`` (websocket schema v1), the 3D viewer if ``backend.viewer`` is installed, and the
-dashboard's static files at ``/``.
+At creation the database is migrated (Alembic) and any test of this service's rig left ``running`` by a dead
+service is marked ``interrupted`` (another rig's service may share the database: its tests are left alone).
+Accounts (backend.accounts): the first start creates ``admin`` and prints its password on the server's terminal;
+``ISORIG_OPERATOR_TOKEN``, where set, is the token of the service account ``automation``. Routes: ``/api/...``
+(REST, OpenAPI at ``/docs``), ``/ws/...`` (websocket schema v1), the 3D viewer if ``backend.viewer`` is
+installed, and the dashboard's static files at ``/``.
 """
 
 from __future__ import annotations
@@ -33,22 +33,30 @@ from .stream import Hub
 log = logging.getLogger("isorig")
 
 
+def bootstrap_accounts(sessions, service_token: bool) -> tuple[str, str] | None:
+    """The service account (if a service token is set) and, on the first start, ``admin`` (its name and password
+    returned). Several rigs' services may start together on one database: one at a time (db.startup_lock)."""
+    with sessions() as session:
+        db.startup_lock(session)
+        if service_token:
+            accounts.ensure_service_account(session)
+        first = accounts.first_admin(session)
+        session.commit()
+    return first
+
+
 def create_app(settings: Settings | None = None, driver: str | None = None) -> FastAPI:
     settings = settings or Settings()
     engine = db.make_engine(settings.resolved_database_url)
     db.upgrade(engine)
     sessions = db.session_factory(engine)
     with sessions() as session:
-        interrupted = store.mark_running_interrupted(session)
+        interrupted = store.mark_running_interrupted(session, settings.rig_name)  # this rig's only
         session.commit()
     if interrupted:
         log.warning("tests %s were running when the service stopped: marked interrupted", interrupted)
     service_token = settings.operator_token.get_secret_value() if settings.operator_token else ""
-    with sessions() as session:
-        if service_token:
-            accounts.ensure_service_account(session)
-        first = accounts.first_admin(session)
-        session.commit()
+    first = bootstrap_accounts(sessions, bool(service_token))
     hub = Hub(settings.stream_history_s)
     service = RigService(settings, sessions, hub, driver)
     checks = CheckPool(service.context, settings.check_workers, settings.check_queue,  # heavy token-free work

@@ -108,7 +108,7 @@ def build(session, body, request) -> dict:
 def start(session, body, request, actor: str) -> dict:
     """Create the record and start it at once; a refused start leaves no record behind."""
     fields = build(session, body, request)
-    test = store.create_test(session, **fields)
+    test = store.create_test(session, rig_name=request.app.state.service.rig_name, **fields)
     store.add_event(session, test.id, "operator", f"commissioning {test.id} requested by {actor}: "
                     f"{fields['request']['profile']['what']}", {"action": "commission"}, actor=actor)
     session.commit()
@@ -158,9 +158,11 @@ class Fitter:
         threading.Thread(target=self.fit, args=(test_id,), daemon=True, name=f"isorig-fit-{test_id}").start()
 
     def resume(self) -> list[int]:
-        """At service start: fit again every commissioning whose fit was not finished (the service stopped)."""
+        """At service start: fit again every commissioning of this service's rig whose fit was not finished (the
+        service stopped); another rig's are its own service's."""
         with self.sessions() as session:
-            todo = [t.id for t in session.scalars(select(TestRecord).where(TestRecord.controller == CONTROLLER))
+            todo = [t.id for t in session.scalars(select(TestRecord).where(
+                        TestRecord.controller == CONTROLLER, TestRecord.rig_name == self.service.rig_name))
                     if t.status in FINAL_STATUSES and is_commissioning(t)
                     and ((t.summary or {}).get("commissioning") or {}).get("state", "fitting") == "fitting"]
             for test_id in todo:

@@ -6,7 +6,8 @@ owner-only (0700). A directory that already exists is left as it is (it may be s
 data directory); an existing database file readable by group or others is logged as a warning and made 0600.
 
 SQLite gets WAL mode (readers never block the writer), ``synchronous=NORMAL`` (a committed transaction
-survives a killed process) and foreign keys. Any other SQLAlchemy URL (PostgreSQL) is used as given.
+survives a killed process) and foreign keys. Any other SQLAlchemy URL (PostgreSQL) is used as given; there,
+several services (one per rig) may share the database and start together: migrations run under an advisory lock.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ if TYPE_CHECKING:
     from alembic.config import Config
 
 MIGRATIONS_DIR = Path(__file__).resolve().parent / "migrations"
+MIGRATION_LOCK = 0x69736F726967  # PostgreSQL advisory lock key held while migrating ("isorig" in ASCII)
 
 log = logging.getLogger("isorig")
 
@@ -86,8 +88,8 @@ def alembic_config(url: str) -> Config:
     return cfg
 
 
-def upgrade(engine: Engine) -> None:
-    """Bring the schema to the newest migration."""
+def upgrade(engine: Engine, revision: str = "head") -> None:
+    """Bring the schema to the newest migration (or to ``revision``, a step the migration tests take)."""
     from alembic import command
 
     cfg = alembic_config(engine.url.render_as_string(hide_password=False))
@@ -98,8 +100,11 @@ def upgrade(engine: Engine) -> None:
             connection.commit()  # transaction, where SQLite ignores the pragma), checked after, back on
         try:
             with connection.begin():
+                if connection.dialect.name == "postgresql":  # several rigs' services may start at once on one
+                    connection.exec_driver_sql(f"SELECT pg_advisory_xact_lock({MIGRATION_LOCK})")  # database:
+                    # one migrates, the others wait here and then find the schema at head
                 cfg.attributes["connection"] = connection
-                command.upgrade(cfg, "head")
+                command.upgrade(cfg, revision)
                 if sqlite:
                     broken = connection.exec_driver_sql("PRAGMA foreign_key_check").fetchall()
                     if broken:
@@ -108,6 +113,19 @@ def upgrade(engine: Engine) -> None:
             if sqlite:
                 connection.exec_driver_sql("PRAGMA foreign_keys=ON")
                 connection.commit()
+
+
+def startup_lock(session: Session) -> None:
+    """Hold, until ``session``'s transaction ends, the lock that makes services starting together on one database
+    (one per rig) do their start-up writes one at a time: PostgreSQL's advisory lock (as the migrations'), SQLite's
+    write lock (taken by a write that changes nothing)."""
+    from sqlalchemy import text
+
+    name = session.get_bind().dialect.name
+    if name == "postgresql":
+        session.execute(text(f"SELECT pg_advisory_xact_lock({MIGRATION_LOCK})"))
+    elif name == "sqlite":
+        session.execute(text("UPDATE alembic_version SET version_num = version_num"))
 
 
 def session_factory(engine: Engine) -> sessionmaker[Session]:

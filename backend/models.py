@@ -1,5 +1,7 @@
 """Database tables (SQLAlchemy 2): tests, sample chunks, cycles, events (audit log), user isolators.
 
+Several services, one per rig, may share the database: a test and its events carry their rig's name.
+
 Samples are stored in compressed chunks of about one second (see backend.codec), never one row per sample.
 Events keep a plain ``test_id`` (no foreign key) so the audit log outlives a deleted test.
 """
@@ -31,6 +33,8 @@ class TestRecord(Base):
     __table_args__ = {"sqlite_autoincrement": True}
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    # the rig it runs on (settings.rig_name): one service per rig, several may share the database
+    rig_name: Mapped[str] = mapped_column(String(64), index=True)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow, index=True)
     started_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
     ended_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
@@ -111,6 +115,7 @@ class EventRecord(Base):
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     test_id: Mapped[int | None] = mapped_column(Integer, index=True)
+    rig_name: Mapped[str | None] = mapped_column(String(64), index=True)  # the test's rig; None: not a rig's
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow, index=True)
     time_s: Mapped[float | None] = mapped_column(Float)  # test time, when it concerns a running test
     kind: Mapped[str] = mapped_column(String(32))  # limit_trip | operator | status

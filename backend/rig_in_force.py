@@ -1,9 +1,10 @@
 """Which rig file the service runs on, and how a commissioned one is made the service's rig.
 
 At start the rig in force is ``--rig-file`` (``ISORIG_RIG_FILE``) when given, else the rig file last applied
-from a commissioning (``<data dir>/rig-in-force.json`` names it: kept across a restart), else the defaults of
-``sim.rig``. ``apply`` writes a commissioned rig file into ``<data dir>/rig-files/`` and makes it the one in
-force (the caller switches ``app.state``). A ``--rig-file`` given at start always wins at the next start: an
+from a commissioning to this rig (``<data dir>/rig-in-force.<rig name>.json`` names it: kept across a restart;
+per rig, as two rigs' services may share a data directory), else the defaults of ``sim.rig``. ``apply`` writes
+a commissioned rig file into ``<data dir>/rig-files/`` and makes it the one in force (the caller switches
+``app.state``). A ``--rig-file`` given at start always wins at the next start: an
 applied file is then in force until the service stops, and the answer says so.
 """
 
@@ -17,16 +18,26 @@ from pathlib import Path
 from sim.rig import RigError
 from sim.rigfile import RigDescription, load_rig_file, write_rig_file
 
-from .settings import Settings
+from .settings import DEFAULT_RIG_NAME, Settings
 
 log = logging.getLogger("isorig.rig")
 
-POINTER = "rig-in-force.json"
+LEGACY_POINTER = "rig-in-force.json"  # written before rigs were named: the default rig's
 FOLDER = "rig-files"
 
 
 def pointer_path(settings: Settings) -> Path:
-    return settings.data_dir / POINTER
+    """The file that names the rig file applied to this service's rig (the name has no '/': settings.rig_name)."""
+    return settings.data_dir / f"rig-in-force.{settings.rig_name}.json"
+
+
+def _pointer_to_read(settings: Settings) -> Path:
+    """This rig's pointer; for the default rig without one, the pointer written before rigs were named."""
+    pointer = pointer_path(settings)
+    legacy = settings.data_dir / LEGACY_POINTER
+    if not pointer.exists() and settings.rig_name == DEFAULT_RIG_NAME and legacy.exists():
+        return legacy
+    return pointer
 
 
 def rig_in_force(settings: Settings) -> tuple[RigDescription, dict]:
@@ -34,7 +45,7 @@ def rig_in_force(settings: Settings) -> tuple[RigDescription, dict]:
     ``applied`` (a commissioning applied earlier; when, by whom, which commissioning) or ``defaults``)."""
     if settings.rig_file is not None:
         return settings.rig_description(), {"how": "rig_file", "words": f"--rig-file {settings.rig_file}"}
-    pointer = pointer_path(settings)
+    pointer = _pointer_to_read(settings)
     if pointer.exists():
         try:
             applied = json.loads(pointer.read_text())
@@ -60,7 +71,7 @@ def apply(settings: Settings, data: dict, commissioning_id: int, by: str) -> tup
     described = load_rig_file(path)
     applied = {"path": str(path), "commissioning_id": commissioning_id, "by": by,
                "at": datetime.now(UTC).isoformat(timespec="seconds")}
-    tmp = pointer_path(settings).with_name(f".{POINTER}.tmp")
+    tmp = pointer_path(settings).with_name(f".{pointer_path(settings).name}.tmp")
     tmp.write_text(json.dumps(applied, indent=2) + "\n")
     tmp.replace(pointer_path(settings))
     origin = {"how": "applied", **applied, "words": f"applied from commissioning {commissioning_id} by {by} at "

@@ -243,6 +243,7 @@ class TestOut(BaseModel):
     model_config = ConfigDict(extra="allow")
 
     id: int
+    rig_name: str  # the rig it runs on (the service's --rig-name; several rigs may share the database)
     status: Literal["ready", "running", "completed", "stopped", "aborted", "interrupted", "failed"]
     reason: str | None
     label: str

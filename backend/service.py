@@ -1,6 +1,8 @@
 """The rig service in the server process: starts the worker process, records and streams what it sends.
 
-One test at a time per rig. ``start`` spawns the worker (forkserver or spawn context), a reader thread
+One service per rig, one test at a time per rig: the service starts only the tests of its rig
+(``settings.rig_name``); other services may run their rigs' tests on the same database at the same time.
+``start`` spawns the worker (forkserver or spawn context), a reader thread
 that streams what the worker sends to the hub at once, and a writer thread that stores it: samples in
 chunks committed at least every ``commit_interval_s`` (so a killed server loses at most about a second),
 cycles, events and the final status as they come. If the worker dies without a final message the
@@ -139,6 +141,7 @@ class RigService:
         self.sessions = sessions
         self.hub = hub
         self.driver = driver or settings.rig  # "simulated" or "udp://HOST:PORT"
+        self.rig_name = settings.rig_name  # the rig this service drives; its records carry the name
         self.active: ActiveRun | None = None
         self.last_link: dict = {}  # the link figures of the last test that ran on a UDP rig
         self.last_end: dict | None = None  # where the table was when the last test ended (rig_state)
@@ -176,8 +179,9 @@ class RigService:
     def state(self) -> dict:
         run = self.active
         if run is None or run.finished.is_set():
-            return {"status": "idle", "test_id": None, "driver": self.driver}
-        return {"status": "running", "test_id": run.test_id, "driver": self.driver, "time_s": run.time_s,
+            return {"status": "idle", "test_id": None, "driver": self.driver, "rig_name": self.rig_name}
+        return {"status": "running", "test_id": run.test_id, "driver": self.driver, "rig_name": self.rig_name,
+                "time_s": run.time_s,
                 "worker_pid": run.process.pid, "link": run.link}
 
     def rig_info(self) -> dict:
@@ -240,7 +244,7 @@ class RigService:
         from .drivers import SIMULATED
 
         run = self.active
-        out: dict = {"at": time.time(), "driver": self.driver}
+        out: dict = {"at": time.time(), "driver": self.driver, "rig_name": self.rig_name}
         if run is not None and not run.finished.is_set():
             out.update(status="stopping" if run.stopping else "running", test_id=run.test_id, armed=True,
                        time_s=run.time_s, stopping_reason=run.stopping, **self._row_state(run.last_row),
@@ -289,6 +293,7 @@ class RigService:
                 test = store.get_test(session, test_id)
                 if test is None:
                     raise KeyError(test_id)
+                self._check_own_rig(test, "start")
                 if test.status != "ready":
                     raise Conflict(f"test {test_id} is {test.status}; only a test with status 'ready' can start "
                                    "(create a new test to run it again)")
@@ -329,6 +334,12 @@ class RigService:
             run.thread.start()
         self._publish_event(test_id, 0.0, "operator", started, start_values)
 
+    def _check_own_rig(self, test, action: str) -> None:
+        """Conflict unless ``test`` is of this service's rig: another rig's test is its own service's to run."""
+        if test.rig_name != self.rig_name:
+            raise Conflict(f"test {test.id} belongs to the rig {test.rig_name!r}; this service drives the rig "
+                           f"{self.rig_name!r}: {action} it from the service of {test.rig_name!r}")
+
     def _check_start_position(self, start_m: float, test_id: int) -> None:
         """The table must rest where the target begins (``start_position_m``: 0 for most tests, a sine's
         ``start_m``, the start of a manual move), within ``rig_start_tolerance_m``: else the controller would
@@ -365,7 +376,7 @@ class RigService:
     def _last_end(self) -> dict | None:
         if self.last_end is None:  # after a restart: the end of the newest test on record
             with self.sessions() as session:
-                found = store.last_sample(session)
+                found = store.last_sample(session, self.rig_name)
                 if found is not None:
                     test, row = found
                     self.last_end = {"test_id": test.id, "status": test.status, **self._row_state(row.array[0])}
@@ -379,6 +390,8 @@ class RigService:
                 test = store.get_test(session, test_id)
                 if test is None:
                     raise KeyError(test_id)
+                if test.status == "running":
+                    self._check_own_rig(test, action)
                 raise Conflict(f"test {test_id} is {test.status}, not running; nothing to {action}")
         with self.sessions() as session:
             store.add_event(session, test_id, "operator", f"{action} requested by {actor}", {"action": action},

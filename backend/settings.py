@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import platformdirs
@@ -9,6 +10,17 @@ from pydantic import Field, SecretStr, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 REPO_STATIC_DIR = Path(__file__).resolve().parent.parent / "frontend" / "static"
+
+DEFAULT_RIG_NAME = "rig-1"  # the one rig of a lab's database before rigs were named (migration 0007)
+RIG_NAME_RULE = "1-64 characters: letters, digits, '-', '_' and '.'"
+_RIG_NAME = re.compile(r"[A-Za-z0-9._-]{1,64}")
+
+
+def check_rig_name(value: str) -> str:
+    """The rig's name as given, or ValueError saying what is allowed (``RIG_NAME_RULE``)."""
+    if not isinstance(value, str) or not _RIG_NAME.fullmatch(value):
+        raise ValueError(f"the rig name {value!r} is not allowed: {RIG_NAME_RULE}")
+    return value
 
 
 class Settings(BaseSettings):
@@ -56,6 +68,9 @@ class Settings(BaseSettings):
                                          "bandwidth on slow links, costs server CPU per client)")
     viewer: bool = Field(default=True, description="serve the 3D view under /viewer/ (backend.viewer)")
     commit_interval_s: float = Field(default=0.5, description="samples are committed at least this often (wall)")
+    rig_name: str = Field(default=DEFAULT_RIG_NAME, description="the name of the rig this service drives "
+                          f"({RIG_NAME_RULE}; `--rig-name`): every record it makes carries it, it starts only its "
+                          "rig's tests, and several services (one per rig) can share one database")
     rig: str = Field(default="simulated", description="the rig tests run on: 'simulated' or 'udp://HOST:PORT' (a "
                      "real-time I/O target or `isorig rig-emulator`, docs/rig-protocol.md)")
     rig_period_s: float = Field(default=0.001, gt=0, description="control period the UDP rig must run at")
@@ -80,6 +95,11 @@ class Settings(BaseSettings):
                              "(lines separated by newlines or ';')")
     lab_logo_file: Path | None = Field(default=None, description="an image (PNG, JPEG) printed beside the lab's name "
                                        "in reports; missing or unreadable: one warning, the report is made without it")
+
+    @field_validator("rig_name")
+    @classmethod
+    def _rig_name(cls, value: str) -> str:
+        return check_rig_name(value)
 
     @field_validator("rig")
     @classmethod

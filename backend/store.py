@@ -1,5 +1,8 @@
 """All database access in one place: test records, sample chunks, cycles, events, user isolators.
 
+Several services, one per rig, may share the database: a test carries its rig's name (``rig_name``), and what
+a service asks of its own rig (tests left running, where its table was left, its last event) is asked per rig.
+
 ``load_test_bundle(session, test_id)`` is the contract with reports (docs/architecture.md): the record as
 ``GET /api/tests/{id}`` returns it, the samples by name (``sim.samples.Samples``), the cycles with their loop
 arrays and the events.
@@ -12,7 +15,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 
 import numpy as np
-from sqlalchemy import delete, func, select
+from sqlalchemy import delete, func, or_, select
 from sqlalchemy.orm import Session
 
 from sim.samples import Samples
@@ -57,8 +60,9 @@ def clean_json(value):
 
 # --- tests -----------------------------------------------------------------------------------------------
 
-def create_test(session: Session, **fields) -> TestRecord:
-    test = TestRecord(status="ready", samples_stored=0, time_s=0.0, **fields)
+def create_test(session: Session, *, rig_name: str, **fields) -> TestRecord:
+    """A new test (status ``ready``) on the rig ``rig_name`` (a manual move and a commissioning are tests too)."""
+    test = TestRecord(rig_name=rig_name, status="ready", samples_stored=0, time_s=0.0, **fields)
     session.add(test)
     session.flush()
     return test
@@ -77,6 +81,7 @@ def test_record(session: Session, test: TestRecord, with_events: bool = True) ->
     progress = min(1.0, test.time_s / test.duration_s) if test.duration_s > 0 else 0.0
     record = {
         "id": test.id,
+        "rig_name": test.rig_name,  # the rig it runs on (the service's --rig-name)
         "status": test.status,
         "reason": test.reason,
         "label": test.label,
@@ -123,8 +128,9 @@ def review_fields(test: TestRecord) -> dict:
 def list_tests(session: Session, status: str | None = None, isolator: str | None = None,
                since: datetime | None = None, until: datetime | None = None,
                limit: int = 100, offset: int = 0, archived: bool = False,
-               review: str | None = None) -> list[TestRecord]:
-    """Tests newest first; archived ones only if ``archived`` (then only they); ``review`` a review state."""
+               review: str | None = None, rig_name: str | None = None) -> list[TestRecord]:
+    """Tests of every rig (or of ``rig_name``) newest first; archived ones only if ``archived`` (then only they);
+    ``review`` a review state."""
     query = select(TestRecord).where(TestRecord.archived_at.is_not(None) if archived
                                      else TestRecord.archived_at.is_(None))
     if status:
@@ -133,6 +139,8 @@ def list_tests(session: Session, status: str | None = None, isolator: str | None
         query = query.where(TestRecord.isolator == isolator)
     if review:
         query = query.where(TestRecord.review_state == review)
+    if rig_name:
+        query = query.where(TestRecord.rig_name == rig_name)
     if since:
         query = query.where(TestRecord.created_at >= since)
     if until:
@@ -168,10 +176,17 @@ def delete_test(session: Session, test: TestRecord) -> None:
     session.delete(test)
 
 
-def mark_running_interrupted(session: Session) -> list[int]:
-    """On start-up: a test left ``running`` (the service died) becomes ``interrupted``; its data stay."""
+def rig_names(session: Session) -> list[str]:
+    """The rigs that have tests on record, by name."""
+    return list(session.scalars(select(TestRecord.rig_name).distinct().order_by(TestRecord.rig_name)))
+
+
+def mark_running_interrupted(session: Session, rig_name: str) -> list[int]:
+    """On start-up of the service of ``rig_name``: its test left ``running`` (the service died) becomes
+    ``interrupted``; its data stay. Another rig's running test is its own service's, and is left alone."""
     ids = []
-    for test in session.scalars(select(TestRecord).where(TestRecord.status == "running")):
+    for test in session.scalars(select(TestRecord).where(TestRecord.status == "running",
+                                                         TestRecord.rig_name == rig_name)):
         set_status(session, test, "interrupted", "the service stopped while the test was running; "
                                                  f"data kept up to t = {test.time_s:.3f} s")
         add_event(session, test.id, "status", f"test {test.id} marked interrupted at service start-up",
@@ -264,16 +279,20 @@ def _planned_phases(session: Session, test_id: int) -> list[str]:
 # --- events ----------------------------------------------------------------------------------------------
 
 def add_event(session: Session, test_id: int | None, kind: str, message: str, values: dict | None = None,
-              actor: str = "system", time_s: float | None = None) -> EventRecord:
-    ev = EventRecord(test_id=test_id, kind=kind, message=message, values=clean_json(values or {}), actor=actor,
-                     time_s=time_s, created_at=utcnow())
+              actor: str = "system", time_s: float | None = None, rig_name: str | None = None) -> EventRecord:
+    """An event of the audit log; ``rig_name`` defaults to the test's rig (None: an event of no rig's)."""
+    if rig_name is None and test_id is not None:
+        test = session.get(TestRecord, test_id)
+        rig_name = test.rig_name if test is not None else None
+    ev = EventRecord(test_id=test_id, rig_name=rig_name, kind=kind, message=message,
+                     values=clean_json(values or {}), actor=actor, time_s=time_s, created_at=utcnow())
     session.add(ev)
     return ev
 
 
 def event_dict(ev: EventRecord) -> dict:
-    return {"id": ev.id, "test_id": ev.test_id, "created_at": _iso(ev.created_at), "time_s": ev.time_s,
-            "kind": ev.kind, "actor": ev.actor, "message": ev.message, "values": ev.values}
+    return {"id": ev.id, "test_id": ev.test_id, "rig_name": ev.rig_name, "created_at": _iso(ev.created_at),
+            "time_s": ev.time_s, "kind": ev.kind, "actor": ev.actor, "message": ev.message, "values": ev.values}
 
 
 def load_events(session: Session, test_id: int | None) -> list[dict]:
@@ -282,14 +301,18 @@ def load_events(session: Session, test_id: int | None) -> list[dict]:
     return [event_dict(ev) for ev in session.scalars(query)]
 
 
-def last_event(session: Session) -> dict | None:
-    ev = session.scalars(select(EventRecord).order_by(EventRecord.id.desc()).limit(1)).first()
+def last_event(session: Session, rig_name: str) -> dict | None:
+    """The newest event of the rig ``rig_name`` or of no rig (a user isolator added), not another rig's."""
+    ev = session.scalars(select(EventRecord).where(or_(EventRecord.rig_name == rig_name,
+                                                       EventRecord.rig_name.is_(None)))
+                         .order_by(EventRecord.id.desc()).limit(1)).first()
     return event_dict(ev) if ev is not None else None
 
 
-def last_sample(session: Session) -> tuple[TestRecord, Samples] | None:
-    """The newest test that stored samples and its last sample (where the table was when it ended)."""
-    test = session.scalars(select(TestRecord).where(TestRecord.samples_stored > 0)
+def last_sample(session: Session, rig_name: str) -> tuple[TestRecord, Samples] | None:
+    """The newest test of the rig ``rig_name`` that stored samples and its last sample (where that rig's table
+    was when it ended)."""
+    test = session.scalars(select(TestRecord).where(TestRecord.samples_stored > 0, TestRecord.rig_name == rig_name)
                            .order_by(TestRecord.id.desc()).limit(1)).first()
     if test is None:
         return None

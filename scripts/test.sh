@@ -4,10 +4,12 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 # Debian packages the tests need: chromium for the dashboard's browser tests (tests/e2e; Playwright drives it,
-# its own browser download is not used) and poppler-utils for pdftoppm, which renders report pages to PNG.
+# its own browser download is not used), poppler-utils for pdftoppm, which renders report pages to PNG, and
+# postgresql: the PostgreSQL tests start a server of their own from its binaries (tests/backend/pg_server.py).
 missing=""
 [ -x /usr/bin/chromium ] || missing="$missing chromium"
 command -v pdftoppm >/dev/null 2>&1 || missing="$missing poppler-utils"
+ls /usr/lib/postgresql/*/bin/initdb >/dev/null 2>&1 || command -v initdb >/dev/null 2>&1 || missing="$missing postgresql"
 if [ -n "$missing" ]; then
   SUDO=""
   if [ "$(id -u)" -ne 0 ] && command -v sudo >/dev/null 2>&1; then SUDO="sudo"; fi

@@ -141,8 +141,8 @@ def _store_test(url: str) -> int:
     engine = make_engine(url)
     upgrade(engine)
     with session_factory(engine)() as session:
-        test = store.create_test(session, label="stored", isolator="IUT_a", supply_bar=100.0, controller="pid",
-                                 speed=1.0, driver="simulated",
+        test = store.create_test(session, rig_name="rig-1", label="stored", isolator="IUT_a", supply_bar=100.0,
+                                 controller="pid", speed=1.0, driver="simulated",
                                  request={"profile": {"kind": "protocol", "name": "quick_check"}},
                                  scenario=bundle.record["scenario"], limits={}, duration_s=10.0, cycles_total=10)
         for i in range(0, len(bundle.samples), 1000):
@@ -999,8 +999,10 @@ def test_the_report_names_the_rig_file_its_commissioning_and_whether_the_table_f
                                                    "supply_pa": 1e7, "specimen": "none", "flow_r2": 0.9992,
                                                    "velocity_nrmse": 0.034}}
     bundle.record["summary"] = {"tracking_verdict": {"verdict": "did_not_follow", "words": "did not follow: 2 %"}}
+    bundle.record["rig_name"] = "hall-b"
     report = report_json(bundle, identify=False)
     rig_name, sensors = rig_text(report["rig"])
+    assert rig_name.startswith("hall-b: ") and report["rig"]["rig_name"] == "hall-b"  # which of the lab's rigs
     assert sensors[0] == ("rig file Lab B rig, commissioned (/lab/rig.json): commissioned 2026-11-27 on "
                           "udp://10.0.0.2:5555 at 100 bar, no specimen (flow balance R^2 0.9992, replay 3.4 % RMS)")
     assert report["tracking_verdict"]["words"] == "did not follow: 2 %"

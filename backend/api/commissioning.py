@@ -78,9 +78,14 @@ def apply(test_id: TestId, request: Request, session: SessionDep, actor: Operato
           body: Annotated[ApplyRigIn | None, Body()] = None) -> dict:
     """Writes the rig file into the data directory and switches the rig the next tests and ``GET /api/rig``
     use; it stays in force across a restart unless the service is started with ``--rig-file`` (the answer's
-    ``in_force.note`` says so). 409 for a commissioning that is not trusted (with its reasons) or while a run
-    goes on."""
+    ``in_force.note`` says so). 409 for a commissioning that is not trusted (with its reasons), of another rig,
+    or while a run goes on."""
     test = _commissioning_or_404(session, test_id)
+    rig_name = request.app.state.service.rig_name
+    if test.rig_name != rig_name:  # another rig's identification is not this rig's
+        raise ApiError(409, f"commissioning {test_id} identified the rig {test.rig_name!r}; this service drives the "
+                            f"rig {rig_name!r}: apply it from the service of {test.rig_name!r}", "rig_name",
+                       test.rig_name, rig_name)
     running = request.app.state.service.running_test_id()
     if running is not None:
         raise ApiError(409, f"test {running} is running; the service's rig changes only when no test runs")

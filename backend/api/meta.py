@@ -1,4 +1,5 @@
-"""``/api/health`` and ``/api/rig``: is the service up, what rig, which envelope and limits, what runs now."""
+"""``/api/health``, ``/api/rig`` and ``/api/rigs``: is the service up, which rig it drives (by name), which
+envelope and limits, what runs now; the rigs on record in the shared database."""
 
 from __future__ import annotations
 
@@ -18,8 +19,19 @@ router = APIRouter(tags=["rig"])
 @router.get("/api/health", summary="Service health")
 def health(request: Request) -> dict:
     engine = request.app.state.engine
+    service = request.app.state.service
     return {"status": "ok", "schema_version": 1, "database": engine.url.get_backend_name(),
-            "rig": request.app.state.service.state()["status"]}
+            "rig": service.state()["status"], "rig_name": service.rig_name}
+
+
+@router.get("/api/rigs", summary="The rigs with tests on record (several services may share the database) and "
+            "the one this service drives")
+def rigs(request: Request) -> dict:
+    """``this``: this service's rig; ``on_record``: every rig name the tests carry (History filters by them)."""
+    this = request.app.state.service.rig_name
+    with request.app.state.sessions() as session:
+        names = store.rig_names(session)
+    return {"this": this, "on_record": sorted({*names, this})}
 
 
 @router.get("/api/rig/link", summary="The link to the rig: live figures during a test, else a probe")
@@ -38,7 +50,7 @@ def rig_state(request: Request) -> dict:
     from ``position_source``: live, the end of the last test, or the rig's answer to a probe."""
     state = request.app.state.service.rig_state()
     with request.app.state.sessions() as session:
-        state["last_event"] = store.last_event(session)
+        state["last_event"] = store.last_event(session, request.app.state.service.rig_name)  # this rig's
     state["rig_file"] = rig_file_brief(request)
     return store.clean_json(state)
 
@@ -60,6 +72,7 @@ def rig(request: Request) -> dict:
     rig = request.app.state.rig
     service = request.app.state.service
     return {
+        "rig_name": service.rig_name,  # the rig this service drives (--rig-name)
         "driver": service.driver,
         "rig": service.rig_info(),
         "link": service.link_health(),

@@ -69,7 +69,7 @@ def build_move(session, body: MoveIn, request: Request) -> dict:
 
 def start_move(session, body: MoveIn, request: Request, actor: str) -> dict:
     fields = build_move(session, body, request)
-    test = store.create_test(session, **fields)
+    test = store.create_test(session, rig_name=request.app.state.service.rig_name, **fields)
     store.add_event(session, test.id, "operator", f"{fields['label']} requested by {actor}",
                     {"action": "move", **fields["request"]["profile"]}, actor=actor)
     session.commit()

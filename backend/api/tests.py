@@ -234,7 +234,8 @@ def create_test(body: TestCreate, request: Request, session: SessionDep, actor: 
     fields = build_test(resolve_isolator(session, body.isolator), body, test_env(request))
     fields.pop("_earthquake")
     fields["operator_name"] = acting_name(actor, body.operator_name, "operator_name")
-    test = store.create_test(session, **fields)
+    rig_name = request.app.state.service.rig_name  # a test of this service's rig
+    test = store.create_test(session, rig_name=rig_name, **fields)
     store.add_event(session, test.id, "operator", f"test {test.id} created by {actor}", {"action": "create"},
                     actor=actor)
     session.commit()
@@ -248,7 +249,7 @@ def create_test(body: TestCreate, request: Request, session: SessionDep, actor: 
             if stale is not None and stale.status == "ready":
                 store.delete_test(session, stale)
                 store.add_event(session, test_id, "operator", f"test {test_id} not kept: its start was refused",
-                                {"action": "discard"}, actor=actor)
+                                {"action": "discard"}, actor=actor, rig_name=rig_name)
                 session.commit()
             raise
         session.expire_all()
@@ -256,9 +257,11 @@ def create_test(body: TestCreate, request: Request, session: SessionDep, actor: 
     return store.test_record(session, test)
 
 
-@router.get("/api/tests", summary="Tests, newest first; filter by status, isolator, creation date",
+@router.get("/api/tests", summary="Tests of every rig, newest first; filter by rig, status, isolator, creation date",
             responses=ERROR_RESPONSES)
 def list_tests(session: SessionDep,
+               rig_name: Annotated[str | None, Query(max_length=64, description="only this rig's tests (GET "
+                                                                                 "/api/rigs names them)")] = None,
                status: Annotated[Status | None, Query(description="only tests with this status")] = None,
                archived: Annotated[bool, Query(description="the archived tests instead")] = False,
                isolator: Annotated[str | None, Query(max_length=64)] = None,
@@ -268,7 +271,8 @@ def list_tests(session: SessionDep,
                offset: Annotated[int, Query(ge=0, le=10**9)] = 0,
                review: Annotated[ReviewState | None, Query(description="only records in this review state")] = None,
                ) -> list[TestOut]:
-    tests = store.list_tests(session, status, isolator, since, until, limit, offset, archived, review)
+    tests = store.list_tests(session, status, isolator, since, until, limit, offset, archived, review,
+                             rig_name=rig_name)
     return [store.test_record(session, t, with_events=False) for t in tests]
 
 
@@ -352,13 +356,18 @@ def delete_test(test_id: TestId, request: Request, session: SessionDep, actor: O
     test = _test_or_404(session, test_id)
     if test.status == "running" or request.app.state.service.running_test_id() == test_id:
         raise ApiError(409, f"test {test_id} is running; stop or abort it before deleting it")
+    rig_name = request.app.state.service.rig_name
+    if test.rig_name != rig_name:  # its own service may be starting it now
+        raise ApiError(409, f"test {test_id} belongs to the rig {test.rig_name!r}; this service drives the rig "
+                            f"{rig_name!r}: delete it from the service of {test.rig_name!r}", "rig_name",
+                       test.rig_name, rig_name)
     if test.status != "ready":
         raise ApiError(409, f"test {test_id} ran ({test.status}): its record is kept; archive it instead with "
                             f"POST /api/tests/{test_id}/archive and {{\"reason\": <why>}}",
                        "status", test.status, "ready (a test that never ran)")
     store.delete_test(session, test)
     store.add_event(session, test_id, "operator", f"test {test_id} deleted by {actor}", {"action": "delete"},
-                    actor=actor)
+                    actor=actor, rig_name=rig_name)
     session.commit()
     request.app.state.hub.forget(test_id)
     return Response(status_code=204)

@@ -346,6 +346,7 @@ def rig_of(record: dict) -> dict:
     changes = scenario.get("rig_changes") or {}
     simulated = driver == "simulated" or (driver is None and scenario.get("control_period_s") is not None)
     out: dict = {"driver": driver or ("simulated" if simulated else None), "name": record.get("rig"),
+                 "rig_name": record.get("rig_name"),  # the lab's name of the rig (isorig serve --rig-name)
                  "rig_file": record.get("rig_file"), "simulated": bool(simulated), "speed": num(record.get("speed")),
                  "control_period_s": num(scenario.get("control_period_s")), "rig_changes": changes, "sensors": []}
     try:
@@ -374,7 +375,7 @@ SENSOR_PARAMETERS = ("position_latency_s", "position_noise_rms_m", "position_res
 
 
 def rig_text(rig: dict) -> tuple[str, list[str]]:
-    """The rig in one line and its sensors in lines, for the header."""
+    """The rig in one line (the lab's name of it first) and its sensors in lines, for the header."""
     driver = rig.get("driver")
     if rig.get("name"):
         name = str(rig["name"])
@@ -384,6 +385,8 @@ def rig_text(rig: dict) -> tuple[str, list[str]]:
         name = f"UDP rig at {driver} (docs/rig-protocol.md)"
     else:
         name = str(driver or "not recorded")
+    if rig.get("rig_name"):  # which of the lab's rigs (several may share the records)
+        name = f"{rig['rig_name']}: {name}"
     period = rig.get("control_period_s")
     if period:
         name += f"; control and acquisition at {1 / period:g} Hz"

@@ -12,6 +12,10 @@ def register(sub) -> None:
     p.add_argument("--database-url", default=None,
                    help="SQLAlchemy URL (default: SQLite in the user data directory; ISORIG_DATABASE_URL)")
     p.add_argument("--data-dir", default=None, help="data directory for the SQLite file and the token file")
+    p.add_argument("--rig-name", default=None, metavar="NAME",
+                   help="the name of the rig this service drives (default rig-1; ISORIG_RIG_NAME): 1-64 letters, "
+                        "digits, '-', '_', '.'; several services, one per rig, can share one database "
+                        "(--database-url): each starts only its rig's tests, History shows every rig's")
     p.add_argument("--rig", default=None, help="the rig: 'simulated' (default) or udp://HOST:PORT, a real-time I/O "
                    "target or `isorig rig-emulator` (ISORIG_RIG; link settings ISORIG_RIG_*, docs/backend.md)")
     p.add_argument("--rig-file", default=None, metavar="FILE",
@@ -51,7 +55,8 @@ def run(args) -> int:
     from isorig.cli import UsageError
 
     overrides = {k: v for k, v in (("host", args.host), ("port", args.port), ("database_url", args.database_url),
-                                   ("data_dir", args.data_dir), ("rig", args.rig), ("rig_file", args.rig_file),
+                                   ("data_dir", args.data_dir), ("rig_name", args.rig_name), ("rig", args.rig),
+                                   ("rig_file", args.rig_file),
                                    ("rig_key_file", args.rig_key_file), ("rig_protocol", args.rig_protocol),
                                    ("max_body_bytes", args.max_body_bytes))
                  if v is not None}
@@ -82,7 +87,8 @@ def run(args) -> int:
               f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}", file=sys.stderr)
         return 2
     print(f"isorig: serving on http://{settings.host}:{settings.port}/ (API docs at /docs), "
-          f"database {app.state.engine.url.render_as_string(hide_password=True)}, rig {settings.rig} "
+          f"database {app.state.engine.url.render_as_string(hide_password=True)}, rig {settings.rig_name!r}: "
+          f"{settings.rig} "
           f"({app.state.rig_description.name})"
           + (f", the simulated plant unlike it: {settings.plant_set}" if settings.plant_set.strip() else ""),
           file=sys.stderr, flush=True)

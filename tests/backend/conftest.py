@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 
@@ -33,6 +34,32 @@ def make_settings(tmp: Path, **overrides) -> Settings:
               "allowed_hosts": "testserver"}
     values.update(overrides)
     return Settings(**values)
+
+
+@pytest.fixture(scope="session")
+def postgres():
+    """A real PostgreSQL server for the session (tests/backend/pg_server.py): ISORIG_TEST_POSTGRES_URL's, else one
+    started from the installed binaries (scripts/test.sh installs Debian's postgresql), stopped at the end.
+    ``postgres.database()`` gives a fresh database's URL. Skips only where there is no server to be had."""
+    try:
+        import psycopg  # noqa: F401
+    except ImportError:
+        pytest.skip("no PostgreSQL driver: pip install 'psycopg[binary]' (in the test extra)")
+    from pg_server import ExternalServer, PostgresServer, find_bindir
+
+    url = os.environ.get("ISORIG_TEST_POSTGRES_URL")
+    if url:
+        server = ExternalServer(url)
+    else:
+        bindir = find_bindir()
+        if bindir is None:
+            pytest.skip("no PostgreSQL server binaries (initdb, postgres) found: apt-get install postgresql, or "
+                        "set ISORIG_TEST_POSTGRES_URL")
+        server = PostgresServer(bindir).start()
+    try:
+        yield server
+    finally:
+        server.stop()
 
 
 @pytest.fixture

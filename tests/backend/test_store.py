@@ -1,8 +1,7 @@
-"""Store: migrations match the models, sample codec precision and size, bundle contract; PostgreSQL if present."""
+"""Store: migrations match the models, sample codec precision and size, bundle contract, on SQLite and on a real
+PostgreSQL server (the ``postgres`` fixture, tests/backend/conftest.py)."""
 
 from __future__ import annotations
-
-import os
 
 import numpy as np
 import pytest
@@ -47,9 +46,9 @@ def make_bundle(url: str) -> store.TestBundle:
     rows = np.random.default_rng(1).normal(size=(2500, N_FIELDS))
     rows[:, 0] = np.arange(2500) * 1e-3
     with sessions() as s:
-        t = store.create_test(s, isolator="IUT_a", supply_bar=100.0, controller="pid", speed=1.0,
-                              driver="simulated", request={"profile": {"kind": "sine"}}, scenario={}, limits={},
-                              duration_s=2.5, cycles_total=2, label="")
+        t = store.create_test(s, rig_name="rig-1", isolator="IUT_a", supply_bar=100.0, controller="pid",
+                              speed=1.0, driver="simulated", request={"profile": {"kind": "sine"}}, scenario={},
+                              limits={}, duration_s=2.5, cycles_total=2, label="")
         for i in range(0, 2500, 1000):
             store.append_samples(s, t, rows[i:i + 1000])
         store.add_cycle(s, t.id, 1, 0, 0.0, 1.0, {"k_eff_n_per_m": 1.5e6, "xi_eff": float("nan")},
@@ -74,52 +73,20 @@ def test_bundle_contract_sqlite(tmp_path):
     assert bundle.events[0]["kind"] == "limit_trip" and bundle.events[0]["values"] == {"force_n": 1.0}
 
 
-def _postgres_url() -> str | None:
-    url = os.environ.get("ISORIG_TEST_POSTGRES_URL")
-    if not url:
-        return None
-    try:
-        import psycopg  # noqa: F401
-    except ImportError:
-        return None
-    engine = make_engine(url)
-    try:
-        with engine.connect():
-            return url
-    except Exception:
-        return None
-    finally:
-        engine.dispose()
-
-
-def test_bundle_contract_postgresql():
-    """Runs when ISORIG_TEST_POSTGRES_URL points at a reachable server (README: Running against PostgreSQL)."""
-    url = _postgres_url()
-    if url is None:
-        pytest.skip("no PostgreSQL: set ISORIG_TEST_POSTGRES_URL=postgresql+psycopg://user:pw@127.0.0.1/db")
-    engine = make_engine(url)
-    with engine.begin() as conn:  # a clean schema for the test
-        conn.execute(text("DROP TABLE IF EXISTS alembic_version, sample_chunks, cycles, events, user_isolators, "
-                          "tests CASCADE"))
-    engine.dispose()
-    bundle = make_bundle(url)
+def test_bundle_contract_postgresql(postgres):
+    """On a real PostgreSQL server (started by the ``postgres`` fixture, or ISORIG_TEST_POSTGRES_URL's)."""
+    bundle = make_bundle(postgres.database())
     assert bundle.record["samples_stored"] == 2500 and bundle.cycles[0]["xi_eff"] is None
+    assert bundle.record["rig_name"] == "rig-1" and bundle.events[0]["rig_name"] == "rig-1"
 
 
-def test_service_runs_a_test_on_postgresql(tmp_path):
-    url = _postgres_url()
-    if url is None:
-        pytest.skip("no PostgreSQL: set ISORIG_TEST_POSTGRES_URL")
+def test_service_runs_a_test_on_postgresql(tmp_path, postgres):
     from conftest import create_and_start, make_settings, wait_for
     from fastapi.testclient import TestClient
 
     from backend.app import create_app
 
-    engine = make_engine(url)
-    with engine.begin() as conn:
-        conn.execute(text("DROP TABLE IF EXISTS alembic_version, sample_chunks, cycles, events, user_isolators, "
-                          "tests CASCADE"))
-    engine.dispose()
+    url = postgres.database()
     with TestClient(create_app(make_settings(tmp_path, database_url=url))) as client:
         assert client.get("/api/health").json()["database"] == "postgresql"
         rec = wait_for(client, create_and_start(client))
@@ -135,12 +102,12 @@ def test_cycles_keep_their_phase_and_older_cycles_get_the_planned_one(tmp_path):
                 "offset_m": 0.0}]
     loop = np.zeros(10)
     with sessions() as s:
-        t = store.create_test(s, isolator="IUT_a", supply_bar=100.0, controller="pid", speed=1.0, driver="simulated",
-                              request={"profile": profile[0]}, scenario={"profile": profile}, limits={},
-                              duration_s=3.0, cycles_total=3, label="")
+        t = store.create_test(s, rig_name="rig-1", isolator="IUT_a", supply_bar=100.0, controller="pid", speed=1.0,
+                              driver="simulated", request={"profile": profile[0]}, scenario={"profile": profile},
+                              limits={}, duration_s=3.0, cycles_total=3, label="")
         for n in (1, 2, 3):  # stored before phases existed: no phase
             store.add_cycle(s, t.id, n, 0, n - 1.0, float(n), {"k_eff_n_per_m": 1e6 * n}, loop, loop)
-        t2 = store.create_test(s, isolator="IUT_a", supply_bar=100.0, controller="pid", speed=1.0,
+        t2 = store.create_test(s, rig_name="rig-1", isolator="IUT_a", supply_bar=100.0, controller="pid", speed=1.0,
                                driver="simulated", request={}, scenario={"profile": profile}, limits={},
                                duration_s=3.0, cycles_total=3, label="")
         store.add_cycle(s, t2.id, 1, 0, 0.0, 1.0, {}, loop, loop, phase="ramp_out")

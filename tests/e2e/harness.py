@@ -48,13 +48,15 @@ class Server:
     """`isorig serve` in a subprocess on 127.0.0.1 with its own database; restartable on the same port."""
 
     def __init__(self, workdir: Path, viewer: bool = False, port: int | None = None, rig: str | None = None,
-                 plant_set: tuple[str, ...] = ()):
+                 plant_set: tuple[str, ...] = (), database_url: str | None = None, rig_name: str | None = None):
         self.workdir = Path(workdir)
         self.workdir.mkdir(parents=True, exist_ok=True)
         self.port = port or free_port()
         self.viewer = viewer
         self.rig = rig  # None: the service's default (simulated); or udp://HOST:PORT
         self.plant_set = tuple(plant_set)  # the simulated rig unlike its rig file (isorig serve --plant-set)
+        self.database_url = database_url  # None: its own SQLite file; several rigs' services may share one
+        self.rig_name = rig_name  # None: the service's default (rig-1)
         self.proc: subprocess.Popen | None = None
         self.log_path = self.workdir / "serve.log"
 
@@ -65,12 +67,15 @@ class Server:
     def env(self) -> dict:
         env = dict(os.environ)
         env.update({
-            "ISORIG_DATABASE_URL": f"sqlite:///{self.workdir / 'isorig.db'}",
+            "ISORIG_DATABASE_URL": self.database_url or f"sqlite:///{self.workdir / 'isorig.db'}",
             "ISORIG_DATA_DIR": str(self.workdir),
             "ISORIG_OPERATOR_TOKEN": TOKEN,
             "ISORIG_VIEWER": "1" if self.viewer else "0",
             "PYTHONUNBUFFERED": "1",
         })
+        env.pop("ISORIG_RIG_NAME", None)
+        if self.rig_name:
+            env["ISORIG_RIG_NAME"] = self.rig_name
         return env
 
     def add_account(self, name: str, password: str, role: str = "operator") -> None:

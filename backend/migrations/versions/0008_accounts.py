@@ -2,7 +2,7 @@
 tokens, stored as the SHA-256 of the secret).
 
 Revision ID: 0008
-Revises: 0006
+Revises: 0007 (several rigs; written beside it, it came after 0006 at first)
 Create Date: 2026-11-27
 """
 
@@ -10,7 +10,7 @@ import sqlalchemy as sa
 from alembic import op
 
 revision = "0008"
-down_revision = "0006"
+down_revision = "0007"
 branch_labels = None
 depends_on = None
 

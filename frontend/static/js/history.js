@@ -1,7 +1,7 @@
-// History: the list of past tests (filter by isolator, status, date; the archived ones on their own), one
-// test's page (who and what, loops, per-cycle metrics, events, downloads), and the record actions: delete a
-// test that never ran, archive a test that ran (who and why), restore an archived one. Each asks first and
-// says what happened.
+// History: the list of past tests of every rig sharing the records (filter by rig, isolator, status, date; the
+// archived ones on their own), one test's page (who and what, loops, per-cycle metrics, events, downloads), and
+// the record actions: delete a test of this rig that never ran, archive a test that ran (who and why), restore
+// an archived one. Each asks first and says what happened.
 
 import { account, api, askLogin, refreshAccount } from "./api.js";
 import { confirmDialog, summaryTable } from "./dialogs.js";
@@ -73,12 +73,12 @@ function statusPill(status) {
   return el("span", { class: `pill status-${status}`, text: status });
 }
 
-/** What an operator may do with a record: delete (never ran), archive (ran), restore (archived), nothing (running,
- * or approved: an approved record is locked). */
-export function recordAction(t) {
+/** What an operator may do with a record: delete (never ran, this rig's), archive (ran), restore (archived), nothing
+ * (running, another rig's that never ran, or approved: an approved record is locked). */
+export function recordAction(t, thisRig = null) {
   if (reviewOf(t).state === "approved") return "";
   if (t.archived) return "restore";
-  if (t.status === "ready") return "delete";
+  if (t.status === "ready") return thisRig && t.rig_name && t.rig_name !== thisRig ? "" : "delete"; // its rig's
   if (t.status === "running") return "";
   return "archive";
 }
@@ -89,6 +89,7 @@ export class History {
     this.eqRecord = new EarthquakeRecord(); // an earthquake test's J criteria and reference (js/eqrecord.js)
     this.acceptance = new ProtocolAcceptance(); // a protocol test's verdict and levels (js/acceptance.js)
     this.current = null; // the test page's record
+    this.thisRig = null; // the rig this service drives (GET /api/rigs): another rig's tests are its service's
     this.review = new ReviewPanel(() => this.showTest(this.current.id, true)); // approve / reject (js/review.js)
     $("history-filter").addEventListener("submit", (ev) => {
       ev.preventDefault();
@@ -108,8 +109,29 @@ export class History {
     $(id).className = `message ${kind}`;
   }
 
+  /** The rig filter's choices: every rig on record, this service's marked; the choice kept. */
+  async loadRigs() {
+    let rigs;
+    try {
+      rigs = await api.get("/api/rigs");
+    } catch (e) {
+      return; // the list still loads, unfiltered by rig
+    }
+    this.thisRig = rigs.this;
+    const sel = $("h-rig");
+    const keep = sel.value;
+    sel.innerHTML = "";
+    sel.append(el("option", { value: "", text: "any" }));
+    for (const name of rigs.on_record || []) {
+      sel.append(el("option", { value: name, text: name === rigs.this ? `${name} (this console's)` : name }));
+    }
+    sel.value = (rigs.on_record || []).includes(keep) ? keep : "";
+  }
+
   async showList() {
+    await this.loadRigs();
     const q = new URLSearchParams();
+    if ($("h-rig").value) q.set("rig_name", $("h-rig").value);
     if ($("h-isolator").value) q.set("isolator", $("h-isolator").value);
     if ($("h-status").value) q.set("status", $("h-status").value);
     if ($("h-review").value) q.set("review", $("h-review").value);
@@ -126,13 +148,13 @@ export class History {
       tests = listOf(await api.get(`/api/tests?${q}`), "tests");
     } catch (e) {
       tbody.innerHTML = "";
-      tbody.append(el("tr", {}, el("td", { text: `could not load: ${e.message}`, colspan: "12" })));
+      tbody.append(el("tr", {}, el("td", { text: `could not load: ${e.message}`, colspan: "13" })));
       return;
     }
     tbody.innerHTML = "";
     for (const t of tests) {
       const s = summaryOf(t);
-      const action = recordAction(t);
+      const action = recordAction(t, this.thisRig);
       const actions = el("td", { class: "actions" });
       if (action) {
         const b = el("button", { type: "button", class: `ghost small act-${action}`, "data-action": action,
@@ -147,6 +169,7 @@ export class History {
       }
       const tr = el("tr", { class: "link", "data-id": String(t.id), "data-status": t.status },
         el("td", { text: `#${t.id}` }),
+        el("td", { class: `rig${t.rig_name === this.thisRig ? " this-rig" : ""}`, text: t.rig_name || "-" }),
         el("td", { text: fmtTime(t.created_at || t.started_at) }),
         el("td", { class: "who", text: t.specimen_id || "-" }),
         el("td", { class: "who", text: t.operator_name || "-" }),
@@ -217,6 +240,7 @@ export class History {
     const summary = $("t-summary");
     summary.innerHTML = "";
     if (!keepMessage) this.message("t-message", "");
+    if (this.thisRig === null) await this.loadRigs(); // whose the test is decides what may be done with it
     let t;
     try {
       t = await api.get(`/api/tests/${id}`);
@@ -230,6 +254,7 @@ export class History {
     const kv = (k, v, cls = "") => el("div", { class: `kv ${cls}` }, el("span", { text: k }), el("b", { text: v }));
     summary.append(
       kv("status", t.status + (t.reason ? ` (${t.reason})` : ""), "wide"),
+      kv("rig", t.rig_name || "-"),
       kv("specimen", t.specimen_id || "-"),
       kv("operator", t.operator_name || "-"),
       kv("isolator", isolatorName(t)),
@@ -271,7 +296,7 @@ export class History {
     arch.classList.toggle("hidden", !t.archived);
     arch.textContent = t.archived ? `Archived by ${t.archived.by} on ${fmtTime(t.archived.at)}: ${t.archived.reason}` : "";
     this.review.show(t);
-    const action = recordAction(t);
+    const action = recordAction(t, this.thisRig);
     const button = $("t-action");
     button.classList.toggle("hidden", !action);
     button.dataset.action = action;

@@ -73,6 +73,9 @@ export class StatusStrip {
     const running = testRunning();
     const t = state.test || {};
     const rs = this.serviceState();
+    // which rig this console drives, by name (several rigs' services may share the records)
+    const rigName = rs.rig_name || (state.rigState && state.rigState.rig_name) || (state.rig && state.rig.rig_name);
+    $("s-rig-label").textContent = rigName ? `rig ${rigName}` : "rig";
     this.renderSupply(running, t, rs);
     this.renderPosition(rs);
     // vertical load: the running test's, else the last test's condition
