@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from contextlib import contextmanager
 
 
 def raise_priority(rr_priority: int) -> str:
@@ -36,6 +37,18 @@ def restore_priority(saved: tuple) -> None:
         os.setpriority(os.PRIO_PROCESS, 0, nice)
     except (AttributeError, OSError):
         pass
+
+
+@contextmanager
+def realtime_priority(rr_priority: int):
+    """This process at ``raise_priority(rr_priority)`` for the ``with`` block (yields what was granted), its
+    scheduling given back afterwards (``restore_priority``): a check or run that measures against a rig's clock
+    must not be starved by ordinary processes, and its caller must not go on at real-time priority."""
+    saved = current_priority()
+    try:
+        yield raise_priority(rr_priority)
+    finally:
+        restore_priority(saved)
 
 
 MCL_CURRENT = 1  # <sys/mman.h>

@@ -47,7 +47,6 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from backend.drivers.rig_check import RigCheck, RigUnreachable
-    from sim.realtime import current_priority, raise_priority, restore_priority
     from sim.rig import DEFAULT_RIG
     from sim.rigfile import load_rig_file, with_assignments
 
@@ -63,17 +62,13 @@ def run(args) -> int:
                          motion_v=args.motion_v, security=security)
     except ValueError as exc:
         raise UsageError(f"{prog}: {exc}") from None
-    saved = current_priority()
-    raise_priority(10)  # the host's side of the loop, as the worker's: the rig's watchdog does not wait
     try:
-        report = check.run()
+        report = check.run()  # at real-time priority for the check only (RigCheck.run)
     except RigUnreachable as exc:
         if args.json:
             print(json.dumps({"rig": args.rig, "ok": False, "error": str(exc)}, indent=1))
         print(f"{prog}: {exc}", file=sys.stderr)
         return 1
-    finally:
-        restore_priority(saved)  # only for the check: a caller that goes on must not start children at SCHED_RR
     if args.json:
         print(json.dumps(report.to_dict(), indent=1))
     else:
