@@ -11,6 +11,7 @@ account's sessions and tokens stop working at once.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import re
 import secrets
@@ -197,7 +198,7 @@ def log_in(session: Session, name: str, password: str) -> tuple[UserAccount, str
     """(account, session secret) for the right password of an enabled account, else None. The hash is checked
     even for an unknown name, so the answer's time does not tell which names exist."""
     user = find_user(session, name) if NAME_PATTERN.match(name or "") else None
-    stored = user.password_hash if user is not None and user.password_hash else _DUMMY_HASH
+    stored = user.password_hash if user is not None and user.password_hash else _dummy_hash()
     try:
         _hasher.verify(stored, password)
     except (VerificationError, InvalidHashError):
@@ -235,7 +236,10 @@ def _aware(moment: datetime) -> datetime:
     return moment if moment.tzinfo is not None else moment.replace(tzinfo=UTC)
 
 
-_DUMMY_HASH = _hasher.hash(secrets.token_urlsafe(16))
+@functools.cache
+def _dummy_hash() -> str:
+    """A hash no password matches, verified for an unknown name (made on first need, not at every import)."""
+    return _hasher.hash(secrets.token_urlsafe(16))
 
 
 def acting_name(account: str, given: str, field: str) -> str:

@@ -31,6 +31,7 @@ import signal
 import sys
 import threading
 import time
+from contextlib import nullcontext
 
 import numpy as np
 
@@ -41,7 +42,7 @@ from sim.isolator import isolator_from_dict
 from sim.loop import CONTROL_PERIOD_S, ClosedLoop
 from sim.measurement import FLAG_GUARD, FLAG_LOST, Measurement
 from sim.profiles import B_CYCLES, B_TAPER, blocks_from_dicts
-from sim.realtime import RealtimeSection, current_priority, raise_priority, restore_priority
+from sim.realtime import RealtimeSection, raise_priority, realtime_priority
 from sim.rig import DEFAULT_RIG
 from sim.samples import Samples
 from sim.tracking import cycle_phase, cycle_windows
@@ -602,13 +603,11 @@ def run_here(job: dict, commands: AbortSwitch | None = None) -> tuple[Run, Colle
     the service's worker. Returns the run, what it sent, the final status and its reason."""
     out = Collector()
     run = Run(job, out, commands or AbortSwitch())
-    saved = current_priority()
-    try:  # a real-time rig only, and only for the run: this process goes on afterwards (a script, a test suite)
-        run.priority = (raise_priority(WORKER_RR_PRIORITY) if job.get("realtime", True) and run.rig.realtime
-                        else "normal")
+    # a real-time rig only, and only for the run: this process goes on afterwards (a script, a test suite)
+    realtime = job.get("realtime", True) and run.rig.realtime
+    with realtime_priority(WORKER_RR_PRIORITY) if realtime else nullcontext("normal") as granted:
+        run.priority = granted
         status, reason = run.execute()
-    finally:
-        restore_priority(saved)
     return run, out, status, reason
 
 

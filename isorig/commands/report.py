@@ -46,12 +46,10 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def _load_stored(test_id: int, database_url: str | None):
+def _store_url(database_url: str | None):
+    """(the URL text, the parsed URL) of the store to read: --database-url, else the service's; UsageError for a
+    URL that does not parse or a SQLite file that is not there (a database is never created here)."""
     from sqlalchemy.engine import make_url
-    from sqlalchemy.exc import SQLAlchemyError
-
-    from backend import store
-    from backend.db import make_engine, session_factory
 
     if database_url is None:
         from backend.settings import Settings
@@ -65,6 +63,16 @@ def _load_stored(test_id: int, database_url: str | None):
             and not Path(url.database).expanduser().exists():
         raise UsageError(f"{PROG}: no database at {url.database} (run the service first, or pass --database-url, "
                          "or use --csv FILE)")
+    return database_url, url
+
+
+def _load_stored(test_id: int, database_url: str | None):
+    from sqlalchemy.exc import SQLAlchemyError
+
+    from backend import store
+    from backend.db import make_engine, session_factory
+
+    database_url, url = _store_url(database_url)
     engine = make_engine(database_url)
     try:
         with session_factory(engine)() as session:
@@ -81,23 +89,13 @@ def _load_stored(test_id: int, database_url: str | None):
 
 def _stored_lab(database_url: str | None):
     """The lab header the service's reports use (backend.lab: the database's settings over the environment's)."""
-    from sqlalchemy.engine import make_url
-
     from backend import lab
     from backend.db import make_engine, session_factory
     from backend.reports.lab import lab_header
 
-    if database_url is None:
-        from backend.settings import Settings
-
-        database_url = Settings().resolved_database_url
     try:
-        url = make_url(database_url)
-        missing = url.get_backend_name() == "sqlite" and url.database not in (None, "", ":memory:") \
-            and not Path(url.database).expanduser().exists()
-    except Exception:
-        missing = True
-    if missing:  # _load_stored says what is wrong (never create a database here)
+        database_url, _ = _store_url(database_url)
+    except UsageError:  # _load_stored says what is wrong
         return lab_header()
     engine = make_engine(database_url)
     try:
