@@ -182,8 +182,8 @@ class RigEmulator:
         self.delayed: list[tuple[float, int, bytes, tuple]] = []
         self.stopped = False
         self.counters = {"ticks": 0, "arms": 0, "disarms": 0, "measurements_sent": 0, "measurements_dropped": 0,
-                         "commands_applied": 0, "commands_late": 0, "periods_missed": 0, "incoming_dropped": 0,
-                         "restarts": 0, "link_dropped": False, "overruns": 0, "ticks_lost": 0}
+                         "commands_applied": 0, "command_max_abs_v": 0.0, "commands_late": 0, "periods_missed": 0,
+                         "incoming_dropped": 0, "restarts": 0, "link_dropped": False, "overruns": 0, "ticks_lost": 0}
         self.rejected: dict[str, int] = {}
         self.latency = LatencyHistogram()  # per answered measurement: command arrival - measurement sent
         self.tick_lateness = LatencyHistogram()
@@ -368,6 +368,7 @@ class RigEmulator:
             self.last_applied_seq = seq
             self.last_command_time = arrival
             self.counters["commands_applied"] += 1
+            self.counters["command_max_abs_v"] = max(self.counters["command_max_abs_v"], abs(u))
 
     def after_tick(self, now: float) -> None:
         faults = self.faults

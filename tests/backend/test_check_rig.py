@@ -191,7 +191,10 @@ def test_an_emulator_that_overruns_its_period_does_not_catch_up(good):
     sent_ms = [(b.time_ns - a.time_ns) / 1e6 for a, b in zip(got, got[1:], strict=False)]
     stall = max(range(len(sent_ms)), key=sent_ms.__getitem__)
     assert 55 < sent_ms[stall] < 200 and 95 <= stall <= 105, sent_ms[stall]
-    assert min(sent_ms[stall + 1: stall + 20]) > 0.5, sent_ms[stall + 1: stall + 20]  # no burst of late ones
+    # no burst of late ones: catching up the ~60 lost periods would send them within a millisecond or two; one
+    # period sent late and the next on time (a loaded machine) is not a burst
+    after = sent_ms[stall + 1: stall + 21]
+    assert sum(after) > 15.0 and sum(gap < 0.5 for gap in after) <= 3, after
     counters = good.fresh_status()["counters"]
     assert counters["overruns"] > before["overruns"] and counters["ticks_lost"] >= before["ticks_lost"] + 50
 

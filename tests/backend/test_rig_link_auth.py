@@ -21,8 +21,9 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
-from emulator import ISORIG, Emulator, simulate_on
+from emulator import ISORIG, Emulator, read_record, simulate_on
 
 from backend.drivers.udp import UdpRig, probe
 from sim.emulator import auth
@@ -345,7 +346,9 @@ def _attacked_run(tmp_path: Path, url: str, key: Path, emulator: Emulator, sniff
     return {"summary": summary, "seen": seen, "rig_rejected": rejected, "host_rejected": host}
 
 
-def test_an_attacker_without_the_key_changes_nothing_in_a_running_test(tmp_path):
+def attack_figures(tmp_path: Path) -> dict:
+    """A run nobody attacks, then one under every attack, on one emulator; the figures of both (and the checks of
+    ``_attacked_run``). Also run by scripts/link_attack.py, which measures the tracking target over several runs."""
     key = new_key_file(tmp_path)
     sniffer = Sniffer()
     sniffer.start()
@@ -356,19 +359,32 @@ def test_an_attacker_without_the_key_changes_nothing_in_a_running_test(tmp_path)
         baseline_session = int.from_bytes(sniffer.captured(">", proto.ARM)[-1][8:12], "little")
         result = _attacked_run(tmp_path, emulator.url, key, emulator, sniffer, emulator.forge_port,
                                baseline_session, "attacked")
+        counters = emulator.fresh_status()["counters"]
     finally:
         sniffer.stopped = True
         emulator.stop()
+    host_max_v = max(float(np.max(np.abs(read_record(tmp_path / run)["voltage_v"]))) for run in ("base", "attacked"))
     difference_m = abs(result["summary"]["rms_y_minus_r_m"] - base["rms_y_minus_r_m"])
-    figures = {"rms_unattacked_m": base["rms_y_minus_r_m"], "rms_attacked_m": result["summary"]["rms_y_minus_r_m"],
-               "difference_pct_of_amplitude": 100 * difference_m / AMPLITUDE_M,
-               "rig_rejected": result["rig_rejected"], "host_rejected": result["host_rejected"],
-               "flood": result["seen"], "host_stall_max_ms": result["summary"]["link"]["host_stall_max_ms"],
-               "rig_commands_missed": [base["link"]["rig_commands_missed"],
-                                       result["summary"]["link"]["rig_commands_missed"]]}
+    return {"rms_unattacked_m": base["rms_y_minus_r_m"], "rms_attacked_m": result["summary"]["rms_y_minus_r_m"],
+            "difference_pct_of_amplitude": 100 * difference_m / AMPLITUDE_M,
+            "rig_applied_max_abs_v": counters["command_max_abs_v"], "host_sent_max_abs_v": host_max_v,
+            "rig_rejected": result["rig_rejected"], "host_rejected": result["host_rejected"],
+            "flood": result["seen"], "host_stall_max_ms": result["summary"]["link"]["host_stall_max_ms"],
+            "rig_commands_missed": [base["link"]["rig_commands_missed"],
+                                    result["summary"]["link"]["rig_commands_missed"]]}
+
+
+def test_an_attacker_without_the_key_changes_nothing_in_a_running_test(tmp_path):
+    figures = attack_figures(tmp_path)
     print(json.dumps(figures))
-    # the same tracking as the run nobody attacked: within 0.1 % of the amplitude
-    assert figures["difference_pct_of_amplitude"] <= 0.1, figures
+    # nothing the attacker sent was applied: its +10 V commands would be the largest the rig ever applied
+    assert figures["rig_applied_max_abs_v"] == pytest.approx(figures["host_sent_max_abs_v"], abs=1e-4), figures
+    assert figures["host_sent_max_abs_v"] < 9.0, figures
+    # the tracking of the run nobody attacked. The target, within 0.1 % of the amplitude, is measured over several
+    # runs by scripts/link_attack.py: on a loaded 2-CPU machine two runs nobody attacks differ by up to 0.11 % (the
+    # module's docstring), timing and not the attack. An attack that got through (issue 21: +10 V commands applied,
+    # tracking from 0.04 to 0.80 mm) is far beyond this bound.
+    assert figures["difference_pct_of_amplitude"] <= 0.5, figures
 
 
 def test_version_1_is_spoken_when_named_and_says_it_is_not_authenticated(tmp_path):
