@@ -70,19 +70,22 @@ def _no_negative_zero(text: str) -> str:
     return text[1:] if re.fullmatch(r"-0(\.0*)?", text) else text
 
 
-def sig_digits(v: float, sig: int = 4) -> str:
+def sig_digits(v: float, sig: int = 4, trailing_zeros: bool = False) -> str:
     """A number with ``sig`` significant digits, in plain notation between 1e-4 and 1e9 ('883900', '0.0806');
-    units.js sigDigits."""
+    units.js sigDigits. ``trailing_zeros=True`` keeps them ('1.700', not '1.7': a column of a table)."""
     if not math.isfinite(v):
         return "-"
     if v == 0:
         return "0"
     a = abs(v)
     if a >= 1e9 or a < 1e-4:
-        return re.sub(r"\.?0+e", "e", _to_exponential(v, sig - 1))
+        text = _to_exponential(v, sig - 1)
+        return text if trailing_zeros else re.sub(r"\.?0+e", "e", text)
     magnitude = math.floor(math.log10(a))
     decimals = max(0, sig - 1 - magnitude)
     text = _to_fixed(_to_precision(v, sig), decimals)
+    if trailing_zeros:
+        return _no_negative_zero(text)
     text = re.sub(r"(\.\d*?)0+$", r"\1", text)
     return _no_negative_zero(re.sub(r"\.$", "", text))
 
@@ -123,14 +126,15 @@ class Units:
         shown = d["res"] * d[self.system][1]
         return max(0, math.ceil(-math.log10(shown) - 1e-9))
 
-    def fmt(self, quantity: str, si, sig: int | None = None, sign: bool = False) -> str:
+    def fmt(self, quantity: str, si, sig: int | None = None, sign: bool = False, trailing_zeros: bool = False) -> str:
         """An SI value in the display unit, without the unit: digits from the resolution (or ``sig`` significant
-        digits), never '-0.00'; '-' for a value that is not a finite number (units.js fmt)."""
+        digits), never '-0.00'; '-' for a value that is not a finite number (units.js fmt). ``trailing_zeros``
+        keeps the zeros of significant digits ('1.700': the columns of a table line up)."""
         if isinstance(si, bool) or not isinstance(si, (int, float)) or not math.isfinite(si):
             return "-"
         v = self.value(quantity, float(si))
         dec = None if sig or abs(v) >= 1e21 else self.decimals(quantity)  # toFixed's own limit
-        text = sig_digits(v, sig or self._q(quantity).get("sig") or 4) if dec is None else \
+        text = sig_digits(v, sig or self._q(quantity).get("sig") or 4, trailing_zeros) if dec is None else \
             _no_negative_zero(_to_fixed(v, dec))
         if sign and v > 0 and float(text) != 0:
             text = "+" + text
