@@ -5,7 +5,8 @@ IUT_a, 600 000 samples, 600 cycles with their loops) stored in a fresh SQLite st
 The record is simulated once (about 10 s) and kept in ``--cache`` (default /tmp/isorig-bench-report/store.db).
 By default the timing starts once the service's background warm-up of the renderer has ended
 (``app.state.report_warm``: the target is the first report on a warmed-up renderer); ``--no-wait`` asks at once.
-``--profile FILE`` writes a cProfile of the first report.
+``--profile FILE`` makes the two reports in this thread as the route does (the lab header, the stored bundle, the
+PDF), not over HTTP, and writes a cProfile of each (FILE.1, FILE.2): the route's own thread is not profiled.
 
     PYTHONPATH=$PWD python scripts/bench_report.py
 """
@@ -58,6 +59,21 @@ def store_sine_test(url: str) -> int:
     return test_id
 
 
+def report_here(app, test_id: int) -> bytes:
+    """What GET /api/tests/{id}/report.pdf does (backend.api.tests.report_pdf), in this thread."""
+    import io
+
+    from backend import lab as lab_settings
+    from backend import store
+    from backend.reports import render_report_pdf
+
+    buf = io.BytesIO()
+    with app.state.sessions() as session:
+        lab = lab_settings.header(session, app.state.settings)
+        render_report_pdf(store.load_test_bundle(session, test_id), buf, lab=lab)
+    return buf.getvalue()
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "isorig-bench-report")
@@ -95,21 +111,24 @@ def main(argv=None) -> int:
             test_id = client.get("/api/tests").json()[0]["id"]
             times = []
             for k in range(2):
-                profiler = cProfile.Profile() if args.profile and k == 0 else None
                 t0 = time.perf_counter()
-                if profiler:
+                if args.profile:
+                    profiler = cProfile.Profile()
                     profiler.enable()
-                r = client.get(f"/api/tests/{test_id}/report.pdf")
-                if profiler:
+                    size = len(report_here(app, test_id))
                     profiler.disable()
-                    profiler.dump_stats(args.profile)
+                    profiler.dump_stats(f"{args.profile}.{k + 1}")
+                else:
+                    r = client.get(f"/api/tests/{test_id}/report.pdf")
+                    if r.status_code != 200 or r.content[:5] != b"%PDF-":
+                        print(f"report {k + 1}: HTTP {r.status_code}: {r.text[:300]}", file=sys.stderr)
+                        return 1
+                    size = len(r.content)
                 times.append(time.perf_counter() - t0)
-                if r.status_code != 200 or r.content[:5] != b"%PDF-":
-                    print(f"report {k + 1}: HTTP {r.status_code}: {r.text[:300]}", file=sys.stderr)
-                    return 1
         print(f"service start {started:.2f} s; warm-up " + ("not waited for" if args.no_wait or warm is None
                                                              else f"waited {waited:.2f} s more"))
-        print(f"first report {times[0]:.2f} s, second report {times[1]:.2f} s ({len(r.content)} bytes)")
+        print(f"first report {times[0]:.2f} s, second report {times[1]:.2f} s ({size} bytes)"
+              + (f"; profiles in {args.profile}.1 and .2" if args.profile else ""))
         return 0
     finally:
         shutil.rmtree(work, ignore_errors=True)

@@ -87,6 +87,10 @@ def test_a_few_readings_by_hand():
     assert lab.text("length", float("nan")) == "-" and lab.fmt("force", None) == "-"
     assert Units("anything").system == "lab"
     assert sig_digits(2.5e9, 4) == "2.5e+9" and sig_digits(-0.00004, 4) == "-4e-5"
+    # a table's column keeps its zeros (the digits line up); the console's text drops them
+    assert lab.fmt("stiffness", 1.7e6, trailing_zeros=True) == "1.700" and lab.fmt("stiffness", 1.7e6) == "1.7"
+    assert lab.fmt("energy", 180.0, trailing_zeros=True) == "180.0" and si.fmt("energy", 2.5e9, trailing_zeros=True) \
+        == "2.500e+9"
     assert lab.si_unit_text(2.0e5, "N/m") == "0.2 kN/mm" and lab.si_unit_text(0.5, "V/m") == "0.5 V/m"
     with pytest.raises(ValueError, match="unknown quantity"):
         lab.unit("luminance")
