@@ -2,11 +2,13 @@
 IUT_a, 600 000 samples, 600 cycles with their loops) stored in a fresh SQLite store, then a service started on it
 (backend.app.create_app, TestClient) and ``GET /api/tests/{id}/report.pdf`` asked twice.
 
-The record is simulated once (about 10 s) and kept in ``--cache`` (default /tmp/isorig-bench-report/store.db).
-By default the timing starts once the service's background warm-up of the renderer has ended
-(``app.state.report_warm``: the target is the first report on a warmed-up renderer); ``--no-wait`` asks at once.
-``--profile FILE`` makes the two reports in this thread as the route does (the lab header, the stored bundle, the
-PDF), not over HTTP, and writes a cProfile of each (FILE.1, FILE.2): the route's own thread is not profiled.
+It prints the wall time of each report and the CPU time the process spent meanwhile (on a loaded machine the wall
+time says more about the other processes). The record is simulated once (about 10 s) and kept in ``--cache``
+(default /tmp/isorig-bench-report/store.db). By default the timing starts once the service's background warm-up
+of the renderer has ended (``app.state.report_warm``: the target is the first report on a warmed-up renderer);
+``--no-wait`` asks at once. ``--profile FILE`` makes the two reports in this thread as the route does (the lab
+header, the stored bundle, the PDF), not over HTTP, and writes a cProfile of each (FILE.1, FILE.2): the route's
+own thread is not profiled.
 
     PYTHONPATH=$PWD python scripts/bench_report.py
 """
@@ -109,9 +111,9 @@ def main(argv=None) -> int:
                 warm.wait(60)
                 waited = time.perf_counter() - t0
             test_id = client.get("/api/tests").json()[0]["id"]
-            times = []
+            times, cpu = [], []
             for k in range(2):
-                t0 = time.perf_counter()
+                t0, c0 = time.perf_counter(), time.process_time()
                 if args.profile:
                     profiler = cProfile.Profile()
                     profiler.enable()
@@ -125,10 +127,15 @@ def main(argv=None) -> int:
                         return 1
                     size = len(r.content)
                 times.append(time.perf_counter() - t0)
+                cpu.append(time.process_time() - c0)
         print(f"service start {started:.2f} s; warm-up " + ("not waited for" if args.no_wait or warm is None
                                                              else f"waited {waited:.2f} s more"))
         print(f"first report {times[0]:.2f} s, second report {times[1]:.2f} s ({size} bytes)"
               + (f"; profiles in {args.profile}.1 and .2" if args.profile else ""))
+        # CPU seconds of this process (every thread) while each report was made: what a loaded machine's wall
+        # time cannot show (the warm-up, when not waited for, counts in the first)
+        print(f"CPU: first report {cpu[0]:.2f} s, second report {cpu[1]:.2f} s; load average "
+              f"{' '.join(open('/proc/loadavg').read().split()[:3])}")
         return 0
     finally:
         shutil.rmtree(work, ignore_errors=True)
