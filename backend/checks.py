@@ -44,7 +44,8 @@ BIG_BODY_BYTES = 1024 * 1024  # a body this large on a heavy route is an inline 
 HEAVY_ROUTES = frozenset({"/api/tests/check", "/api/ground-motions/read-at2"})
 
 
-JOB_MODULES = ("backend.api.tests", "backend.api.ground_motions")  # what the jobs run; imported by each worker
+# what the jobs run; imported by each worker
+JOB_MODULES = ("backend.api.tests", "backend.api.ground_motions", "backend.earthquake_view")
 
 
 def _warm(modules: tuple[str, ...]) -> None:

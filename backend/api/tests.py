@@ -20,8 +20,8 @@ from sim.rig import BAR_PA, RigParameters
 from sim.samples import RECORD_FIELDS, Samples
 from sim.tracking import cycle_windows
 
+from .. import earthquake_view, review, store
 from .. import lab as lab_settings
-from .. import review, store
 from ..errors import ApiError, ProtocolError, _jsonable
 from ..safety import make_limits
 from ..schemas import (
@@ -465,14 +465,10 @@ def get_csv(test_id: TestId, request: Request, session: SessionDep) -> Streaming
                              headers={"Content-Disposition": f'attachment; filename="test-{test_id}.csv"'})
 
 
-def _thinned(values, step: int) -> list:
-    return clean_json(np.asarray(values, dtype=float)[::step].tolist())
-
-
 @router.get("/api/tests/{test_id}/earthquake", summary="A history or hybrid test: the planned target, and once it "
             "ran the J criteria, command and measurement, the structure beside its reference (thinned)",
             responses=ERROR_RESPONSES)
-def get_earthquake(test_id: TestId, session: SessionDep,
+def get_earthquake(test_id: TestId, request: Request, session: SessionDep,
                    points: Annotated[int, Query(ge=100, le=200_000, description="at most this many points per "
                                                                                 "series (every k-th sample)")] = 2000
                    ) -> dict:
@@ -482,59 +478,13 @@ def get_earthquake(test_id: TestId, session: SessionDep,
     summary holds, computed again now) with ``series``: time, command, measurement and, for a hybrid test, the
     structure's channels replayed from the record and the reference's, every k-th sample so that no series has
     more than ``points``. While the test runs: ``so_far``, the stored samples' time, target and measurement at the
-    planned series' step (what a page that joins late draws before the websocket's rows), and no figures."""
+    planned series' step (what a page that joins late draws before the websocket's rows), and no figures.
+
+    Rebuilding the profile and the figures takes seconds of CPU for a long test, and anyone may ask: it runs in the
+    check pool (backend.checks: bounded, 503 when busy), and the answer for an ended test is kept
+    (backend.earthquake_view.ViewCache), so asking again costs nothing."""
     test = _test_or_404(session, test_id)
-    job_scenario = (test.request or {}).get("job_scenario") or {}
-    if job_scenario.get("earthquake") is None:
-        raise ApiError(422, f"test {test_id} is not a history or hybrid test", "test_id", test_id,
-                       "a test with a profile of kind history or hybrid")
-    from ..worker import earthquake_from_job
-
-    try:
-        profile = earthquake_from_job({"scenario": job_scenario})
-    except ValueError as exc:
-        raise ApiError(409, f"the profile of test {test_id} cannot be rebuilt: {exc}") from None
-    n = profile.target.n_samples
-    step = max(1, -(-n // points))
-    planned = {"time_s": _thinned(profile.target.time_s, step), "target_m": _thinned(profile.target.r_m, step)}
-    if profile.ground_acc_m_per_s2 is not None:
-        planned["ground_acc_m_per_s2"] = _thinned(profile.ground_acc_m_per_s2, step)
-    out = {"test_id": test_id, "kind": profile.kind, "status": test.status, "profile": clean_json(profile.description),
-           "planned": planned, "record": None}
-    if not test.samples_stored:
-        return out
-    if test.status == "running":  # the record so far (a page that joins late), no figures: the worker has the CPU
-        s = store.load_samples(session, test_id)
-        out["so_far"] = {"time_s": _thinned(s["time_s"], step), "target_m": _thinned(s["target_m"], step),
-                         "displacement_m": _thinned(s["displacement_m"], step)}
-        return out
-    from ..reports.content import earthquake_figures
-
-    bundle = store.load_test_bundle(session, test_id)
-    figures = earthquake_figures(bundle)
-    if figures is None:
-        return out
-    record = {k: v for k, v in figures.items() if k not in ("arrays", "profile")}
-    s = bundle.samples
-    step = max(1, -(-len(s) // points))
-    series = {"time_s": _thinned(s["time_s"], step), "target_m": _thinned(s["target_m"], step),
-              "displacement_m": _thinned(s["displacement_m"], step), "force_n": _thinned(s["force_n"], step)}
-    arrays = figures.get("arrays") or {}
-    if arrays.get("structure") is not None:
-        t_s = arrays["structure_time_s"]
-        k = max(1, -(-len(t_s) // points))
-        series["structure"] = {"time_s": _thinned(t_s, k),
-                               **{name: _thinned(v, k) for name, v in arrays["structure"].items()}}
-        whole = arrays["reference_whole"]
-        m = len(next(iter(whole.values())))
-        k = max(1, -(-m // points))
-        series["reference"] = {"time_s": _thinned(np.arange(m) * profile.target.dt_s, k),
-                               **{name: _thinned(v, k) for name, v in whole.items()}}
-        series["stability"] = {"time_s": _thinned(t_s, max(1, -(-len(t_s) // points))),
-                               "added_energy_j": _thinned(arrays["added_energy_j"], max(1, -(-len(t_s) // points))),
-                               "limit_j": _thinned(arrays["limit_j"], max(1, -(-len(t_s) // points)))}
-    out["record"] = {**clean_json(record), "series": series}
-    return out
+    return earthquake_view.answer(request.app, session, test, points)
 
 
 @router.get("/api/tests/{test_id}/acceptance", summary="A protocol test: its acceptance verdict, the verdict of "
