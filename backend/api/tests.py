@@ -567,5 +567,9 @@ def bundle_zip(test_id: TestId, request: Request, session: SessionDep) -> Respon
             tags=["events"])
 def list_events(session: SessionDep,
                 test_id: Annotated[int | None, Query(ge=1, le=2**53)] = None,
+                rig_name: Annotated[str | None, Query(
+                    min_length=1, max_length=64,
+                    description="only this rig's events (and those of no rig, such as an isolator added)")] = None,
                 limit: Annotated[int, Query(ge=1, le=10000)] = 1000) -> list[dict]:
-    return store.load_events(session, test_id)[-limit:]
+    """The newest ``limit`` events, oldest first: of one test, of one rig, or all."""
+    return store.load_events(session, test_id, rig_name=rig_name, limit=limit)
