@@ -13,6 +13,7 @@ import { EarthquakeLive } from "./eqlive.js";
 import { BAD, Buffer, CAP, emptyExtremes, FINAL } from "./livebuffer.js";
 import { ConnectionPart } from "./liveconnection.js";
 import { EventsPart } from "./liveevents.js";
+import { HeadlinePart, lastSteady } from "./liveheadline.js";
 import { metrics } from "./livemetrics.js";
 import { PlotsPart } from "./liveplots.js";
 import { ReadoutsPart } from "./livereadouts.js";
@@ -107,14 +108,14 @@ export class LiveView {
     this.tDisp = 0;
     this.arrivals = [];
     this.events = [];
-    this.lastCycleMetrics = null;
     const speed = test && (test.speed || (test.scenario && test.scenario.speed));
     this.rate = speed > 0 ? speed : 1;
     this.setProfile(test);
     this.setController(test && test.controller);
     if (this.plots) this.plots.loop.reset();
     this.renderEvents();
-    ["l-keff", "l-edc", "l-xi", "l-cycle", "l-progress", "l-left", "r-y", "r-y-max", "r-y-min", "r-f", "r-f-max",
+    this.clearHeadline();
+    ["l-cycle", "l-progress", "l-left", "r-y", "r-y-max", "r-y-min", "r-f", "r-f-max",
       "r-f-min", "r-v", "r-v-max", "r-v-min"].forEach((id) => { $(id).textContent = "-"; });
     $("l-progress-bar").style.width = "0";
     state.testId = testId;
@@ -241,14 +242,6 @@ export class LiveView {
     changed("status");
   }
 
-  onCycle(msg) {
-    const m = msg.metrics || {};
-    $("l-keff").textContent = fmtU("stiffness", m.k_eff_n_per_m);
-    $("l-edc").textContent = fmtU("energy", m.edc_j);
-    $("l-xi").textContent = fmtU("percent", m.xi_eff);
-    this.lastCycleMetrics = m;
-  }
-
   onHello(msg) {
     state.helloSeen = true;
     const test = msg.test || null;
@@ -284,6 +277,8 @@ export class LiveView {
       state.test = rec;
       this.mergeEvents(rec.events);
       this.onStatus({ status: rec.status, test_id: testId, reason: rec.reason, progress: rec.progress });
+      this.renderHeadline();
+      if (FINAL.has(rec.status)) this.showEndedLoops(testId);
       changed("test");
     }).catch(() => {});
   }
@@ -292,8 +287,11 @@ export class LiveView {
   loadLastCycle(testId) {
     fetch(`/api/tests/${testId}/cycles`).then((r) => (r.ok ? r.json() : [])).then((cycles) => {
       if (this.testId !== testId || !Array.isArray(cycles) || !cycles.length) return;
-      if ($("l-keff").textContent !== "-") return; // a live cycle came first
-      this.onCycle({ metrics: cycles[cycles.length - 1] });
+      if (this.lastCycle) return; // a live cycle came first
+      const steady = lastSteady(cycles);
+      if (steady) this.lastSteadyCycle = { cycle: steady.cycle, phase: "steady", metrics: steady };
+      const last = cycles[cycles.length - 1];
+      this.onCycle({ cycle: last.cycle, phase: last.phase, metrics: last });
     }).catch(() => {});
   }
 
@@ -311,7 +309,7 @@ export class LiveView {
     const notes = (t && t.notes) || "";
     $("l-notes").textContent = notes || "-";
     $("l-notes").title = notes;
-    if (this.lastCycleMetrics) this.onCycle({ metrics: this.lastCycleMetrics });
+    this.renderHeadline();
   }
 
   /** A message of a test we have no record of (started after hello): fetch its record for the header. */
@@ -355,7 +353,7 @@ export class LiveView {
   }
 }
 
-mixin(LiveView, PlotsPart, ReadoutsPart, EventsPart, ConnectionPart);
+mixin(LiveView, PlotsPart, ReadoutsPart, EventsPart, ConnectionPart, HeadlinePart);
 
 /** A readout of the rig now (between tests): the figure with its source in the tooltip, or a dash saying why not. */
 function showReading(el, quantity, what, reading) {

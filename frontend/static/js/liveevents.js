@@ -2,6 +2,7 @@
 // limit trip marks the test as ending (the strip says STOPPING), a trip is kept in words for the banner.
 
 import { actionName, LIMITS } from "./limits.js";
+import { FINAL } from "./livebuffer.js";
 import { changed, state } from "./state.js";
 import { eventLine, eventWords, setStatusBadge, showAlert } from "./ui.js";
 
@@ -104,6 +105,7 @@ export class EventsPart {
       this.eq.onRecord(rec);
       this.mergeEvents(rec.events);
       this.renderHead();
+      if (FINAL.has(this.status)) this.showEndedLoops(testId); // the last steady loop bold, not the ramp-out
       changed("test");
     }).catch(() => {});
   }

@@ -92,7 +92,7 @@ export class PlotsPart {
       }
     }
     this.offset *= fx;
-    for (const l of this.localLoops) {
+    for (const l of [...this.localLoops, ...(this.endedLoop ? [this.endedLoop] : [])]) {
       l.x = l.x.map((v) => v * fx);
       l.y = l.y.map((v) => v * ff);
     }
@@ -151,7 +151,9 @@ export class PlotsPart {
     p.volt.update(a.t, [a.v], i0, i1, xMin, xMax);
     p.adapt.update(a.t, this.adaptChannels.map((c) => a[c]), i0, i1, xMin, xMax);
     p.err.update(a.t, this.modelIsTarget ? [a.e_r] : [a.e_ym, a.e_r], i0, i1, xMin, xMax);
-    p.loop.setCurrent(a.y, a.f, Math.min(this.cycleStart, i1), i1);
+    const ended = this.endedLoop; // after a test: its last steady loop (js/liveheadline.js)
+    if (ended) p.loop.setCurrent(ended.x, ended.y, 0, ended.x.length);
+    else p.loop.setCurrent(a.y, a.f, Math.min(this.cycleStart, i1), i1);
     p.loop.draw();
     this.eq.render(this.tDisp, now, FINAL.has(this.status));
     this.readouts(i1, now);
