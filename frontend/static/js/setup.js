@@ -115,7 +115,8 @@ export class SetupPanel {
     if (Object.keys(problems).length) {
       clearTimeout(this.checkTimer);
       this.check();
-    } else if (this.checkPending || checkKey(body) !== this.lastCheck.key) {
+    } else if (this.checkPending || this.lastCheck.local || checkKey(body) !== this.lastCheck.key) {
+      // (a problem outside the body, such as a structure file that could not be read, is gone: ask the service)
       this.scheduleCheck();
     }
     this.updateButtons();

@@ -32,6 +32,7 @@ export class CheckPart {
       specimen_id: $("f-specimen_id").value.trim(),
       operator_name: account.name || "", // the logged-in account (the service records it in any case)
       notes: $("f-notes").value.trim(),
+      label: $("f-label").value.trim(),
     };
     if (num(v.vertical_load)) body.vertical_load_n = v.vertical_load;
     const options = this.controllerOptions();
@@ -137,7 +138,7 @@ export class CheckPart {
 
 /** The part of the body the envelope depends on (who and notes are not checked against the rig). */
 export function checkKey(body) {
-  const { specimen_id: _s, operator_name: _o, notes: _n, ...rest } = body;
+  const { specimen_id: _s, operator_name: _o, notes: _n, label: _l, ...rest } = body;
   return JSON.stringify(rest, (k, v) => (Array.isArray(v) && v.length > 64 ? `[record ${recordId(v)}]` : v));
 }
 

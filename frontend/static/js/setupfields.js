@@ -39,10 +39,11 @@ export function listOf(data, key) {
 }
 
 /** "10 to 210 bar", "up to 150 mm": a range in display units. */
-function rangeText(quantity, lo, hi, { openLow = false, integer = false } = {}) {
+function rangeText(quantity, lo, hi, { openLow = false, integer = false, nonZero = false } = {}) {
   const f = (v) => (integer ? String(v) : quantity ? fmt(quantity, v, { sig: 6 }) : String(+v.toPrecision(6)));
   const u = quantity && unit(quantity) !== "-" ? ` ${unit(quantity)}` : "";
   if (openLow && lo === 0) return `above 0, up to ${f(hi)}${u}`;
+  if (nonZero) return `${f(lo)} to ${f(hi)}${u}, not 0`;
   return `${f(lo)} to ${f(hi)}${u}`;
 }
 
@@ -130,7 +131,7 @@ export class FieldsPart {
       si = spec.quantity ? toSI(spec.quantity, r.value) : r.value;
       const [lo, hi] = spec.range();
       const tooLow = spec.openLow ? si <= lo : si < lo - 1e-12 * Math.abs(lo);
-      if (tooLow || si > hi * (1 + 1e-12)) {
+      if (tooLow || si > hi * (1 + 1e-12) || (spec.nonZero && si === 0)) {
         problem = `outside the allowed range: ${rangeText(spec.quantity, lo, hi, spec)}`;
       } else if (r.comma) {
         note = `read as ${spec.quantity ? fmtU(spec.quantity, si, { sig: 8 }) : String(r.value)}`;
@@ -171,7 +172,7 @@ export class FieldsPart {
       if (key === "offset") text += "; empty: 0 (the sine runs about zero); reached during the first cycle";
       if (key === "speed" && this.realTimeOnly) text = "";
       if (key === "eq_scale") {
-        text = this.eq.fromGroundMotion() ? `${text} (times the ground acceleration)` : `${text} (times the displacement)`;
+        text = this.eq.fromGroundMotion() ? `${text} (times the ground acceleration)` : `${text} (times the displacement; negative: the record mirrored)`;
       }
       if (spec.quantity === "mass" || (spec.storey !== undefined && spec.quantity === "stiffness")) {
         const shown = toDisplay(spec.quantity, hi);
@@ -187,8 +188,8 @@ export class FieldsPart {
       }
       if (key === "vertical_load") {
         const d = this.defaultVerticalLoad();
-        text += `; empty: ${fmtU("force", d.value, { sig: 6 })}${d.iso ? " (the isolator's design load)" : d.building ? " (the building's weight)" : ""}`;
-        input.placeholder = fmt("force", d.value, { sig: 6 });
+        text += `; empty: ${fmtU("force", d.value)} (${d.source})`;
+        input.placeholder = fmt("force", d.value);
       }
       if (spec.limit) {
         const p = spec.placeholder();
@@ -209,10 +210,13 @@ export class FieldsPart {
   defaultVerticalLoad() {
     const env = (this.rig && this.rig.envelope) || {};
     const building = this.eq.totalMass(this.values); // a hybrid test runs under the building's weight
-    if (num(building)) return { value: building * G, building: true };
+    if (num(building)) return { value: building * G, building: true, source: "the building's weight" };
     const iso = this.isolators.find((i) => i.name === $("f-isolator").value) || {};
-    if (num(iso.design_vertical_load_n)) return { value: iso.design_vertical_load_n, iso: true };
-    return { value: num(env.vertical_load_n_default) ? env.vertical_load_n_default : 125e3, iso: false };
+    if (num(iso.design_vertical_load_n)) {
+      return { value: iso.design_vertical_load_n, iso: true, source: "the isolator's design load" };
+    }
+    return { value: num(env.vertical_load_n_default) ? env.vertical_load_n_default : 125e3, iso: false,
+      source: "the rig's default" };
   }
 
   /** Put an SI value into a field, in the display unit. */

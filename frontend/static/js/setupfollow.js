@@ -6,6 +6,7 @@ import { actionOf, LIMITS } from "./limits.js";
 import { BAR } from "./setupfields.js";
 import { isCommissioning, isMove } from "./state.js";
 import { el } from "./ui.js";
+import { fmt } from "./units.js";
 
 const $ = (id) => document.getElementById(id);
 const num = (v) => typeof v === "number" && Number.isFinite(v);
@@ -22,9 +23,10 @@ export class FollowPart {
     $("f-operator_name").dataset.following = "1";
     $("f-operator_name").value = t.operator_name || "";
     $("f-notes").value = t.notes || "";
+    $("f-label").value = t.label || "";
     if (t.isolator && this.isolators.some((i) => i.name === t.isolator)) $("f-isolator").value = t.isolator;
     if (num(t.supply_bar)) this.setField("supply", t.supply_bar * BAR);
-    if (num(t.vertical_load_n)) this.setField("vertical_load", t.vertical_load_n);
+    if (num(t.vertical_load_n)) $("f-vertical_load").value = fmt("force", t.vertical_load_n); // the console's digits
     if (num(t.speed)) this.setField("speed", t.speed);
     const p = t.profile || {};
     if (p.kind === "protocol" && p.name) {
@@ -98,7 +100,7 @@ export class FollowPart {
     if (this.locked) return;
     const draft = { values: {}, isolator: $("f-isolator").value, profile: $("f-profile").value,
       controller: $("f-controller").value, specimen_id: $("f-specimen_id").value,
-      notes: $("f-notes").value, actions: this.actions(),
+      notes: $("f-notes").value, label: $("f-label").value, actions: this.actions(),
       eq: { source: $("f-eq_source").value, preset: $("f-eq_preset").value, unit: $("f-eq_acc_unit").value,
         storeys: this.eq.storeys } }; // a record file is not kept: it is chosen again after a reload
     for (const [key, v] of Object.entries(this.values)) if (num(v) || v === null) draft.values[key] = v;
@@ -115,7 +117,7 @@ export class FollowPart {
       $("f-controller").value = draft.controller;
       this.showControllerOptions();
     }
-    for (const k of ["specimen_id", "notes"]) if (typeof draft[k] === "string") $(`f-${k}`).value = draft[k];
+    for (const k of ["specimen_id", "notes", "label"]) if (typeof draft[k] === "string") $(`f-${k}`).value = draft[k];
     const eq = draft.eq || {};
     for (const [id, v] of [["f-eq_source", eq.source], ["f-eq_preset", eq.preset], ["f-eq_acc_unit", eq.unit]]) {
       if (v && [...$(id).options].some((o) => o.value === v)) $(id).value = v;

@@ -41,7 +41,7 @@ export class StartPart {
 
   /** Values that are valid but look like unit mistakes or certain trips: each needs an explicit tick. */
   warnings(body, m) {
-    const out = [];
+    const out = [...this.eq.warnings(body)];
     if (num(body.vertical_load_n)) {
       const w = implausible("vertical_load", body.vertical_load_n);
       if (w) out.push(w);
@@ -124,8 +124,10 @@ export class StartPart {
     } else {
       rows.push(["peak figures", "not available", "the service gave none and this console cannot work them out"]);
     }
-    const load = body.vertical_load_n ?? this.defaultVerticalLoad().value;
-    rows.push(["supply / vertical load", `${fmtU("pressure", body.supply_bar * BAR)} / ${fmtU("force", load, { sig: 4 })}`]);
+    const given = num(body.vertical_load_n);
+    const load = given ? body.vertical_load_n : this.defaultVerticalLoad().value;
+    rows.push(["supply / vertical load", `${fmtU("pressure", body.supply_bar * BAR)} / ${fmtU("force", load)}`,
+      `vertical load: ${given ? "entered" : this.defaultVerticalLoad().source}`]);
     const box = el("div", {}, summaryTable(rows));
     box.append(this.limitsBox(body.limits));
     return box;
