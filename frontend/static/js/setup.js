@@ -110,6 +110,7 @@ export class SetupPanel {
     const { body, problems } = this.body();
     this.saveDraft();
     this.renderRigWarning(); // where the test starts follows the offset (taken from the table or typed)
+    if (this.protocol()) this.renderProtocol(); // the levels follow the design displacement
     // a value that is not valid is said at once (no request); who and notes do not change the envelope; an
     // unchanged set-up is not asked again (a blur's change event)
     if (Object.keys(problems).length) {

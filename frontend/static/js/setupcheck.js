@@ -15,7 +15,7 @@ export class CheckPart {
     const problems = this.readAll();
     const v = this.values;
     const p = this.protocol();
-    const profile = this.eq.kind() ? this.eq.profile(v) : p ? { kind: "protocol", name: p.name } : {
+    const profile = this.eq.kind() ? this.eq.profile(v) : p ? this.protocolProfile(p, v) : {
       kind: "sine", amplitude_m: v.amplitude, frequency_hz: v.frequency, cycles: v.cycles, taper_cycles: v.taper_cycles,
     };
     if (this.isSine() && num(v.offset) && v.offset !== 0) profile.offset_m = v.offset;

@@ -86,6 +86,10 @@ export class FieldsPart {
       taper_cycles: { id: "f-taper_cycles", quantity: null, integer: true, required: true, sine: true,
         // no number of cycles yet (or a wrong one): the taper is not judged against it
         range: () => [0, Math.floor((num(this.values.cycles) ? this.values.cycles : env().max_cycles ?? 100000) / 2)] },
+      // a protocol's levels scaled to the specimen (EN 15129: fractions of the design displacement d_bd)
+      design_displacement: { id: "f-design_displacement", quantity: "length", required: false, openLow: true,
+        when: () => this.protocol() !== null, range: () => [0, Math.min(1, env().stroke_m ?? 0.15)],
+        placeholder: () => (this.protocol() || {}).design_displacement_m },
       offset: { id: "f-offset", quantity: "length", required: false, sine: true,
         range: () => [-(env().stroke_m ?? 0.15), env().stroke_m ?? 0.15] },
       lim_displacement: { id: "f-lim_displacement", quantity: "length", required: false, openLow: true, limit: "displacement_m",

@@ -34,6 +34,7 @@ export class FollowPart {
         $("f-profile").append(el("option", { value: `protocol:${p.name}`, text: `protocol ${p.name}` }));
       }
       $("f-profile").value = `protocol:${p.name}`;
+      this.setField("design_displacement", num(p.design_displacement_m) ? p.design_displacement_m : null);
     } else if (p.kind === "history" || p.kind === "hybrid") {
       this.eq.follow(p);
     } else if (p.kind === "sine") {

@@ -75,12 +75,51 @@ export class MotionPart {
     return v.startsWith("protocol:") ? this.protocols.find((p) => p.name === v.slice(9)) || { name: v.slice(9) } : null;
   }
 
+  /** The protocol's profile of POST /api/tests: its name, and the specimen's design displacement if given. */
+  protocolProfile(p, v) {
+    const out = { kind: "protocol", name: p.name };
+    if (num(v.design_displacement)) out.design_displacement_m = v.design_displacement;
+    return out;
+  }
+
+  /**
+   * The chosen protocol as it will run (SI): its levels scaled to the design displacement typed (a level given
+   * as a fraction of d_bd: amplitude and peak velocity in proportion; a level in metres: as it is), the peaks,
+   * and the design displacement used with where it comes from. null: no protocol, or one the service did not
+   * describe.
+   */
+  scaledProtocol() {
+    const p = this.protocol();
+    if (!p || !Array.isArray(p.levels)) return null;
+    const v = this.values || {};
+    const typed = num(v.design_displacement);
+    const d = typed ? v.design_displacement : p.design_displacement_m;
+    const levels = p.levels.map((l) => {
+      if (!typed || !num(l.fraction) || !num(p.design_displacement_m)) return l;
+      const amplitude = l.fraction * d;
+      const k = num(l.amplitude_m) && l.amplitude_m > 0 ? amplitude / l.amplitude_m : 1;
+      return { ...l, amplitude_m: amplitude, peak_velocity_m_per_s: l.peak_velocity_m_per_s * k };
+    });
+    const peakD = Math.max(...levels.map((l) => l.amplitude_m));
+    const peakV = Math.max(...levels.map((l) => l.peak_velocity_m_per_s));
+    return { ...p, levels, design_displacement_m: d, designFrom: typed ? "entered" : "the protocol's",
+      peak_displacement_m: Number.isFinite(peakD) ? peakD : p.peak_displacement_m,
+      peak_velocity_m_per_s: Number.isFinite(peakV) ? peakV : p.peak_velocity_m_per_s };
+  }
+
   /** The chosen protocol: its title, what it is for, every level and the whole (duration, cycles, peaks). */
   showProfile() {
-    const p = this.protocol();
     $("sine-fields").classList.toggle("hidden", !this.isSine());
     $("offset-row").classList.toggle("hidden", !this.isSine());
+    $("design-displacement-row").classList.toggle("hidden", !this.protocol());
     this.eq.show();
+    this.renderProtocol();
+    this.renderFieldMeta(); // the design displacement's default is the protocol's
+  }
+
+  /** The protocol's levels in the console's units, as they will run (scaled to the design displacement). */
+  renderProtocol() {
+    const p = this.scaledProtocol() || this.protocol();
     const info = $("protocol-info");
     info.classList.toggle("hidden", !p);
     info.innerHTML = "";
@@ -106,7 +145,9 @@ export class MotionPart {
     info.append(el("div", { class: "muted", text: "cycles: test cycles +ramp-in +ramp-out cycles" }));
     info.append(el("div", { class: "protocol-total", text: `${p.levels.length} levels, ${p.cycles_total} cycles, ` +
       `duration ${fmtDuration(p.duration_s)} (test time); peak \u00b1${fmtU("length", p.peak_displacement_m)}, ` +
-      `${fmtU("velocity", p.peak_velocity_m_per_s)}; design displacement ${fmtU("length", p.design_displacement_m)}` }));
+      `${fmtU("velocity", p.peak_velocity_m_per_s)}; design displacement d_bd ${fmtU("length", p.design_displacement_m)}` +
+      (p.designFrom === "entered" ? " (entered: the levels are scaled to it)" : " (the protocol's: enter the specimen's to scale the levels)") }));
+    info.dataset.designDisplacementM = String(p.design_displacement_m);
   }
 
   showControllerOptions() {

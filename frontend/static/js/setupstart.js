@@ -31,7 +31,7 @@ export class StartPart {
       return { source: "console", d: Math.abs(p.offset_m || 0) + p.amplitude_m, v: 2 * Math.PI * p.frequency_hz * p.amplitude_m,
         f: null, duration: p.cycles / p.frequency_hz, cycles: p.cycles };
     }
-    const listed = this.protocol();
+    const listed = this.scaledProtocol();
     if (listed && num(listed.duration_s)) {
       return { source: "console", d: listed.peak_displacement_m, v: listed.peak_velocity_m_per_s, f: null,
         duration: listed.duration_s, cycles: listed.cycles_total };
@@ -96,8 +96,9 @@ export class StartPart {
       const check = this.lastCheck.key === checkKey(body) ? this.lastCheck.data : null;
       rows.push(...this.eq.summaryRows(body, check));
     } else {
-      const p = this.protocol() || {};
-      rows.push(["motion", `protocol ${body.profile.name}`, Array.isArray(p.levels)
+      const p = this.scaledProtocol() || {};
+      const dbd = num(p.design_displacement_m) ? `, d_bd ${fmtU("length", p.design_displacement_m)} (${p.designFrom})` : "";
+      rows.push(["motion", `protocol ${body.profile.name}${dbd}`, Array.isArray(p.levels)
         ? `${p.levels.length} levels: ${p.levels.map((l) => `${fmtU("length", l.amplitude_m)} at ${fmtU("frequency", l.frequency_hz)} x ${l.cycles}`).join(", ")}`
         : ""]);
     }
