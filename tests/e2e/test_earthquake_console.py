@@ -321,7 +321,7 @@ def test_refusals_and_records_are_said_in_words(server, open_page, artifacts, tm
     read = note.inner_text()
     assert "decimal commas read as decimals" in read and "peak 10.00 mm" in read, read
     page.fill("#f-eq_scale", "2")
-    assert "up to 100" in page.inner_text("[data-field='eq_scale'] .range")
+    assert "-100 to 100, not 0" in page.inner_text("[data-field='eq_scale'] .range")  # a negative one mirrors
     _envelope(page, "ok")
     wait_start_enabled(page)
     shots(page, artifacts, "dashboard_earthquake_csv")
