@@ -37,8 +37,10 @@ class RunDetectors:
     (``trip``); later trips are kept in ``escalations``, indications of ``indicate`` limits in ``indications``.
     ``limits`` None: the follow detector alone (``follow``: with it)."""
 
-    def __init__(self, scenario, loop, limits: SafetyLimits | None, follow: bool = True, table=None):
+    def __init__(self, scenario, loop, limits: SafetyLimits | None, follow: bool = True, table=None,
+                 act: bool = True):
         self.loop = loop
+        self.act = act  # False: judge only (the trip is kept, the loop runs on)
         self.limits = limits
         self.monitor = None
         self.guard_m = None
@@ -71,12 +73,14 @@ class RunDetectors:
                 trip = Trip("not_following", lost.index, lost.time_s, lost.message, lost.values)
         if trip is not None and self.trip is None:
             self.trip = trip
+            if not self.act:
+                return trip
             if trip.action == "controlled_stop":
                 loop.brake(within_m=self.displacement_bound_m)
             else:
                 loop.begin_command_ramp(at_once=trip.close_at_once)
             return trip
-        if trip is not None and trip.action == "valve_close" and not loop.ramping:
+        if trip is not None and trip.action == "valve_close" and not loop.ramping and self.act:
             self.escalations.append(trip)  # a controlled stop is running: only a valve close overrules it
             loop.begin_command_ramp(at_once=trip.close_at_once)
         return None
@@ -112,6 +116,20 @@ class RunDetectors:
                 candidates.append(lost.index)
         return min(candidates) // CHECK_PERIODS * CHECK_PERIODS if candidates else None
 
+    def first_trip(self, rows) -> Trip | None:
+        """Judge a whole run made without acting (``first_trip_period``): its first trip, in the worker's words,
+        or None; nothing acts on the loop."""
+        first = self.first_trip_period(rows)
+        if first is None:
+            self.prime(rows)
+            return None
+        self.prime(rows[:first])
+        act, self.act = self.act, False
+        try:
+            return self.check(rows[first: first + CHECK_PERIODS])
+        finally:
+            self.act = act
+
     def _guard_trip(self, block) -> Trip | None:
         """The displacement guard began a braking stop in this block (FLAG_GUARD): the trip that says so (the
         worker's words, backend.worker.Run.guard_trip)."""
@@ -124,7 +142,8 @@ class RunDetectors:
         t, r = float(block["time_s"][i]), float(block["target_m"][i])
         y = float(block["measured_displacement_m"][i])
         rest = self.loop.brake_rest_m
-        self.loop.stopping = True
+        if self.act:
+            self.loop.stopping = True
         message = (f"displacement limit: controlled stop at t = {t:.3f} s before the target carried the table past "
                    f"the limit of {self.guard_m * 1e3:.4g} mm: braking to rest at {rest * 1e3:.4g} mm "
                    f"(at most {self.brake_m_per_s2:.3g} m/s2), held there under control")

@@ -230,7 +230,8 @@ class Simulation:
             filled += len(self.plant.run_closed(self.loop, n, out[filled:]))
         return Samples(out[:filled])
 
-    def run(self, chunk_periods: int = 5000, progress=None, follow: bool = False, limits=None) -> Result:
+    def run(self, chunk_periods: int = 5000, progress=None, follow: bool = False, limits=None,
+            act: bool = True) -> Result:
         """Run to the end; ``progress(fraction)`` is called after each chunk. ``limits`` (sim.safety.SafetyLimits)
         and ``follow``: with the service's detectors (the limits and sensor detectors; ``follow``: the detector
         of a rig the controller cannot follow, sim.follow), judged every 10 periods and acted on as the worker
@@ -240,7 +241,9 @@ class Simulation:
 
         With detectors the run goes to its end in compiled chunks first and the detectors judge it at once;
         only a run that trips is run again, to its first trip's block in one call and on from there a block
-        at a time (the same rows as the worker's checks every 10 periods, at a fraction of their cost)."""
+        at a time (the same rows as the worker's checks every 10 periods, at a fraction of their cost).
+        ``act`` False: the detectors judge only; the run goes on past a trip (``Result.ran_past_trip``), its
+        status and reason still the service's (a study, isorig compare)."""
         from .detectors import CHECK_PERIODS, RunDetectors
 
         if not (follow or limits is not None):
@@ -248,6 +251,10 @@ class Simulation:
         start = self.period
         detectors = RunDetectors(self.scenario, self.loop, limits, follow=follow, table=self.scenario.target_table())
         rows = self._run_rows(chunk_periods, progress)
+        if not act:
+            trip = detectors.first_trip(rows)
+            return Result(self.scenario, rows, self.diverged, trip, detectors.indications,
+                          ran_past_trip=trip is not None)
         first = detectors.first_trip_period(rows)
         if first is None:
             detectors.prime(rows)  # the indications of indicate limits
@@ -304,6 +311,8 @@ class Result:
     trip: object | None = None
     #: the excursions beyond a limit whose action is ``indicate`` (sim.safety.Trip), the first ten of each
     indications: list = field(default_factory=list)
+    #: the detectors judged only: the run went on past ``trip`` (a study; the service would have stopped there)
+    ran_past_trip: bool = False
 
     @property
     def status(self) -> str:
@@ -334,6 +343,8 @@ class Result:
         out = {"scenario": self.scenario.describe(), "diverged": self.diverged,
                **tracking_summary(self.samples, self.scenario)}
         out["status"], out["reason"] = self.status, self.reason
+        if self.ran_past_trip:
+            out["ran_past_trip"] = True  # the figures go on past the trip the service would have stopped at
         if self.trip is not None:
             out["stopped"] = {"time_s": self.trip.time_s, "detector": getattr(self.trip, "detector", "not_following"),
                               "action": getattr(self.trip, "action", "valve_close"), "reason": self.trip.message,
@@ -387,20 +398,34 @@ def run_scenario(scenario: Scenario) -> Result:
     return Simulation(scenario).run()
 
 
-def _run_for_pool(scenario: Scenario) -> Result:
-    return Simulation(scenario).run()
+def run_judged(scenario: Scenario, detectors: bool = True) -> Result:
+    """A study's run (isorig compare), to its end, judged by the service's detectors with the rig's default
+    limits and the follow detector: its status and reason are the service's, its figures go past a trip
+    (``Result.ran_past_trip``); ``detectors`` False: not judged."""
+    if not detectors:
+        return Simulation(scenario).run()
+    from .safety import default_limits
+
+    return Simulation(scenario).run(follow=True, limits=default_limits(scenario.rig), act=False)
 
 
-def run_batch(scenarios: list[Scenario], processes: int | None = None) -> list[Result]:
-    """Run many scenarios in parallel on all cores (one process each; results in input order)."""
+def _run_for_pool(scenario: Scenario, detectors: bool = False) -> Result:
+    return run_judged(scenario, detectors)
+
+
+def run_batch(scenarios: list[Scenario], processes: int | None = None, detectors: bool | list[bool] = False
+              ) -> list[Result]:
+    """Run many scenarios in parallel on all cores (one process each; results in input order); ``detectors``
+    (one flag, or one per scenario): judged by the service's detectors (``run_judged``)."""
     for s in scenarios:
         s.validate()
+    flags = list(detectors) if isinstance(detectors, (list, tuple)) else [bool(detectors)] * len(scenarios)
     processes = processes or os.cpu_count() or 1
     if processes == 1 or len(scenarios) == 1:
-        return [_run_for_pool(s) for s in scenarios]
+        return [_run_for_pool(s, d) for s, d in zip(scenarios, flags, strict=True)]
     warm_up()  # compile (or load from cache) once before forking, so workers do not each compile
     with ProcessPoolExecutor(max_workers=processes) as pool:
-        return list(pool.map(_run_for_pool, scenarios))
+        return list(pool.map(_run_for_pool, scenarios, flags))
 
 
 def warm_up() -> None:

@@ -77,3 +77,19 @@ def test_the_prediction_runs_the_first_cycle_only():
     slow = Scenario.sine("IUT_a", 100.0, 0.01, 0.02, 5, taper_cycles=1)
     assert first_cycle_s(slow) == pytest.approx(40.0)
     assert CHECK_PERIODS == 10
+
+
+def test_a_study_is_judged_as_the_service_would_and_runs_on():
+    """isorig compare's runs (sim.engine.run_judged): the service's status and reason, the figures of the whole
+    run; not judged with detectors=False."""
+    from sim.engine import run_judged
+
+    scenario = paper_case()
+    acted = Simulation(scenario).run(follow=True, limits=default_limits(DEFAULT_RIG))
+    judged = run_judged(scenario)
+    assert (judged.status, judged.reason) == (acted.status, acted.reason) and judged.ran_past_trip
+    assert len(judged.samples) == scenario.n_periods > len(acted.samples)
+    assert judged.summary()["ran_past_trip"] is True
+    free = run_judged(scenario, detectors=False)
+    assert free.status == "completed" and free.trip is None
+    assert np.array_equal(free.samples.array, judged.samples.array, equal_nan=True)
