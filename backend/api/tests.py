@@ -209,13 +209,52 @@ def envelope_check(body: TestCreate, isolator, isolator_refusal: dict | None, en
     return out
 
 
+def first_cycle_prediction(body: TestCreate, isolator, env: TestEnv) -> dict:
+    """What the test's first cycle is expected to trip (sim.detectors.predict_first_trip: the taper-in and the
+    first steady cycle on the rig model, with the test's controller and limits and the service's detectors),
+    as the check's ``warnings``, ``predicted_trip`` and ``prediction`` (a plain function: run in a check
+    worker process, backend.checks, whose engine is loaded)."""
+    from sim.detectors import first_cycle_s, predict_first_trip
+
+    scenario = Scenario(isolator, body.supply_bar * BAR_PA, profile_blocks(body.profile), body.controller,
+                        dict(body.controller_options or {}), rig=env.rig, vertical_load_n=body.vertical_load_n)
+    limits = make_limits(env.rig, body.limits.model_dump() if body.limits else None)
+    predicted = predict_first_trip(scenario, limits)
+    window_s = first_cycle_s(scenario)
+    simulated = (f"the first {window_s:.3g} s (the taper-in and the first steady cycle) simulated with the "
+                 f"{body.controller} controller on the rig model, with the test's limits")
+    if predicted is None:
+        return {"prediction": f"{simulated}: no limit trips", "predicted_trip": None, "warnings": []}
+    return {"prediction": f"{simulated}: {predicted.trip.message}", "predicted_trip": clean_json(predicted.to_dict()),
+            "warnings": [predicted.warning()]}
+
+
+def with_first_cycle_prediction(out: dict, body: TestCreate, isolator, env: TestEnv, checks) -> dict:
+    """A check that fits, with what its first cycle is expected to trip (a sine or protocol test; in the check
+    pool: its cost is bounded there, a few milliseconds of the engine). A busy pool leaves the prediction out
+    and says so."""
+    if not out.get("ok") or isinstance(body.profile, EARTHQUAKE_PROFILES):
+        if out.get("ok"):
+            out["prediction"] = "not run: a time history has no first cycle to predict"
+        return out
+    try:
+        out.update(checks.run("predict a test's first cycle", first_cycle_prediction, body, isolator, env,
+                              small=True))
+    except ApiError as exc:
+        if exc.status != 503:
+            raise
+        out["prediction"] = f"not run: {exc.detail}"
+    return out
+
+
 @router.post("/api/tests/check", summary="Check a test against the rig envelope without creating it (no login)",
              responses={**ERROR_RESPONSES, 503: {"description": "busy: too many history or hybrid checks at once "
                                                  "(Retry-After)"}})
 def check_test(body: TestCreate, request: Request, session: SessionDep) -> EnvelopeCheckOut:
     """Answers 200 either way (``ok`` says which), so a form can ask at every keystroke; nothing is stored. A
     history or hybrid profile is built in a check worker process (backend.checks: a few at a time, 503 with
-    Retry-After beyond)."""
+    Retry-After beyond); there too a sine or protocol test that fits has its first cycle simulated: a trip
+    expected there comes back in ``warnings`` (for the confirmation) and ``predicted_trip``."""
     isolator, refusal = isolator_or_refusal(session, body.isolator)
     env = test_env(request)
     if refusal is None and isinstance(body.profile, EARTHQUAKE_PROFILES):
@@ -223,7 +262,7 @@ def check_test(body: TestCreate, request: Request, session: SessionDep) -> Envel
                                            refusal, env)
     else:
         out = envelope_check(body, isolator, refusal, env)
-    return EnvelopeCheckOut(**out)
+    return EnvelopeCheckOut(**with_first_cycle_prediction(out, body, isolator, env, request.app.state.checks))
 
 
 @router.post("/api/tests", status_code=201, summary="Create a test (role operator); status 'ready' (start=true: "
