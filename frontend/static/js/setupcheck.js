@@ -110,6 +110,7 @@ export class CheckPart {
     } else if (result.ok === true) {
       box.className = "envelope ok";
       box.append(el("div", { text: "Within the rig envelope." }));
+      for (const w of d.warnings || []) box.append(el("div", { class: "warn", text: `Warning: ${w}` }));
       this.markField("");
       if (this.refusal && this.refusal.cause === "envelope") this.clearRefusal();
     } else {

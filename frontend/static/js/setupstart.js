@@ -42,6 +42,9 @@ export class StartPart {
   /** Values that are valid but look like unit mistakes or certain trips: each needs an explicit tick. */
   warnings(body, m) {
     const out = [...this.eq.warnings(body)];
+    // the check's own (a limit the first cycle is expected to trip, simulated on the rig model in the check pool)
+    const checked = this.lastCheck.key === checkKey(body) ? this.lastCheck.data || {} : {};
+    for (const w of checked.warnings || []) out.push(w);
     if (num(body.vertical_load_n)) {
       const w = implausible("vertical_load", body.vertical_load_n);
       if (w) out.push(w);
