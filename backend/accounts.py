@@ -20,7 +20,7 @@ from datetime import UTC, datetime, timedelta
 
 from argon2 import PasswordHasher
 from argon2.exceptions import InvalidHashError, VerificationError
-from sqlalchemy import select
+from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
 
 from .models import Credential, UserAccount, utcnow
@@ -207,7 +207,18 @@ def log_in(session: Session, name: str, password: str) -> tuple[UserAccount, str
         return None
     if _hasher.check_needs_rehash(user.password_hash):
         user.password_hash = _hasher.hash(password)
+    purge_ended_sessions(session)
     return user, _issue(session, user, "session")
+
+
+def purge_ended_sessions(session: Session) -> int:
+    """Delete the login sessions that can never be used again (expired, or ended by logout or by disabling the
+    account, ``SESSION_LIFETIME`` ago): without it every login left a row behind for ever. API tokens are kept
+    (a revoked one is listed as such). Returns how many were deleted."""
+    now = utcnow()
+    ended = delete(Credential).where(Credential.kind == "session",
+                                     (Credential.expires_at <= now) | (Credential.revoked_at <= now - SESSION_LIFETIME))
+    return session.execute(ended).rowcount or 0
 
 
 def log_out(session: Session, secret: str) -> None:

@@ -44,7 +44,8 @@ BIG_BODY_BYTES = 1024 * 1024  # a body this large on a heavy route is an inline 
 HEAVY_ROUTES = frozenset({"/api/tests/check", "/api/ground-motions/read-at2"})
 
 
-JOB_MODULES = ("backend.api.tests", "backend.api.ground_motions")  # what the jobs run; imported by each worker
+# what the jobs run; imported by each worker
+JOB_MODULES = ("backend.api.tests", "backend.api.ground_motions", "backend.earthquake_view")
 
 
 def _warm(modules: tuple[str, ...]) -> None:
@@ -76,15 +77,17 @@ def _trim() -> None:
         pass
 
 
-def _call(fn, args):
+def _call(fn, args, trim=True):
     """In the worker: fn(*args), or what it raised in a form that survives pickling (an exception whose
     ``__init__`` takes other arguments than its message, such as sim.errors.FieldError, does not); then the
-    worker's size once its garbage is returned."""
+    worker's size once its garbage is returned (``trim`` False: a small job, whose answer should not wait the
+    0.2-0.5 s of a full collection; the size still retires a worker grown too large)."""
     try:
         result = "ok", fn(*args)
     except Exception as exc:  # noqa: BLE001 - handed to the service as raised
         result = "raised", (type(exc), exc.args, dict(exc.__dict__), str(exc))
-    _trim()
+    if trim:
+        _trim()
     return (*result, _rss_bytes())
 
 
@@ -132,8 +135,9 @@ class CheckPool:
                     self._pool()
         pool.shutdown(wait=False, cancel_futures=not fresh)
 
-    def run(self, what: str, fn, *args):
-        """fn(*args) in a worker process; ApiError 503 if ``capacity`` such jobs are running or waiting."""
+    def run(self, what: str, fn, *args, small: bool = False):
+        """fn(*args) in a worker process; ApiError 503 if ``capacity`` such jobs are running or waiting.
+        ``small``: a job of a few small arrays (a test's first cycle): no collection after it."""
         with self._lock:
             if self.in_flight >= self.capacity:
                 raise ApiError(503, f"the service is busy with {self.in_flight} other requests that {what} (at most "
@@ -143,7 +147,7 @@ class CheckPool:
             self.in_flight += 1
             pool = self._pool()
         try:
-            status, value, rss = pool.submit(_call, fn, args).result()
+            status, value, rss = pool.submit(_call, fn, args, not small).result()
         except BrokenProcessPool:
             log.warning("a check worker process died; starting a new pool")
             self._retire(pool, fresh=False)

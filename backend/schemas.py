@@ -210,6 +210,13 @@ class EnvelopeCheckOut(BaseModel):
     cycles_total: int | None = Field(None, description="cycles of the profile, tapers included (0: a history)")
     profile: dict | None = Field(None, description="a history or hybrid profile as built (source, peaks, "
                                  "duration, the ground motion, the structure): what the record's profile will say")
+    warnings: list[str] = Field(default_factory=list, description="what the operator should know before the "
+                                "valve opens, each to be acknowledged: a limit the first cycle is expected to trip")
+    predicted_trip: dict | None = Field(None, description="the trip the first cycle is expected to meet (the "
+                                        "test's controller on the rig model, the service's detectors): detector, "
+                                        "action, time_s, message, values (SI), simulated_s, controller")
+    prediction: str | None = Field(None, description="what the first-cycle prediction ran and found, or why it "
+                                   "did not run")
 
 
 class IsolatorIn(StrictModel):

@@ -295,10 +295,18 @@ def event_dict(ev: EventRecord) -> dict:
             "time_s": ev.time_s, "kind": ev.kind, "actor": ev.actor, "message": ev.message, "values": ev.values}
 
 
-def load_events(session: Session, test_id: int | None) -> list[dict]:
-    query = select(EventRecord).order_by(EventRecord.id)
+def load_events(session: Session, test_id: int | None, rig_name: str | None = None,
+                limit: int | None = None) -> list[dict]:
+    """Events in the order they happened: of one test, or all; of one rig (and of no rig) if ``rig_name``; the
+    newest ``limit`` only, if given (selected in the database, not after loading them all)."""
+    query = select(EventRecord)
     query = query.where(EventRecord.test_id == test_id) if test_id is not None else query
-    return [event_dict(ev) for ev in session.scalars(query)]
+    if rig_name is not None:
+        query = query.where(or_(EventRecord.rig_name == rig_name, EventRecord.rig_name.is_(None)))
+    if limit is None:
+        return [event_dict(ev) for ev in session.scalars(query.order_by(EventRecord.id))]
+    newest = session.scalars(query.order_by(EventRecord.id.desc()).limit(limit)).all()
+    return [event_dict(ev) for ev in reversed(newest)]
 
 
 def last_event(session: Session, rig_name: str) -> dict | None:

@@ -19,4 +19,5 @@ if [ -n "$missing" ]; then
   $SUDO apt-get install -y -q $missing >/dev/null
 fi
 .venv/bin/ruff check .
-.venv/bin/python -m pytest -q "$@"
+# the slowest tests named at the end: what to trim when the suite grows (CI has 90 minutes; we keep it well under 15)
+.venv/bin/python -m pytest -q --durations=20 "$@"

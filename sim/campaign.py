@@ -36,9 +36,19 @@ from pathlib import Path
 import numpy as np
 
 from ._numba_cache import source_fingerprint
-from .compare import CYCLES, TAPER_CYCLES, TARGETS, GridPoint, limit_cycle, meets_targets, point_figures, run_grid
+from .compare import (
+    CYCLES,
+    TAPER_CYCLES,
+    TARGETS,
+    GridPoint,
+    limit_cycle,
+    meets_targets,
+    point_figures,
+    run_grid,
+    run_point,
+)
 from .datafile import load_mapping
-from .engine import ISOLATOR_PARAMETERS, Scenario, Simulation, warm_up
+from .engine import ISOLATOR_PARAMETERS, Scenario, warm_up
 from .errors import FieldError
 from .isolator import LIMITS, Isolator, IsolatorError, load_isolator
 from .rig import DEFAULT_RIG, RigError, RigParameters
@@ -451,7 +461,7 @@ def campaign_row(point: CampaignPoint, row: dict) -> dict:
 
 def run_chunk(points: list[GridPoint], cycles: int) -> list[dict]:
     """A worker's task: run each point and return its comparison row (not its samples)."""
-    return [point_figures(p, Simulation(p.scenario(cycles)).run()) for p in points]
+    return [point_figures(p, run_point(p, cycles)) for p in points]
 
 
 def _worker_fingerprint() -> str:
@@ -682,7 +692,7 @@ def compare_backends(points: list[GridPoint], cycles: int, engine: Engine, round
     local_workers = engine.cluster is not None and engine.processes
     load_before = os.getloadavg()[0]
     t0, c0 = time.perf_counter(), _cpu_seconds()
-    inline = [point_figures(p, Simulation(p.scenario(cycles)).run()) for p in points]
+    inline = [point_figures(p, run_point(p, cycles)) for p in points]
     inline_s, inline_cpu = time.perf_counter() - t0, _cpu_seconds() - c0
     walls: dict[str, list[float]] = {"process_pool": [], "distributed": []}
     cpus: dict[str, list[float]] = {"process_pool": [], "distributed": []}

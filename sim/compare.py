@@ -115,6 +115,10 @@ class GridPoint:
     options: dict | None = None
     base_rig: RigParameters = DEFAULT_RIG  # the nominal rig: what the controllers assume
     plant: dict = field(default_factory=dict)  # plant-only changes of every run (--plant-set)
+    #: judged by the service's detectors with the rig's default limits, as every test the service runs: the row's
+    #: status and reason are the service's, its figures run on past a trip (sim.engine.run_judged; False:
+    #: ``isorig compare --no-limit-detectors``, not judged)
+    detectors: bool = True
 
     def scenario(self, cycles: int = CYCLES) -> Scenario:
         s = Scenario.sine(self.isolator, self.supply_bar, self.amplitude_m, self.frequency_hz, cycles,
@@ -225,6 +229,8 @@ def point_figures(point: GridPoint, result) -> dict:
         "rig": point.rig,
         "corner": point.corner,
         "diverged": bool(result.diverged or not summary["all_finite"]),
+        "status": result.status,  # as the service would end it (the figures run on past a trip)
+        "reason": result.reason,
         "rms_last2": last.get("rms_y_minus_r_over_amplitude", float("nan")),
         "rms_from_cycle3": (max(from3) / amp) if from3 else float("nan"),
         "first_cycle_peak_m": cycles[0]["peak_abs_y_minus_r_m"] if cycles else float("nan"),
@@ -240,7 +246,7 @@ def point_figures(point: GridPoint, result) -> dict:
 
 
 def meets_targets(row: dict) -> bool:
-    if row["diverged"]:
+    if row["diverged"] or row.get("status", "completed") != "completed":  # a detector stopped it: the service would
         return False
     values = {k: abs(row[k]) for k in TARGETS}
     if any(not math.isfinite(v) for v in values.values()):
@@ -254,11 +260,18 @@ def limit_cycle(row: dict) -> bool:
     return (not math.isfinite(v)) or v > LIMIT_CYCLE_SHARE * row["amplitude_m"]
 
 
+def run_point(point: GridPoint, cycles: int = CYCLES):
+    """One point's run (sim.engine.Result), with the service's detectors unless the point says otherwise."""
+    from .engine import run_judged
+
+    return run_judged(point.scenario(cycles), point.detectors)
+
+
 def run_grid(points: list[GridPoint], cycles: int = CYCLES, processes: int | None = None) -> tuple[list[dict], float]:
     """Run every point on all cores; returns (rows, wall time in s)."""
     t0 = time.perf_counter()
     scenarios = [p.scenario(cycles) for p in points]
-    results = run_batch(scenarios, processes=processes)
+    results = run_batch(scenarios, processes=processes, detectors=[p.detectors for p in points])
     rows = [point_figures(p, r) for p, r in zip(points, results, strict=True)]
     return rows, time.perf_counter() - t0
 
@@ -286,7 +299,8 @@ def format_row(r: dict) -> tuple:
             r["rig"], r["corner"], pct(r["rms_last2"]), pct(r["rms_from_cycle3"]),
             f"{r['first_cycle_peak_m'] * 1e3:.2f}", pct(r["amplitude_error"]), f"{r['phase_error_deg']:.2f}",
             pct(r["saturated_share"]), f"{r['peak_flow_l_per_min']:.0f}", f"{r['limit_cycle_rms_m'] * 1e6:.1f}",
-            "yes" if meets_targets(r) else ("DIVERGED" if r["diverged"] else "no"))
+            "yes" if meets_targets(r) else ("DIVERGED" if r["diverged"] else
+                                            "ABORTED" if r.get("status", "completed") != "completed" else "no"))
 
 
 def markdown_table(rows: list[dict]) -> str:

@@ -230,37 +230,75 @@ class Simulation:
             filled += len(self.plant.run_closed(self.loop, n, out[filled:]))
         return Samples(out[:filled])
 
-    def run(self, chunk_periods: int = 5000, progress=None, follow: bool = False) -> Result:
-        """Run to the end; ``progress(fraction)`` is called after each chunk. ``follow``: with the service's
-        detector of a rig the controller cannot follow (sim.follow), checked every 10 periods as the worker
-        does; on a trip the valve closes at once (0 V for 0.1 s, open loop) and the run ends there.
+    def run(self, chunk_periods: int = 5000, progress=None, follow: bool = False, limits=None,
+            act: bool = True) -> Result:
+        """Run to the end; ``progress(fraction)`` is called after each chunk. ``limits`` (sim.safety.SafetyLimits)
+        and ``follow``: with the service's detectors (the limits and sensor detectors; ``follow``: the detector
+        of a rig the controller cannot follow, sim.follow), judged every 10 periods and acted on as the worker
+        does (sim.detectors): a trip closes the valve (0 V over 0.1 s, at once after a sensor fault or a
+        controller that does not follow) or, with ``controlled_stop``, brakes the target to rest; the run ends
+        there, ``aborted`` (Result.status).
 
-        The rows go into one buffer of the test's length (grown if a braking stop lengthens the test)."""
-        from .follow import FollowMonitor, advice_for, limits_for, reference_for
+        With detectors the run goes to its end in compiled chunks first and the detectors judge it at once;
+        only a run that trips is run again, to its first trip's block in one call and on from there a block
+        at a time (the same rows as the worker's checks every 10 periods, at a fraction of their cost).
+        ``act`` False: the detectors judge only; the run goes on past a trip (``Result.ran_past_trip``), its
+        status and reason still the service's (a study, isorig compare)."""
+        from .detectors import CHECK_PERIODS, RunDetectors
 
-        monitor = None
-        if follow:
-            s = self.scenario
-            reference = reference_for(s.profile) if s.profile else reference_for([], s.history.r_m)
-            monitor = FollowMonitor(reference, s.rig.position_latency_s, limits_for(s.controller),
-                                    advice_for(s.controller))
-            chunk_periods = FOLLOW_CHECK_PERIODS
-        rows = np.empty((max(0, self.total_periods - self.period), N_FIELDS))
-        filled, trip, next_progress = 0, None, 0
+        if not (follow or limits is not None):
+            return Result(self.scenario, self._run_rows(chunk_periods, progress), self.diverged)
+        start = self.period
+        detectors = RunDetectors(self.scenario, self.loop, limits, follow=follow, table=self.scenario.target_table())
+        rows = self._run_rows(chunk_periods, progress)
+        if not act:
+            trip = detectors.first_trip(rows)
+            return Result(self.scenario, rows, self.diverged, trip, detectors.indications,
+                          ran_past_trip=trip is not None)
+        first = detectors.first_trip_period(rows)
+        if first is None:
+            detectors.prime(rows)  # the indications of indicate limits
+            return Result(self.scenario, rows, self.diverged, None, detectors.indications)
+        if start != 0:
+            raise ValueError("a run with detectors that trips is run again from its start: begin it at period 0")
+        self._restart()
+        detectors = RunDetectors(self.scenario, self.loop, limits, follow=follow, table=self.scenario.target_table())
+        before = self.advance(first)
+        detectors.prime(before)
+        parts = [before]
         while not self.done:
-            if filled == rows.shape[0]:  # the test runs longer than planned (a braking stop): more room
+            block = self.advance(CHECK_PERIODS)
+            detectors.check(block)
+            parts.append(block)
+        return Result(self.scenario, Samples.concatenate(parts), self.diverged, detectors.trip,
+                      detectors.indications)
+
+    def _restart(self) -> None:
+        """Back to period 0: a new loop (the same controller, a fresh state) and plant."""
+        controller = self.loop.controller
+        scenario = self.scenario
+        self.loop = ClosedLoop(scenario.profile, controller, scenario.rig.command_limit_v,
+                               table=scenario.target_table())
+        self.plant = SimulatedPlant(scenario.plant_rig, scenario.plant_isolator, scenario.supply_pa,
+                                    scenario.noise_seed, substeps=self.plant.substeps)
+        self.pending_changes = sorted(scenario.timed_changes)
+        self.changes_applied = {}
+
+    def _run_rows(self, chunk_periods: int, progress) -> Samples:
+        """The rest of the run, no detectors; the rows go into one buffer of the test's length (grown if a
+        braking stop lengthens the test)."""
+        rows = np.empty((max(0, self.total_periods - self.period), N_FIELDS))
+        filled, next_progress = 0, 0
+        while not self.done:
+            if filled == rows.shape[0]:
                 more = max(self.total_periods - self.period, chunk_periods)
                 rows = np.concatenate([rows, np.empty((more, N_FIELDS))])
             chunk = self.advance(chunk_periods, out=rows[filled:])
             filled += len(chunk)
-            if monitor is not None and trip is None:
-                trip = monitor.check(chunk)
-                if trip is not None:
-                    self.loop.begin_command_ramp(at_once=True)
             if progress is not None and self.period >= next_progress:
                 progress(self.period / max(self.total_periods, 1))
                 next_progress = self.period + 5000
-        return Result(self.scenario, Samples(rows[:filled]), self.diverged, trip)
+        return Samples(rows[:filled])
 
 
 @dataclass
@@ -268,8 +306,30 @@ class Result:
     scenario: Scenario
     samples: Samples
     diverged: bool = False
-    #: the table did not follow and the run was stopped there (sim.follow.FollowTrip), or None
+    #: the detector that stopped the run (sim.safety.Trip: a limit, a sensor detector, the table not following),
+    #: or None
     trip: object | None = None
+    #: the excursions beyond a limit whose action is ``indicate`` (sim.safety.Trip), the first ten of each
+    indications: list = field(default_factory=list)
+    #: the detectors judged only: the run went on past ``trip`` (a study; the service would have stopped there)
+    ran_past_trip: bool = False
+
+    @property
+    def status(self) -> str:
+        """As the service records it: ``aborted`` (a detector stopped it, or the simulated rig diverged) or
+        ``completed``."""
+        return self._verdict()[0]
+
+    @property
+    def reason(self) -> str | None:
+        """Why it did not complete, in the service's words (the trip's message), or None."""
+        return self._verdict()[1]
+
+    def _verdict(self) -> tuple[str, str | None]:
+        from .detectors import verdict
+
+        end_s = float(self.samples["time_s"][-1]) + CONTROL_PERIOD_S if len(self.samples) else 0.0
+        return verdict(self.trip, self.diverged, end_s)
 
     def column(self, name: str):
         return self.samples[name]
@@ -282,9 +342,16 @@ class Result:
 
         out = {"scenario": self.scenario.describe(), "diverged": self.diverged,
                **tracking_summary(self.samples, self.scenario)}
+        out["status"], out["reason"] = self.status, self.reason
+        if self.ran_past_trip:
+            out["ran_past_trip"] = True  # the figures go on past the trip the service would have stopped at
         if self.trip is not None:
-            out["stopped"] = {"time_s": self.trip.time_s, "detector": "not_following", "reason": self.trip.message,
+            out["stopped"] = {"time_s": self.trip.time_s, "detector": getattr(self.trip, "detector", "not_following"),
+                              "action": getattr(self.trip, "action", "valve_close"), "reason": self.trip.message,
                               "values": self.trip.values}
+        if self.indications:
+            out["limit_indications"] = [{"detector": i.detector, "time_s": i.time_s, "message": i.message}
+                                        for i in self.indications]
         if self.scenario.history is not None:
             from .hybrid_metrics import tracking_criteria
 
@@ -311,7 +378,7 @@ class Result:
                                 latency_s=self.scenario.rig.position_latency_s)
 
 
-FOLLOW_CHECK_PERIODS = 10  # as the worker's detectors (backend.worker.CHECK_PERIODS)
+FOLLOW_CHECK_PERIODS = 10  # as the worker's detectors (backend.worker.CHECK_PERIODS; sim.detectors.CHECK_PERIODS)
 ISOLATOR_PARAMETERS = ("rho_bw_per_m", "sigma_bw", "n", "kd_n_per_m", "kw_n")
 
 
@@ -331,20 +398,34 @@ def run_scenario(scenario: Scenario) -> Result:
     return Simulation(scenario).run()
 
 
-def _run_for_pool(scenario: Scenario) -> Result:
-    return Simulation(scenario).run()
+def run_judged(scenario: Scenario, detectors: bool = True) -> Result:
+    """A study's run (isorig compare), to its end, judged by the service's detectors with the rig's default
+    limits and the follow detector: its status and reason are the service's, its figures go past a trip
+    (``Result.ran_past_trip``); ``detectors`` False: not judged."""
+    if not detectors:
+        return Simulation(scenario).run()
+    from .safety import default_limits
+
+    return Simulation(scenario).run(follow=True, limits=default_limits(scenario.rig), act=False)
 
 
-def run_batch(scenarios: list[Scenario], processes: int | None = None) -> list[Result]:
-    """Run many scenarios in parallel on all cores (one process each; results in input order)."""
+def _run_for_pool(scenario: Scenario, detectors: bool = False) -> Result:
+    return run_judged(scenario, detectors)
+
+
+def run_batch(scenarios: list[Scenario], processes: int | None = None, detectors: bool | list[bool] = False
+              ) -> list[Result]:
+    """Run many scenarios in parallel on all cores (one process each; results in input order); ``detectors``
+    (one flag, or one per scenario): judged by the service's detectors (``run_judged``)."""
     for s in scenarios:
         s.validate()
+    flags = list(detectors) if isinstance(detectors, (list, tuple)) else [bool(detectors)] * len(scenarios)
     processes = processes or os.cpu_count() or 1
     if processes == 1 or len(scenarios) == 1:
-        return [_run_for_pool(s) for s in scenarios]
+        return [_run_for_pool(s, d) for s, d in zip(scenarios, flags, strict=True)]
     warm_up()  # compile (or load from cache) once before forking, so workers do not each compile
     with ProcessPoolExecutor(max_workers=processes) as pool:
-        return list(pool.map(_run_for_pool, scenarios))
+        return list(pool.map(_run_for_pool, scenarios, flags))
 
 
 def warm_up() -> None:

@@ -20,8 +20,8 @@ from sim.rig import BAR_PA, RigParameters
 from sim.samples import RECORD_FIELDS, Samples
 from sim.tracking import cycle_windows
 
+from .. import earthquake_view, review, store
 from .. import lab as lab_settings
-from .. import review, store
 from ..errors import ApiError, ProtocolError, _jsonable
 from ..safety import make_limits
 from ..schemas import (
@@ -206,13 +206,52 @@ def envelope_check(body: TestCreate, isolator, isolator_refusal: dict | None, en
     return out
 
 
+def first_cycle_prediction(body: TestCreate, isolator, env: TestEnv) -> dict:
+    """What the test's first cycle is expected to trip (sim.detectors.predict_first_trip: the taper-in and the
+    first steady cycle on the rig model, with the test's controller and limits and the service's detectors),
+    as the check's ``warnings``, ``predicted_trip`` and ``prediction`` (a plain function: run in a check
+    worker process, backend.checks, whose engine is loaded)."""
+    from sim.detectors import first_cycle_s, predict_first_trip
+
+    scenario = Scenario(isolator, body.supply_bar * BAR_PA, profile_blocks(body.profile), body.controller,
+                        dict(body.controller_options or {}), rig=env.rig, vertical_load_n=body.vertical_load_n)
+    limits = make_limits(env.rig, body.limits.model_dump() if body.limits else None)
+    predicted = predict_first_trip(scenario, limits)
+    window_s = first_cycle_s(scenario)
+    simulated = (f"the first {window_s:.3g} s (the taper-in and the first steady cycle) simulated with the "
+                 f"{body.controller} controller on the rig model, with the test's limits")
+    if predicted is None:
+        return {"prediction": f"{simulated}: no limit trips", "predicted_trip": None, "warnings": []}
+    return {"prediction": f"{simulated}: {predicted.trip.message}", "predicted_trip": clean_json(predicted.to_dict()),
+            "warnings": [predicted.warning()]}
+
+
+def with_first_cycle_prediction(out: dict, body: TestCreate, isolator, env: TestEnv, checks) -> dict:
+    """A check that fits, with what its first cycle is expected to trip (a sine or protocol test; in the check
+    pool: its cost is bounded there, a few milliseconds of the engine). A busy pool leaves the prediction out
+    and says so."""
+    if not out.get("ok") or isinstance(body.profile, EARTHQUAKE_PROFILES):
+        if out.get("ok"):
+            out["prediction"] = "not run: a time history has no first cycle to predict"
+        return out
+    try:
+        out.update(checks.run("predict a test's first cycle", first_cycle_prediction, body, isolator, env,
+                              small=True))
+    except ApiError as exc:
+        if exc.status != 503:
+            raise
+        out["prediction"] = f"not run: {exc.detail}"
+    return out
+
+
 @router.post("/api/tests/check", summary="Check a test against the rig envelope without creating it (no login)",
              responses={**ERROR_RESPONSES, 503: {"description": "busy: too many history or hybrid checks at once "
                                                  "(Retry-After)"}})
 def check_test(body: TestCreate, request: Request, session: SessionDep) -> EnvelopeCheckOut:
     """Answers 200 either way (``ok`` says which), so a form can ask at every keystroke; nothing is stored. A
     history or hybrid profile is built in a check worker process (backend.checks: a few at a time, 503 with
-    Retry-After beyond)."""
+    Retry-After beyond); there too a sine or protocol test that fits has its first cycle simulated: a trip
+    expected there comes back in ``warnings`` (for the confirmation) and ``predicted_trip``."""
     isolator, refusal = isolator_or_refusal(session, body.isolator)
     env = test_env(request)
     if refusal is None and isinstance(body.profile, EARTHQUAKE_PROFILES):
@@ -220,7 +259,7 @@ def check_test(body: TestCreate, request: Request, session: SessionDep) -> Envel
                                            refusal, env)
     else:
         out = envelope_check(body, isolator, refusal, env)
-    return EnvelopeCheckOut(**out)
+    return EnvelopeCheckOut(**with_first_cycle_prediction(out, body, isolator, env, request.app.state.checks))
 
 
 @router.post("/api/tests", status_code=201, summary="Create a test (role operator); status 'ready' (start=true: "
@@ -462,14 +501,10 @@ def get_csv(test_id: TestId, request: Request, session: SessionDep) -> Streaming
                              headers={"Content-Disposition": f'attachment; filename="test-{test_id}.csv"'})
 
 
-def _thinned(values, step: int) -> list:
-    return clean_json(np.asarray(values, dtype=float)[::step].tolist())
-
-
 @router.get("/api/tests/{test_id}/earthquake", summary="A history or hybrid test: the planned target, and once it "
             "ran the J criteria, command and measurement, the structure beside its reference (thinned)",
             responses=ERROR_RESPONSES)
-def get_earthquake(test_id: TestId, session: SessionDep,
+def get_earthquake(test_id: TestId, request: Request, session: SessionDep,
                    points: Annotated[int, Query(ge=100, le=200_000, description="at most this many points per "
                                                                                 "series (every k-th sample)")] = 2000
                    ) -> dict:
@@ -479,59 +514,13 @@ def get_earthquake(test_id: TestId, session: SessionDep,
     summary holds, computed again now) with ``series``: time, command, measurement and, for a hybrid test, the
     structure's channels replayed from the record and the reference's, every k-th sample so that no series has
     more than ``points``. While the test runs: ``so_far``, the stored samples' time, target and measurement at the
-    planned series' step (what a page that joins late draws before the websocket's rows), and no figures."""
+    planned series' step (what a page that joins late draws before the websocket's rows), and no figures.
+
+    Rebuilding the profile and the figures takes seconds of CPU for a long test, and anyone may ask: it runs in the
+    check pool (backend.checks: bounded, 503 when busy), and the answer for an ended test is kept
+    (backend.earthquake_view.ViewCache), so asking again costs nothing."""
     test = _test_or_404(session, test_id)
-    job_scenario = (test.request or {}).get("job_scenario") or {}
-    if job_scenario.get("earthquake") is None:
-        raise ApiError(422, f"test {test_id} is not a history or hybrid test", "test_id", test_id,
-                       "a test with a profile of kind history or hybrid")
-    from ..worker import earthquake_from_job
-
-    try:
-        profile = earthquake_from_job({"scenario": job_scenario})
-    except ValueError as exc:
-        raise ApiError(409, f"the profile of test {test_id} cannot be rebuilt: {exc}") from None
-    n = profile.target.n_samples
-    step = max(1, -(-n // points))
-    planned = {"time_s": _thinned(profile.target.time_s, step), "target_m": _thinned(profile.target.r_m, step)}
-    if profile.ground_acc_m_per_s2 is not None:
-        planned["ground_acc_m_per_s2"] = _thinned(profile.ground_acc_m_per_s2, step)
-    out = {"test_id": test_id, "kind": profile.kind, "status": test.status, "profile": clean_json(profile.description),
-           "planned": planned, "record": None}
-    if not test.samples_stored:
-        return out
-    if test.status == "running":  # the record so far (a page that joins late), no figures: the worker has the CPU
-        s = store.load_samples(session, test_id)
-        out["so_far"] = {"time_s": _thinned(s["time_s"], step), "target_m": _thinned(s["target_m"], step),
-                         "displacement_m": _thinned(s["displacement_m"], step)}
-        return out
-    from ..reports.content import earthquake_figures
-
-    bundle = store.load_test_bundle(session, test_id)
-    figures = earthquake_figures(bundle)
-    if figures is None:
-        return out
-    record = {k: v for k, v in figures.items() if k not in ("arrays", "profile")}
-    s = bundle.samples
-    step = max(1, -(-len(s) // points))
-    series = {"time_s": _thinned(s["time_s"], step), "target_m": _thinned(s["target_m"], step),
-              "displacement_m": _thinned(s["displacement_m"], step), "force_n": _thinned(s["force_n"], step)}
-    arrays = figures.get("arrays") or {}
-    if arrays.get("structure") is not None:
-        t_s = arrays["structure_time_s"]
-        k = max(1, -(-len(t_s) // points))
-        series["structure"] = {"time_s": _thinned(t_s, k),
-                               **{name: _thinned(v, k) for name, v in arrays["structure"].items()}}
-        whole = arrays["reference_whole"]
-        m = len(next(iter(whole.values())))
-        k = max(1, -(-m // points))
-        series["reference"] = {"time_s": _thinned(np.arange(m) * profile.target.dt_s, k),
-                               **{name: _thinned(v, k) for name, v in whole.items()}}
-        series["stability"] = {"time_s": _thinned(t_s, max(1, -(-len(t_s) // points))),
-                               "added_energy_j": _thinned(arrays["added_energy_j"], max(1, -(-len(t_s) // points))),
-                               "limit_j": _thinned(arrays["limit_j"], max(1, -(-len(t_s) // points)))}
-    out["record"] = {**clean_json(record), "series": series}
-    return out
+    return earthquake_view.answer(request.app, session, test, points)
 
 
 @router.get("/api/tests/{test_id}/acceptance", summary="A protocol test: its acceptance verdict, the verdict of "
@@ -614,5 +603,9 @@ def bundle_zip(test_id: TestId, request: Request, session: SessionDep) -> Respon
             tags=["events"])
 def list_events(session: SessionDep,
                 test_id: Annotated[int | None, Query(ge=1, le=2**53)] = None,
+                rig_name: Annotated[str | None, Query(
+                    min_length=1, max_length=64,
+                    description="only this rig's events (and those of no rig, such as an isolator added)")] = None,
                 limit: Annotated[int, Query(ge=1, le=10000)] = 1000) -> list[dict]:
-    return store.load_events(session, test_id)[-limit:]
+    """The newest ``limit`` events, oldest first: of one test, of one rig, or all."""
+    return store.load_events(session, test_id, rig_name=rig_name, limit=limit)

@@ -1,10 +1,13 @@
 """`isorig hybrid`: real-time hybrid simulation of a base-isolated building (docs/earthquake.md).
 
 The building above the isolator is integrated in the computer, one control period at a time; the isolator
-is the specimen on the rig. On the simulated rig (default) this is a virtual RTHS, run as fast as it goes;
-the full-numerical reference (the same building with the isolator's Bouc-Wen model) is computed offline
-and compared: J4 and J5. Writes timeseries.csv (the record's columns and the building's channels) and
-summary.json (J1-J5, the stability monitor, the reference's peaks).
+is the specimen on the rig. On the simulated rig (default) this is a virtual RTHS, run as fast as it goes
+through the service's own loop, detectors and stop paths (backend.worker.run_here on the simulated rig, with
+the rig's default limits: the verdict the service gives the test; ``--no-limit-detectors``: the bare loop of
+sim.hybrid.run_virtual, with the stability monitor only). The full-numerical reference (the same building
+with the isolator's Bouc-Wen model) is computed offline and compared: J4 and J5. Writes timeseries.csv (the
+record's columns and the building's channels) and summary.json (J1-J5, the stability monitor, the
+reference's peaks, the status and its reason).
 """
 
 from __future__ import annotations
@@ -40,6 +43,10 @@ def register(sub) -> None:
                    help="'simulated' (default: virtual RTHS, as fast as it runs) or udp://HOST:PORT (a real-time "
                         "I/O target or `isorig rig-emulator`, in real time)")
     p.add_argument("--out", required=True, help="output directory for timeseries.csv and summary.json")
+    p.add_argument("--no-limit-detectors", action="store_true",
+                   help="simulated rig: run the bare hybrid loop, past the rig's default limits and the sensor and "
+                        "follow detectors that the service applies to every test and this command applies by "
+                        "default (the stability monitor stays)")
     from .rig_key import add_link_flags
 
     add_link_flags(p)
@@ -86,6 +93,17 @@ def _check_vertical_load(args, building) -> None:
         raise UsageError(f"isorig hybrid: {why}")
 
 
+def _simulated(building, ag, scenario):
+    """The hybrid test on the simulated rig through the service's worker (backend.worker.run_here), as fast as
+    it runs: its detectors with the rig's default limits, its stop paths, its status and reason."""
+    from .rig_run import rig_job, run_job
+
+    job = rig_job("simulated", scenario, hybrid={"building": building.to_dict(), "ground_acc_m_per_s2": ag})
+    job.update(speed=1e6, realtime=False)  # not paced: the simulated rig runs as fast as it goes
+    run, sent, status, reason, _wall_s = run_job(job)
+    return run.hybrid, sent.samples(), (None if status == "completed" else f"{status}: {reason}"), status
+
+
 def run(args) -> int:
     import numpy as np
 
@@ -117,10 +135,15 @@ def run(args) -> int:
     scenario = Scenario(isolator, args.supply_bar * 1e5, [], args.controller, vertical_load_n=load_n,
                         history=predicted)
     scenario.validate()
+    if args.no_limit_detectors and args.rig != "simulated":
+        raise UsageError("isorig hybrid: --no-limit-detectors applies to the simulated rig only: a test on a rig "
+                         "always runs with its limits")
     out = output_folder(args.out, "isorig hybrid")
 
     t0 = time.perf_counter()
-    if args.rig == "simulated":
+    if args.rig == "simulated" and not args.no_limit_detectors:
+        sub, samples, stopped, status = _simulated(building, ag, scenario)
+    elif args.rig == "simulated":
         sub = HybridSubstructure(building, isolator, ag)
         controller = make_controller(scenario.controller, rig=scenario.rig,
                                      **scenario.effective_controller_options())
@@ -129,8 +152,10 @@ def run(args) -> int:
         loop = ClosedLoop([], controller, scenario.rig.command_limit_v, table=sub.target_table())
         plant = SimulatedPlant(scenario.plant_rig, isolator, scenario.supply_pa)
         samples, stopped = run_virtual(sub, loop, plant)
+        status = "stopped" if stopped else "completed"
     else:
         sub, samples, stopped = _on_rig(args, building, ag, scenario)
+        status = stopped.split(":")[0] if stopped else "completed"
     elapsed = time.perf_counter() - t0
     closed = np.isfinite(samples["target_m"]) & np.isfinite(samples["displacement_m"])
     if stopped and not closed.all():  # ended by a trip or a fault: the criteria over the closed-loop part only
@@ -144,7 +169,8 @@ def run(args) -> int:
             for i, line in enumerate(text[1:n + 1])]
     (out / "timeseries.csv").write_text("\n".join([header, *rows]).replace("nan", "") + "\n")
     summary = {"structure": building.to_dict(), "ground_motion": args.ground_motion, "scale": args.scale,
-               "scenario": scenario.describe(), "status": "stopped" if stopped else "completed",
+               "scenario": scenario.describe(), "status": status,
+               "limit_detectors": not args.no_limit_detectors,
                "reason": stopped, "criteria": {**res["criteria"], **j45}, "stability": res["stability"],
                "reference_peaks": {k: float(np.max(np.abs(v))) for k, v in ref.items()
                                    if k.endswith(("_m", "_n", "_m_per_s2")) and np.ndim(v) == 1},
@@ -152,7 +178,7 @@ def run(args) -> int:
     (out / "summary.json").write_text(json.dumps(summary, indent=2, default=float))
     c = summary["criteria"]
     print(f"wrote {out / 'timeseries.csv'} ({n} samples) and {out / 'summary.json'}")
-    print(f"{summary['status']}" + (f" ({stopped})" if stopped else "")
+    print(f"{status}" + (f" ({stopped})" if stopped else "")
           + f"; J1 {c['j1_delay_ms']:.3f} ms, J2 {c['j2_rms_percent']:.2f} %, J3 {c['j3_peak_percent']:.2f} %; "
           f"against the reference: J4 {c['j4_rms_percent']:.2f} %, J5 {c['j5_peak_percent']:.2f} %")
     return 0 if not stopped else 1

@@ -77,7 +77,7 @@ def run(args) -> int:
     from pathlib import Path
 
     from sim.emulator.auth import resolve_security
-    from sim.emulator.server import EmulatorConfig, Faults, RigEmulator
+    from sim.emulator.server import GIL_SWITCH_INTERVAL_S, EmulatorConfig, Faults, RigEmulator
     from sim.isolator import load_isolator
     from sim.realtime import raise_priority
 
@@ -100,6 +100,7 @@ def run(args) -> int:
     except OSError as exc:
         raise UsageError(f"isorig rig-emulator: cannot listen on {args.host}:{args.port}: {exc.strerror}") from None
     priority = raise_priority(20)  # above the worker's: the rig is the real-time target
+    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)  # the tick loop takes the GIL back from the status writer at once
     stop = lambda *_: emulator.stop()  # noqa: E731
     signal.signal(signal.SIGTERM, stop)
     signal.signal(signal.SIGINT, stop)

@@ -1,9 +1,11 @@
 """`isorig simulate`: one closed-loop test -> timeseries.csv + summary.json.
 
-On the simulated rig (default) the test runs in the compiled engine as fast as it can; with
+On the simulated rig (default) the test runs in the compiled engine as fast as it can, judged by the service's
+detectors with the rig's default limits and acted on as the service does (sim.detectors: the same rows, status
+and reason as the service's worker; ``--no-limit-detectors`` leaves the limits out, for studies beyond them); with
 ``--rig udp://HOST:PORT`` the same test runs in real time through the UDP driver, with the service's loop,
-detectors and stop paths (backend.worker.run_here), and the summary adds the final status, its reason and
-the link's figures. The exit code is 0 only for a completed test.
+detectors and stop paths (backend.worker.run_here), and the summary adds the link's figures. The summary says
+the final status and its reason; the exit code is 0 only for a completed test whose table followed.
 """
 
 from __future__ import annotations
@@ -57,6 +59,7 @@ def register(sub) -> None:
                    help="change a rig or isolator parameter of the plant mid-test, e.g. 10:kd_n_per_m=6e5 "
                         "(repeatable)")
     p.add_argument("--out", required=True, help="output directory for timeseries.csv and summary.json")
+    add_detector_flag(p)
     p.add_argument("--rig", default="simulated",
                    help="'simulated' (default: the compiled engine, faster than real time) or udp://HOST:PORT "
                         "(a real-time I/O target or `isorig rig-emulator`, in real time)")
@@ -66,6 +69,15 @@ def register(sub) -> None:
 
     add_link_flags(p)
     p.set_defaults(func=run)
+
+
+def add_detector_flag(p) -> None:
+    """--no-limit-detectors: the opt-out of the service's limits on the simulated rig."""
+    p.add_argument("--no-limit-detectors", action="store_true",
+                   help="simulated rig: run past the rig's default limits (stroke, force, the velocity the pump "
+                        "can feed, load pressure, tracking error) and the sensor detectors, which the service "
+                        "applies to every test and which this command applies by default; the run then gets a "
+                        "verdict the service would not give it (the follow detector stays)")
 
 
 def history_target(args, scenario):
@@ -144,18 +156,25 @@ def run(args) -> int:
         import dataclasses
 
         scenario = dataclasses.replace(scenario, profile=[], history=history_target(args, scenario))
+    if args.rig != "simulated" and args.no_limit_detectors:
+        raise UsageError("isorig simulate: --no-limit-detectors applies to the simulated rig only: a test on a rig "
+                         "always runs with its limits")
     scenario.validate()
     out = output_folder(args.out, "isorig simulate")
     if args.rig != "simulated":
         return run_on_rig(args, scenario, out)
     progress = Progress(f"simulating {scenario.duration_s:g} s")
     t0 = time.perf_counter()
-    result = Simulation(scenario, validate=False).run(progress=progress, follow=True)
+    from sim.safety import default_limits
+
+    limits = None if args.no_limit_detectors else default_limits(scenario.rig)
+    result = Simulation(scenario, validate=False).run(progress=progress, follow=True, limits=limits)
     progress.close()
     elapsed = time.perf_counter() - t0
     write_csv(out / "timeseries.csv", result.samples)
     summary = result.summary()
     summary["wall_time_s"] = elapsed
+    summary["limit_detectors"] = limits is not None
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     if "criteria" in summary:
         c = summary["criteria"]
@@ -173,13 +192,14 @@ def run(args) -> int:
 
 
 def outcome(result, summary: dict) -> int:
-    """Print how the test ended and its tracking verdict; the exit code: 0 only for a test that ran to its end
-    and whose table followed (within the 1 % the service allows, sim.follow)."""
-    if result.trip is not None:
-        print(f"test aborted: {result.trip.message}")
+    """Print how the test ended (the service's status and reason) and its tracking verdict; the exit code: 0
+    only for a test that ran to its end and whose table followed (within the 1 % the service allows,
+    sim.follow)."""
+    print(f"test {result.status}" + (f": {result.reason}" if result.reason else "")
+          + ("" if summary.get("limit_detectors", True) else " (without the limit detectors: --no-limit-detectors)"))
     verdict = summary.get("tracking_verdict", {})
     print(f"tracking: {verdict.get('words', 'not judged')}")
-    return 1 if result.diverged or result.trip is not None or verdict.get("verdict") == "did_not_follow" else 0
+    return 1 if result.status != "completed" or verdict.get("verdict") == "did_not_follow" else 0
 
 
 def run_on_rig(args, scenario, out: Path) -> int:

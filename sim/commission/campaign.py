@@ -89,7 +89,8 @@ def tested(run: CommissioningRun, rig: RigParameters, spec: TestSpec) -> dict:
     trip = result.trip
     return {"last2_share": None if trip is not None or last is None else float(last),
             "verdict": summary["tracking_verdict"]["verdict"],
-            "stopped_s": None if trip is None else trip.time_s, "stop_kind": None if trip is None else trip.kind}
+            "stopped_s": None if trip is None else trip.time_s,
+            "stop_kind": None if trip is None else trip.values.get("kind", trip.detector)}
 
 
 def fit_errors(ident, truth: RigParameters) -> dict:

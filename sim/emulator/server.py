@@ -58,6 +58,9 @@ SUPPLY_DECAY_S = 0.05  # time constant of the supply pressure after a pump loss
 SUPPLY_LOW_FRACTION = 0.5
 STALE_PERIODS = 10  # a command answering a measurement older than this is stale
 SPIN_S = 2e-4  # the loop sleeps until this long before a tick, then polls
+#: the status writer holds the GIL for ~3 ms (its JSON) twice a second; with CPython's default switch interval (5 ms)
+#: the tick loop, woken by a command, waited for it, and the command was timed that much late (set by the CLI)
+GIL_SWITCH_INTERVAL_S = 2e-4
 STATUS_EVERY_S = 0.5
 HELLO_BURST = 10  # version 2: HELLOs answered at once at most ...
 HELLO_RATE_PER_S = 100.0  # ... and on average; the rest are dropped as `rate` before their tag is checked

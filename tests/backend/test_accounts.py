@@ -112,6 +112,33 @@ def test_api_tokens_are_stored_hashed_and_can_be_revoked(people):
     assert c.post("/api/isolators", json=ISOLATOR, headers=headers).status_code == 401
 
 
+def test_ended_logins_are_deleted_and_live_ones_and_tokens_kept(people):
+    from datetime import timedelta
+
+    from backend.models import utcnow
+
+    c = people
+    token = token_of(c, "otto")
+    assert log_in(c, "otto").status_code == 200
+    live = c.cookies.get("isorig_session")
+    for _ in range(3):  # three more logins, then each ended: one expired, one logged out long ago, one just now
+        assert log_in(c, "anna").status_code == 200
+    with c.app.state.sessions() as session:
+        sessions = session.query(accounts.Credential).filter_by(kind="session").order_by(accounts.Credential.id).all()
+        assert len(sessions) == 4
+        sessions[1].expires_at = utcnow() - timedelta(seconds=1)
+        sessions[2].revoked_at = utcnow() - accounts.SESSION_LIFETIME - timedelta(minutes=1)
+        sessions[3].revoked_at = utcnow()
+        session.commit()
+    assert log_in(c, "vera").status_code == 200  # a login purges what can never be used again
+    with c.app.state.sessions() as session:
+        kinds = sorted(cred.kind for cred in session.query(accounts.Credential))
+    assert kinds == ["session", "session", "session", "token"]  # otto's live one, the one just ended, vera's
+    c.cookies.set("isorig_session", live)
+    assert c.get("/api/session").json()["name"] == "otto"
+    assert c.get("/api/session", headers=token).json()["via"] == "token"
+
+
 def test_a_person_cannot_record_another_name(people):
     c = people
     assert log_in(c, "otto").status_code == 200

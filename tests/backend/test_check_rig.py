@@ -52,9 +52,11 @@ def good(tmp_path_factory):
     emulator.stop()
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="class")
 def others(tmp_path_factory):
-    """The broken emulators and one playing a lab's rig, started side by side (each takes seconds to start)."""
+    """The broken emulators and one playing a lab's rig, started side by side (each takes seconds to start), for
+    the tests of one class: an idle emulator ticks at 1 kHz at real-time priority (about 10 % of a CPU), and a
+    dozen left running beside the next tests starved them on a loaded machine."""
     path = tmp_path_factory.mktemp("others")
     (path / "lab.toml").write_text(LAB_RIG)
     flags = {name: ("--defect", name) for name in BROKEN}
@@ -124,21 +126,6 @@ def cli(monkeypatch, capsys):
     return run
 
 
-@pytest.mark.parametrize("defect", sorted(BROKEN))
-def test_check_rig_fails_on_a_broken_emulator_naming_the_rule(others, defect, cli):
-    emulator = others[defect]
-    assert emulator.status()["defects"] == [defect]
-    if defect != "reply-from-other-port":
-        report = check_rig(emulator.url)
-        assert matches(failed(report), BROKEN[defect]), report.table()
-        return
-    code, out, err = cli("check-rig", emulator.url)  # the table, as a lab reads it
-    assert code == 1 and err == "", out + err
-    rows = [line for line in out.splitlines() if line.startswith("FAIL")]
-    assert len(rows) == 1 and rows[0].split()[1] == "§2" and "replies come from the address and port" in rows[0]
-    assert "FAILED: §2 replies come from" in out.splitlines()[-1]
-
-
 def test_check_rig_says_in_one_line_that_nothing_answers(cli):
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
         sock.bind(("127.0.0.1", 0))
@@ -150,19 +137,37 @@ def test_check_rig_says_in_one_line_that_nothing_answers(cli):
     assert code == 2 and "300 bar is outside the rig's range [10, 210] bar" in err
 
 
-def test_the_emulator_plays_the_rig_of_a_lab_rig_file(others):
-    lab = others["lab"]
-    plant = lab.status()["plant"]
-    assert plant["name"] == "Lab B rig" and plant["source"] == f"{others['lab_file']}, --plant-set piston_area_m2=0.02"
-    assert plant["changed"] == {"piston_area_m2": 0.02, "max_supply_pa": 150e5, "command_limit_v": 5.0}
-    # its ranges are the lab's: the check with the lab's rig file passes (165 bar and 6 V refused), ...
-    report = check_rig(lab.url, rig=load_rig_file(others["lab_file"]).parameters)
-    assert report.ok, report.table()
-    # ... and the host says why an ARM at 160 bar, within isorig's default range, goes unanswered
-    rig = UdpRig("127.0.0.1", lab.port, arm_timeout_s=0.3)
-    with pytest.raises(RigFault, match=r"answers HELLO but refused the ARM \(160 bar.*outside the rig's own range"):
-        rig.arm(ArmConditions(160e5))
-    rig.disarm()
+class TestOthers:
+    """The emulators of ``others``: started for this class, stopped when its tests are done."""
+
+    @pytest.mark.parametrize("defect", sorted(BROKEN))
+    def test_check_rig_fails_on_a_broken_emulator_naming_the_rule(self, others, defect, cli):
+        emulator = others[defect]
+        assert emulator.status()["defects"] == [defect]
+        if defect != "reply-from-other-port":
+            report = check_rig(emulator.url)
+            assert matches(failed(report), BROKEN[defect]), report.table()
+            return
+        code, out, err = cli("check-rig", emulator.url)  # the table, as a lab reads it
+        assert code == 1 and err == "", out + err
+        rows = [line for line in out.splitlines() if line.startswith("FAIL")]
+        assert len(rows) == 1 and rows[0].split()[1] == "§2" and "replies come from the address and port" in rows[0]
+        assert "FAILED: §2 replies come from" in out.splitlines()[-1]
+
+    def test_the_emulator_plays_the_rig_of_a_lab_rig_file(self, others):
+        lab = others["lab"]
+        plant = lab.status()["plant"]
+        assert plant["name"] == "Lab B rig"
+        assert plant["source"] == f"{others['lab_file']}, --plant-set piston_area_m2=0.02"
+        assert plant["changed"] == {"piston_area_m2": 0.02, "max_supply_pa": 150e5, "command_limit_v": 5.0}
+        # its ranges are the lab's: the check with the lab's rig file passes (165 bar and 6 V refused), ...
+        report = check_rig(lab.url, rig=load_rig_file(others["lab_file"]).parameters)
+        assert report.ok, report.table()
+        # ... and the host says why an ARM at 160 bar, within isorig's default range, goes unanswered
+        rig = UdpRig("127.0.0.1", lab.port, arm_timeout_s=0.3)
+        with pytest.raises(RigFault, match=r"answers HELLO but refused the ARM \(160 bar.*outside the rig's own range"):
+            rig.arm(ArmConditions(160e5))
+        rig.disarm()
 
 
 def test_an_emulator_that_overruns_its_period_does_not_catch_up(good):
@@ -201,7 +206,7 @@ def test_an_emulator_that_overruns_its_period_does_not_catch_up(good):
 
 # --- protocol 2 --------------------------------------------------------------------------------------------------
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="class")
 def keyed(tmp_path_factory):
     """Emulators speaking protocol 2 with the lab's key: a good one and the ones of V2_BROKEN."""
     path = tmp_path_factory.mktemp("keyed")
@@ -216,25 +221,28 @@ def keyed(tmp_path_factory):
         emulator.stop()
 
 
-def test_check_rig_v2_passes_on_a_keyed_emulator_and_checks_the_authentication(keyed, cli):
-    emulators, key = keyed
-    good = emulators["good"]
-    code, out, err = cli("check-rig", good.url, "--rig-key-file", str(key), "--json")
-    assert code == 0, out + err
-    report = json.loads(out)
-    assert report["ok"] and report["passed"] == len(report["rules"]) >= 40
-    assert {"§9.1", "§9.5", "§9.6", "§9.7"} <= {r["section"] for r in report["rules"]}
-    status = good.fresh_status()
-    assert status["protocol_version"] == 2 and status["authenticated"]
-    assert set(V2_DROP_REASONS) <= set(status["rejected"]), status["rejected"]
-    assert not status["armed"] and status["command_v"] == 0.0 and abs(status["position_m"]) < 1e-6
-    # without the key, the check says in one line that the rig does not answer this host's protocol
-    code, out, err = cli("check-rig", good.url, "--rig-protocol", "1", "--timeout-s", "0.3")
-    assert code == 1 and "no answer to HELLO" in err and err.count("\n") == 1
+class TestProtocol2:
+    """The emulators of ``keyed``: started for this class, stopped when its tests are done."""
+
+    def test_check_rig_v2_passes_on_a_keyed_emulator_and_checks_the_authentication(self, keyed, cli):
+        emulators, key = keyed
+        good = emulators["good"]
+        code, out, err = cli("check-rig", good.url, "--rig-key-file", str(key), "--json")
+        assert code == 0, out + err
+        report = json.loads(out)
+        assert report["ok"] and report["passed"] == len(report["rules"]) >= 40
+        assert {"§9.1", "§9.5", "§9.6", "§9.7"} <= {r["section"] for r in report["rules"]}
+        status = good.fresh_status()
+        assert status["protocol_version"] == 2 and status["authenticated"]
+        assert set(V2_DROP_REASONS) <= set(status["rejected"]), status["rejected"]
+        assert not status["armed"] and status["command_v"] == 0.0 and abs(status["position_m"]) < 1e-6
+        # without the key, the check says in one line that the rig does not answer this host's protocol
+        code, out, err = cli("check-rig", good.url, "--rig-protocol", "1", "--timeout-s", "0.3")
+        assert code == 1 and "no answer to HELLO" in err and err.count("\n") == 1
 
 
-@pytest.mark.parametrize("defect", sorted(V2_BROKEN))
-def test_check_rig_v2_fails_on_a_broken_emulator_naming_the_rule(keyed, defect):
-    emulators, key = keyed
-    report = check_rig(emulators[defect].url, security=auth.resolve_security("127.0.0.1", key))
-    assert matches(failed(report), V2_BROKEN[defect]), report.table()
+    @pytest.mark.parametrize("defect", sorted(V2_BROKEN))
+    def test_check_rig_v2_fails_on_a_broken_emulator_naming_the_rule(self, keyed, defect):
+        emulators, key = keyed
+        report = check_rig(emulators[defect].url, security=auth.resolve_security("127.0.0.1", key))
+        assert matches(failed(report), V2_BROKEN[defect]), report.table()

@@ -292,3 +292,47 @@ def test_a_hybrid_test_on_the_rig_emulator_through_the_service(tmp_path):
     assert c["j3_peak_percent"] <= 10.0 and c["j5_peak_percent"] <= 10.0, c
     assert rec["summary"]["stability"]["tripped"] is False
     assert rec["summary"]["earthquake"]["replay"]["command_difference_m"] < 1e-6
+
+
+def test_the_earthquake_view_is_rebuilt_in_the_check_pool_and_kept_once_the_test_has_ended(client):
+    """GET /earthquake rebuilds the profile and replays the structure (seconds of CPU for a long test), and anyone
+    may ask: the check pool does it (bounded, 503 when busy), and an ended test's answer is kept."""
+    from backend.earthquake_view import view_in_worker
+
+    checks = client.app.state.checks
+    calls = []
+    original = checks.run
+
+    def counted(what, fn, *args):
+        calls.append(fn)
+        return original(what, fn, *args)
+
+    checks.run = counted
+    try:
+        r = client.post("/api/tests", json=hybrid_body(), headers=AUTH)
+        planned = client.get(f"/api/tests/{r.json()['id']}/earthquake")
+        assert planned.status_code == 200 and planned.json()["record"] is None
+        assert calls == [view_in_worker]
+        client.post(f"/api/tests/{r.json()['id']}/start", headers=AUTH)
+        rec = wait_for(client, r.json()["id"])
+        first = client.get(f"/api/tests/{rec['id']}/earthquake")
+        assert first.status_code == 200 and first.json()["record"]["criteria"], first.text[:300]
+        assert calls == [view_in_worker] * 2  # a test not yet run is not kept: it will run
+        again = client.get(f"/api/tests/{rec['id']}/earthquake")
+        assert again.content == first.content and len(calls) == 2  # kept: no work at all
+        thinner = client.get(f"/api/tests/{rec['id']}/earthquake?points=100").json()
+        assert len(calls) == 3 and len(thinner["record"]["series"]["time_s"]) <= 100
+        # the pool full: 503 with Retry-After, not seconds of the service's own CPU
+        checks.in_flight += checks.capacity
+        try:
+            busy = client.get(f"/api/tests/{rec['id']}/earthquake?points=101")
+            assert busy.status_code == 503 and busy.headers["retry-after"], busy.text
+            assert "earthquake" in busy.json()["detail"]
+            assert client.get(f"/api/tests/{rec['id']}/earthquake").content == first.content  # kept ones still
+        finally:
+            checks.in_flight -= checks.capacity
+        sine = client.post("/api/tests", json={"isolator": "IUT_a", "supply_bar": 100, "profile": {
+            "kind": "sine", "amplitude_m": 0.01, "frequency_hz": 1.0, "cycles": 2}}, headers=AUTH).json()
+        assert client.get(f"/api/tests/{sine['id']}/earthquake").status_code == 422
+    finally:
+        checks.run = original

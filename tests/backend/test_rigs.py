@@ -81,6 +81,14 @@ def test_the_store_answers_per_rig(tmp_path):
         assert store.last_event(s, "rig-b")["message"] == "user isolator 'X' added"
         assert store.last_event(s, "rig-a")["message"] == "archived" and store.last_event(s, "rig-a")["rig_name"] \
             == "rig-a"
+        # the audit log of one rig (and of no rig's), the newest first selected, given oldest first
+        messages = [e["message"] for e in store.load_events(s, None, rig_name="rig-b")]
+        assert messages == [f"rig-b test {b_done.id} completed", f"rig-b test {b_running.id} running",
+                            "user isolator 'X' added"]
+        assert [e["message"] for e in store.load_events(s, None, rig_name="rig-a", limit=2)] == \
+            [f"rig-a test {a_running.id} running", "user isolator 'X' added", "archived"][1:]
+        assert len(store.load_events(s, None)) == 6 and store.load_events(s, None, rig_name="rig-c") == \
+            [e for e in store.load_events(s, None) if e["rig_name"] is None]
         # a restart of rig-b's service marks its own running test interrupted, and leaves rig-a's running
         assert store.mark_running_interrupted(s, "rig-b") == [b_running.id]
         s.commit()
@@ -138,6 +146,11 @@ def test_two_services_share_one_database_each_driving_its_own_rig(tmp_path):
             assert [t["id"] for t in only_b] == [b_test]
             assert client.get("/api/rigs").json()["on_record"] == ["rig-a", "rig-b"]
         assert a.get("/api/tests", params={"rig_name": "x" * 65}).status_code == 422
+        events_b = a.get("/api/events", params={"rig_name": "rig-b"}).json()
+        assert events_b and {e["rig_name"] for e in events_b} <= {"rig-b", None}
+        assert any(e["test_id"] == b_test for e in events_b) and not any(e["test_id"] == long_a for e in events_b)
+        assert len(a.get("/api/events", params={"limit": 2}).json()) == 2
+        assert a.get("/api/events", params={"rig_name": ""}).status_code == 422
         r = a.post(f"/api/tests/{long_a}/stop", headers=AUTH)
         assert r.status_code == 200
         assert wait_for(a, long_a)["status"] == "stopped"

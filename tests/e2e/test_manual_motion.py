@@ -134,7 +134,8 @@ def test_zero_and_move_from_the_console(server, open_page, artifacts):
     assert abs(_table(server) - 0.0125) < 0.0003
     page.wait_for_selector("#rig-warning[data-state='off-zero']", timeout=WAIT_MS)  # no test starts there
     assert page.is_hidden("#form-lock") and page.input_value("#f-specimen_id") == "MM-1"  # the draft is back
-    poll(lambda: re.fullmatch(rf"\+12\.\d\d mm \u00b7 end of test {move['id']} \(completed\)",
+    # a move's end: "end of move N" (the service said "end of test N" before issue 23; both are read)
+    poll(lambda: re.fullmatch(rf"\+12\.\d\d mm \u00b7 end of (test|move) {move['id']} \(completed\)",
                                page.inner_text("#s-position")), 5, "the strip's table position")
 
 
@@ -199,14 +200,16 @@ def test_manual_motion_limits_refusals_units_and_offset(server, open_page, artif
     assert code == 201, move
     server.wait_status(move["id"], {"completed"}, timeout_s=30)
     at = _table(server)
-    page.wait_for_selector(f"#s-position[data-source^='end of test {move['id']}']", timeout=WAIT_MS)
+    page.wait_for_selector(f"#s-position[data-source^='end of test {move['id']}'], "
+                           f"#s-position[data-source^='end of move {move['id']}']", timeout=WAIT_MS)
     record_checks(page)
     assert page.input_value("#f-offset") == ""
     page.click("#offset-from-table")
     offset = round(at * 1e5) / 1e5
     assert abs(float(page.input_value("#f-offset")) - offset * 1e3) < 1e-9, page.input_value("#f-offset")
-    assert page.inner_text("#offset-note").startswith(f"set from the table position {at * 1e3:+.2f} mm "
-                                                      f"(where test {move['id']} left it): the test starts there")
+    assert re.match(rf"set from the table position {re.escape(f'{at * 1e3:+.2f}')} mm \(where (test|move) "
+                    rf"{move['id']} left it\): the test starts there", page.inner_text("#offset-note")), \
+        page.inner_text("#offset-note")
 
     def taken(c):
         p = c["profile"]

@@ -145,9 +145,11 @@ export function parseRecordCsv(text, kind) {
  * A PEER NGA .AT2 file, read by the service (POST /api/ground-motions/read-at2: the CLI's reader) into the same
  * record as parseRecordCsv gives, its unit (g, or cm/s2 if the header says so) as the header's.
  */
-export async function readAt2(name, text) {
+export async function readAt2(name, text, checkUnits = true) {
   try {
-    const r = await api.postQuiet("/api/ground-motions/read-at2", { filename: name, text });
+    const body = { filename: name, text };
+    if (!checkUnits) body.check_units = false;
+    const r = await api.postQuiet("/api/ground-motions/read-at2", body);
     return { ok: true, time_s: r.time_s, values: r.acceleration, rows: r.rows, dt: r.dt_s, duration: r.duration_s,
       peak: r.peak, header: r.header.join(" / "), valueName: "PEER .AT2 header", timeName: "NPTS, DT",
       headerUnit: r.units, headerLength: "", sep: "PEER .AT2", commas: false, at2: true, title: r.header.slice(0, 2).join(", ") };
@@ -164,6 +166,7 @@ export class EarthquakeForm {
   constructor(setup) {
     this.setup = setup;
     this.files = { acceleration: null, displacement: null }; // {name, record} of the file read
+    this.structureError = ""; // a structure file that could not be read: Start waits until it is replaced or cleared
     this.storeys = 0;
   }
 
@@ -184,11 +187,16 @@ export class EarthquakeForm {
   }
 
   fieldSpecs() {
+    const eq = this; // eslint-disable-line consistent-this
     const history = () => this.kind() === "history";
     const hybrid = () => this.kind() === "hybrid";
     return {
-      eq_scale: { id: "f-eq_scale", quantity: null, required: true, openLow: true, when: () => this.kind() !== null,
-        range: () => [0, this.fromGroundMotion() ? 10 : 100] },
+      // a ground motion's scale: above 0 (the isolator is nonlinear); a displacement's: either sign (a negative
+      // one mirrors the record), not 0 (the API's 0 < |scale| <= 100)
+      eq_scale: { id: "f-eq_scale", quantity: null, required: true, when: () => this.kind() !== null,
+        get openLow() { return eq.fromGroundMotion(); },
+        get nonZero() { return !eq.fromGroundMotion(); },
+        range: () => (this.fromGroundMotion() ? [0, 10] : [-100, 100]) },
       eq_taper_in: { id: "f-eq_taper_in", quantity: "time", required: false, when: history, range: () => [0, 600],
         placeholder: () => 0.5 },
       eq_taper_out: { id: "f-eq_taper_out", quantity: "time", required: false, when: history, range: () => [0, 600],
@@ -282,11 +290,16 @@ export class EarthquakeForm {
     });
     $("hy-demo").addEventListener("click", () => {
       this.setBuilding(DEMO_BUILDING);
-      $("hy-file-note").textContent = "the demo building of docs/examples/structure_3_storey.json";
+      this.structureNote("the demo building of docs/examples/structure_3_storey.json", "msg");
+      this.changed();
+    });
+    $("hy-file-clear").addEventListener("click", () => {
+      this.structureNote("structure file cleared: the building is the one in the fields", "msg");
       this.changed();
     });
     $("hy-file").addEventListener("change", (ev) => this.readStructureFile(ev.target));
     $("f-eq_file").addEventListener("change", (ev) => this.readRecordFile(ev.target));
+    $("f-eq_check_units").addEventListener("change", () => this.checkUnitsChanged());
   }
 
   changed() {
@@ -306,6 +319,7 @@ export class EarthquakeForm {
     $("eq-preset-row").classList.toggle("hidden", source !== "preset");
     $("eq-file-row").classList.toggle("hidden", source === "preset");
     $("eq-unit-row").classList.toggle("hidden", source !== "acc_csv");
+    $("eq-check-units-row").classList.toggle("hidden", source !== "acc_csv");
     $("eq-history-only").classList.toggle("hidden", kind !== "history");
     $("eq-mass-row").classList.toggle("hidden", !(kind === "history" && this.fromGroundMotion()));
     $("hy-fields").classList.toggle("hidden", kind !== "hybrid");
@@ -325,7 +339,13 @@ export class EarthquakeForm {
   readRecordFile(input) {
     const file = input.files && input.files[0];
     const kind = this.source() === "disp_csv" ? "displacement" : "acceleration";
-    if (!file) return;
+    if (!file) { // the choice was cleared: no file, not the last one read
+      this.seq = (this.seq || 0) + 1;
+      this.files[kind] = null;
+      this.renderFileNote();
+      this.changed();
+      return;
+    }
     if (file.size > MAX_FILE_BYTES) {
       this.files[kind] = { name: file.name, record: { ok: false, error: `${file.name} is ${(file.size / 1e6).toFixed(1)} MB, more than 12 MB` } };
       this.renderFileNote();
@@ -344,7 +364,10 @@ export class EarthquakeForm {
       if (kind === "acceleration" && /\.at2$/i.test(file.name)) {
         this.files[kind] = { name: file.name, record: { ok: false, pending: true, error: "being read by the service..." }, seq };
         this.renderFileNote();
-        readAt2(file.name, reader.result).then(done);
+        readAt2(file.name, reader.result, this.checkUnits()).then((record) => {
+          done(record);
+          if (seq === this.seq) this.files[kind].at2Text = reader.result; // read again if the unit check changes
+        });
       } else done(parseRecordCsv(reader.result, kind));
     };
     reader.onerror = () => {
@@ -355,18 +378,30 @@ export class EarthquakeForm {
     reader.readAsText(file);
   }
 
+  /**
+   * What the structure file gave, under its buttons. `failed`: it could not be read, and Start waits until a file
+   * is read, the demo building is chosen or the file is cleared (never the default building in its place).
+   */
+  structureNote(text, cls, failed = false) {
+    const note = $("hy-file-note");
+    const wait = "Start waits until a structure file is read, or this one is cleared.";
+    note.textContent = failed ? `${text.replace(/\.$/, "")}. ${wait}` : text;
+    note.className = cls;
+    this.structureError = failed ? text : "";
+    $("hy-file-clear").classList.toggle("hidden", !failed);
+  }
+
   /** A structure file (JSON, the CLI's format): its building into the fields, or why not. */
   readStructureFile(input) {
     const file = input.files && input.files[0];
     if (!file) return;
-    const note = $("hy-file-note");
     const reader = new FileReader();
     reader.onload = () => {
       input.value = "";
       let data;
       try { data = JSON.parse(reader.result); } catch (e) {
-        note.textContent = `${file.name}: not JSON (${e.message}); the fields are unchanged`;
-        note.className = "msg bad";
+        this.structureNote(`${file.name}: not JSON (${e.message}); the fields are unchanged`, "msg bad", true);
+        this.changed();
         return;
       }
       const bad = [];
@@ -382,13 +417,14 @@ export class EarthquakeForm {
         if (Array.isArray(data.masses_kg) && data.masses_kg.length > MAX_STOREYS) bad.push(`at most ${MAX_STOREYS} storeys`);
       }
       if (bad.length) {
-        note.textContent = `${file.name} is not a structure file: it needs ${bad.join("; ")}. The fields are unchanged.`;
-        note.className = "msg bad";
+        this.structureNote(`${file.name} is not a structure file: it needs ${bad.join("; ")}. The fields are unchanged.`,
+          "msg bad", true);
+        this.changed();
         return;
       }
       this.setBuilding(data);
-      note.textContent = `${file.name}${data.name ? ` (${data.name})` : ""}: ${data.masses_kg.length} storeys read into the fields (SI in the file)`;
-      note.className = "msg info";
+      this.structureNote(`${file.name}${data.name ? ` (${data.name})` : ""}: ${data.masses_kg.length} storeys read into ` +
+        "the fields (SI in the file)", "msg info");
       this.changed();
     };
     reader.readAsText(file);
@@ -470,9 +506,10 @@ export class EarthquakeForm {
     const read = u.units || "m/s2";
     const g = (r.peak * UNIT_TO_SI[read]) / G;
     const plausible = g >= PLAUSIBLE_G[0] && g <= PLAUSIBLE_G[1];
+    const refused = this.checkUnits() ? "The service will refuse it" : "Taken as read: the unit check is off";
     note.textContent = `${base}; peak ${sigDigits(r.peak, 4)} ${read}${read === "g" ? "" : ` = ${sigDigits(g, 3)} g`}, read as ${read} ` +
       `(${u.how})${plausible ? "" : `: a peak of ${sigDigits(g, 3)} g is outside what ground motions have ` +
-      `(${PLAUSIBLE_G[0]} to ${PLAUSIBLE_G[1]} g): the wrong unit? The service will refuse it`}`;
+      `(${PLAUSIBLE_G[0]} to ${PLAUSIBLE_G[1]} g): the wrong unit? ${refused}`}`;
     note.className = `msg ${plausible ? "info" : "warn"}`;
   }
 
@@ -480,7 +517,51 @@ export class EarthquakeForm {
   problems() {
     if (!this.kind()) return {};
     const p = this.fileProblem();
-    return p ? { [this.source() === "disp_csv" ? "displacement file" : "ground motion file"]: p } : {};
+    const out = p ? { [this.source() === "disp_csv" ? "displacement file" : "ground motion file"]: p } : {};
+    if (this.kind() === "hybrid" && this.structureError) out["structure file"] = this.structureError;
+    return out;
+  }
+
+  /** The unit check of a ground motion file (check_units): on unless the operator unticked it. */
+  checkUnits() {
+    return $("f-eq_check_units").checked;
+  }
+
+  /** The unit check ticked or unticked: said under it; an .AT2 file is read again by the service with it. */
+  checkUnitsChanged() {
+    $("eq-check-units-note").textContent = this.checkUnits() ? ""
+      : "off (check_units: false): a peak outside 0.005 to 3 g is taken as read; the confirmation asks you to tick it";
+    $("eq-check-units-note").className = this.checkUnits() ? "msg" : "msg warn";
+    const f = this.files.acceleration;
+    if (f && f.at2Text !== undefined) {
+      this.seq = (this.seq || 0) + 1;
+      const seq = this.seq;
+      readAt2(f.name, f.at2Text, this.checkUnits()).then((record) => {
+        if (seq !== this.seq) return;
+        this.files.acceleration = { ...f, record, seq };
+        this.renderFileNote();
+        this.changed();
+      });
+      return;
+    }
+    this.renderFileNote();
+    this.changed();
+  }
+
+  /** What the confirmation asks a tick for: the unit check turned off for a ground motion file. */
+  warnings(body) {
+    const gm = body.profile && body.profile.ground_motion;
+    if (!gm || typeof gm !== "object" || gm.check_units !== false) return [];
+    const f = this.files.acceleration;
+    const g = f && f.record.ok ? this.peakG(f.record) : null;
+    return [`the ground motion's unit check is off (check_units: false): its peak${num(g) ? ` of ${sigDigits(g, 3)} g` : ""} ` +
+      "is taken as read, even outside 0.005 to 3 g"];
+  }
+
+  /** A record's peak in g, in the unit it is read in. */
+  peakG(record) {
+    const u = this.accelerationUnit(record);
+    return u.problem ? null : (record.peak * UNIT_TO_SI[u.units || "m/s2"]) / G;
   }
 
   /** The ground motion as the API takes it: a preset's name or the inline record. */
@@ -491,6 +572,7 @@ export class EarthquakeForm {
     const gm = { time_s: f.record.time_s, acceleration_m_per_s2: f.record.values };
     const u = this.accelerationUnit(f.record);
     if (u.units) gm.units = u.units;
+    if (!this.checkUnits()) gm.check_units = false;
     return gm;
   }
 

@@ -11,7 +11,7 @@ import { EarthquakeRecord } from "./eqrecord.js";
 import { ReviewPanel, reviewOf, reviewPill } from "./review.js";
 import { verdictBlock, verdictPill as trackingPill } from "./verdict.js";
 import { LoopPlot } from "./plots.js";
-import { el, eventLine, fmtTime, profileText } from "./ui.js";
+import { el, eventLine, fmtTime, PHASE_WORDS, profileText } from "./ui.js";
 import { factorIn, fmt, fmtU, onUnits, system, unit } from "./units.js";
 
 const $ = (id) => document.getElementById(id);
@@ -24,7 +24,6 @@ function listOf(data, key) {
   return [];
 }
 
-const PHASE_WORDS = { taper_in: "ramp-in", taper_out: "ramp-out", ramp_out: "stop ramp-out" }; // sim.tracking PHASES
 
 /** A protocol test's verdict as a pill after its status (the summary's acceptance), or nothing. */
 function verdictPill(t) {
@@ -43,6 +42,12 @@ export function isolatorName(t) {
 function controllerName(t) {
   const c = t.controller !== undefined ? t.controller : t.scenario && t.scenario.controller;
   return typeof c === "string" ? c : c && (c.name || c.kind) ? c.name || c.kind : "-";
+}
+
+/** " (5 steady cycles)": what the means are taken over (the summary's steady cycles), "" when not said. */
+function steadyOf(t) {
+  const n = t && t.summary && t.summary.steady_cycles;
+  return typeof n === "number" && n > 0 ? ` (${n} steady cycle${n === 1 ? "" : "s"})` : "";
 }
 
 /** Flat summary figures of a test record: loop-metric means over the full-amplitude cycles, tracking. */
@@ -282,7 +287,7 @@ export class History {
     const verdict = t.summary && t.summary.acceptance;
     if (verdict) summary.append(kv("acceptance", `${verdict.verdict} (${verdict.failed} of ${verdict.verdicts} checks failed)`));
     for (const [key, label, quantity, opts] of [
-      ...(protocol ? [] : [["k_eff_n_per_m", "mean K_eff", "stiffness"], ["edc_j", "mean EDC", "energy"],
+      ...(protocol ? [] : [["k_eff_n_per_m", `mean K_eff${steadyOf(t)}`, "stiffness"], ["edc_j", "mean EDC", "energy"],
         ["xi_eff", "mean xi_eff", "percent"], ["qd_n", "mean Q_d", "force", { sig: 4 }]]),
       ["rms_y_minus_r_m", "RMS y - r (test)", "length"], ["last_rms_y_minus_r_m", "RMS y - r (last 2 cycles)", "length"],
       ["amplitude_error", "amplitude error", "percent"], ["phase_error_deg", "phase error", "angle"],
@@ -414,6 +419,10 @@ export class History {
     }
   }
 
+  /**
+   * The test's loops: the last steady cycle bold (never a ramp-out that came last), the ramp cycles dashed, the
+   * others grey. `cycles` without a phase (an earthquake test's whole history): the last one bold.
+   */
   renderLoops(cycles) {
     if (!this.loopPlot) this.loopPlot = new LoopPlot($("t-loops"));
     const plot = this.loopPlot;
@@ -421,15 +430,34 @@ export class History {
     plot.setLabels(`displacement y (${unit("length")})`, `force F (${unit("force")})`);
     const fx = factorIn("length", system());
     const ff = factorIn("force", system());
-    const loops = cycles
-      .map((c) => c.loop || c)
-      .filter((l) => Array.isArray(l.displacement_m) && Array.isArray(l.force_n));
-    loops.forEach((l, k) => {
+    const loops = cycles.filter((c) => {
+      const l = c.loop || c;
+      return Array.isArray(l.displacement_m) && Array.isArray(l.force_n);
+    });
+    let bold = loops.length - 1;
+    while (bold > 0 && PHASE_WORDS[loops[bold].phase]) bold--;
+    if (PHASE_WORDS[loops[bold] && loops[bold].phase]) bold = loops.length - 1; // no steady cycle at all
+    loops.forEach((c, k) => {
+      const l = c.loop || c;
       const x = Float64Array.from(l.displacement_m, (v) => (v === null ? NaN : v * fx));
       const y = Float64Array.from(l.force_n, (v) => (v === null ? NaN : v * ff));
-      if (k < loops.length - 1) plot.addPast(x, y);
-      else plot.setCurrent(x, y, 0, x.length);
+      if (k !== bold) plot.addPast(x, y, { ramp: Boolean(PHASE_WORDS[c.phase]) });
     });
+    if (loops.length) {
+      const c = loops[bold];
+      const l = c.loop || c;
+      plot.setCurrent(Float64Array.from(l.displacement_m, (v) => (v === null ? NaN : v * fx)),
+        Float64Array.from(l.force_n, (v) => (v === null ? NaN : v * ff)), 0, l.displacement_m.length);
+    }
     plot.draw();
+    const box = $("t-loops");
+    const c = loops[bold];
+    const ramp = c && PHASE_WORDS[c.phase];
+    box.dataset.boldCycle = c && c.cycle !== undefined ? String(c.cycle) : "";
+    box.dataset.boldPhase = c ? c.phase || "steady" : "";
+    const ramps = loops.filter((x) => PHASE_WORDS[x.phase]).length;
+    $("t-loops-note").textContent = !c || c.cycle === undefined ? ""
+      : ramp ? `cycle ${c.cycle} bold (${ramp}: no steady cycle); the others grey`
+        : `cycle ${c.cycle} bold: the last steady cycle; ${ramps ? "ramp cycles dashed, " : ""}the others grey`;
   }
 }

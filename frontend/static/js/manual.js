@@ -256,9 +256,10 @@ export class ManualMotion {
     rows.push(["duration", move === null ? "not known" : move + hold < 60 ? `${(move + hold).toFixed(1)} s`
       : fmtDuration(move + hold),
       move === null ? "" : `${move.toFixed(1)} s moving, then ${hold} s holding the position; the valve closes at the end`]);
-    const load = body.vertical_load_n ?? this.setup.defaultVerticalLoad().value;
+    const given = typeof body.vertical_load_n === "number";
+    const load = given ? body.vertical_load_n : this.setup.defaultVerticalLoad().value;
     rows.push(["isolator", body.isolator, `supply ${fmtU("pressure", body.supply_bar * BAR)}, vertical load ` +
-      `${fmtU("force", load, { sig: 4 })}`]);
+      `${fmtU("force", load)} (${given ? "entered" : this.setup.defaultVerticalLoad().source})`]);
     if (body.operator_name) rows.push(["operator", body.operator_name]);
     const box = el("div", {}, summaryTable(rows));
     box.append(this.setup.limitsBox(body.limits, "move"));

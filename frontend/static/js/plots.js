@@ -308,7 +308,8 @@ export class LoopPlot {
     ctx.stroke();
   }
 
-  addPast(xs, ys) {
+  /** An earlier cycle; `ramp`: a ramp cycle (ramp-in, ramp-out), drawn dashed. */
+  addPast(xs, ys, { ramp = false } = {}) {
     let lo = Infinity, hi = -Infinity, flo = Infinity, fhi = -Infinity;
     for (let i = 0; i < xs.length; i++) {
       if (xs[i] < lo) lo = xs[i];
@@ -317,7 +318,7 @@ export class LoopPlot {
       if (ys[i] > fhi) fhi = ys[i];
     }
     if (lo <= hi && flo <= fhi) this.include(lo, hi, flo, fhi);
-    this.past.push({ x: xs, y: ys });
+    this.past.push({ x: xs, y: ys, ramp });
     if (this.past.length > this.maxPast) {
       this.past.shift();
       this.cacheDirty = true;
@@ -383,9 +384,10 @@ export class LoopPlot {
   _paintPast(k) {
     const ctx = this.cache.getContext("2d");
     const m = this._clipToFrame(ctx);
-    ctx.strokeStyle = "rgba(170, 184, 198, 0.45)";
-    ctx.lineWidth = 1;
     const p = this.past[k];
+    ctx.strokeStyle = p.ramp ? "rgba(240, 180, 41, 0.55)" : "rgba(170, 184, 198, 0.45)";
+    ctx.lineWidth = 1;
+    ctx.setLineDash(p.ramp ? [5, 4] : []);
     this._stroke(ctx, m, p.x, p.y, 0, p.x.length);
     ctx.restore();
   }

@@ -38,6 +38,15 @@ export function changed(what) {
   }
 }
 
+/**
+ * The record a position or force source names: "end of test 4 (completed)" or "end of move 7 (completed)" (a
+ * manual move's end, as the service says it) -> {id, kind}, else null. Tests and moves share one numbering.
+ */
+export function endedRun(source) {
+  const m = /^end of (test|move) (\d+)/.exec(source || "");
+  return m ? { kind: m[1], id: Number(m[2]) } : null;
+}
+
 /** Is a test running now (as far as the console knows)? */
 export function testRunning() {
   if (state.status === "running") return true;
@@ -73,10 +82,13 @@ export function tablePosition() {
   if (!running && (rs.status === "running" || rs.status === "stopping")) rs = {}; // an answer of before the end
   const p = state.position;
   if (running && p && p.live && num(p.m)) return { m: p.m, source: "live" };
-  const ended = /^end of test (\d+)/.exec(rs.position_source || "");
-  const newer = p && num(p.m) && ended && p.testId > Number(ended[1]);
+  const ended = endedRun(rs.position_source);
+  const newer = p && num(p.m) && ended && p.testId > ended.id;
   if (num(rs.table_position_m) && !newer) return { m: rs.table_position_m, source: rs.position_source || "" };
-  if (p && num(p.m)) return { m: p.m, source: `end of test ${p.testId}` };
+  if (p && num(p.m)) {
+    const move = state.testId === p.testId && isMove(state.test);
+    return { m: p.m, source: `end of ${move ? "move" : "test"} ${p.testId}` };
+  }
   return null;
 }
 
@@ -88,10 +100,10 @@ export function tablePosition() {
 export function rigReadings() {
   const num = (v) => typeof v === "number" && Number.isFinite(v);
   const rs = state.rigState;
-  const ended = /^end of test (\d+)/.exec((rs && rs.force_source) || "");
+  const ended = endedRun(rs && rs.force_source);
   const p = state.position;
   const outdated = !rs || rs.status === "running" || rs.status === "stopping" ||
-    (ended && p && p.testId > Number(ended[1]));
+    (ended && p && p.testId > ended.id);
   const reading = (value, source) => {
     if (outdated) return { value: null, why: "no reading yet: waiting for the service's answer on the rig now" };
     return num(value) ? { value, source: source || "" } : { value: null, why: source || "no reading" };
@@ -103,6 +115,6 @@ export function rigReadings() {
 /** Where a position figure comes from, in words: "live", "where test 4 left it", "the rig's reading". */
 export function sourceWords(source) {
   if (source === "the rig (probe)") return "the rig's reading";
-  const m = /^end of test (\d+)/.exec(source || "");
-  return m ? `where test ${m[1]} left it` : source || "unknown";
+  const ended = endedRun(source);
+  return ended ? `where ${ended.kind} ${ended.id} left it` : source || "unknown";
 }

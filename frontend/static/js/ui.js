@@ -3,6 +3,9 @@
 import { actionName, limitInfo } from "./limits.js";
 import { fmtU } from "./units.js";
 
+/** A ramp cycle's phase in words (sim.tracking PHASES); a steady cycle has none. */
+export const PHASE_WORDS = { taper_in: "ramp-in", taper_out: "ramp-out", ramp_out: "stop ramp-out" };
+
 export function fmtDuration(s) {
   if (typeof s !== "number" || !isFinite(s)) return "-";
   s = Math.max(0, Math.round(s));

@@ -1,0 +1,50 @@
+"""Protocols scaled to the specimen in the console (issue 23, part 1): the EN 15129 protocols' levels are
+fractions of the design displacement d_bd; the console takes the specimen's d_bd, shows the levels in mm before
+Start, sends design_displacement_m, and the test's acceptance levels follow it."""
+
+from __future__ import annotations
+
+import pytest
+
+from .harness import OPERATOR, VIEWPORTS, WAIT_MS, fill_identity, poll, record_checks, start_from_form
+
+
+@pytest.mark.parametrize("viewport", VIEWPORTS, ids=lambda v: f"{v[0]}x{v[1]}")
+def test_en15129_levels_follow_the_design_displacement(server, open_page, artifacts, viewport):
+    width, height = viewport
+    page, _ = open_page(server.url + "/", width=width, height=height, login=OPERATOR)
+    record_checks(page)
+    fill_identity(page, "I23-DBD")
+    page.select_option("#f-isolator", "IUT_b")
+    page.fill("#f-supply", "70")
+    page.fill("#f-speed", "10")
+    assert page.is_hidden("#design-displacement-row")  # a sine has none
+    page.select_option("#f-profile", "protocol:en15129_type_test")
+    assert page.is_visible("#design-displacement-row")
+    assert page.inner_text("[data-field='design_displacement'] .range") == "above 0, up to 150 mm; empty: 20 mm"
+    amplitudes = lambda: page.eval_on_selector_all(  # noqa: E731 - the levels table's amplitude column
+        "#protocol-info .protocol-levels tr td:nth-child(2)", "tds => tds.map(t => t.textContent)")
+    assert amplitudes() == ["5.00 mm", "10.00 mm", "13.40 mm", "20.00 mm"]  # the protocol's own 20 mm
+    page.fill("#f-design_displacement", "30")
+    poll(lambda: amplitudes() == ["7.50 mm", "15.00 mm", "20.10 mm", "30.00 mm"], 5, "the levels scaled to 30 mm")
+    total = page.inner_text("#protocol-info .protocol-total")
+    assert "peak \u00b130.00 mm, 94.2 mm/s; design displacement d_bd 30.00 mm (entered" in total, total
+    body = poll(lambda: (lambda c: c if c and c["profile"].get("design_displacement_m") == 0.03 else None)(
+        page.evaluate("window.__checks.length ? window.__checks[window.__checks.length - 1] : null")), 10,
+        "a check with design_displacement_m 0.03")
+    assert body["profile"] == {"kind": "protocol", "name": "en15129_type_test", "design_displacement_m": 0.03}
+    page.wait_for_selector("#envelope[data-state='ok']", timeout=WAIT_MS)
+    page.locator("#design-displacement-row").scroll_into_view_if_needed()
+    page.screenshot(path=str(artifacts / f"i23_protocol_scaled_{width}x{height}.png"))
+    if width != 1366:
+        return  # one run of the protocol is enough: the wider viewport checks the form only
+    summary = start_from_form(page)
+    assert "protocol en15129_type_test, d_bd 30.00 mm (entered)" in summary, summary
+    assert "7.50 mm at 0.5 Hz x 3, 15.00 mm at 0.5 Hz x 3, 20.10 mm at 0.5 Hz x 3, 30.00 mm at 0.5 Hz x 3" in summary
+    page.wait_for_function("location.hash === '#/live'", timeout=WAIT_MS)
+    test_id = poll(lambda: page.evaluate("window.__isorig.testId"), 20, "the test in view")
+    rec = server.wait_status(test_id, {"completed"}, timeout_s=90)
+    assert rec["profile"]["design_displacement_m"] == 0.03, rec["profile"]
+    _, acceptance = server.call("GET", f"/api/tests/{test_id}/acceptance")
+    levels = [round(lv["amplitude_m"], 6) for lv in acceptance["levels"]]
+    assert levels == [0.0075, 0.015, 0.0201, 0.03], acceptance["levels"]
