@@ -45,6 +45,28 @@ def bootstrap_accounts(sessions, service_token: bool) -> tuple[str, str] | None:
     return first
 
 
+def _warm_reports(sessions) -> threading.Event:
+    """The report renderer and the store's report queries warmed up in a background thread
+    (backend.reports.warm: imported there, not here); the event is set when it is done (or could not be)."""
+    done = threading.Event()
+
+    def run() -> None:
+        try:
+            from .reports.warm import warm_once, warm_store
+
+            warm_once()
+            warm_store(sessions)
+        except ImportError:  # an installation without reports: nothing to warm
+            pass
+        except Exception:  # noqa: BLE001 - a failed warm-up costs the first report its time, never the service
+            log.warning("the store's report queries could not be warmed up", exc_info=True)
+        finally:
+            done.set()
+
+    threading.Thread(target=run, daemon=True, name="isorig-report-warm-up").start()
+    return done
+
+
 def create_app(settings: Settings | None = None, driver: str | None = None) -> FastAPI:
     settings = settings or Settings()
     engine = db.make_engine(settings.resolved_database_url)
@@ -69,6 +91,8 @@ def create_app(settings: Settings | None = None, driver: str | None = None) -> F
         hub.bind(asyncio.get_running_loop())
         threading.Thread(target=service.prepare, daemon=True, name="isorig-forkserver-start").start()
         threading.Thread(target=fitter.resume, daemon=True, name="isorig-fit-resume").start()
+        if settings.report_warm_up:
+            app.state.report_warm = _warm_reports(sessions)
         if first is not None:  # told once, on the server's terminal only (never to a browser)
             print(f"isorig: first start: created the account '{first[0]}' (role admin) with the password "
                   f"{first[1]}\n        log in at http://{settings.host}:{settings.port}/ and add the lab's accounts "
@@ -96,6 +120,7 @@ def create_app(settings: Settings | None = None, driver: str | None = None) -> F
     app.state.hub = hub
     app.state.service = service
     app.state.checks = checks
+    app.state.report_warm = None  # the renderer's warm-up (a threading.Event) once the service has started
     errors.install(app)
     # inside the doors: a big body on a token-free heavy route is admitted before it is read (backend.checks)
     app.add_middleware(HeavyBodyGate, pool=checks)

@@ -95,16 +95,16 @@ def set_logo(session: Session, by: str, data_base64: str | None) -> None:
 
 def header(session: Session, settings=None):
     """The report's lab header (backend.reports.lab.LabHeader) from the database, else the settings (None: the
-    environment's, ``ISORIG_LAB_NAME`` ...)."""
+    environment's, ``ISORIG_LAB_NAME`` ...), with the lab's units: reports print in them."""
     from .reports.lab import LabHeader, lab_header, load_logo
 
     lab = row(session)
     if lab is None:
         return lab_header(settings=settings)
     base = lab_header(name=lab.name or None, address=lab.address or None,
-                      logo_file="" if lab.logo is not None else None, settings=settings)
+                      logo_file="" if lab.logo is not None else None, settings=settings, units=lab.units)
     if lab.logo is not None:
         pixels, why = load_logo(io.BytesIO(lab.logo))
         base = LabHeader(name=base.name, address=base.address, logo_file="(stored in the service)", logo=pixels,
-                         warning=why and "the stored lab logo is not shown: unreadable")
+                         warning=why and "the stored lab logo is not shown: unreadable", units=base.units)
     return base

@@ -133,6 +133,12 @@ def _what(test) -> str:
     return {"move": "manual move", "commissioning": "commissioning"}.get(kind, "test")
 
 
+def _source_word(test) -> str:
+    """How a position source names the record the table's last position comes from: "end of move N" after a
+    manual move, "end of test N" after anything else (the console reads both: frontend/static/js/state.js)."""
+    return "move" if _what(test) == "manual move" else "test"
+
+
 class RigService:
     """Runs tests on one rig through a worker process; records them in the store and streams them."""
 
@@ -257,7 +263,7 @@ class RigService:
                    force_source="no reading: no test has run on this rig", command_v=0.0,
                    command_source=CLOSED_VALVE)
         if self._last_end() is not None:
-            ended = f"end of test {self.last_end['test_id']} ({self.last_end['status']})"
+            ended = f"end of {self.last_end.get('what', 'test')} {self.last_end['test_id']} ({self.last_end['status']})"
             out.update(table_position_m=self.last_end["table_position_m"], force_n=self.last_end["force_n"],
                        position_source=ended, force_source=ended)
         if self.driver != SIMULATED:
@@ -379,7 +385,8 @@ class RigService:
                 found = store.last_sample(session, self.rig_name)
                 if found is not None:
                     test, row = found
-                    self.last_end = {"test_id": test.id, "status": test.status, **self._row_state(row.array[0])}
+                    self.last_end = {"test_id": test.id, "status": test.status, "what": _source_word(test),
+                                     **self._row_state(row.array[0])}
         return self.last_end
 
     def command(self, test_id: int, action: str, actor: str = "operator") -> None:
@@ -634,7 +641,8 @@ class RigService:
                           "server_arrival_p95_ms": float(np.percentile(run.arrival_ms, 95)),
                           "server_arrival_max_ms": float(np.max(run.arrival_ms))}
             test.summary = self._summary(session, test, run.job, pacing, run.link, indications, run.stability)
-            self.last_end = {"test_id": test_id, "status": status, **self._row_state(run.last_row)}
+            self.last_end = {"test_id": test_id, "status": status, "what": _source_word(test),
+                             **self._row_state(run.last_row)}
             store.set_status(session, test, status, reason)
             verdict = protocol_verdict(session, test)  # once the status is final (an early end: INCOMPLETE)
             if verdict is not None:

@@ -56,6 +56,9 @@ class Settings(BaseSettings):
                                 "has ended, waiting at most this long (else 202 with the record's URL)")
     static_dir: Path = REPO_STATIC_DIR
     max_test_duration_s: float = Field(default=4 * 3600.0, description="longest test the API accepts")
+    report_warm_up: bool = Field(default=True, description="warm the report renderer up in the background when "
+                                 "the service starts (imports, numba kernels, fonts: about 2 s of one CPU), so that "
+                                 "the first report takes no longer than the next ones")
     max_speed: float = Field(default=100.0, description="largest speed factor of a simulated test")
     stream_history_s: float = Field(default=10.0, description="simulated seconds of samples a late client gets")
     worker_start_method: str = Field(default="forkserver", description="multiprocessing start method: forkserver "

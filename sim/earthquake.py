@@ -212,6 +212,18 @@ def structure_weight_n(spec: dict) -> float | None:
         raise _prefixed(exc, "profile.structure") from None
 
 
+def too_heavy_for_the_jack(weight_n: float, max_vertical_load_n: float) -> str | None:
+    """Why a hybrid test cannot run under its building's weight (``weight_n``) on a jack of ``max_vertical_load_n``
+    (N), in words with both in kN and how to set the vertical load instead; None when the jack can carry it."""
+    if 0.0 <= weight_n <= max_vertical_load_n:
+        return None
+    return (f"the building weighs {weight_n / 1e3:.4g} kN (its total mass {weight_n / G_M_PER_S2 / 1e3:.4g} t x g) "
+            f"and the vertical jack carries at most {max_vertical_load_n / 1e3:.4g} kN: a hybrid test runs under the "
+            "building's weight unless the vertical load is set. Set it, 0 to "
+            f"{max_vertical_load_n:.6g} N, with vertical_load_n (the API; the console's vertical load) or "
+            "--vertical-load-n (isorig hybrid), or use a lighter building")
+
+
 def earthquake_from_spec(spec: dict, isolator: Isolator, vertical_load_n: float,
                          dt_s: float = CONTROL_PERIOD_S) -> EarthquakeProfile:
     """The profile a ``history`` or ``hybrid`` form describes (module docstring), for ``isolator`` under

@@ -99,6 +99,33 @@ def test_simulate_takes_a_history_and_a_ground_motion(tmp_path, capsys):
     assert "bad.csv" in err and "line" in err
 
 
+def test_isorig_hybrid_refuses_a_building_heavier_than_the_jack_before_computing(tmp_path, capsys, monkeypatch):
+    """Without --vertical-load-n the load is the building's weight: 1226 kN against the jack's 850 kN is exit 2
+    with one line naming both in kN and the flag, before the reference is computed (no output folder)."""
+    heavy = json.loads(open(DEMO).read())
+    heavy.update(base_mass_kg=50_000.0, masses_kg=[25_000.0, 25_000.0, 25_000.0])  # 125 t
+    path = tmp_path / "heavy.json"
+    path.write_text(json.dumps(heavy))
+    import sim.hybrid
+
+    def not_now(*_args, **_kwargs):
+        raise AssertionError("the reference was computed before the refusal")
+
+    monkeypatch.setattr(sim.hybrid, "reference", not_now)
+    code = main(["hybrid", "--structure", str(path), "--ground-motion", "soft_site", "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert "the building weighs 1226 kN" in err and "at most 850 kN" in err and "--vertical-load-n" in err, err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "o").exists()
+    # a load set beyond the jack is refused as the field it is, at once too
+    code = main(["hybrid", "--structure", str(path), "--ground-motion", "soft_site", "--vertical-load-n", "9e5",
+                 "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert code == 2 and "vertical_load_n = 900000 N" in err and "building weighs" not in err, err
+    assert not (tmp_path / "o").exists()
+
+
 def test_virtual_hybrid_simulation_follows_the_numerical_reference(tmp_path, capsys):
     gm = tmp_path / "pulse.csv"
     t = np.arange(0.0, 6.0, 0.005)

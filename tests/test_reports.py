@@ -759,13 +759,13 @@ def test_an_aborted_test_says_so_at_the_top_with_its_reason(tmp_path):
     assert first.index("TEST ABORTED") < first.index("Specimen") < first.index("Results")
     assert "Ran 3.50 s of the 10 s planned; 3 of 10 cycles completed" in first
     assert "3.50 s run of the 10 s planned" in first and "10.00 s" not in first
-    assert "INCOMPLETE" in first and "LRB-17" in first and "A. Rossi" in first and "150 kN" in first
+    assert "INCOMPLETE" in first and "LRB-17" in first and "A. Rossi" in first and "150.00 kN" in first
     for n, page in enumerate(pages, start=1):
         assert f"page {n} of {len(pages)}" in page
     last = " ".join(pages[-1].split())
     assert "Tested by" in last and "Reviewed by" in last and "Approved by" in last and "A. Rossi" in last
     # the limit trip in words, not a dict: what the rig read at that sample and the limit
-    assert "force 51 kN" in last and "limit: |force| <= 50 kN" in last and "no ref." in last
+    assert "force 51.00 kN" in last and "limit: |force| <= 50.00 kN" in last and "no ref." in last
     assert "{" not in "".join(pages)
     rep = report_json(bundle, identify=False)
     assert rep["run"]["banner"]["title"] == "TEST ABORTED" and rep["run"]["banner"]["reason"] == reason
@@ -826,7 +826,7 @@ def test_lab_header_with_logo_and_a_logo_that_is_not_there(tmp_path, capsys, mon
     assert "warning" not in capsys.readouterr().err
     lab = json.loads((tmp_path / "logo.json").read_text())["lab"]
     assert lab == {"name": "Prove Lab", "address": "Via Roma 1; Milano", "logo_file": str(tmp_path / "logo.png"),
-                   "logo_shown": True, "logo_warning": None}
+                   "logo_shown": True, "logo_warning": None, "units": "lab"}
     top_left = png_pages(tmp_path / "logo.pdf", tmp_path)[0][:40, :90]
     assert colour(top_left) > 0.05  # the blue logo is there
     # a missing logo: one warning line, a report all the same
@@ -1004,9 +1004,41 @@ def test_the_report_names_the_rig_file_its_commissioning_and_whether_the_table_f
     rig_name, sensors = rig_text(report["rig"])
     assert rig_name.startswith("hall-b: ") and report["rig"]["rig_name"] == "hall-b"  # which of the lab's rigs
     assert sensors[0] == ("rig file Lab B rig, commissioned (/lab/rig.json): commissioned 2026-11-27 on "
-                          "udp://10.0.0.2:5555 at 100 bar, no specimen (flow balance R^2 0.9992, replay 3.4 % RMS)")
+                          "udp://10.0.0.2:5555 at 100.0 bar, no specimen (flow balance R^2 0.9992, replay 3.4 % RMS)")
     assert report["tracking_verdict"]["words"] == "did not follow: 2 %"
     bundle.record["rig_file"]["commissioning"] = None
     assert "not commissioned" in rig_text(report_json(bundle, identify=False)["rig"])[1][0]
     bundle.record.pop("summary")
     assert "not judged" in report_json(bundle, identify=False)["tracking_verdict"]["words"]
+
+
+@pytest.mark.skipif(PDFTOTEXT is None, reason="pdftotext (poppler-utils) is not installed")
+def test_every_figure_of_the_report_in_the_units_asked(tmp_path, capsys):
+    """isorig report --units si prints the figures in SI (m, N, N/m, MPa) where the lab's units (the default) are
+    mm, kN, kN/mm, bar: the header, the headline and per-cycle tables, the checks, the events and the plots'
+    axes; report.json stays SI and names the units of the PDF."""
+    import re
+
+    from isorig.cli import main
+
+    scenario = Scenario.sine("IUT_a", 100.0, 0.02, 1.0, 3, controller="pid", taper_cycles=1)
+    write_csv(tmp_path / "timeseries.csv", Simulation(scenario).run().samples)
+    base = ["report", "--csv", str(tmp_path / "timeseries.csv"), "--no-identify", "--serial", "--isolator", "IUT_a",
+            "--supply-bar", "100", "--protocol", "quick_check"]
+    texts = {}
+    for units in ("lab", "si"):
+        out = tmp_path / f"{units}.pdf"
+        assert main(base + ["--out", str(out), "--json", str(tmp_path / f"{units}.json"), "--units", units]) == 0
+        texts[units] = " ".join(" ".join(pdf_text(out, "-layout")).split())
+        assert json.loads((tmp_path / f"{units}.json").read_text())["lab"]["units"] == units
+    capsys.readouterr()
+    lab, si = texts["lab"], texts["si"]
+    assert "k_d = 1.25 kN/mm" in lab and "k_d = 1250000 N/m" in si
+    assert "Supply pressure 100.0 bar" in lab and "Supply pressure 10.00 MPa" in si
+    assert "level 1: 10.00 mm at 1 Hz" in lab and "level 1: 0.01000 m at 1 Hz" in si
+    assert "force [kN]" in lab and "force [N]" in si and "K_eff [kN/mm]" in lab and "K_eff [N/m]" in si
+    assert "s mm mm kN kN kN/mm J % kN kN/mm" in lab and "s m m N N N/m J % N N/m" in si  # the per-cycle table
+    assert not re.search(r"\d (N/m|N|m|MPa)\b", lab), re.findall(r".{30}\d (?:N/m|N|m|MPa)\b", lab)
+    assert not re.search(r"\d (kN/mm|kN|mm|bar|mm/s)\b", si), re.findall(r".{30}\d (?:kN/mm|kN|mm|bar)\b", si)
+    report = json.loads((tmp_path / "si.json").read_text())
+    assert report["isolator_nominal"]["kd_n_per_m"] == 1.25e6  # the JSON keeps SI

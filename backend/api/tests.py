@@ -62,8 +62,8 @@ def earthquake_profile(body: TestCreate, isolator, rig):
     """A history or hybrid profile built by the one profile parser (sim.protocols.profile_from_spec, which hands
     it to sim.earthquake), with the vertical load it runs under: the request's, else for a hybrid test the
     building's weight, else the isolator's design load or the rig's default. Refusals name the field."""
-    from sim.earthquake import structure_weight_n
-    from sim.profiles import ProfileError, check_vertical_load
+    from sim.earthquake import structure_weight_n, too_heavy_for_the_jack
+    from sim.profiles import check_vertical_load
     from sim.protocols import profile_from_spec
 
     spec = body.profile.model_dump()  # non-finite samples stay what they are: sim names them
@@ -71,12 +71,9 @@ def earthquake_profile(body: TestCreate, isolator, rig):
     if load is None:
         weight = structure_weight_n(spec)
         if weight is not None:
-            try:
-                check_vertical_load(weight, rig)
-            except ProfileError as exc:
-                raise ApiError(422, f"the building weighs {weight:.6g} N (its total mass x g), the vertical load a "
-                                    f"hybrid test runs under unless vertical_load_n is given: {exc}",
-                               "vertical_load_n", weight, exc.limit) from None
+            why = too_heavy_for_the_jack(weight, rig.max_vertical_load_n)
+            if why is not None:  # the user never set vertical_load_n: say where the load came from
+                raise ApiError(422, why, "vertical_load_n", weight, f"[0, {rig.max_vertical_load_n:g}] N")
             load = weight
         else:
             load = Scenario(isolator, body.supply_bar * BAR_PA, [], rig=rig).effective_vertical_load_n

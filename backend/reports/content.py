@@ -241,7 +241,7 @@ def report_json(bundle, identify: bool = True, meta: dict | None = None, identif
     iso = isolator_of(record)
     protocol, _note = protocol_of(record)
     run = run_of(bundle)
-    events = [{**e, "text": event_text(e)} for e in bundle.events]
+    events = [{**e, "text": event_text(e, lab.unit_system)} for e in bundle.events]  # in the lab's units
     out = {
         "report_version": 2,
         "generated_at": datetime.now(UTC).isoformat(timespec="seconds"),

@@ -18,6 +18,8 @@ import numpy as np
 
 from sim.samples import RECORD_FIELDS, SAMPLE_FIELDS, Samples
 
+from ..units import LAB
+
 UNREPORTED_COLUMNS = ("model_m", "load_pressure_pa")  # in the samples, but neither the PDF nor the JSON shows them
 ESTIMATE_COLUMNS = ("ar_hat", "ay_hat", "as_hat")  # adaptive estimates: the report shows their final values
 
@@ -374,8 +376,9 @@ SENSOR_PARAMETERS = ("position_latency_s", "position_noise_rms_m", "position_res
                      "pressure_noise_rms_pa")
 
 
-def rig_text(rig: dict) -> tuple[str, list[str]]:
-    """The rig in one line (the lab's name of it first) and its sensors in lines, for the header."""
+def rig_text(rig: dict, u=LAB) -> tuple[str, list[str]]:
+    """The rig in one line (the lab's name of it first) and its sensors in lines, for the header, in the lab's
+    units ``u`` (backend.units.Units)."""
     driver = rig.get("driver")
     if rig.get("name"):
         name = str(rig["name"])
@@ -396,26 +399,27 @@ def rig_text(rig: dict) -> tuple[str, list[str]]:
     if rig.get("simulated"):
         by = {s["name"]: s for s in rig.get("sensors", [])}
 
-        def v(key, scale, unit, fmt="{:.3g}"):
+        def v(key, quantity):
             s = by.get(key)
-            return "-" if s is None or s["value"] is None else fmt.format(s["value"] * scale) + f" {unit}"
+            return "-" if s is None or s["value"] is None else u.text(quantity, s["value"], sig=3)
 
         if by and all(x["value"] == 0 for x in by.values()):
             sensors.append("ideal (sim.rig's defaults): the true position and load pressure, without latency, noise "
                            "or rounding; force = A_p x load pressure")
         elif by:
-            sensors.append(f"position: latency {v('position_latency_s', 1e3, 'ms')}, noise RMS "
-                           f"{v('position_noise_rms_m', 1e6, 'um')}, resolution {v('position_resolution_m', 1e6, 'um')}"
+            sensors.append(f"position: latency {v('position_latency_s', 'time')}, noise RMS "
+                           f"{v('position_noise_rms_m', 'length')}, resolution {v('position_resolution_m', 'length')}"
                            " (0: ideal)")
-            sensors.append(f"load pressure: latency {v('pressure_latency_s', 1e3, 'ms')}, noise RMS "
-                           f"{v('pressure_noise_rms_pa', 1e-5, 'bar')}; force = A_p x load pressure (simulated)")
+            sensors.append(f"load pressure: latency {v('pressure_latency_s', 'time')}, noise RMS "
+                           f"{v('pressure_noise_rms_pa', 'pressure')}; force = A_p x load pressure (simulated)")
     else:
         sensors.append("the rig's own transducers (position, force, load and supply pressure): not described over "
                        "the link; see the rig's calibration records")
     if isinstance(rig.get("rig_file"), dict):
-        sensors.insert(0, rig_file_text(rig["rig_file"]))
+        sensors.insert(0, rig_file_text(rig["rig_file"], u))
     for c in rig.get("other_changes", []):
-        sensors.append(f"rig parameter {c['name']} = {c['value']:.6g} {c['unit']} (changed from sim.rig's default)")
+        sensors.append(f"rig parameter {c['name']} = {u.si_unit_text(c['value'], c['unit'], sig=6)} (changed from "
+                       "sim.rig's default)")
     link = rig.get("link")
     if link:
         sensors.append("link: " + link_text(link))
@@ -424,7 +428,7 @@ def rig_text(rig: dict) -> tuple[str, list[str]]:
     return name, sensors
 
 
-def rig_file_text(rig_file: dict) -> str:
+def rig_file_text(rig_file: dict, u=LAB) -> str:
     """The rig file in force and its commissioning, in one line: where its values came from."""
     text = f"rig file {rig_file.get('name')} ({rig_file.get('source')})"
     c = rig_file.get("commissioning")
@@ -437,7 +441,7 @@ def rig_file_text(rig_file: dict) -> str:
         fit.append(f"replay {100 * c['velocity_nrmse']:.1f} % RMS")
     supply = num(c.get("supply_pa"))
     return (text + f": commissioned {str(c.get('date', '?'))[:10]} on {c.get('rig')}"
-            + (f" at {supply / 1e5:g} bar" if supply is not None else "")
+            + (f" at {u.text('pressure', supply)}" if supply is not None else "")
             + (f", {c.get('specimen')} mounted" if c.get("specimen") not in (None, "none") else ", no specimen")
             + (f" ({', '.join(fit)})" if fit else ""))
 
@@ -468,33 +472,34 @@ def link_text(link: dict) -> str:
     return ", ".join(parts) or "no link figures"
 
 
-# quantity name suffix -> (unit shown, scale from SI): longest suffix first
-_UNITS = (("_m_per_s", "mm/s", 1e3), ("_pa", "bar", 1e-5), ("_ms", "ms", 1.0), ("_hz", "Hz", 1.0),
-          ("_m", "mm", 1e3), ("_n", "kN", 1e-3), ("_v", "V", 1.0), ("_s", "s", 1.0))
+# quantity name suffix -> its quantity (backend.units) or, for one the lab's units do not cover, its unit: longest
+# suffix first
+_UNITS = (("_m_per_s", "velocity"), ("_pa", "pressure"), ("_ms", "ms"), ("_hz", "frequency"), ("_m", "length"),
+          ("_n", "force"), ("_v", "voltage"), ("_s", "time"))
 _WORDS = {"voltage_v": "valve command", "tracking_error_m": "|y - r|", "target_m": "target r",
           "displacement_m": "displacement y", "force_n": "force", "load_pressure_pa": "load pressure",
           "supply_pressure_pa": "supply pressure", "time_s": "time"}
 
 
-def scaled_text(key: str, value) -> str:
-    """A value named in SI (``force_n``) in lab units from its name's suffix: 30062.6 -> '30.06 kN'."""
-    for suffix, unit, scale in _UNITS:
+def scaled_text(key: str, value, u=LAB) -> str:
+    """A value named in SI (``force_n``) in the lab's units ``u`` from its name's suffix: 30062.6 -> '30.06 kN'."""
+    for suffix, quantity in _UNITS:
         if key.endswith(suffix) and num(value) is not None:
-            return f"{value * scale:.4g} {unit}"
+            return f"{value:.4g} ms" if quantity == "ms" else u.text(quantity, value)
     return f"{value:.4g}" if num(value) is not None and isinstance(value, float) else str(value)
 
 
-def quantity_text(key: str, value) -> str:
+def quantity_text(key: str, value, u=LAB) -> str:
     """``force_n``, 30062.6 -> 'force 30.06 kN'."""
     name = _WORDS.get(key)
     if name is None:
         name = key
-        for suffix, _unit, _scale in _UNITS:
+        for suffix, _quantity in _UNITS:
             if key.endswith(suffix):
                 name = key[:-len(suffix)]
                 break
         name = name.replace("_", " ")
-    return f"{name} {scaled_text(key, value)}"
+    return f"{name} {scaled_text(key, value, u)}"
 
 
 def stability_trip_text(values: dict) -> str:
@@ -515,8 +520,9 @@ def stability_trip_text(values: dict) -> str:
     return "; ".join(parts)
 
 
-def limit_trip_text(values: dict) -> str:
-    """A limit trip's recorded values in words: what the rig read at the sample that tripped, and the limit."""
+def limit_trip_text(values: dict, u=LAB) -> str:
+    """A limit trip's recorded values in words (in the lab's units ``u``): what the rig read at the sample that
+    tripped, and the limit."""
     from sim.measurement import describe_status
 
     if values.get("detector") == "rths_stability":
@@ -525,26 +531,27 @@ def limit_trip_text(values: dict) -> str:
     shown = ("displacement_m", "target_m", "tracking_error_m", "velocity_m_per_s", "force_n", "load_pressure_pa",
              "supply_pressure_pa", "voltage_v")
     skip = set(shown) | {"detector", "time_s", "limit", "limit_name", "flags", "action", "indication", "escalation"}
-    parts = [quantity_text(k, values[k]) for k in shown if num(values.get(k)) is not None]
-    parts += [quantity_text(k, v) for k, v in values.items() if k not in skip and isinstance(v, (int, float, str))
+    parts = [quantity_text(k, values[k], u) for k in shown if num(values.get(k)) is not None]
+    parts += [quantity_text(k, v, u) for k, v in values.items() if k not in skip and isinstance(v, (int, float, str))
               and not isinstance(v, bool) and (num(v) is not None or isinstance(v, str))]
     text = "read at that sample: " + ", ".join(parts) if parts else ""
     name, limit = values.get("limit_name"), num(values.get("limit"))
     if isinstance(name, str) and limit is not None:
         word = _WORDS.get(name, name.replace("_", " "))
-        text += f"; limit: {word if word.startswith('|') else '|' + word + '|'} <= {scaled_text(name, limit)}"
+        text += f"; limit: {word if word.startswith('|') else '|' + word + '|'} <= {scaled_text(name, limit, u)}"
     flags = values.get("flags")
     if isinstance(flags, (int, float)) and flags:
         text += f"; rig status: {describe_status(int(flags))}"
     return text.lstrip("; ")
 
 
-def event_text(event: dict) -> str:
-    """An event in words: its message, and for a limit trip or a rig fault what was recorded with it."""
+def event_text(event: dict, u=LAB) -> str:
+    """An event in words: its message (as recorded), and for a limit trip or a rig fault what was recorded with it
+    (in the lab's units ``u``)."""
     message = str(event.get("message") or event.get("kind") or "")
     values = event.get("values") or {}
     if event.get("kind") in ("limit_trip", "limit_indicate") and values:
-        detail = limit_trip_text(values)
+        detail = limit_trip_text(values, u)
         return f"{message} ({detail})" if detail else message
     if event.get("kind") == "rig_fault" and isinstance(values.get("link"), dict):
         return f"{message} (link: {link_text(values['link'])})"

@@ -10,6 +10,7 @@ from __future__ import annotations
 import io
 import re
 
+from ..units import LAB
 from .content import earthquake_figures, report_json
 from .data import ReportBundle, isolator_of, protocol_of
 from .earthquake import pages_earthquake
@@ -84,6 +85,7 @@ def _write_pages(target, plt, bundle, report: dict, lab, identification=None) ->
     record = bundle.record
     iso = isolator_of(record)
     protocol, _note = protocol_of(record)
+    u = lab.unit_system if lab is not None else LAB  # every figure in the lab's units
     if identification is None:
         flow = None
         header = page_header(plt, bundle, report, iso, protocol, lab)
@@ -92,15 +94,15 @@ def _write_pages(target, plt, bundle, report: dict, lab, identification=None) ->
         header = flow.figs
     figures = earthquake_figures(bundle) if report.get("earthquake") else None
     if figures is not None:  # a history or hybrid test: no cycles; the criteria, the overlay, the reference
-        figs = pages_earthquake(plt, bundle, figures) + [page_time(plt, bundle)]
+        figs = pages_earthquake(plt, bundle, figures, u) + [page_time(plt, bundle, u)]
     else:
-        figs = [page_loops(plt, bundle, protocol, report), page_time(plt, bundle)]
+        figs = [page_loops(plt, bundle, protocol, report, u), page_time(plt, bundle, u)]
     s = bundle.samples
     if len(s) > 1 and s["time_s"][-1] - s["time_s"][0] > 6 * DETAIL_WINDOW_S:
-        figs.append(page_time_detail(plt, bundle))
+        figs.append(page_time_detail(plt, bundle, u))
     if figures is None or bundle.cycles:
-        figs += pages_table(plt, bundle, report["acceptance"], protocol, report["headline"])
-    figs += pages_verdicts_events(plt, bundle, report, protocol)
+        figs += pages_table(plt, bundle, report["acceptance"], protocol, report["headline"], u)
+    figs += pages_verdicts_events(plt, bundle, report, protocol, u)
     total = len(header) + len(figs)
     for page, fig in enumerate(header + figs, start=1):
         footer(fig, record, page, total, lab.name if lab is not None else "")
@@ -111,7 +113,7 @@ def _write_pages(target, plt, bundle, report: dict, lab, identification=None) ->
             return 0
         _save(plt, pdf, figs)
         report["identification"] = identification()
-        identification_block(flow, report["identification"])
+        identification_block(flow, report["identification"], u)
         _save(plt, pdf, header)
         return len(header)
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..units import LAB
 from .data import num
 from .figures import _minmax_decimate
 from .header import GREEN, RED, criteria_rows
@@ -28,8 +29,8 @@ def _early_end(ax, figures: dict) -> None:
         ax.axvline(judged["until_s"], color=RED, lw=0.9, ls="--")
 
 
-def page_criteria(plt, bundle, figures: dict):
-    """The J criteria (value, target, met) and the command against the measurement."""
+def page_criteria(plt, bundle, figures: dict, u=LAB):
+    """The J criteria (value, target, met) and the command against the measurement, in the lab's units ``u``."""
     s = bundle.samples
     fig = plt.figure(figsize=A4_PORTRAIT_IN)
     kind = figures.get("kind")
@@ -61,16 +62,18 @@ def page_criteria(plt, bundle, figures: dict):
     ax_z = fig.add_subplot(lower[0])
     ax_fd = fig.add_subplot(lower[1])
     t = s["time_s"]
-    r, y, f = s["target_m"] * 1e3, s["displacement_m"] * 1e3, s["force_n"] * 1e-3
+    to_length, to_force = u.factor("length"), u.factor("force")
+    length, force = u.unit("length"), u.unit("force")
+    r, y, f = s["target_m"] * to_length, s["displacement_m"] * to_length, s["force_n"] * to_force
     td, rd, yd, ed = _minmax_decimate(t, r, y, y - r)
     ax_t.plot(td, rd, color=REFERENCE_COLOUR, lw=REFERENCE_LW, label="command (target r)")
     ax_t.plot(td, yd, color="C0", lw=0.6, label="measured y")
     ax_t.tick_params(labelbottom=False)
-    ax_t.set_ylabel("displacement [mm]")
+    ax_t.set_ylabel(f"displacement [{length}]")
     ax_t.set_title("Command and measured displacement", loc="left")
     ax_t.legend(loc="upper right")
     ax_e.plot(td, ed, color="C3", lw=0.7)
-    ax_e.set_ylabel("y - r [mm]")
+    ax_e.set_ylabel(f"y - r [{length}]")
     ax_e.set_xlabel("time [s]")
     ax_e.set_title("Tracking error", loc="left")
     for ax in (ax_t, ax_e):
@@ -87,20 +90,20 @@ def page_criteria(plt, bundle, figures: dict):
         ax_z.set_title(f"Where the command is fastest: every sample (J1 {fmt_num(delay, '{:.3f}')} ms)", loc="left",
                        fontsize=8.5)
     ax_z.set_xlabel("time [s]")
-    ax_z.set_ylabel("displacement [mm]")
+    ax_z.set_ylabel(f"displacement [{length}]")
     step = max(1, t.size // 20000)
     ax_fd.plot(y[::step], f[::step], color="C0", lw=0.5)
-    ax_fd.set_xlabel("displacement y [mm]")
-    ax_fd.set_ylabel("force [kN]")
+    ax_fd.set_xlabel(f"displacement y [{length}]")
+    ax_fd.set_ylabel(f"force [{force}]")
     ax_fd.set_title("Force against displacement (whole test)", loc="left", fontsize=8.5)
     ax_fd.axhline(0, color="0.6", lw=0.5)
     ax_fd.axvline(0, color="0.6", lw=0.5)
     return fig
 
 
-def page_hybrid(plt, bundle, figures: dict):
+def page_hybrid(plt, bundle, figures: dict, u=LAB):
     """The structure's response (replayed from the record) beside the full-numerical reference, the isolator's
-    hysteresis, and the stability monitor."""
+    hysteresis, and the stability monitor, in the lab's units ``u``."""
     arrays = figures.get("arrays") or {}
     fig = plt.figure(figsize=A4_PORTRAIT_IN)
     fig.text(0.06, 0.955, "Hybrid simulation: the structure and its full-numerical reference", fontsize=12,
@@ -108,21 +111,21 @@ def page_hybrid(plt, bundle, figures: dict):
     structure = figures.get("structure") or {}
     peaks = structure.get("peaks") or {}
     lines = [f"{'channel':<24}{'RTHS peak':>12}{'reference':>12}{'difference':>12}   (peaks over the same time)"]
-    units = {"_m": ("mm", 1e3), "_m_per_s2": ("m/s2", 1.0), "_n": ("kN", 1e-3)}
+    quantities = {"_m": "length", "_m_per_s2": "acceleration", "_n": "force"}
     for name, p in peaks.items():
-        unit, scale = next(v for k, v in sorted(units.items(), key=lambda kv: -len(kv[0])) if name.endswith(k))
+        q = next(v for k, v in sorted(quantities.items(), key=lambda kv: -len(kv[0])) if name.endswith(k))
         a, b = num(p.get("rths")), num(p.get("reference"))
         diff = f"{100 * (a / b - 1):+.2f} %" if a is not None and b else "-"
-        label = name.removesuffix("_m_per_s2").removesuffix("_m").removesuffix("_n") + f" [{unit}]"
-        lines.append(f"{label:<24}{fmt_num(a, '{:.4g}', scale):>12}{fmt_num(b, '{:.4g}', scale):>12}{diff:>12}")
+        label = name.removesuffix("_m_per_s2").removesuffix("_m").removesuffix("_n") + f" [{u.unit(q)}]"
+        lines.append(f"{label:<24}{u.fmt(q, a, sig=4):>12}{u.fmt(q, b, sig=4):>12}{diff:>12}")
     rep = figures.get("replay") or {}
     ref = figures.get("reference") or {}
     notes = [f"RTHS: the structure's response over its {structure.get('periods', 0)} periods, rebuilt from the "
              f"recorded force and position (sim.hybrid.replay; largest difference from the recorded commands "
-             f"{fmt_num(rep.get('command_difference_m'), '{:.2g}', 1e3)} mm). "
+             f"{u.text('length', num(rep.get('command_difference_m')), sig=2)}). "
              + _sentence(str(ref.get("note") or ref.get("what") or "")),
              f"The structure's record ends at t = {fmt_num(structure.get('until_s'), '{:.3f}')} s with a base "
-             f"displacement of {fmt_num(structure.get('residual_base_displacement_m'), '{:.3f}', 1e3)} mm."]
+             f"displacement of {u.text('length', num(structure.get('residual_base_displacement_m')))}."]
     text = [(line, "black") for line in lines] + [("", "black")]
     for note in notes:
         text += [(w, "0.35") for w in wrap_text(note, 118)]
@@ -137,10 +140,11 @@ def page_hybrid(plt, bundle, figures: dict):
     names = list(rths)
     drifts = [n for n in names if n.startswith("drift_")]
     accs = [n for n in names if n.startswith("abs_acc_") and n != "abs_acc_base_m_per_s2"]
-    plots = [("base_displacement_m", "Base displacement (the rig's command)", "mm", 1e3),
-             (drifts[0] if drifts else None, "First-storey drift", "mm", 1e3),
-             (drifts[-1] if drifts else None, "Top-storey drift", "mm", 1e3),
-             (accs[-1] if accs else None, "Top-storey absolute acceleration", "m/s2", 1.0)]
+    plots = [("base_displacement_m", "Base displacement (the rig's command)", u.unit("length"), u.factor("length")),
+             (drifts[0] if drifts else None, "First-storey drift", u.unit("length"), u.factor("length")),
+             (drifts[-1] if drifts else None, "Top-storey drift", u.unit("length"), u.factor("length")),
+             (accs[-1] if accs else None, "Top-storey absolute acceleration", u.unit("acceleration"),
+              u.factor("acceleration"))]
     axes = [fig.add_subplot(gs[0, :]), fig.add_subplot(gs[1, 0]), fig.add_subplot(gs[1, 1]), fig.add_subplot(gs[2, :])]
     for ax, (name, title, unit, scale) in zip(axes, plots, strict=True):
         if name is None or name not in whole or t_s is None:
@@ -159,16 +163,18 @@ def page_hybrid(plt, bundle, figures: dict):
     ax_h = fig.add_subplot(gs[3, 0])
     if "isolator_force_n" in whole and len(rths.get("isolator_force_n", [])):
         step = max(1, n_ref // 20000)
-        ax_h.plot(whole["base_displacement_m"][::step] * 1e3, whole["isolator_force_n"][::step] * 1e-3,
+        ax_h.plot(whole["base_displacement_m"][::step] * u.factor("length"),
+                  whole["isolator_force_n"][::step] * u.factor("force"),
                   color=REFERENCE_COLOUR, lw=REFERENCE_LW * 0.8, label="reference")
         m = len(rths["isolator_force_n"])
         step = max(1, m // 20000)
-        ax_h.plot(rths["base_displacement_m"][::step] * 1e3, rths["isolator_force_n"][::step] * 1e-3, color="C0",
+        ax_h.plot(rths["base_displacement_m"][::step] * u.factor("length"),
+                  rths["isolator_force_n"][::step] * u.factor("force"), color="C0",
                   lw=0.5, label="RTHS (measured)")
         ax_h.legend(loc="upper left", fontsize=6.5)
     ax_h.set_title("Isolator force against base displacement", loc="left", fontsize=8.5)
-    ax_h.set_xlabel("base displacement [mm]")
-    ax_h.set_ylabel("force [kN]")
+    ax_h.set_xlabel(f"base displacement [{u.unit('length')}]")
+    ax_h.set_ylabel(f"force [{u.unit('force')}]")
     ax_s = fig.add_subplot(gs[3, 1])
     energy, limit = arrays.get("added_energy_j"), arrays.get("limit_j")
     stab = figures.get("stability") or {}
@@ -187,8 +193,8 @@ def page_hybrid(plt, bundle, figures: dict):
     return fig
 
 
-def pages_earthquake(plt, bundle, figures: dict) -> list:
-    figs = [page_criteria(plt, bundle, figures)]
+def pages_earthquake(plt, bundle, figures: dict, u=LAB) -> list:
+    figs = [page_criteria(plt, bundle, figures, u)]
     if figures.get("kind") == "hybrid" and figures.get("arrays"):
-        figs.append(page_hybrid(plt, bundle, figures))
+        figs.append(page_hybrid(plt, bundle, figures, u))
     return figs

@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 
+from ..units import LAB
 from .data import num
 from .layout import A4_PORTRAIT_IN
 
@@ -118,7 +119,8 @@ def _per_cycle(ax, cycles, key, scale, colour, label, mean):
     return off
 
 
-def page_loops(plt, bundle, protocol, report=None):
+def page_loops(plt, bundle, protocol, report=None, u=LAB):
+    """The loops and the per-cycle K_eff and EDC, in the lab's units ``u`` (backend.units.Units)."""
     from matplotlib.collections import LineCollection
     from matplotlib.lines import Line2D
 
@@ -136,8 +138,8 @@ def page_loops(plt, bundle, protocol, report=None):
         shown.sort(key=lambda c: c["cycle"])
         segs, tapers = [], []
         for c in shown:
-            d = np.asarray(c["displacement_m"]) * 1e3
-            f = np.asarray(c["force_n"]) * 1e-3
+            d = np.asarray(c["displacement_m"]) * u.factor("length")
+            f = np.asarray(c["force_n"]) * u.factor("force")
             k = max(1, d.size // LOOP_POINTS)
             (segs if _is_steady(c) else tapers).append(np.column_stack([d[::k], f[::k]]))
         if tapers:
@@ -159,19 +161,20 @@ def page_loops(plt, bundle, protocol, report=None):
     else:
         ax.text(0.5, 0.5, "no complete cycle recorded", ha="center", va="center", transform=ax.transAxes)
         ax.set_title("Force-displacement loops")
-    ax.set_xlabel("displacement [mm]")
-    ax.set_ylabel("force [kN]")
+    ax.set_xlabel(f"displacement [{u.unit('length')}]")
+    ax.set_ylabel(f"force [{u.unit('force')}]")
     ax.axhline(0, color="0.6", lw=0.5)
     ax.axvline(0, color="0.6", lw=0.5)
     # per-cycle K_eff and EDC, scaled to the steady cycles
     ax2 = axes[1]
     if bundle.cycles:
-        ax2.set_ylabel("K_eff [kN/mm]", color="C0")
+        ax2.set_ylabel(f"K_eff [{u.unit('stiffness')}]", color="C0")
         ax3 = ax2.twinx()
         ax3.set_ylabel("EDC [J]", color="C3")
         ax3.grid(False)
-        off = _per_cycle(ax2, bundle.cycles, "k_eff_n_per_m", 1e-6, "C0", "K_eff", means.get("k_eff_n_per_m"))
-        off += _per_cycle(ax3, bundle.cycles, "edc_j", 1.0, "C3", "EDC", means.get("edc_j"))
+        off = _per_cycle(ax2, bundle.cycles, "k_eff_n_per_m", u.factor("stiffness"), "C0", "K_eff",
+                         means.get("k_eff_n_per_m"))
+        off += _per_cycle(ax3, bundle.cycles, "edc_j", u.factor("energy"), "C3", "EDC", means.get("edc_j"))
         title = "Effective stiffness and energy dissipated per cycle"
         if protocol is not None:
             for p in protocol.cycle_plan():
@@ -196,23 +199,24 @@ def page_loops(plt, bundle, protocol, report=None):
     return fig
 
 
-def page_time(plt, bundle):
+def page_time(plt, bundle, u=LAB):
+    """Displacement and target, valve command and tracking error over the whole test, in the lab's units ``u``."""
     s = bundle.samples
     fig, axes = plt.subplots(3, 1, figsize=A4_PORTRAIT_IN, sharex=True)
     fig.subplots_adjust(left=0.12, right=0.95, top=0.94, bottom=0.07, hspace=0.18)
     if len(s):
         t = s["time_s"]
-        y, r, u = s["displacement_m"] * 1e3, s["target_m"] * 1e3, s["voltage_v"]
+        y, r, v = s["displacement_m"] * u.factor("length"), s["target_m"] * u.factor("length"), s["voltage_v"]
         e = y - r
-        td, yd, rd, ud, ed = _minmax_decimate(t, y, r, u, e)
+        td, yd, rd, vd, ed = _minmax_decimate(t, y, r, v, e)
         axes[0].plot(td, rd, color="0.55", lw=1.4, label="target r")
         axes[0].plot(td, yd, color="C0", lw=0.7, label="displacement y")
         axes[0].legend(loc="upper right")
-        axes[1].plot(td, ud, color="C2", lw=0.7)
+        axes[1].plot(td, vd, color="C2", lw=0.7)
         axes[2].plot(td, ed, color="C3", lw=0.7)
         if np.isfinite(e).any():
-            rms = float(np.sqrt(np.nanmean(e * e)))
-            axes[2].set_title(f"Tracking error y - r (RMS {rms:.3f} mm)", loc="left")
+            rms = float(np.sqrt(np.nanmean(e * e))) / u.factor("length")  # SI, for backend.units
+            axes[2].set_title(f"Tracking error y - r (RMS {u.text('length', rms)})", loc="left")
         for ev in bundle.events:
             if ev.get("kind") == "limit_trip" and num(ev.get("time_s")) is not None:
                 for ax in axes:
@@ -221,15 +225,15 @@ def page_time(plt, bundle):
                                  xytext=(-3, -3), textcoords="offset points", ha="right", va="top", fontsize=7,
                                  color="#c62828")
     axes[0].set_title("Displacement and target", loc="left")
-    axes[0].set_ylabel("displacement [mm]")
+    axes[0].set_ylabel(f"displacement [{u.unit('length')}]")
     axes[1].set_title("Servo-valve command voltage", loc="left")
     axes[1].set_ylabel("voltage [V]")
-    axes[2].set_ylabel("y - r [mm]")
+    axes[2].set_ylabel(f"y - r [{u.unit('length')}]")
     axes[2].set_xlabel("time [s]")
     return fig
 
 
-def page_time_detail(plt, bundle):
+def page_time_detail(plt, bundle, u=LAB):
     """First and last DETAIL_WINDOW_S seconds at full resolution (the overview page is an envelope)."""
     s = bundle.samples
     t = s["time_s"]
@@ -240,15 +244,16 @@ def page_time_detail(plt, bundle):
     for col, (a, b) in enumerate(windows):
         sel = (t >= a) & (t <= b)
         tt = t[sel]
-        y, r, u = s["displacement_m"][sel] * 1e3, s["target_m"][sel] * 1e3, s["voltage_v"][sel]
+        scale = u.factor("length")
+        y, r, v = s["displacement_m"][sel] * scale, s["target_m"][sel] * scale, s["voltage_v"][sel]
         axes[0, col].plot(tt, r, color="0.55", lw=1.4, label="target r")
         axes[0, col].plot(tt, y, color="C0", lw=0.8, label="displacement y")
-        axes[1, col].plot(tt, u, color="C2", lw=0.8)
+        axes[1, col].plot(tt, v, color="C2", lw=0.8)
         axes[2, col].plot(tt, y - r, color="C3", lw=0.8)
         axes[2, col].set_xlabel("time [s]")
         axes[0, col].set_title("start" if col == 0 else "end", loc="left")
     axes[0, 0].legend(loc="upper right")
-    axes[0, 0].set_ylabel("displacement [mm]")
+    axes[0, 0].set_ylabel(f"displacement [{u.unit('length')}]")
     axes[1, 0].set_ylabel("voltage [V]")
-    axes[2, 0].set_ylabel("y - r [mm]")
+    axes[2, 0].set_ylabel(f"y - r [{u.unit('length')}]")
     return fig

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from datetime import UTC, datetime
 
+from ..units import LAB
 from .data import PHASE_WORDS, earthquake_kind, num, rig_text
 from .identification import BOUC_WEN_FIELDS
 from .layout import PAGE_BOTTOM, Flow, fmt_num, report_title, rule, wrap_items, wrap_pt
@@ -30,7 +31,7 @@ IDENTIFICATION_PT = 16 + 7 * 10.5 + 12  # the Bouc-Wen block's height: heading, 
 def page_header(plt, bundle, report, iso, protocol, lab):
     """The header page(s), with the Bouc-Wen table."""
     flow = header_pages(plt, bundle, report, iso, protocol, lab)
-    identification_block(flow, report["identification"])
+    identification_block(flow, report["identification"], lab.unit_system if lab is not None else LAB)
     return flow.figs
 
 
@@ -38,6 +39,7 @@ def header_pages(plt, bundle, report, iso, protocol, lab) -> Flow:
     """The header page(s) up to the Bouc-Wen table, with room left for it (it needs the fit: ``identification_
     block`` draws it later on ``flow.fig``, so the number of header pages is known before the fit)."""
     record = bundle.record
+    u = lab.unit_system if lab is not None else LAB
     flow = Flow(plt, report_title(record))
     fig = flow.new_page(continued=False)
     _lab_band(fig, record, lab)
@@ -49,21 +51,21 @@ def header_pages(plt, bundle, report, iso, protocol, lab) -> Flow:
     flow.skip(4)
 
     _section(flow, "Test")
-    for key, value in _test_lines(bundle, report, iso):
+    for key, value in _test_lines(bundle, report, iso, u):
         _kv(flow, key, value)
     _section(flow, "Conditions")
-    for key, value in _condition_lines(record, protocol):
+    for key, value in _condition_lines(record, protocol, u):
         _kv(flow, key, value)
-    _results(flow, report, protocol)
+    _results(flow, report, protocol, u)
     # the setup on a page of its own: page 1 is the summary a reader signs off
     flow.new_page(title=report_title(record) + ": test setup")
     _section(flow, "Rig and sensors")
-    rig_name, sensors = rig_text(report["rig"])
+    rig_name, sensors = rig_text(report["rig"], u)
     _kv(flow, "Rig", rig_name)
     for k, line in enumerate(sensors):
         _kv(flow, "Sensors" if k == 0 else "", line)
     _section(flow, "Controller")
-    for key, value in _controller_lines(report["controller"]):
+    for key, value in _controller_lines(report["controller"], u):
         _kv(flow, key, value)
     version = (report.get("software") or {}).get("isorig") or "(version unknown)"
     _kv(flow, "Software", f"isorig {version}: loop metrics and headline figures sim.metrics, verdicts "
@@ -74,19 +76,24 @@ def header_pages(plt, bundle, report, iso, protocol, lab) -> Flow:
     return flow
 
 
-def identification_block(flow: Flow, ident: dict) -> None:
-    """The Bouc-Wen table (nominal, identified, difference), where header_pages left room for it."""
+BOUC_WEN_QUANTITIES = {"rho_bw_per_m": "inverse_length", "sigma_bw": "ratio", "n": "ratio", "kd_n_per_m": "stiffness",
+                       "kw_n": "force"}
+
+
+def identification_block(flow: Flow, ident: dict, u=LAB) -> None:
+    """The Bouc-Wen table (nominal, identified, difference) in the lab's units ``u`` (backend.units.Units), where
+    header_pages left room for it."""
     fig = flow.fig
     flow.text(KEY_X, "Bouc-Wen parameters: nominal and identified from this test", pitch=16, fontsize=10.5,
               weight="bold")
     nominal = ident.get("nominal") or {}
     rows = [("parameter", "unit", "nominal", "identified", "difference")]
-    units = {"rho_bw_per_m": "1/m", "sigma_bw": "-", "n": "-", "kd_n_per_m": "N/m", "kw_n": "N"}
     for k in BOUC_WEN_FIELDS:
         nv = num(nominal.get(k))
         iv = num((ident.get("identified") or {}).get(k))
         diff = f"{100 * (iv / nv - 1):+.1f} %" if nv and iv is not None else "-"
-        rows.append((k, units[k], fmt_num(nv), fmt_num(iv), diff))
+        q = BOUC_WEN_QUANTITIES[k]  # four significant digits in every unit: a parameter, not a reading
+        rows.append((k, u.unit(q), u.fmt(q, nv, sig=4), u.fmt(q, iv, sig=4), diff))
     for row in rows:
         flow.row([(x, cell) for x, cell in zip((0.08, 0.26, 0.35, 0.51, 0.67), row, strict=True)], pitch=10.5,
                  fontsize=8.5, family="monospace", weight="bold" if row is rows[0] else "normal")
@@ -172,14 +179,15 @@ def _date(value) -> str | None:
     return str(value)[:19].replace("T", " ") + " UTC" if value else None
 
 
-def _test_lines(bundle, report, iso) -> list[tuple[str, str]]:
+def _test_lines(bundle, report, iso, u=LAB) -> list[tuple[str, str]]:
     r = bundle.record
     run = report["run"]
     lines = [("Specimen", str(r.get("specimen_id") or "not recorded"))]
     if iso is not None:
         lines.append(("Isolator model", f"{iso.name}" + (f" - {iso.description}" if iso.description else "")
-                      + f"; nominal Bouc-Wen (eq. 4): rho_BW = {iso.rho_bw_per_m:g} 1/m, sigma_BW = {iso.sigma_bw:g}, "
-                        f"n = {iso.n:g}, k_d = {iso.kd_n_per_m:.4g} N/m, k_w = {iso.kw_n:.4g} N"))
+                      + f"; nominal Bouc-Wen (eq. 4): rho_BW = {u.text('inverse_length', iso.rho_bw_per_m)}, sigma_BW "
+                        f"= {iso.sigma_bw:g}, n = {iso.n:g}, k_d = {u.text('stiffness', iso.kd_n_per_m)}, k_w = "
+                        f"{u.text('force', iso.kw_n, sig=4)}"))
     else:
         lines.append(("Isolator model", str(r.get("isolator") or "not recorded")))
     approval = report["approval"]
@@ -226,36 +234,37 @@ def _test_lines(bundle, report, iso) -> list[tuple[str, str]]:
     return lines
 
 
-def _condition_lines(r: dict, protocol) -> list[tuple[str, str]]:
+def _condition_lines(r: dict, protocol, u=LAB) -> list[tuple[str, str]]:
     lines = []
     sb = num(r.get("supply_bar"))
-    lines.append(("Supply pressure", f"{sb:g} bar" if sb is not None else "not recorded"))
+    lines.append(("Supply pressure", u.text("pressure", sb * 1e5) if sb is not None else "not recorded"))
     load = num(r.get("vertical_load_n", (r.get("scenario") or {}).get("vertical_load_n")))
-    lines.append(("Vertical load", f"{load / 1e3:g} kN" if load is not None else "not recorded"))
-    for k, text in enumerate(_profile_text(r, protocol) if earthquake_kind(r) is None else earthquake_profile_lines(r)):
+    lines.append(("Vertical load", u.text("force", load) if load is not None else "not recorded"))
+    for k, text in enumerate(_profile_text(r, protocol, u) if earthquake_kind(r) is None
+                             else earthquake_profile_lines(r, u)):
         lines.append(("Profile" if k == 0 else "", text))
     limits = r.get("limits") or {}
     if limits:
         parts = []
         actions = limits.get("actions") or {}
-        for key, words, scale, unit in (("displacement_m", "|y|", 1e3, "mm"), ("force_n", "|F|", 1e-3, "kN"),
-                                        ("velocity_m_per_s", "|dy/dt|", 1e3, "mm/s"),
-                                        ("load_pressure_pa", "|P_L|", 1e-5, "bar"),
-                                        ("tracking_error_m", "|y - r|", 1e3, "mm")):
+        for key, words, quantity in (("displacement_m", "|y|", "length"), ("force_n", "|F|", "force"),
+                                     ("velocity_m_per_s", "|dy/dt|", "velocity"),
+                                     ("load_pressure_pa", "|P_L|", "pressure"),
+                                     ("tracking_error_m", "|y - r|", "length")):
             if num(limits.get(key)) is not None:
                 action = actions.get(key, "valve_close")
                 note = "" if action == "valve_close" else f" ({action.replace('_', ' ')})"
-                parts.append(f"{words} <= {limits[key] * scale:.4g} {unit}{note}")
+                parts.append(f"{words} <= {u.text(quantity, limits[key], sig=4)}{note}")
         lines.append(("Limits", ", ".join(parts) + "; supply pressure >= 50 % of its setting; rig faults; a frozen "
                       "position reading"))
     return lines
 
 
-def _profile_text(record: dict, protocol) -> list[str]:
+def _profile_text(record: dict, protocol, u=LAB) -> list[str]:
     if protocol is not None:
         lines = [f"protocol {protocol.name}: {protocol.title}"]
         for i, lv in enumerate(protocol.levels[:MAX_HEADER_LEVELS], start=1):
-            lines.append(f"level {i}: {lv.amplitude_m * 1e3:.2f} mm at {lv.frequency_hz:g} Hz, {lv.cycles} test "
+            lines.append(f"level {i}: {u.text('length', lv.amplitude_m)} at {lv.frequency_hz:g} Hz, {lv.cycles} test "
                          f"cycles + {lv.taper_cycles} taper cycles each side")
         if len(protocol.levels) > MAX_HEADER_LEVELS:
             lines.append(f"... and {len(protocol.levels) - MAX_HEADER_LEVELS} more levels (all on the verdicts "
@@ -265,13 +274,13 @@ def _profile_text(record: dict, protocol) -> list[str]:
     blocks = (record.get("scenario") or {}).get("profile") or ([prof] if prof.get("kind") == "sine" else [])
     if not blocks:
         return ["profile not recorded"]
-    return [f"sine {b['amplitude_m'] * 1e3:.2f} mm at {b['frequency_hz']:g} Hz, {b['cycles']} cycles "
-            f"(taper {b.get('taper_cycles', 0)} each side, offset {b.get('offset_m', 0.0) * 1e3:.2f} mm)"
+    return [f"sine {u.text('length', b['amplitude_m'])} at {b['frequency_hz']:g} Hz, {b['cycles']} cycles "
+            f"(taper {b.get('taper_cycles', 0)} each side, offset {u.text('length', b.get('offset_m', 0.0))})"
             for b in blocks[:MAX_HEADER_LEVELS]] + ([f"... and {len(blocks) - MAX_HEADER_LEVELS} more blocks"]
                                                     if len(blocks) > MAX_HEADER_LEVELS else [])
 
 
-def _controller_lines(ctrl: dict) -> list[tuple[str, str | list[str]]]:
+def _controller_lines(ctrl: dict, u=LAB) -> list[tuple[str, str | list[str]]]:
     name = ctrl.get("name")
     if not name:
         return [("Controller", "not recorded")]
@@ -281,10 +290,12 @@ def _controller_lines(ctrl: dict) -> list[tuple[str, str | list[str]]]:
     opts = []
     for o in ctrl.get("options_in_force") or []:
         v = o["value"]
-        text = f"{v:.4g}" if isinstance(v, float) else str(v)
-        unit = o.get("unit")
-        opts.append(f"{o['name']}{'*' if o.get('set_for_test') else ''} = {text}"
-                    + (f" {unit}" if unit and unit != "-" else ""))
+        if isinstance(v, float):  # in the lab's units when the option is one of its quantities (m, N, N/m ...)
+            text = u.si_unit_text(v, o.get("unit"))
+        else:
+            unit = o.get("unit")
+            text = str(v) + (f" {unit}" if unit and unit != "-" and not isinstance(v, (bool, str)) else "")
+        opts.append(f"{o['name']}{'*' if o.get('set_for_test') else ''} = {text}")
     if opts:
         lines.append(("  options in force", opts))
     adapted = ctrl.get("adapted") or []
@@ -292,8 +303,8 @@ def _controller_lines(ctrl: dict) -> list[tuple[str, str | list[str]]]:
         parts = []
         for a in adapted:
             final = num(a.get("final"))
-            unit = "" if a["unit"] == "-" else f" {a['unit']}"
-            parts.append(f"{a['name']} = {final:.5g}{unit}" if final is not None else f"{a['name']}: not recorded")
+            parts.append(f"{a['name']} = {u.si_unit_text(final, a['unit'], sig=5)}" if final is not None
+                         else f"{a['name']}: not recorded")
         lines.append(("  adapted (final)", parts))
     else:
         lines.append(("  adapted", "nothing: a fixed-gain controller"))
@@ -302,33 +313,33 @@ def _controller_lines(ctrl: dict) -> list[tuple[str, str | list[str]]]:
 
 # --- results: headline figures, acceptance, tracking, limit trips ----------------------------------------
 
-HEADLINE_COLUMNS = (("k_eff_n_per_m", "K_eff", "kN/mm", 1e-6, "{:.4f}"), ("edc_j", "EDC", "J", 1.0, "{:.2f}"),
-                    ("xi_eff", "xi_eff", "%", 100.0, "{:.2f}"), ("qd_n", "Q_d", "kN", 1e-3, "{:.3f}"),
-                    ("kd_n_per_m", "K_d", "kN/mm", 1e-6, "{:.4f}"))
+# the headline figures: metric, its name, its quantity (backend.units: the unit and digits of the lab's units)
+HEADLINE_COLUMNS = (("k_eff_n_per_m", "K_eff", "stiffness"), ("edc_j", "EDC", "energy"),
+                    ("xi_eff", "xi_eff", "percent"), ("qd_n", "Q_d", "force"), ("kd_n_per_m", "K_d", "stiffness"))
 
 
-def headline_rows(head: dict) -> list[tuple[str, str]]:
-    """The headline table as monospace lines (and their colour)."""
+def headline_rows(head: dict, u=LAB) -> list[tuple[str, str]]:
+    """The headline table as monospace lines (and their colour), in the lab's units ``u``."""
     def line(label, cells, tail):
         return f"{label:<27}" + "".join(f"{c:>9}" for c in cells) + f"   {tail}"
 
     rows = [(line("", [c[1] for c in HEADLINE_COLUMNS], "steady cycles"), "black"),
-            (line("", [c[2] for c in HEADLINE_COLUMNS], ""), "0.4")]
+            (line("", [u.unit(c[2]) for c in HEADLINE_COLUMNS], ""), "0.4")]
 
     def values(means):
-        return [fmt_num(means.get(k), fmt, scale) for k, _n, _u, scale, fmt in HEADLINE_COLUMNS]
+        return [u.fmt(q, means.get(k), trailing_zeros=True) for k, _n, q in HEADLINE_COLUMNS]
 
     levels = head.get("levels") or []
     rows.append((line("mean, all steady cycles" if levels else "mean of the steady cycles", values(head["means"]),
                       f"{head['steady_cycles']} of {head['cycles']}"), "black"))
     for lv in levels:
-        label = f"level {lv['level']}: {lv['amplitude_m'] * 1e3:.2f} mm {lv['frequency_hz']:g} Hz"
+        label = f"level {lv['level']}: {u.text('length', lv['amplitude_m'])} {lv['frequency_hz']:g} Hz"
         tail = f"{lv['steady_cycles']} of {lv['cycles']}" if lv["cycles"] else "not reached"
         rows.append((line(label[:27], values(lv["means"]), tail), "black" if lv["cycles"] else "0.45"))
     return rows
 
 
-def earthquake_profile_lines(record: dict) -> list[str]:
+def earthquake_profile_lines(record: dict, u=LAB) -> list[str]:
     """The profile of a history or hybrid test in words (from the record's ``profile``: sim.earthquake's
     description)."""
     prof = record.get("profile") or {}
@@ -336,11 +347,12 @@ def earthquake_profile_lines(record: dict) -> list[str]:
     lines = []
     if kind == "hybrid":
         st = prof.get("structure") or {}
-        masses = ", ".join(f"{m / 1e3:g}" for m in st.get("masses_kg") or [])
-        springs = ", ".join(f"{k / 1e6:g}" for k in st.get("stiffness_n_per_m") or [])
+        masses = ", ".join(u.fmt("mass", m) for m in st.get("masses_kg") or [])
+        springs = ", ".join(u.fmt("stiffness", k) for k in st.get("stiffness_n_per_m") or [])
         periods = ", ".join(f"{p:.3f}" for p in prof.get("fixed_base_periods_s") or [])
         lines.append(f"real-time hybrid simulation: {st.get('name') or 'a shear building'} above the isolator "
-                     f"(base {num(st.get('base_mass_kg')) or 0:g} kg, storeys {masses} t, springs {springs} MN/m, "
+                     f"(base {u.text('mass', num(st.get('base_mass_kg')) or 0)}, storeys {masses} "
+                     f"{u.unit('mass')}, springs {springs} {u.unit('stiffness')}, "
                      f"{100 * (num(st.get('damping_ratio')) or 0):g} % Rayleigh; fixed-base periods {periods} s)")
         stab = prof.get("stability") or {}
         if stab:
@@ -365,8 +377,8 @@ def earthquake_profile_lines(record: dict) -> list[str]:
     if dur is not None and peak is not None:
         tapers = (f", tapers {prof.get('taper_in_s', history.get('taper_in_s', 0)):g} s in and "
                   f"{prof.get('taper_out_s', history.get('taper_out_s', 0)):g} s out") if kind != "hybrid" else ""
-        lines.append(f"{dur:g} s at 1 kHz; {what}peak displacement {peak * 1e3:.2f} mm, peak velocity "
-                     f"{(vel or 0) * 1e3:.1f} mm/s{tapers}")
+        lines.append(f"{dur:g} s at 1 kHz; {what}peak displacement {u.text('length', peak)}, peak velocity "
+                     f"{u.text('velocity', vel or 0)}{tapers}")
     return lines
 
 
@@ -432,18 +444,18 @@ def _earthquake_results(flow: Flow, report: dict) -> None:
     flow.skip(4)
 
 
-def _results(flow: Flow, report: dict, protocol) -> None:
+def _results(flow: Flow, report: dict, protocol, u=LAB) -> None:
     if report.get("earthquake"):
         _earthquake_results(flow, report)
     else:
-        _headline_results(flow, report["headline"])
-    _acceptance_and_tracking(flow, report)
+        _headline_results(flow, report["headline"], u)
+    _acceptance_and_tracking(flow, report, u)
 
 
-def _headline_results(flow: Flow, head: dict) -> None:
+def _headline_results(flow: Flow, head: dict, u=LAB) -> None:
     _section(flow, "Results (from the steady cycles)")
     if head["steady_cycles"]:
-        for text, colour in headline_rows(head):
+        for text, colour in headline_rows(head, u):
             flow.text(VALUE_X - 0.19 + 0.02, text, pitch=10.5, fontsize=8.3, family="monospace", color=colour)
         left_out = ", ".join(f"{n} {PHASE_WORDS.get(p, p)}" for p, n in head["excluded_cycles"].items())
         note = ("Means over the steady cycles (sim.metrics.headline_figures)"
@@ -457,7 +469,7 @@ def _headline_results(flow: Flow, head: dict) -> None:
     flow.skip(4)
 
 
-def _acceptance_and_tracking(flow: Flow, report: dict) -> None:
+def _acceptance_and_tracking(flow: Flow, report: dict, u=LAB) -> None:
     acc = report["acceptance"]
     word = acc["verdict"]
     flow.room(14 + 3 * PITCH)
@@ -502,9 +514,9 @@ def _acceptance_and_tracking(flow: Flow, report: dict) -> None:
             else "black")
     trk = report["tracking"]
     if trk:
-        peak_u = fmt_num(trk.get("peak_abs_voltage_v"), "{:.2f}")
-        _kv(flow, "Tracking", f"RMS |y - r| = {trk['rms_y_minus_r_m'] * 1e3:.3f} mm, peak |y - r| = "
-                              f"{trk['peak_abs_y_minus_r_m'] * 1e3:.3f} mm, peak |u| = {peak_u} V (whole test)")
+        _kv(flow, "Tracking", f"RMS |y - r| = {u.text('length', trk['rms_y_minus_r_m'])}, peak |y - r| = "
+                              f"{u.text('length', trk['peak_abs_y_minus_r_m'])}, peak |u| = "
+                              f"{u.text('voltage', trk.get('peak_abs_voltage_v'))} (whole test)")
     else:
         _kv(flow, "Tracking", "no target recorded")
     trips = report["limit_trips"]

@@ -23,10 +23,18 @@ class LabHeader:
     logo_file: str = ""
     logo: np.ndarray | None = None  # RGBA pixels, at most LOGO_MAX_PX on the long side
     warning: str | None = None  # why a logo file was given but is not shown
+    units: str = "lab"  # the lab's units, what the PDF prints in: "lab" (mm, kN, kN/mm, bar) or "si" (backend.units)
 
     def to_json(self) -> dict:
         return {"name": self.name or None, "address": self.address or None, "logo_file": self.logo_file or None,
-                "logo_shown": self.logo is not None, "logo_warning": self.warning}
+                "logo_shown": self.logo is not None, "logo_warning": self.warning, "units": self.units}
+
+    @property
+    def unit_system(self):
+        """The report's units (backend.units.Units)."""
+        from backend.units import Units
+
+        return Units(self.units)
 
     @property
     def address_lines(self) -> list[str]:
@@ -52,10 +60,10 @@ def _settings_lab() -> dict:
 
 
 def lab_header(name: str | None = None, address: str | None = None, logo_file=None, settings=None,
-               use_settings: bool = True) -> LabHeader:
+               use_settings: bool = True, units: str | None = None) -> LabHeader:
     """The lab header: the values given, else those of ``settings`` (a backend.settings.Settings: the service's);
     without one, the environment's settings (``ISORIG_LAB_NAME``, ``ISORIG_LAB_ADDRESS``, ``ISORIG_LAB_LOGO_FILE``)
-    unless ``use_settings`` is False."""
+    unless ``use_settings`` is False. ``units``: the lab's units ("lab", the default, or "si")."""
     base: dict = {}
     if settings is not None:
         base = {"name": getattr(settings, "lab_name", ""), "address": getattr(settings, "lab_address", ""),
@@ -64,7 +72,8 @@ def lab_header(name: str | None = None, address: str | None = None, logo_file=No
         base = _settings_lab()
     lab = LabHeader(name=(name if name is not None else base.get("name")) or "",
                     address=(address if address is not None else base.get("address")) or "",
-                    logo_file=str(logo_file if logo_file is not None else base.get("logo_file") or ""))
+                    logo_file=str(logo_file if logo_file is not None else base.get("logo_file") or ""),
+                    units="si" if units == "si" else "lab")
     if lab.logo_file:
         lab.logo, lab.warning = load_logo(lab.logo_file)
     return lab

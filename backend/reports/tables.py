@@ -5,13 +5,26 @@ events in words, and the approval block (tested, reviewed, approved by) that end
 
 from __future__ import annotations
 
+from ..units import LAB
 from .data import PHASE_WORDS, num
 from .header import VERDICT_COLOURS
 from .layout import A4_PORTRAIT_IN, PAGE_BOTTOM, Flow, draw_lines, fmt_num, rule, wrap_text
 
 TABLE_ROWS = 59  # per-cycle table rows per page
 TABLE_HEAD = ("cycle", "t_start", "d+", "d-", "F+", "F-", "K_eff", "EDC", "xi_eff", "Q_d", "K_d", "phase/check")
-TABLE_UNITS = ("", "s", "mm", "mm", "kN", "kN", "kN/mm", "J", "%", "kN", "kN/mm", "")
+# the quantity (backend.units) of each metric column: its unit and digits in the lab's units
+TABLE_COLUMNS = (("d_max_m", "length"), ("d_min_m", "length"), ("f_max_n", "force"), ("f_min_n", "force"),
+                 ("k_eff_n_per_m", "stiffness"), ("edc_j", "energy"), ("xi_eff", "percent"), ("qd_n", "force"),
+                 ("kd_n_per_m", "stiffness"))
+MEAN_COLUMNS = TABLE_COLUMNS[4:]  # the headline figures, the table's last row
+
+
+def table_units(u=LAB) -> tuple:
+    """The table's second heading line: the unit of each column."""
+    return ("", "s", *(u.unit(q) for _k, q in TABLE_COLUMNS), "")
+
+
+TABLE_UNITS = table_units(LAB)
 TABLE_NOTE = ("F+ and F- are the forces at d+ and d-.  K_eff = (F+ - F-) / (d+ - d-).  EDC = loop area.\n"
               "xi_eff = 2 EDC / (pi K_eff (d+ - d-)^2).  Q_d = force intercept at the loop centre (mean of both "
               "branches).\nK_d = slope on both loading legs beyond half the amplitude.  Details: docs/metrics.md.\n"
@@ -21,17 +34,13 @@ TAPER_GREY = "0.5"
 RED = "#c62828"
 WIDTHS = (5, 8, 8, 8, 8, 8, 8, 8, 7, 8, 8, 1)
 
-# how a protocol's quantities are shown: quantity -> (unit, scale from SI, format)
-QUANTITY_UNITS = {"k_eff_n_per_m": ("kN/mm", 1e-6, "{:.4f}"), "kd_n_per_m": ("kN/mm", 1e-6, "{:.4f}"),
-                  "edc_j": ("J", 1.0, "{:.3f}"), "xi_eff": ("%", 100.0, "{:.2f}"), "qd_n": ("kN", 1e-3, "{:.3f}"),
-                  "d_max_m": ("mm", 1e3, "{:.3f}"), "d_min_m": ("mm", 1e3, "{:.3f}"),
-                  "f_max_n": ("kN", 1e-3, "{:.3f}"), "f_min_n": ("kN", 1e-3, "{:.3f}"),
-                  "f_peak_max_n": ("kN", 1e-3, "{:.3f}"), "f_peak_min_n": ("kN", 1e-3, "{:.3f}")}
+# a protocol's quantities (the metrics its rules judge) -> their quantity in backend.units
+QUANTITY_UNITS = {**dict(TABLE_COLUMNS), "f_peak_max_n": "force", "f_peak_min_n": "force"}
 EVENT_KINDS = {"limit_trip": "limit trip", "limit_indicate": "limit indicated", "rig_fault": "rig fault",
                "operator": "operator", "status": "status"}
 
 
-def _table_rows(bundle, acc, protocol=None) -> list[tuple]:
+def _table_rows(bundle, acc, protocol=None, u=LAB) -> list[tuple]:
     failed, judged = {}, set()
     for v in acc["verdicts"]:
         judged.add(v["cycle"])
@@ -48,15 +57,8 @@ def _table_rows(bundle, acc, protocol=None) -> list[tuple]:
             role = "" if p is None else (f"L{p['level']}.{p['level_cycle']}" if p["test"] else f"L{p['level']} taper")
             check = "FAIL" if c["cycle"] in failed else ("pass" if c["cycle"] in judged else "")
             mark = (role + " " + check).strip()
-        rows.append((
-            str(c["cycle"]), fmt_num(c.get("t_start_s"), "{:.2f}"),
-            fmt_num(c.get("d_max_m"), "{:.3f}", 1e3), fmt_num(c.get("d_min_m"), "{:.3f}", 1e3),
-            fmt_num(c.get("f_max_n"), "{:.3f}", 1e-3), fmt_num(c.get("f_min_n"), "{:.3f}", 1e-3),
-            fmt_num(c.get("k_eff_n_per_m"), "{:.4f}", 1e-6), fmt_num(c.get("edc_j"), "{:.2f}"),
-            fmt_num(c.get("xi_eff"), "{:.2f}", 100), fmt_num(c.get("qd_n"), "{:.3f}", 1e-3),
-            fmt_num(c.get("kd_n_per_m"), "{:.4f}", 1e-6),
-            mark,
-        ))
+        rows.append((str(c["cycle"]), fmt_num(c.get("t_start_s"), "{:.2f}"),
+                     *(u.fmt(q, num(c.get(k)), trailing_zeros=True) for k, q in TABLE_COLUMNS), mark))
     return rows
 
 
@@ -71,18 +73,16 @@ def _row_colour(bundle_cycle: dict, row: tuple) -> str:
     return TAPER_GREY if bundle_cycle.get("phase", "steady") != "steady" else "black"
 
 
-def pages_table(plt, bundle, acc, protocol=None, head: dict | None = None):
-    rows = _table_rows(bundle, acc, protocol)
+def pages_table(plt, bundle, acc, protocol=None, head: dict | None = None, u=LAB):
+    """The per-cycle table in the lab's units ``u`` (backend.units.Units), the steady cycles' means last."""
+    rows = _table_rows(bundle, acc, protocol, u)
     colours = [_row_colour(c, r) for c, r in zip(bundle.cycles, rows, strict=True)]
     lines = [(_table_line(r), col) for r, col in zip(rows, colours, strict=True)]
     if head and rows:
         means = head.get("means") or {}
         lines.append("-" * (sum(WIDTHS) + len(WIDTHS)))
         lines.append(_table_line(("mean", "", "", "", "", "",
-                                  fmt_num(means.get("k_eff_n_per_m"), "{:.4f}", 1e-6),
-                                  fmt_num(means.get("edc_j"), "{:.2f}"), fmt_num(means.get("xi_eff"), "{:.2f}", 100),
-                                  fmt_num(means.get("qd_n"), "{:.3f}", 1e-3),
-                                  fmt_num(means.get("kd_n_per_m"), "{:.4f}", 1e-6),
+                                  *(u.fmt(q, num(means.get(k)), trailing_zeros=True) for k, q in MEAN_COLUMNS),
                                   f"{head.get('steady_cycles', 0)} steady")))
     figs = []
     chunks = [lines[i:i + TABLE_ROWS] for i in range(0, len(lines), TABLE_ROWS)] or [[]]
@@ -93,7 +93,7 @@ def pages_table(plt, bundle, acc, protocol=None, head: dict | None = None):
         fig.text(0.06, 0.955, "Per-cycle metrics" + (f" ({k + 1}/{len(chunks)})" if len(chunks) > 1 else ""),
                  fontsize=12, weight="bold")
         draw_lines(fig, [(line, "0.3") for line in TABLE_NOTE.splitlines()], 0.06, 0.935, 7.5, 9.5)
-        head_lines = [_table_line(TABLE_HEAD), _table_line(TABLE_UNITS), "-" * (sum(WIDTHS) + len(WIDTHS))]
+        head_lines = [_table_line(TABLE_HEAD), _table_line(table_units(u)), "-" * (sum(WIDTHS) + len(WIDTHS))]
         draw_lines(fig, head_lines + chunk if chunk else ["no complete cycle recorded"], 0.05, 0.868, 8.5, 11.0)
         figs.append(fig)
     return figs
@@ -101,13 +101,18 @@ def pages_table(plt, bundle, acc, protocol=None, head: dict | None = None):
 
 # --- protocol, verdicts, events, approval -----------------------------------------------------------------
 
-def _value(quantity: str, value) -> str:
-    unit, scale, fmt = QUANTITY_UNITS.get(quantity, ("", 1.0, "{:.4g}"))
+def _value(quantity: str, value, u=LAB) -> str:
     v = num(value)
-    return "-" if v is None else fmt.format(v * scale)
+    if quantity not in QUANTITY_UNITS:
+        return "-" if v is None else f"{v:.4g}"
+    return u.fmt(QUANTITY_UNITS[quantity], v, trailing_zeros=True)
 
 
-def verdict_lines(acc: dict, protocol) -> list:
+def _unit(quantity: str, u=LAB) -> str:
+    return u.unit(QUANTITY_UNITS[quantity]) if quantity in QUANTITY_UNITS else ""
+
+
+def verdict_lines(acc: dict, protocol, u=LAB) -> list:
     """The protocol, its rules (with pass counts) and one line per check: rule, level and test cycle, the cycle
     it came from, value, reference and the cycle the reference came from, deviation, tolerance, result."""
     lines: list = []
@@ -120,7 +125,7 @@ def verdict_lines(acc: dict, protocol) -> list:
         for i, lv in enumerate(protocol.levels, start=1):
             judged = [p["cycle"] for p in plan if p["level"] == i and p["test"]]
             tapers = [p["cycle"] for p in plan if p["level"] == i and not p["test"]]
-            text = (f"  level {i}{' (' + lv.label + ')' if lv.label else ''}: {lv.amplitude_m * 1e3:.2f} mm at "
+            text = (f"  level {i}{' (' + lv.label + ')' if lv.label else ''}: {u.text('length', lv.amplitude_m)} at "
                     f"{lv.frequency_hz:g} Hz, test cycles {_span(judged)}"
                     + (f", taper cycles {', '.join(map(str, tapers))}" if tapers else ""))
             lines.extend(wrap_text(text, 100))
@@ -140,7 +145,7 @@ def verdict_lines(acc: dict, protocol) -> list:
     lines.append(head)
     lines.append("  " + "-" * (len(head) - 2))
     for v in acc["verdicts"]:
-        unit = QUANTITY_UNITS.get(v["quantity"], ("",))[0]
+        unit = _unit(v["quantity"], u)
         dev = num(v.get("deviation_fraction"))
         ref_cycle = v.get("reference_cycle")
         result = {"pass": "pass", "fail": "FAIL", "not_evaluated": "not evaluated"}.get(v["status"], v["status"])
@@ -152,8 +157,8 @@ def verdict_lines(acc: dict, protocol) -> list:
         dev_text = f"{100 * dev:+.1f} %" if dev is not None else "-"
         tol_text = f"+-{100 * v['tolerance_fraction']:g} %"
         ref_text = f"({ref_cycle})" if ref_cycle else ""
-        lines.append((f"  {v['rule'][:19]:<20}{check:>6}{v['cycle']:>6}{_value(v['quantity'], v.get('value')):>11}  "
-                      f"{_value(v['quantity'], v.get('reference_value')):>10}{ref_text:>8}{dev_text:>10}"
+        lines.append((f"  {v['rule'][:19]:<20}{check:>6}{v['cycle']:>6}{_value(v['quantity'], v.get('value'), u):>11}  "
+                      f"{_value(v['quantity'], v.get('reference_value'), u):>10}{ref_text:>8}{dev_text:>10}"
                       f"{tol_text:>8}  {unit:<7}{result:<8}", "black" if v["passed"] else RED))
     return lines
 
@@ -188,15 +193,16 @@ LINE_PITCH = 10.5
 APPROVAL_PT = 18 + 3 * 11 + 14 + 3 * 36 + 16 + 2 * 11 + 10  # heading, statement, captions, three rows, hash
 
 
-def pages_verdicts_events(plt, bundle, report, protocol=None):
-    """The protocol, rules and checks, the events, and the approval block at the end: one Flow of pages."""
+def pages_verdicts_events(plt, bundle, report, protocol=None, u=LAB):
+    """The protocol, rules and checks (in the lab's units ``u``), the events, and the approval block at the end:
+    one Flow of pages."""
     acc = report["acceptance"]
     flow = Flow(plt, "Acceptance verdicts, events and approval", top=0.93)
     fig = flow.new_page(continued=False)
     fig.text(0.06, 0.955, "Acceptance verdicts, events and approval", fontsize=12, weight="bold")
     fig.text(0.94, 0.955, acc["verdict"], fontsize=12, weight="bold", color=VERDICT_COLOURS[acc["verdict"]],
              ha="right")
-    lines = verdict_lines(acc, protocol)
+    lines = verdict_lines(acc, protocol, u)
     lines.append("")
     lines += event_lines(report["events"])
     for item in lines:

@@ -77,6 +77,22 @@ def _on_rig(args, building, ag, scenario):
     return run.hybrid, sent.samples(), (None if status == "completed" else f"{status}: {reason}")
 
 
+def _check_vertical_load(args, building) -> None:
+    """The vertical load within the jack's range, before anything is computed: without --vertical-load-n it is
+    the building's weight, and a building heavier than the jack is refused saying so (UsageError: exit 2)."""
+    from sim.earthquake import too_heavy_for_the_jack
+    from sim.profiles import check_vertical_load
+    from sim.rig import DEFAULT_RIG
+    from sim.structure import G_M_PER_S2
+
+    if args.vertical_load_n is not None:
+        check_vertical_load(args.vertical_load_n, DEFAULT_RIG)  # ProfileError names the field and its range
+        return
+    why = too_heavy_for_the_jack(building.total_mass_kg * G_M_PER_S2, DEFAULT_RIG.max_vertical_load_n)
+    if why is not None:
+        raise UsageError(f"isorig hybrid: {why}")
+
+
 def _simulated(building, ag, scenario):
     """The hybrid test on the simulated rig through the service's worker (backend.worker.run_here), as fast as
     it runs: its detectors with the rig's default limits, its stop paths, its status and reason."""
@@ -102,6 +118,7 @@ def run(args) -> int:
     from sim.structure import load_structure
 
     building = load_structure(args.structure)
+    _check_vertical_load(args, building)
     if args.ground_motion in GROUND_MOTIONS:
         t, acc, _info = synthetic_ground_motion(args.ground_motion)
     else:

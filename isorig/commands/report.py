@@ -37,6 +37,9 @@ def register(sub) -> None:
                                                       "ISORIG_LAB_LOGO_FILE); missing or unreadable: a warning")
     p.add_argument("--bundle", metavar="FILE.zip", help="also write the whole test as a zip: record.json, "
                                                         "report.json, samples.csv, cycles.csv, report.pdf")
+    p.add_argument("--units", choices=("lab", "si"),
+                   help="the units every figure is printed in: lab (mm, kN, kN/mm, bar) or si (m, N, N/m, MPa); "
+                        "default: the lab's units as the service's Lab page set them, else lab")
     p.add_argument("--rig", help="rig name for the header (a CSV record does not say)")
     p.add_argument("--operator", help="operator name for the header (when the record has none)")
     p.add_argument("--no-identify", action="store_true", help="skip the Bouc-Wen identification (faster)")
@@ -147,6 +150,10 @@ def run(args) -> int:
         lab = _stored_lab(args.database_url)  # the lab as the service's Lab page set it, as the service's reports
     else:
         lab = lab_header(args.lab_name, args.lab_address, args.lab_logo)
+    if args.units is not None:
+        import dataclasses
+
+        lab = dataclasses.replace(lab, units=args.units)
     if lab.warning:  # one line, and the report is made without the logo
         import sys
 

@@ -30,8 +30,9 @@ def sine_test(**overrides) -> dict:
 
 def make_settings(tmp: Path, **overrides) -> Settings:
     # TestClient sends Host: testserver; the service answers only to the names it is told (backend.doors)
+    # no report warm-up in the background (seconds of CPU beside the real-time tests): test_report_warm_up.py
     values = {"data_dir": tmp, "operator_token": TOKEN, "viewer": False, "commit_interval_s": 0.2,
-              "allowed_hosts": "testserver"}
+              "allowed_hosts": "testserver", "report_warm_up": False}
     values.update(overrides)
     return Settings(**values)
 

@@ -119,6 +119,25 @@ def test_the_api_refuses_what_cannot_be_run_and_says_why(client):
     assert client.get("/api/tests").json() == []  # nothing was created
 
 
+HEAVY = {**STRUCTURE, "base_mass_kg": 50_000.0, "masses_kg": [25_000.0, 25_000.0, 25_000.0]}  # 125 t: 1226 kN
+
+
+def test_a_building_heavier_than_the_jack_is_refused_naming_its_weight_and_how_to_set_the_load(client):
+    """The user never set vertical_load_n: the refusal says the load is the building's weight, in kN, against the
+    jack's capacity, and how to set it (the API field and the CLI flag); with the load set, the weight is no
+    longer in the way."""
+    err = refused(client, hybrid_body(structure=HEAVY), "vertical_load_n")
+    detail = err["detail"]
+    assert "the building weighs 1226 kN" in detail and "125 t" in detail, detail
+    assert "at most 850 kN" in detail and "vertical_load_n" in detail and "--vertical-load-n" in detail, detail
+    assert "1.22583e+06" not in detail and "outside the allowed range" not in detail
+    assert err["value"] == pytest.approx(125_000 * 9.80665) and err["limit"] == "[0, 850000] N"
+    body = {**hybrid_body(structure=HEAVY), "vertical_load_n": 800_000.0}
+    c = client.post("/api/tests/check", json=body).json()
+    assert c.get("field") != "vertical_load_n" and "building weighs" not in str(c.get("detail")), c
+    assert client.get("/api/tests").json() == []
+
+
 def test_the_check_answers_what_a_history_asks_of_the_rig(client):
     c = client.post("/api/tests/check", json=history_body()).json()
     assert c["ok"] is True and c["cycles_total"] == 0 and c["duration_s"] == pytest.approx(2.991)

@@ -91,3 +91,41 @@ def test_without_database_settings_the_environment_s_stay_in_force(tmp_path):
         c.put("/api/lab", json={"address": "New Street 3"}, headers=token_of(c, "adam"))
         lab = c.get(f"/api/tests/{test_id}/report.json").json()["lab"]
         assert lab["name"] == "Env Lab" and lab["address"] == "New Street 3"
+
+
+def pdf_text(data: bytes, tmp_path) -> str:
+    import shutil
+    import subprocess
+
+    if shutil.which("pdftotext") is None:
+        pytest.skip("pdftotext (poppler-utils) is not installed")
+    path = tmp_path / "report.pdf"
+    path.write_bytes(data)
+    return subprocess.run(["pdftotext", "-layout", str(path), "-"], capture_output=True, text=True, check=True,
+                          timeout=60).stdout
+
+
+def test_the_report_prints_every_figure_in_the_labs_units(admin, tmp_path):
+    """The lab's units (PUT /api/lab units) are the report's: lab units by default (mm, kN, kN/mm, bar), SI once
+    the lab chose it (m, N, N/m, MPa), in the header, the tables and the plots' axes; report.json stays SI and
+    says which units the PDF printed in."""
+    import re
+
+    c, headers = admin
+    test_id = completed_test(c)
+    lab_text = " ".join(pdf_text(c.get(f"/api/tests/{test_id}/report.pdf").content, tmp_path).split())
+    assert "k_d = 1.25 kN/mm" in lab_text and "k_w = 17 kN" in lab_text and "rho_BW = 0.141 1/mm" in lab_text
+    assert "100.0 bar" in lab_text and "force [kN]" in lab_text and "displacement [mm]" in lab_text
+    assert not re.search(r"\d (N/m|N|m|MPa)\b", lab_text), re.findall(r".{30}\d (?:N/m|N|m|MPa)\b", lab_text)
+    assert c.get(f"/api/tests/{test_id}/report.json").json()["lab"]["units"] == "lab"
+    assert c.put("/api/lab", json={"units": "si"}, headers=headers).status_code == 200
+    si_pdf = pdf_text(c.get(f"/api/tests/{test_id}/report.pdf").content, tmp_path)
+    si_text = " ".join(si_pdf.split())
+    assert "k_d = 1250000 N/m" in si_text and "k_w = 17000 N" in si_text and "rho_BW = 141 1/m" in si_text
+    assert "10.00 MPa" in si_text and "force [N]" in si_text and "displacement [m]" in si_text
+    assert not re.search(r"\d (kN/mm|kN|mm|bar)\b", si_text), re.findall(r".{30}\d (?:kN/mm|kN|mm|bar)\b", si_text)
+    units_line = next(line for line in si_pdf.splitlines() if line.split()[:3] == ["s", "m", "m"])
+    assert units_line.split() == ["s", "m", "m", "N", "N", "N/m", "J", "%", "N", "N/m"]  # the per-cycle table
+    report = c.get(f"/api/tests/{test_id}/report.json").json()
+    assert report["lab"]["units"] == "si"
+    assert report["isolator_nominal"]["kd_n_per_m"] == 1.25e6  # the JSON keeps SI, whatever the lab prints in

@@ -58,12 +58,15 @@ def test_a_test_starts_only_with_the_table_at_zero_and_zero_brings_it_back(tmp_p
         assert events[-1]["message"] == f"manual move {moved['id']} completed"
         state = client.get("/api/rig/state").json()
         assert state["table_position_m"] == pytest.approx(0.01, abs=2e-4)
+        # where the figure comes from says it was a move (the console's status strip parses this text)
+        assert state["position_source"] == state["force_source"] == f"end of move {moved['id']} (completed)"
         at = f"the table is at {state['table_position_m'] * 1e3:.2f} mm"  # where the move left it, near 10 mm
         r = client.post("/api/tests?start=true", json=sine_test(), headers=AUTH)
         assert r.status_code == 409 and at in r.json()["detail"] and "nothing moved" in r.text
         assert [t["id"] for t in client.get("/api/tests").json()] == [moved["id"]]  # nothing left behind
         assert client.get(f"/api/tests/{moved['id']}/report.pdf").status_code == 422  # a move has no report
     with TestClient(create_app(settings)) as client:  # the table is still there after a restart
+        assert client.get("/api/rig/state").json()["position_source"] == f"end of move {moved['id']} (completed)"
         r = client.post("/api/tests?start=true", json=sine_test(), headers=AUTH)
         assert r.status_code == 409 and at in r.json()["detail"]
         body = {"speed_m_per_s": 0.02, "isolator": "IUT_a", "supply_bar": 100}
@@ -71,8 +74,11 @@ def test_a_test_starts_only_with_the_table_at_zero_and_zero_brings_it_back(tmp_p
         assert r.status_code == 201 and "-> 0.00 mm" in r.json()["label"]
         assert wait_for(client, r.json()["id"])["status"] == "completed"
         assert abs(client.get("/api/rig/state").json()["table_position_m"]) < 2e-4
+        zero_id = r.json()["id"]
+        assert client.get("/api/rig/state").json()["position_source"] == f"end of move {zero_id} (completed)"
         r = client.post("/api/tests?start=true", json=sine_test(), headers=AUTH)
         assert r.status_code == 201 and wait_for(client, r.json()["id"])["status"] == "completed"
+        assert client.get("/api/rig/state").json()["position_source"] == f"end of test {r.json()['id']} (completed)"
         events = client.get(f"/api/tests/{r.json()['id']}").json()["events"]
         started = next(e for e in events if (e["values"] or {}).get("action") == "start")
         assert started["message"] == f"test {r.json()['id']} started by automation" and "move" not in started["values"]
