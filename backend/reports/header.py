@@ -514,8 +514,9 @@ def _acceptance_and_tracking(flow: Flow, report: dict, u=LAB) -> None:
             else "black")
     trk = report["tracking"]
     if trk:
-        _kv(flow, "Tracking", f"RMS |y - r| = {u.text('length', trk['rms_y_minus_r_m'])}, peak |y - r| = "
-                              f"{u.text('length', trk['peak_abs_y_minus_r_m'])}, peak |u| = "
+        # three significant digits: at the display resolution (0.01 mm) a tracking error of 0.012 mm read 0.01
+        _kv(flow, "Tracking", f"RMS |y - r| = {u.text('length', trk['rms_y_minus_r_m'], sig=3)}, peak |y - r| = "
+                              f"{u.text('length', trk['peak_abs_y_minus_r_m'], sig=3)}, peak |u| = "
                               f"{u.text('voltage', trk.get('peak_abs_voltage_v'))} (whole test)")
     else:
         _kv(flow, "Tracking", "no target recorded")
