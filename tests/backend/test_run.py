@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import time
 
 import numpy as np
 import pytest
@@ -181,8 +182,13 @@ def test_a_refused_start_leaves_nothing_behind(client):
     assert {t["id"] for t in client.get("/api/tests").json()} == before  # no orphan 'ready' test
     client.post(f"/api/tests/{first}/abort", headers=AUTH)
     wait_for(client, first)
+    # the record says aborted as soon as the worker reports it; the rig is free once the service has wound the
+    # run up (a loaded machine: a start in between got 409, rightly): wait for it as a client would
+    deadline = time.monotonic() + 30
+    while client.get("/api/health").json()["rig"] != "idle" and time.monotonic() < deadline:
+        time.sleep(0.05)
     r = client.post("/api/tests", params={"start": True}, json=sine_test(), headers=AUTH)
-    assert r.status_code == 201 and r.json()["status"] == "running"
+    assert r.status_code == 201 and r.json()["status"] == "running", r.text
     wait_for(client, r.json()["id"])
 
 
