@@ -36,11 +36,12 @@ from contextlib import nullcontext
 import numpy as np
 
 from sim.controllers import INTERNAL_FACTORIES, make_controller
+from sim.detectors import guard_trip
 from sim.engine import Scenario
 from sim.follow import FollowMonitor, advice_for, limits_for, reference_for
 from sim.isolator import isolator_from_dict
 from sim.loop import CONTROL_PERIOD_S, ClosedLoop
-from sim.measurement import FLAG_GUARD, FLAG_LOST, Measurement
+from sim.measurement import FLAG_LOST, Measurement
 from sim.profiles import B_CYCLES, B_TAPER, blocks_from_dicts
 from sim.realtime import RealtimeSection, raise_priority, realtime_priority
 from sim.rig import DEFAULT_RIG
@@ -422,23 +423,16 @@ class Run:
         return end_s
 
     def guard_trip(self, block: Samples) -> Trip | None:
-        """The displacement guard began a braking stop in this block (FLAG_GUARD): the trip that says so."""
-        flags = np.nan_to_num(block["flags"]).astype(np.int64)
-        hits = np.flatnonzero(flags & FLAG_GUARD)
-        if self.guard_m is None or hits.size == 0:
+        """The displacement guard began a braking stop in this block (FLAG_GUARD): the trip that says so
+        (sim.detectors.guard_trip); the loop brakes from now on."""
+        if self.guard_m is None:
             return None
-        i = int(hits[0])
-        t, r, y = float(block["time_s"][i]), float(block["target_m"][i]), float(block["measured_displacement_m"][i])
-        rest = self.loop.brake_rest_m
+        trip = guard_trip(block, self.guard_m, self.loop.brake_rest_m, self.brake_m_per_s2)
+        if trip is None:
+            return None
         self.loop.stopping = True
         self.windows = [w for w in self.windows if w[2] <= self.loop.end_period]
-        message = (f"displacement limit: controlled stop at t = {t:.3f} s before the target carried the table past "
-                   f"the limit of {self.guard_m * 1e3:.4g} mm: braking to rest at {rest * 1e3:.4g} mm "
-                   f"(at most {self.brake_m_per_s2:.3g} m/s2), held there under control")
-        values = {"time_s": t, "target_m": r, "displacement_m": y, "rest_m": rest, "limit": self.guard_m,
-                  "limit_name": "displacement_m", "action": "controlled_stop", "guard": True,
-                  "brake_m_per_s2": self.brake_m_per_s2}
-        return Trip("displacement", i, t, message, values, "controlled_stop")
+        return trip
 
     def trip_now(self, trip: Trip) -> None:
         """A limit trip: record it and act: ``controlled_stop`` ramps the target out under control, anything

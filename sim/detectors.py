@@ -131,26 +131,31 @@ class RunDetectors:
             self.act = act
 
     def _guard_trip(self, block) -> Trip | None:
-        """The displacement guard began a braking stop in this block (FLAG_GUARD): the trip that says so (the
-        worker's words, backend.worker.Run.guard_trip)."""
+        """The displacement guard began a braking stop in this block: the trip that says so (``guard_trip``)."""
         if self.guard_m is None:
             return None
-        hits = np.flatnonzero(np.nan_to_num(block["flags"]).astype(np.int64) & FLAG_GUARD)
-        if hits.size == 0:
-            return None
-        i = int(hits[0])
-        t, r = float(block["time_s"][i]), float(block["target_m"][i])
-        y = float(block["measured_displacement_m"][i])
-        rest = self.loop.brake_rest_m
-        if self.act:
+        trip = guard_trip(block, self.guard_m, self.loop.brake_rest_m, self.brake_m_per_s2)
+        if trip is not None and self.act:
             self.loop.stopping = True
-        message = (f"displacement limit: controlled stop at t = {t:.3f} s before the target carried the table past "
-                   f"the limit of {self.guard_m * 1e3:.4g} mm: braking to rest at {rest * 1e3:.4g} mm "
-                   f"(at most {self.brake_m_per_s2:.3g} m/s2), held there under control")
-        values = {"time_s": t, "target_m": r, "displacement_m": y, "rest_m": rest, "limit": self.guard_m,
-                  "limit_name": "displacement_m", "action": "controlled_stop", "guard": True,
-                  "brake_m_per_s2": self.brake_m_per_s2}
-        return Trip("displacement", i, t, message, values, "controlled_stop")
+        return trip
+
+
+def guard_trip(block, guard_m: float, rest_m: float, brake_m_per_s2: float) -> Trip | None:
+    """The displacement guard began a braking stop in this block (FLAG_GUARD): the trip that says so, in the words
+    of the service's record (backend.worker.Run.guard_trip uses it too), or None."""
+    hits = np.flatnonzero(np.nan_to_num(block["flags"]).astype(np.int64) & FLAG_GUARD)
+    if hits.size == 0:
+        return None
+    i = int(hits[0])
+    t, r = float(block["time_s"][i]), float(block["target_m"][i])
+    y = float(block["measured_displacement_m"][i])
+    message = (f"displacement limit: controlled stop at t = {t:.3f} s before the target carried the table past "
+               f"the limit of {guard_m * 1e3:.4g} mm: braking to rest at {rest_m * 1e3:.4g} mm "
+               f"(at most {brake_m_per_s2:.3g} m/s2), held there under control")
+    values = {"time_s": t, "target_m": r, "displacement_m": y, "rest_m": rest_m, "limit": guard_m,
+              "limit_name": "displacement_m", "action": "controlled_stop", "guard": True,
+              "brake_m_per_s2": brake_m_per_s2}
+    return Trip("displacement", i, t, message, values, "controlled_stop")
 
 
 def follow_monitor(scenario, table=None):
