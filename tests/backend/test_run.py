@@ -9,7 +9,7 @@ import time
 
 import numpy as np
 import pytest
-from conftest import AUTH, create_and_start, sine_test, wait_for
+from conftest import AUTH, create_and_start, sine_test, wait_for, zero_table
 
 from sim.samples import CSV_FIELDS, RECORD_FIELDS
 
@@ -187,6 +187,7 @@ def test_a_refused_start_leaves_nothing_behind(client):
     deadline = time.monotonic() + 30
     while client.get("/api/health").json()["rig"] != "idle" and time.monotonic() < deadline:
         time.sleep(0.05)
+    zero_table(client)  # an abort closes the valve where the table is (2.19 mm measured): a start waits for zero
     r = client.post("/api/tests", params={"start": True}, json=sine_test(), headers=AUTH)
     assert r.status_code == 201 and r.json()["status"] == "running", r.text
     wait_for(client, r.json()["id"])
