@@ -400,12 +400,13 @@ class RigService:
                 if test.status == "running":
                     self._check_own_rig(test, action)
                 raise Conflict(f"test {test_id} is {test.status}, not running; nothing to {action}")
+        at_s = run.time_s  # one instant for the record and the stream (the run moves on while the write commits)
         with self.sessions() as session:
             store.add_event(session, test_id, "operator", f"{action} requested by {actor}", {"action": action},
-                            actor=actor, time_s=run.time_s)
+                            actor=actor, time_s=at_s)
             session.commit()
         run.stopping = run.stopping or f"{action} requested by {actor}"
-        self._publish_event(test_id, run.time_s, "operator", f"{action} requested by {actor}", {"action": action})
+        self._publish_event(test_id, at_s, "operator", f"{action} requested by {actor}", {"action": action})
         with self._lock:  # one writer at a time on the command pipe
             try:
                 run.commands.send(action)

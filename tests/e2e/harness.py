@@ -296,9 +296,10 @@ class PageWatch:
 VIEWPORTS = [(1366, 768), (1920, 1080)]
 
 
-def poll(predicate, timeout_s: float, what: str, interval_s: float = 0.1):
-    """Poll ``predicate`` until it returns something true (returned), else fail saying what was awaited; waits
-    at least WAIT_S (``timeout_s`` is how long it should take, not a window the service must meet)."""
+def poll(predicate, timeout_s: float, what: str, interval_s: float = 0.1, shown=None):
+    """Poll ``predicate`` until it returns something true (returned), else fail saying what was awaited (and what
+    ``shown()`` returns then: what the page showed); waits at least WAIT_S (``timeout_s`` is how long it should
+    take, not a window the service must meet)."""
     timeout_s = max(timeout_s, WAIT_S)
     deadline = time.monotonic() + timeout_s
     last = None
@@ -307,7 +308,8 @@ def poll(predicate, timeout_s: float, what: str, interval_s: float = 0.1):
         if last:
             return last
         time.sleep(interval_s)
-    raise AssertionError(f"timed out after {timeout_s} s waiting for {what} (last: {last!r})")
+    seen = f"; shown: {shown()!r}" if shown is not None else ""
+    raise AssertionError(f"timed out after {timeout_s} s waiting for {what} (last: {last!r}{seen})")
 
 
 def fill_identity(page, specimen: str = "E2E-SPEC-1") -> None:

@@ -60,6 +60,7 @@ export class LiveView {
     this.modelIsTarget = false;
     this.storedUntil = -Infinity;
     this.localLoops = [];
+    this.lastCyc = null;
     this.cyc = emptyExtremes(0);
     this.readoutAt = 0;
     this.events = []; // [{key, e}] in order
@@ -102,6 +103,7 @@ export class LiveView {
     this.storedUntil = -Infinity;
     this.localLoops = [];
     this.cycleStart = 0;
+    this.lastCyc = null;
     this.cyc = emptyExtremes(0);
     this.crossings = [];
     this.prevTarget = NaN;
@@ -154,6 +156,7 @@ export class LiveView {
       if (b.len >= CAP) {
         const drop = b.compact();
         this.cycleStart = Math.max(0, this.cycleStart - drop);
+        this.lastCyc = null;
         this.cyc = emptyExtremes(this.cycleStart);
         this.crossings = this.crossings.map((j) => j - drop).filter((j) => j > 0);
       }

@@ -98,6 +98,7 @@ export class PlotsPart {
     }
     this.plots.loop.setLabels(this.plots.loop.xLabel, this.plots.loop.yLabel, fx, ff,
       [toDisplay("length", 1e-3), toDisplay("force", 1e3)]);
+    this.lastCyc = null;
     this.cyc = emptyExtremes(this.cycleStart);
     this.createPlots();
     this.eq.onUnitsChanged();

@@ -21,7 +21,11 @@ export class ReadoutsPart {
   readouts(i1, now) {
     const a = this.buf.a;
     const start = Math.min(this.cycleStart, i1);
-    if (this.cyc.start !== start || this.cyc.scanned > i1) this.cyc = emptyExtremes(start);
+    if (this.cyc.start !== start || this.cyc.scanned > i1) {
+      // a new cycle: the one that ended stays in the margins until this one has gone past it (no jump at a turn)
+      this.lastCyc = this.cyc.start < start && this.cyc.scanned <= i1 ? this.cyc : null;
+      this.cyc = emptyExtremes(start);
+    }
     const c = this.cyc;
     for (let i = Math.max(c.scanned, start); i < i1; i++) {
       const y = a.y[i];
@@ -78,8 +82,9 @@ export class ReadoutsPart {
   }
 
   /**
-   * Each limit of the test: the largest value of the current cycle against it, the margin left, the action
-   * when it is exceeded, and for an indicating limit how often it was exceeded so far.
+   * Each limit of the test: the largest value of the current and the last whole cycle against it (a margin
+   * does not jump back to "all left" as a cycle begins), the margin left, the action when it is exceeded, and
+   * for an indicating limit how often it was exceeded so far.
    */
   renderMargins(force) {
     const box = $("margins");
@@ -93,10 +98,12 @@ export class ReadoutsPart {
     }
     box.dataset.empty = "0";
     const c = this.cyc;
+    const p = this.lastCyc || emptyExtremes(0);
     const si = (quantity, shown) => shown / factorIn(quantity, this.sys);
-    const peaks = { displacement_m: si("length", c.yAbs), force_n: si("force", c.fAbs),
-      velocity_m_per_s: si("length", c.velAbs), load_pressure_pa: si("pressure", c.plAbs),
-      tracking_error_m: si("length", c.eAbs) };
+    const big = (a, b) => Math.max(a, b);
+    const peaks = { displacement_m: si("length", big(c.yAbs, p.yAbs)), force_n: si("force", big(c.fAbs, p.fAbs)),
+      velocity_m_per_s: si("length", big(c.velAbs, p.velAbs)), load_pressure_pa: si("pressure", big(c.plAbs, p.plAbs)),
+      tracking_error_m: si("length", big(c.eAbs, p.eAbs)) };
     if (!box.querySelector(".margin") || force) {
       box.innerHTML = "";
       for (const l of LIMITS) {
