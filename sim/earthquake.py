@@ -320,7 +320,7 @@ def _history(spec: dict, isolator: Isolator, vertical_load_n: float, dt_s: float
 
 
 def _hybrid(spec: dict, isolator: Isolator, dt_s: float) -> EarthquakeProfile:
-    from .hybrid import ground_at_periods, reference
+    from .hybrid import ground_at_periods, predicted_with_rest, reference
     from .structure import ShearBuilding, StructureError
 
     _known(spec, HYBRID_FIELDS, "profile")
@@ -357,7 +357,8 @@ def _hybrid(spec: dict, isolator: Isolator, dt_s: float) -> EarthquakeProfile:
                      "motion's scale and units", "profile.ground_motion", None, "a finite response")
     source = f"hybrid: the reference's base displacement under {_ground_motion_name(info)} x {scale:g}"
     try:
-        predicted = prepare_history(np.arange(ag.size) * dt_s, base, dt_s, 1.0, 0.0, 0.0, require_rest=False,
+        rested = predicted_with_rest(base, ref["base_velocity_m_per_s"], dt_s)  # then the table rests
+        predicted = prepare_history(np.arange(rested.size) * dt_s, rested, dt_s, 1.0, 0.0, 0.0, require_rest=False,
                                     source=source)
     except HistoryError as exc:
         raise _prefixed(exc, "profile") from None
@@ -366,7 +367,8 @@ def _hybrid(spec: dict, isolator: Isolator, dt_s: float) -> EarthquakeProfile:
                    "fixed_base_periods_s": [float(p) for p in building.fixed_base_periods_s()],
                    "total_mass_kg": building.total_mass_kg, "ground_motion": info, "scale": scale,
                    "stability": options, "predicted_peak_base_displacement_m": float(np.max(np.abs(base))),
-                   "prediction": "the base displacement of the full-numerical reference (sim.hybrid.reference); the "
+                   "prediction": "the base displacement of the full-numerical reference (sim.hybrid.reference), "
+                                 "then the table's rest after the ground motion (sim.hybrid.rest_tail); the "
                                  "envelope is checked on it"}
     description.update(_target_figures(predicted))
     return EarthquakeProfile("hybrid", predicted, description, building, ag, options)

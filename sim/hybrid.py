@@ -30,6 +30,65 @@ from .structure import CRIntegrator, ShearBuilding, channel_names, reference_res
 
 MIN_CRITERIA_SAMPLES = 4  # the criteria of fewer samples are NaN (a run that ended in its first periods)
 STOP_BRAKE_S = 0.1  # an operator's stop: the table brakes from its speed with this time constant, then fades
+# After the ground motion the structure is frozen (its record ends there) and the table comes to rest where it
+# is (the isolator's residual displacement stays): it brakes within REST_FADE_S, then holds for REST_HOLD_S, its
+# valve closed in the dead zone. (Following the building's ringing after the shaking, tens of micrometres, took
+# the valve across its whole dead zone at every reversal: a +-1 V chatter, command std 0.85 V in the last second.)
+REST_FADE_S = 1.0
+REST_HOLD_S = 1.5
+
+
+def rest_periods(dt_s: float = CONTROL_PERIOD_S) -> int:
+    """The periods a hybrid test runs after its ground motion: the table brought to rest where it is, then held."""
+    return int(round((REST_FADE_S + REST_HOLD_S) / dt_s))
+
+
+def brake_and_fade(r0_m: float, v0_m_per_s: float, fade_periods: int, rows: int, dt_s: float = CONTROL_PERIOD_S,
+                   brake_s: float = STOP_BRAKE_S) -> np.ndarray:
+    """The target (r, r', r'') for the ``rows`` periods after one whose command was (r0, v0): the table brakes
+    exponentially, x(t) = r0 + v0 tau (1 - exp(-t / tau)) with tau = ``brake_s``, times a raised-cosine fade
+    w that is exactly 0 from row ``fade_periods`` - 1 on (as sim.loop.fade_table): r = w x, r' = w' x + w x',
+    r'' = w'' x + 2 w' x' + w x''. Rows past the fade are zero."""
+    out = np.zeros((max(0, int(rows)), 3))
+    n = int(fade_periods)
+    i = np.arange(1, min(int(rows), n - 2) + 1)  # the fading rows; row n - 1 and after: 0
+    if n < 3 or i.size == 0:
+        return out
+    t = i * dt_s
+    decay = np.exp(-t / brake_s)
+    x = r0_m + v0_m_per_s * brake_s * (1.0 - decay)
+    xd = v0_m_per_s * decay
+    xdd = -v0_m_per_s / brake_s * decay
+    rate = 1.0 / (n * dt_s)
+    phase = np.pi * (i + 1) / n
+    w = 0.5 * (1.0 + np.cos(phase))
+    wd = -0.5 * np.pi * np.sin(phase) * rate
+    wdd = -0.5 * np.pi ** 2 * np.cos(phase) * rate ** 2
+    out[: i.size, 0] = w * x
+    out[: i.size, 1] = wd * x + w * xd
+    out[: i.size, 2] = wdd * x + 2.0 * wd * xd + w * xdd
+    return out
+
+
+def rest_tail(r0_m: float, v0_m_per_s: float, dt_s: float = CONTROL_PERIOD_S,
+              brake_s: float = STOP_BRAKE_S) -> np.ndarray:
+    """The target after the ground motion's last period (command r0, v0): the table brakes to rest where the
+    braking takes it, r_rest = r0 + v0 tau, exactly there after REST_FADE_S (``brake_and_fade`` of the offset
+    from r_rest), then held (``rest_periods`` rows in all)."""
+    r_rest = r0_m + v0_m_per_s * brake_s
+    tail = brake_and_fade(r0_m - r_rest, v0_m_per_s, int(round(REST_FADE_S / dt_s)) + 1, rest_periods(dt_s), dt_s,
+                          brake_s)
+    tail[:, 0] += r_rest
+    return tail
+
+
+def predicted_with_rest(base_displacement_m: np.ndarray, base_velocity_m_per_s: np.ndarray,
+                        dt_s: float = CONTROL_PERIOD_S) -> np.ndarray:
+    """The table's displacement a hybrid test is expected to ask for: the reference's base displacement, then
+    the table's rest after the ground motion (``rest_tail``; the envelope is checked on this)."""
+    x = np.asarray(base_displacement_m, dtype=float)
+    tail = rest_tail(float(x[-1]), float(np.asarray(base_velocity_m_per_s)[-1]), dt_s)
+    return np.concatenate([x, tail[:, 0]])
 
 
 def ground_at_periods(time_s: np.ndarray, acc_m_per_s2: np.ndarray, dt_s: float = CONTROL_PERIOD_S) -> np.ndarray:
@@ -71,9 +130,14 @@ class HybridSubstructure:
     def n_periods(self) -> int:
         return self.ag.size
 
+    @property
+    def total_periods(self) -> int:
+        """The periods the loop runs: the ground motion's, then the table's rest (``rest_periods``)."""
+        return self.n_periods + rest_periods(self.dt_s)
+
     def target_table(self) -> np.ndarray:
-        """The loop's table to start with: at rest; each period writes the next one."""
-        return np.zeros((self.n_periods, 3))
+        """The loop's table to start with: at rest; each period writes the next one, the last the rest."""
+        return np.zeros((self.total_periods, 3))
 
     def warm_up(self) -> None:
         """Run a throwaway copy of this substructure for a few periods, so that the compiled kernels (CR, loaded
@@ -131,6 +195,16 @@ class HybridSubstructure:
         if k + 1 < self.n_periods:
             x_next = self.cr.next_base_displacement()
             loop.set_target(k + 1, x_next, float(self.cr.vp[0]), float(self.cr.a[0]))
+        elif k + 1 == self.n_periods:  # the ground motion's last period: the structure stops, the table rests
+            self.rest_target(loop, k)
+
+    def rest_target(self, loop, k: int) -> None:
+        """After the structure's last period k: the table brakes to rest from that period's command and holds
+        there (``rest_tail``), in the periods of the loop's table that follow."""
+        end = min(loop.total_periods, loop.table.shape[0])
+        if k + 1 >= end:
+            return
+        loop.table[k + 1:end] = rest_tail(float(loop.table[k, 0]), float(loop.table[k, 1]), self.dt_s)[: end - k - 1]
 
     def stop_target(self, loop, k: int, brake_s: float = STOP_BRAKE_S) -> None:
         """An operator's stop from period k (the first the loop has not run): from the command of period k
@@ -139,26 +213,12 @@ class HybridSubstructure:
         (sim.loop.ClosedLoop.ramp_out: a raised cosine to zero over the periods the loop has left) takes it to
         zero: r = w x, r' = w' x + w x', r'' = w'' x + 2 w' x' + w x''. The structure is frozen; its record ends
         at k. (The loop's own fade multiplies the table, but a hybrid table holds only the next period.)"""
-        end = min(loop.total_periods, self.n_periods)
+        end = min(loop.total_periods, loop.table.shape[0])
         if k + 1 >= end:
             return
-        r0, v0 = float(loop.table[k, 0]), float(loop.table[k, 1])
-        dt = self.dt_s
-        j = np.arange(k + 1, end)
-        t = (j - k) * dt
-        decay = np.exp(-t / brake_s)
-        x = r0 + v0 * brake_s * (1.0 - decay)
-        xd = v0 * decay
-        xdd = -v0 / brake_s * decay
-        n = end - k  # as sim.loop.fade_table from period k: exactly 0 at the loop's last period
-        rate = 1.0 / (n * dt)
-        phase = np.pi * (j - k + 1) / n
-        w = 0.5 * (1.0 + np.cos(phase))
-        wd = -0.5 * np.pi * np.sin(phase) * rate
-        wdd = -0.5 * np.pi ** 2 * np.cos(phase) * rate ** 2
-        loop.table[k + 1:end, 0] = w * x
-        loop.table[k + 1:end, 1] = wd * x + w * xd
-        loop.table[k + 1:end, 2] = wdd * x + 2.0 * wd * xd + w * xdd
+        # as sim.loop.fade_table from period k: exactly 0 at the loop's last period
+        loop.table[k + 1:end] = brake_and_fade(float(loop.table[k, 0]), float(loop.table[k, 1]), end - k, end - k - 1,
+                                               self.dt_s, brake_s)
 
     def corrected_force(self, m: Measurement, commanded_m: float) -> float:
         """The force measured, corrected to the commanded displacement: F + k_t (x_command - y_measured), k_t the

@@ -111,7 +111,8 @@ def run(args) -> int:
     from sim.engine import Scenario
     from sim.ground_motion import GROUND_MOTIONS, synthetic_ground_motion
     from sim.history import prepare_history, read_ground_motion
-    from sim.hybrid import HybridSubstructure, compare_with_reference, ground_at_periods, reference, run_virtual
+    from sim.hybrid import (HybridSubstructure, compare_with_reference, ground_at_periods, predicted_with_rest,
+                            reference, run_virtual)
     from sim.isolator import load_isolator
     from sim.plant import SimulatedPlant
     from sim.records import samples_to_csv
@@ -130,7 +131,8 @@ def run(args) -> int:
     load_n = args.vertical_load_n if args.vertical_load_n is not None else building.total_mass_kg * 9.80665
     ref = reference(building, isolator, ag)
     # the rig's envelope, checked on the reference's base displacement before anything moves
-    predicted = prepare_history(np.arange(ag.size) * 1e-3, ref["base_displacement_m"], taper_in_s=0.0,
+    rested = predicted_with_rest(ref["base_displacement_m"], ref["base_velocity_m_per_s"])  # then at rest
+    predicted = prepare_history(np.arange(rested.size) * 1e-3, rested, taper_in_s=0.0,
                                 taper_out_s=0.0, require_rest=False, source="the reference's base displacement")
     scenario = Scenario(isolator, args.supply_bar * 1e5, [], args.controller, vertical_load_n=load_n,
                         history=predicted)
