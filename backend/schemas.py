@@ -34,6 +34,8 @@ class ProtocolProfileIn(StrictModel):
     protocol: dict[str, Any] | None = Field(None, description="an inline protocol definition")
     design_displacement_m: float | None = Field(None, description="scale the protocol's levels to this design "
                                                 "displacement, m (levels given as fractions)")
+    frequency_hz: float | None = Field(None, description="run every level at this frequency, Hz (EN 15129: the "
+                                       "specimen's design frequency); default: each level's own")
 
 
 MAX_INLINE_SAMPLES = 200_000  # sim.earthquake.MAX_INLINE_SAMPLES

@@ -133,6 +133,12 @@ class Protocol:
                        else lv for lv in self.levels)
         return replace(self, levels=levels, design_displacement_m=float(design_displacement_m))
 
+    def with_frequency(self, frequency_hz: float) -> Protocol:
+        """The same protocol with every level at ``frequency_hz`` (EN 15129: the specimen's design frequency;
+        the cycle plan and the acceptance follow it)."""
+        _number("frequency_hz", frequency_hz, 0.0, 10.0, "Hz", lo_open=True)
+        return replace(self, levels=tuple(replace(lv, frequency_hz=float(frequency_hz)) for lv in self.levels))
+
     def to_dict(self) -> dict:
         """The protocol as data, in the file format (round-trips through protocol_from_dict)."""
         out = {"name": self.name, "title": self.title, "description": self.description}
@@ -362,7 +368,7 @@ def profile_from_spec(spec: dict, isolator=None, vertical_load_n: float | None =
         return [], earthquake_from_spec(spec, isolator, vertical_load_n)
     if kind != "protocol":
         raise ProtocolError("profile.kind", f"profile kind {kind!r}; allowed: sine, protocol, history, hybrid")
-    _unknown("profile", spec, {"kind", "name", "protocol", "design_displacement_m"})
+    _unknown("profile", spec, {"kind", "name", "protocol", "design_displacement_m", "frequency_hz"})
     if ("name" in spec) == ("protocol" in spec):
         raise ProtocolError("profile", "a protocol profile needs exactly one of name (shipped: "
                                        f"{', '.join(SHIPPED_PROTOCOLS)}) or protocol (inline definition)")
@@ -373,8 +379,13 @@ def profile_from_spec(spec: dict, isolator=None, vertical_load_n: float | None =
         protocol = load_protocol(spec["name"])
     else:
         protocol = protocol_from_dict(spec["protocol"])
-    if spec.get("design_displacement_m") is not None:
-        protocol = protocol.with_design_displacement(spec["design_displacement_m"])
+    try:  # the form's own fields (not the protocol's): named as the form's
+        if spec.get("design_displacement_m") is not None:
+            protocol = protocol.with_design_displacement(spec["design_displacement_m"])
+        if spec.get("frequency_hz") is not None:
+            protocol = protocol.with_frequency(spec["frequency_hz"])
+    except ProtocolError as exc:
+        raise ProtocolError(f"profile.{exc.field}", str(exc)) from None
     return protocol.blocks, protocol
 
 

@@ -55,6 +55,13 @@ def test_en15129_levels_become_tapered_sine_blocks():
     scaled = p.with_design_displacement(0.03)
     assert scaled.blocks[-1].amplitude_m == pytest.approx(0.03)
     assert scaled.blocks[0].amplitude_m == pytest.approx(0.0075)
+    slower = scaled.with_frequency(0.25)  # EN 15129: the specimen's design frequency
+    assert [b.frequency_hz for b in slower.blocks] == [0.25] * 4 and slower.blocks[-1].amplitude_m == pytest.approx(0.03)
+    assert slower.duration_s == pytest.approx(2 * scaled.duration_s)
+    assert slower.cycle_plan()[-1]["t_end_s"] == pytest.approx(2 * scaled.cycle_plan()[-1]["t_end_s"])
+    with pytest.raises(ProtocolError) as err:
+        scaled.with_frequency(0.0)
+    assert err.value.field == "frequency_hz" and "Hz" in str(err.value)
 
 
 def test_protocol_passes_on_a_steady_isolator():
@@ -144,6 +151,11 @@ def test_profile_forms_and_files(tmp_path):
     assert protocol is None and blocks == [SineProfile(0.02, 1.0, 5, 1, 0.0)]
     blocks, protocol = profile_from_spec({"kind": "protocol", "name": "quick_check", "design_displacement_m": 0.01})
     assert protocol.name == "quick_check" and blocks[-1].amplitude_m == pytest.approx(0.01)
+    blocks, protocol = profile_from_spec({"kind": "protocol", "name": "quick_check", "frequency_hz": 1.5})
+    assert {b.frequency_hz for b in blocks} == {1.5} and {lv.frequency_hz for lv in protocol.levels} == {1.5}
+    with pytest.raises(ProtocolError) as err:
+        profile_from_spec({"kind": "protocol", "name": "quick_check", "frequency_hz": 11})
+    assert err.value.field == "profile.frequency_hz"
     inline = load_protocol("quick_check").to_dict()
     _, protocol = profile_from_spec({"kind": "protocol", "protocol": inline})
     assert protocol == load_protocol("quick_check")

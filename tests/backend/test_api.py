@@ -142,7 +142,8 @@ def test_protocol_profiles(client):
     rec = r.json()
     assert len(rec["scenario"]["profile"]) >= 1 and rec["profile"] == {"kind": "protocol", "name": "quick_check",
                                                                         "protocol": None,
-                                                                        "design_displacement_m": None}
+                                                                        "design_displacement_m": None,
+                                                                        "frequency_hz": None}
     assert rec["cycles_total"] == sum(b["cycles"] for b in rec["scenario"]["profile"])
     # scaled to another design displacement: every level in proportion (the one parser, sim.protocols)
     scaled = {**body, "profile": {"kind": "protocol", "name": "quick_check", "design_displacement_m": 0.01}}
@@ -150,6 +151,14 @@ def test_protocol_profiles(client):
     assert r.status_code == 201, r.text
     amplitudes = [b["amplitude_m"] for b in r.json()["scenario"]["profile"]]
     assert amplitudes == pytest.approx([0.5 * b["amplitude_m"] for b in rec["scenario"]["profile"]])
+    # at the specimen's design frequency: every level, and the test's length with it
+    slower = {**body, "profile": {"kind": "protocol", "name": "quick_check", "frequency_hz": 0.25}}
+    r = client.post("/api/tests", json=slower, headers=AUTH)
+    assert r.status_code == 201, r.text
+    assert {b["frequency_hz"] for b in r.json()["scenario"]["profile"]} == {0.25}
+    assert r.json()["duration_s"] > rec["duration_s"] and r.json()["profile"]["frequency_hz"] == 0.25
+    r = client.post("/api/tests", json={**body, "profile": {**slower["profile"], "frequency_hz": -1}}, headers=AUTH)
+    assert r.status_code == 422 and r.json()["field"] == "profile.frequency_hz", r.text
     for profile, field in (({"kind": "protocol", "name": "/etc/passwd"}, "profile.name"),
                            ({"kind": "protocol"}, "profile"),
                            ({"kind": "protocol", "protocol": {"name": "x"}}, "profile")):

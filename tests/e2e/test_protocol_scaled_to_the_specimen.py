@@ -1,6 +1,7 @@
 """Protocols scaled to the specimen in the console (issue 23, part 1): the EN 15129 protocols' levels are
-fractions of the design displacement d_bd; the console takes the specimen's d_bd, shows the levels in mm before
-Start, sends design_displacement_m, and the test's acceptance levels follow it."""
+fractions of the design displacement d_bd, run at the specimen's design frequency; the console takes the
+specimen's d_bd and frequency, shows the levels in mm and Hz before Start, sends design_displacement_m and
+frequency_hz, and the test's acceptance levels follow them."""
 
 from __future__ import annotations
 
@@ -29,22 +30,36 @@ def test_en15129_levels_follow_the_design_displacement(server, open_page, artifa
     poll(lambda: amplitudes() == ["7.50 mm", "15.00 mm", "20.10 mm", "30.00 mm"], 5, "the levels scaled to 30 mm")
     total = page.inner_text("#protocol-info .protocol-total")
     assert "peak \u00b130.00 mm, 94.2 mm/s; design displacement d_bd 30.00 mm (entered" in total, total
-    body = poll(lambda: (lambda c: c if c and c["profile"].get("design_displacement_m") == 0.03 else None)(
+    assert "frequency 0.5 Hz (the protocol's)" in total, total
+    # the specimen's design frequency: every level at it, the velocity and the duration with it
+    assert page.is_visible("#design-frequency-row")
+    assert page.inner_text("[data-field='design_frequency'] .range").endswith("; empty: 0.5 Hz")
+    frequencies = lambda: page.eval_on_selector_all(  # noqa: E731 - the levels table's frequency column
+        "#protocol-info .protocol-levels tr td:nth-child(3)", "tds => tds.map(t => t.textContent)")
+    assert frequencies() == ["0.5 Hz"] * 4
+    page.fill("#f-design_frequency", "0.25")
+    poll(lambda: frequencies() == ["0.25 Hz"] * 4, 5, "every level at 0.25 Hz")
+    total = page.inner_text("#protocol-info .protocol-total")
+    assert "peak \u00b130.00 mm, 47.1 mm/s" in total and "frequency 0.25 Hz (entered: every level)" in total, total
+    assert "duration 1:20" in total, total  # 20 cycles at 0.25 Hz (40 s at the protocol's 0.5 Hz)
+    body = poll(lambda: (lambda c: c if c and c["profile"].get("frequency_hz") == 0.25 else None)(
         page.evaluate("window.__checks.length ? window.__checks[window.__checks.length - 1] : null")), 10,
-        "a check with design_displacement_m 0.03")
-    assert body["profile"] == {"kind": "protocol", "name": "en15129_type_test", "design_displacement_m": 0.03}
+        "a check with design_displacement_m 0.03 and frequency_hz 0.25")
+    assert body["profile"] == {"kind": "protocol", "name": "en15129_type_test", "design_displacement_m": 0.03,
+                               "frequency_hz": 0.25}
     page.wait_for_selector("#envelope[data-state='ok']", timeout=WAIT_MS)
-    page.locator("#design-displacement-row").scroll_into_view_if_needed()
+    page.locator("#design-frequency-row").scroll_into_view_if_needed()
     page.screenshot(path=str(artifacts / f"i23_protocol_scaled_{width}x{height}.png"))
     if width != 1366:
         return  # one run of the protocol is enough: the wider viewport checks the form only
     summary = start_from_form(page)
-    assert "protocol en15129_type_test, d_bd 30.00 mm (entered)" in summary, summary
-    assert "7.50 mm at 0.5 Hz x 3, 15.00 mm at 0.5 Hz x 3, 20.10 mm at 0.5 Hz x 3, 30.00 mm at 0.5 Hz x 3" in summary
+    assert "protocol en15129_type_test, d_bd 30.00 mm (entered), at 0.25 Hz (entered)" in summary, summary
+    assert "7.50 mm at 0.25 Hz x 3, 15.00 mm at 0.25 Hz x 3, 20.10 mm at 0.25 Hz x 3, 30.00 mm at 0.25 Hz x 3" in summary
     page.wait_for_function("location.hash === '#/live'", timeout=WAIT_MS)
     test_id = poll(lambda: page.evaluate("window.__isorig.testId"), 20, "the test in view")
     rec = server.wait_status(test_id, {"completed"}, timeout_s=90)
-    assert rec["profile"]["design_displacement_m"] == 0.03, rec["profile"]
+    assert rec["profile"]["design_displacement_m"] == 0.03 and rec["profile"]["frequency_hz"] == 0.25, rec["profile"]
+    assert {b["frequency_hz"] for b in rec["scenario"]["profile"]} == {0.25} and rec["duration_s"] == 80.0
     _, acceptance = server.call("GET", f"/api/tests/{test_id}/acceptance")
     levels = [round(lv["amplitude_m"], 6) for lv in acceptance["levels"]]
     assert levels == [0.0075, 0.015, 0.0201, 0.03], acceptance["levels"]

@@ -90,6 +90,10 @@ export class FieldsPart {
       design_displacement: { id: "f-design_displacement", quantity: "length", required: false, openLow: true,
         when: () => this.protocol() !== null, range: () => [0, Math.min(1, env().stroke_m ?? 0.15)],
         placeholder: () => (this.protocol() || {}).design_displacement_m },
+      // and run at the specimen's design frequency (EN 15129); empty: each level at its own
+      design_frequency: { id: "f-design_frequency", quantity: "frequency", required: false, openLow: true,
+        when: () => this.protocol() !== null, range: () => [0, env().max_frequency_hz ?? 10],
+        placeholder: () => this.protocolFrequency(), emptyText: "each level at the protocol's frequency" },
       offset: { id: "f-offset", quantity: "length", required: false, sine: true,
         range: () => [-(env().stroke_m ?? 0.15), env().stroke_m ?? 0.15] },
       lim_displacement: { id: "f-lim_displacement", quantity: "length", required: false, openLow: true, limit: "displacement_m",
@@ -187,8 +191,9 @@ export class FieldsPart {
         text += `; empty: the vertical load / g = ${fmtU("mass", load / G)}`;
       }
       if (spec.when && !spec.limit && spec.placeholder) {
-        input.placeholder = fmt(spec.quantity, spec.placeholder(), { sig: 6 });
-        text += `; empty: ${fmtU(spec.quantity, spec.placeholder(), { sig: 6 })}`;
+        const p = spec.placeholder();
+        input.placeholder = num(p) ? fmt(spec.quantity, p, { sig: 6 }) : "";
+        text += num(p) ? `; empty: ${fmtU(spec.quantity, p, { sig: 6 })}` : spec.emptyText ? `; empty: ${spec.emptyText}` : "";
       }
       if (key === "vertical_load") {
         const d = this.defaultVerticalLoad();

@@ -35,6 +35,7 @@ export class FollowPart {
       }
       $("f-profile").value = `protocol:${p.name}`;
       this.setField("design_displacement", num(p.design_displacement_m) ? p.design_displacement_m : null);
+      this.setField("design_frequency", num(p.frequency_hz) ? p.frequency_hz : null);
     } else if (p.kind === "history" || p.kind === "hybrid") {
       this.eq.follow(p);
     } else if (p.kind === "sine") {

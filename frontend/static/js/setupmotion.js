@@ -75,11 +75,19 @@ export class MotionPart {
     return v.startsWith("protocol:") ? this.protocols.find((p) => p.name === v.slice(9)) || { name: v.slice(9) } : null;
   }
 
-  /** The protocol's profile of POST /api/tests: its name, and the specimen's design displacement if given. */
+  /** The protocol's profile of POST /api/tests: its name, the specimen's design displacement and frequency if given. */
   protocolProfile(p, v) {
     const out = { kind: "protocol", name: p.name };
     if (num(v.design_displacement)) out.design_displacement_m = v.design_displacement;
+    if (num(v.design_frequency)) out.frequency_hz = v.design_frequency;
     return out;
+  }
+
+  /** The chosen protocol's frequency (Hz) when every level runs at one, else null (each level at its own). */
+  protocolFrequency() {
+    const p = this.protocol();
+    const f = p && Array.isArray(p.levels) ? [...new Set(p.levels.map((l) => l.frequency_hz))] : [];
+    return f.length === 1 && num(f[0]) ? f[0] : null;
   }
 
   /**
@@ -94,15 +102,27 @@ export class MotionPart {
     const v = this.values || {};
     const typed = num(v.design_displacement);
     const d = typed ? v.design_displacement : p.design_displacement_m;
+    const fTyped = num(v.design_frequency);
     const levels = p.levels.map((l) => {
-      if (!typed || !num(l.fraction) || !num(p.design_displacement_m)) return l;
-      const amplitude = l.fraction * d;
-      const k = num(l.amplitude_m) && l.amplitude_m > 0 ? amplitude / l.amplitude_m : 1;
-      return { ...l, amplitude_m: amplitude, peak_velocity_m_per_s: l.peak_velocity_m_per_s * k };
+      let out = l;
+      if (typed && num(l.fraction) && num(p.design_displacement_m)) {
+        const amplitude = l.fraction * d;
+        const k = num(l.amplitude_m) && l.amplitude_m > 0 ? amplitude / l.amplitude_m : 1;
+        out = { ...out, amplitude_m: amplitude, peak_velocity_m_per_s: l.peak_velocity_m_per_s * k };
+      }
+      if (fTyped && num(l.frequency_hz) && l.frequency_hz > 0) { // every level at the design frequency
+        const k = v.design_frequency / l.frequency_hz;
+        out = { ...out, frequency_hz: v.design_frequency, peak_velocity_m_per_s: out.peak_velocity_m_per_s * k,
+          duration_s: out.duration_s / k };
+      }
+      return out;
     });
     const peakD = Math.max(...levels.map((l) => l.amplitude_m));
     const peakV = Math.max(...levels.map((l) => l.peak_velocity_m_per_s));
+    const duration = levels.reduce((sum, l) => sum + l.duration_s, 0);
     return { ...p, levels, design_displacement_m: d, designFrom: typed ? "entered" : "the protocol's",
+      frequency_hz: fTyped ? v.design_frequency : this.protocolFrequency(), frequencyFrom: fTyped ? "entered" : "the protocol's",
+      duration_s: Number.isFinite(duration) ? duration : p.duration_s,
       peak_displacement_m: Number.isFinite(peakD) ? peakD : p.peak_displacement_m,
       peak_velocity_m_per_s: Number.isFinite(peakV) ? peakV : p.peak_velocity_m_per_s };
   }
@@ -112,6 +132,7 @@ export class MotionPart {
     $("sine-fields").classList.toggle("hidden", !this.isSine());
     $("offset-row").classList.toggle("hidden", !this.isSine());
     $("design-displacement-row").classList.toggle("hidden", !this.protocol());
+    $("design-frequency-row").classList.toggle("hidden", !this.protocol());
     this.eq.show();
     this.renderProtocol();
     this.renderFieldMeta(); // the design displacement's default is the protocol's
@@ -146,7 +167,8 @@ export class MotionPart {
     info.append(el("div", { class: "protocol-total", text: `${p.levels.length} levels, ${p.cycles_total} cycles, ` +
       `duration ${fmtDuration(p.duration_s)} (test time); peak \u00b1${fmtU("length", p.peak_displacement_m)}, ` +
       `${fmtU("velocity", p.peak_velocity_m_per_s)}; design displacement d_bd ${fmtU("length", p.design_displacement_m)}` +
-      (p.designFrom === "entered" ? " (entered: the levels are scaled to it)" : " (the protocol's: enter the specimen's to scale the levels)") }));
+      (p.designFrom === "entered" ? " (entered: the levels are scaled to it)" : " (the protocol's: enter the specimen's to scale the levels)") +
+      (num(p.frequency_hz) ? `; frequency ${fmtU("frequency", p.frequency_hz)}${p.frequencyFrom === "entered" ? " (entered: every level)" : " (the protocol's)"}` : "") }));
     info.dataset.designDisplacementM = String(p.design_displacement_m);
   }
 

@@ -100,7 +100,8 @@ export class StartPart {
       rows.push(...this.eq.summaryRows(body, check));
     } else {
       const p = this.scaledProtocol() || {};
-      const dbd = num(p.design_displacement_m) ? `, d_bd ${fmtU("length", p.design_displacement_m)} (${p.designFrom})` : "";
+      const dbd = (num(p.design_displacement_m) ? `, d_bd ${fmtU("length", p.design_displacement_m)} (${p.designFrom})` : "") +
+        (p.frequencyFrom === "entered" ? `, at ${fmtU("frequency", p.frequency_hz)} (entered)` : "");
       rows.push(["motion", `protocol ${body.profile.name}${dbd}`, Array.isArray(p.levels)
         ? `${p.levels.length} levels: ${p.levels.map((l) => `${fmtU("length", l.amplitude_m)} at ${fmtU("frequency", l.frequency_hz)} x ${l.cycles}`).join(", ")}`
         : ""]);
