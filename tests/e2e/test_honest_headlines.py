@@ -1,6 +1,7 @@
 """Honest headlines (issue 23, part 2): once a test has ended, the live view's K_eff, EDC and xi_eff are the
 figures of its steady cycles (the record's summary, as the PDF), and the loop drawn bold, on the live view and on
-the test's page, is its last steady cycle, not the ramp-out that came last; ramp cycles are marked as such."""
+the test's page, is its last steady cycle, not the ramp-out that came last, as are the live readouts' peak and
+valley and the limit margins; ramp cycles are marked as such."""
 
 from __future__ import annotations
 
@@ -59,6 +60,16 @@ def test_headline_and_bold_loop_after_a_test_are_the_steady_cycles(server, open_
     assert page.get_attribute("#plot-loop", "data-bold-phase") == "steady"
     assert page.get_attribute("#plot-loop", "data-bold-cycle") == str(steady[-1]["cycle"])
     assert page.inner_text("#loop-note").startswith(f"cycle {steady[-1]['cycle']} bold: the last steady cycle")
+    # the readouts' peak and valley and the limit margins: the same cycle's, said so (not the ramp-out's)
+    last = steady[-1]
+    page.wait_for_function(f"document.querySelector('#readouts .pk').textContent === 'cycle {last['cycle']} peak'",
+                           timeout=WAIT_MS)
+    assert abs(cycles[-1]["d_max_m"] - last["d_max_m"]) > 5e-4, (cycles[-1], last)  # the two can be told apart
+    page.wait_for_function(f"Math.abs(parseFloat(document.getElementById('r-y-max').textContent) - "
+                           f"{last['d_max_m'] * 1e3}) < 0.05", timeout=WAIT_MS)
+    assert abs(_shown(page.inner_text("#r-y-min"), "mm") - last["d_min_m"] * 1e3) < 0.05
+    assert abs(_shown(page.inner_text("#r-f-max"), "kN") - last["f_max_n"] * 1e-3) < 0.05 * abs(last["f_max_n"]) * 1e-3
+    assert page.text_content("#margins-name") == f"limits: margin in cycle {last['cycle']} (the last steady), action"
     page.screenshot(path=str(artifacts / f"i23_live_after_test_{width}x{height}.png"))
 
     # the test's page: the same loop bold, the means said to be over the steady cycles, ramp rows marked

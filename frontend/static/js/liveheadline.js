@@ -82,6 +82,10 @@ export class HeadlinePart {
       }
       const phase = bold.phase || "steady";
       this.endedLoop = { ...shown(bold), cycle: bold.cycle, phase };
+      // the readouts' peak and valley, and the margins, of that cycle (js/livereadouts.js)
+      this.endedSteady = phase === "steady" && num(bold.t_start_s) && num(bold.t_end_s)
+        ? { cycle: bold.cycle, t0: bold.t_start_s, t1: bold.t_end_s } : null;
+      this.readoutAt = 0;
       const box = $("plot-loop");
       box.dataset.boldCycle = String(bold.cycle);
       box.dataset.boldPhase = phase;
@@ -98,6 +102,7 @@ export class HeadlinePart {
     this.lastCycle = null;
     this.lastSteadyCycle = null;
     this.endedLoop = null;
+    this.endedSteady = null;
     const box = $("plot-loop");
     delete box.dataset.boldCycle;
     delete box.dataset.boldPhase;

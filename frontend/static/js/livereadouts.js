@@ -17,17 +17,23 @@ const VELOCITY_SPAN_S = 0.005;
 const INDICATIONS_RECORDED = 10; // the service keeps the first 10 indications of a limit as events, counts the rest
 
 export class ReadoutsPart {
-  /** Peak and valley of the current cycle (incremental), the readouts and the margins to the limits. */
+  /**
+   * Peak and valley of the current cycle (incremental), the readouts and the margins to the limits. After a
+   * test: those of its last steady cycle (``endedSpan``), never the ramp-out cycle that happened to come last.
+   */
   readouts(i1, now) {
     const a = this.buf.a;
-    const start = Math.min(this.cycleStart, i1);
-    if (this.cyc.start !== start || this.cyc.scanned > i1) {
+    const span = this.endedSpan();
+    const start = span ? span.i0 : Math.min(this.cycleStart, i1);
+    const end = span ? span.i1 : i1;
+    if (this.cyc.start !== start || this.cyc.scanned > end) {
       // a new cycle: the one that ended stays in the margins until this one has gone past it (no jump at a turn)
-      this.lastCyc = this.cyc.start < start && this.cyc.scanned <= i1 ? this.cyc : null;
+      this.lastCyc = !span && this.cyc.start < start && this.cyc.scanned <= end ? this.cyc : null;
       this.cyc = emptyExtremes(start);
     }
+    this.labelPeaks(span);
     const c = this.cyc;
-    for (let i = Math.max(c.scanned, start); i < i1; i++) {
+    for (let i = Math.max(c.scanned, start); i < end; i++) {
       const y = a.y[i];
       const f = a.f[i];
       const v = a.v[i];
@@ -46,7 +52,7 @@ export class ReadoutsPart {
         if (vel > c.velAbs) c.velAbs = vel;
       }
     }
-    c.scanned = i1;
+    c.scanned = end;
     c.yAbs = Math.max(Math.abs(c.yMax), Math.abs(c.yMin));
     c.fAbs = Math.max(Math.abs(c.fMax), Math.abs(c.fMin));
     if (i1 === 0) return;
@@ -79,6 +85,33 @@ export class ReadoutsPart {
     changed("position");
     this.renderMargins(false);
     this.showRigNow();
+  }
+
+  /**
+   * After a test: the buffer's rows [i0, i1) of its last steady cycle (js/liveheadline.js sets ``endedSteady``
+   * from the stored cycles), with the cycle's number; null while a test runs, or when the buffer no longer
+   * holds that cycle whole.
+   */
+  endedSpan() {
+    const s = this.endedSteady;
+    if (!s || !FINAL.has(this.status)) return null;
+    const b = this.buf;
+    const i0 = b.lowerBound(s.t0 - 1e-9);
+    const i1 = b.lowerBound(s.t1 - 1e-9);
+    if (i1 - i0 < 2 || b.a.t[i0] > s.t0 + 2e-3) return null;
+    return { i0, i1, cycle: s.cycle };
+  }
+
+  /** "cycle peak" while a test runs, "cycle N peak" (its last steady cycle) after it. */
+  labelPeaks(span) {
+    const text = span ? `cycle ${span.cycle}` : "cycle";
+    if (this.peakLabel === text) return;
+    this.peakLabel = text;
+    for (const el of document.querySelectorAll("#readouts .pk")) el.textContent = `${text} ${el.dataset.what}`;
+    const why = span ? `cycle ${span.cycle}: the test's last steady cycle (the ramp-out came after it)` : "the current cycle";
+    for (const el of document.querySelectorAll("#readouts .pk")) el.parentElement.title = why;
+    const name = $("margins-name");
+    if (name) name.textContent = span ? `limits: margin in cycle ${span.cycle} (the last steady), action` : "limits: margin over this and the last cycle, action";
   }
 
   /**
@@ -133,7 +166,8 @@ export class ReadoutsPart {
         ma.textContent = { valve_close: "valve close", controlled_stop: "ctrl stop" }[action] || actionName(action);
         delete ma.dataset.count;
       }
-      row.title = num(limitSI) ? `largest ${l.name} this cycle ${fmtU(l.quantity, peak)} of the limit ` +
+      const over = this.peakLabel && this.peakLabel !== "cycle" ? `in ${this.peakLabel}` : "over this and the last cycle";
+      row.title = num(limitSI) ? `largest ${l.name} ${over} ${fmtU(l.quantity, peak)} of the limit ` +
         `${fmtU(l.quantity, limitSI, { sig: 4 })} (${(used * 100).toFixed(0)} %); when exceeded: ${actionName(action)}` +
         (l.key === "velocity_m_per_s" ? "; velocity: the streamed displacement's change over 5 ms (the service's " +
           "detector uses the measured displacement the same way)" : "") +
