@@ -19,5 +19,7 @@ if [ -n "$missing" ]; then
   $SUDO apt-get install -y -q $missing >/dev/null
 fi
 .venv/bin/ruff check .
-# the slowest tests named at the end: what to trim when the suite grows (CI has 90 minutes; we keep it well under 15)
-.venv/bin/python -m pytest -q --durations=20 "$@"
+# the slowest tests named at the end: what to trim when the suite grows (CI has 90 minutes; we keep it well under 15);
+# every test's time in artifacts/pytest.xml (JUnit XML)
+mkdir -p artifacts
+.venv/bin/python -m pytest -q --durations=20 --junitxml=artifacts/pytest.xml "$@"
