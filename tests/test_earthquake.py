@@ -11,8 +11,8 @@ import pytest
 from isorig.cli import main
 from sim.engine import Scenario, Simulation
 from sim.history import prepare_history
-from sim.isolator import PRESETS
 from sim.hybrid import rest_periods
+from sim.isolator import PRESETS
 from sim.profiles import ProfileError
 
 DEMO = "docs/examples/structure_3_storey.json"

@@ -56,7 +56,8 @@ def test_en15129_levels_become_tapered_sine_blocks():
     assert scaled.blocks[-1].amplitude_m == pytest.approx(0.03)
     assert scaled.blocks[0].amplitude_m == pytest.approx(0.0075)
     slower = scaled.with_frequency(0.25)  # EN 15129: the specimen's design frequency
-    assert [b.frequency_hz for b in slower.blocks] == [0.25] * 4 and slower.blocks[-1].amplitude_m == pytest.approx(0.03)
+    assert [b.frequency_hz for b in slower.blocks] == [0.25] * 4
+    assert slower.blocks[-1].amplitude_m == pytest.approx(0.03)
     assert slower.duration_s == pytest.approx(2 * scaled.duration_s)
     assert slower.cycle_plan()[-1]["t_end_s"] == pytest.approx(2 * scaled.cycle_plan()[-1]["t_end_s"])
     with pytest.raises(ProtocolError) as err:

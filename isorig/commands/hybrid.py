@@ -111,8 +111,14 @@ def run(args) -> int:
     from sim.engine import Scenario
     from sim.ground_motion import GROUND_MOTIONS, synthetic_ground_motion
     from sim.history import prepare_history, read_ground_motion
-    from sim.hybrid import (HybridSubstructure, compare_with_reference, ground_at_periods, predicted_with_rest,
-                            reference, run_virtual)
+    from sim.hybrid import (
+        HybridSubstructure,
+        compare_with_reference,
+        ground_at_periods,
+        predicted_with_rest,
+        reference,
+        run_virtual,
+    )
     from sim.isolator import load_isolator
     from sim.plant import SimulatedPlant
     from sim.records import samples_to_csv

@@ -189,7 +189,7 @@ def test_a_history_and_a_hybrid_test_run_through_the_service(client, tmp_path):
                 assert -0.1 < m["stability"]["indicator"] < 1.0 and m["stability"]["tripped"] is False
                 assert m["structure"]["columns"][1] == "drift_1_m"
                 assert len(m["structure"]["rows"]) == len(m["rows"])
-                for row, srow in zip(m["rows"], m["structure"]["rows"]):
+                for row, srow in zip(m["rows"], m["structure"]["rows"], strict=True):
                     if srow[0] is None:
                         resting.append((row[0], row[1]))
                     else:  # the base displacement is the command
