@@ -114,8 +114,11 @@ def view(session, test_id: int, points: int) -> dict:
     n = profile.target.n_samples
     step = max(1, -(-n // points))
     planned = {"time_s": _thinned(profile.target.time_s, step), "target_m": _thinned(profile.target.r_m, step)}
-    if profile.ground_acc_m_per_s2 is not None:
-        planned["ground_acc_m_per_s2"] = _thinned(profile.ground_acc_m_per_s2, step)
+    if profile.ground_acc_m_per_s2 is not None:  # 0 after the record (a hybrid test's rest), sample for sample
+        ag = np.zeros(n)
+        m = min(n, profile.ground_acc_m_per_s2.size)
+        ag[:m] = profile.ground_acc_m_per_s2[:m]
+        planned["ground_acc_m_per_s2"] = _thinned(ag, step)
     out = {"test_id": test_id, "kind": profile.kind, "status": test.status,
            "profile": clean_json(profile.description), "planned": planned, "record": None}
     if not test.samples_stored:

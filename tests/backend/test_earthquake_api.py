@@ -203,6 +203,7 @@ def test_a_history_and_a_hybrid_test_run_through_the_service(client, tmp_path):
     # the figures for a dashboard after the test
     eq = client.get(f"/api/tests/{test_id}/earthquake?points=500").json()
     assert eq["kind"] == "hybrid" and len(eq["planned"]["target_m"]) <= 500
+    assert len(eq["planned"]["ground_acc_m_per_s2"]) == len(eq["planned"]["time_s"]) == len(eq["planned"]["target_m"])
     series = eq["record"]["series"]
     assert len(series["structure"]["drift_1_m"]) <= 500 and len(series["reference"]["base_displacement_m"]) <= 500
     assert eq["record"]["verdicts"][3]["name"] == "J4"
