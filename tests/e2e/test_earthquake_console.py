@@ -188,6 +188,12 @@ def test_hybrid_simulation_shows_drifts_and_the_stability_monitor(server, open_p
     assert rec["profile"]["kind"] == "hybrid" and rec["summary"]["stability"]["tripped"] is False
     page.wait_for_selector("#rig-status[data-status='completed']", timeout=WAIT_MS)
     assert page.get_attribute("#stab-card", "data-level") in ("ok", "warn", "bad")
+    # after the shaking the table rests and the valve is quiet (issue 23 part 3): the command this page received
+    # over the test's last second, as the console drew it
+    quiet = poll(lambda: (lambda v: {"std_v": v} if v is not None else None)(
+        page.evaluate("window.__isorig.endCommandStdV")), 10, "the command's std over the last second")
+    assert quiet["std_v"] < 0.05, quiet
+    shots(page, artifacts, "dashboard_earthquake_hybrid_at_rest")
 
     # the same building with a threshold it cannot keep: the monitor trips, in red with its reason
     server.zero_table()  # the structure leaves the isolator's residual displacement

@@ -205,6 +205,7 @@ export class LiveView {
     if (FINAL.has(msg.status)) {
       state.stopping = false;
       state.stoppingReason = "";
+      this.noteEndCommand(); // how still the valve was at the end (window.__isorig)
     }
     if (msg.status === "failed") state.faulted = msg.reason || "the test failed";
     setStatusBadge(state.stopping && msg.status === "running" ? "stopping" : msg.status);

@@ -12,6 +12,6 @@ export const metrics = {
   firstLiveFrameMs: null, // performance.now() at the first redraw showing live samples
   wsOpenMs: null,
   lastMessageMs: null,
+  endCommandStdV: null, // after a test: the std of the valve command over its last second received (V)
 };
-window.__isorig = metrics;
 window.__isorig = metrics;

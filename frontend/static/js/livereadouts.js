@@ -3,6 +3,7 @@
 
 import { actionName, actionOf, LIMITS } from "./limits.js";
 import { emptyExtremes, FINAL } from "./livebuffer.js";
+import { metrics } from "./livemetrics.js";
 import { changed, state } from "./state.js";
 import { factorIn, fmt, fmtU } from "./units.js";
 
@@ -56,6 +57,7 @@ export class ReadoutsPart {
     c.yAbs = Math.max(Math.abs(c.yMax), Math.abs(c.yMin));
     c.fAbs = Math.max(Math.abs(c.fMax), Math.abs(c.fMin));
     if (i1 === 0) return;
+    this.noteEndCommand();
     if (now - this.readoutAt < READOUT_MS) {
       this.dirty = true; // the last samples of a run are shown too, once the 100 ms have passed
       return;
@@ -85,6 +87,27 @@ export class ReadoutsPart {
     changed("position");
     this.renderMargins(false);
     this.showRigNow();
+  }
+
+  /** After a test: how still the valve command was over its last second (metrics.endCommandStdV, in V). */
+  noteEndCommand() {
+    const b = this.buf;
+    if (!FINAL.has(this.status) || !b.len) {
+      metrics.endCommandStdV = null;
+      return;
+    }
+    const key = `${this.testId}:${b.len}`;
+    if (this.endCommandKey === key) return;
+    this.endCommandKey = key;
+    const a = b.a;
+    const i0 = b.lowerBound(a.t[b.len - 1] - 1.0);
+    let n = 0, sum = 0, sq = 0;
+    for (let i = i0; i < b.len; i++) {
+      const v = a.v[i] / factorIn("voltage", this.sys);
+      if (!Number.isFinite(v)) continue;
+      n++; sum += v; sq += v * v;
+    }
+    metrics.endCommandStdV = n ? Math.sqrt(Math.max(0, sq / n - (sum / n) ** 2)) : null;
   }
 
   /**
