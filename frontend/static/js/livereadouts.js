@@ -130,9 +130,11 @@ export class ReadoutsPart {
     const text = span ? `cycle ${span.cycle}` : "cycle";
     if (this.peakLabel === text) return;
     this.peakLabel = text;
-    for (const el of document.querySelectorAll("#readouts .pk")) el.textContent = `${text} ${el.dataset.what}`;
     const why = span ? `cycle ${span.cycle}: the test's last steady cycle (the ramp-out came after it)` : "the current cycle";
-    for (const el of document.querySelectorAll("#readouts .pk")) el.parentElement.title = why;
+    for (const el of document.querySelectorAll("#readouts .pk")) {
+      el.textContent = `${text} ${el.dataset.what}`;
+      el.parentElement.title = why;
+    }
     const name = $("margins-name");
     if (name) name.textContent = span ? `limits: margin in cycle ${span.cycle} (the last steady), action` : "limits: margin over this and the last cycle, action";
   }
@@ -156,10 +158,9 @@ export class ReadoutsPart {
     const c = this.cyc;
     const p = this.lastCyc || emptyExtremes(0);
     const si = (quantity, shown) => shown / factorIn(quantity, this.sys);
-    const big = (a, b) => Math.max(a, b);
-    const peaks = { displacement_m: si("length", big(c.yAbs, p.yAbs)), force_n: si("force", big(c.fAbs, p.fAbs)),
-      velocity_m_per_s: si("length", big(c.velAbs, p.velAbs)), load_pressure_pa: si("pressure", big(c.plAbs, p.plAbs)),
-      tracking_error_m: si("length", big(c.eAbs, p.eAbs)) };
+    const peaks = { displacement_m: si("length", Math.max(c.yAbs, p.yAbs)), force_n: si("force", Math.max(c.fAbs, p.fAbs)),
+      velocity_m_per_s: si("length", Math.max(c.velAbs, p.velAbs)),
+      load_pressure_pa: si("pressure", Math.max(c.plAbs, p.plAbs)), tracking_error_m: si("length", Math.max(c.eAbs, p.eAbs)) };
     if (!box.querySelector(".margin") || force) {
       box.innerHTML = "";
       for (const l of LIMITS) {
