@@ -377,8 +377,11 @@ def attack_figures(tmp_path: Path) -> dict:
 def test_an_attacker_without_the_key_changes_nothing_in_a_running_test(tmp_path):
     figures = attack_figures(tmp_path)
     print(json.dumps(figures))
-    # nothing the attacker sent was applied: its +10 V commands would be the largest the rig ever applied
-    assert figures["rig_applied_max_abs_v"] == pytest.approx(figures["host_sent_max_abs_v"], abs=1e-4), figures
+    # nothing the attacker sent was applied: its +10 V commands would be the largest the rig ever applied. At most
+    # the host's largest, not equal to it: a command the rig missed (late) was never applied (2.96882 V applied
+    # against 2.96893 V sent in a CI run where the rig missed 105 commands)
+    assert 0.5 * figures["host_sent_max_abs_v"] < figures["rig_applied_max_abs_v"] <= \
+        figures["host_sent_max_abs_v"] + 1e-4, figures
     assert figures["host_sent_max_abs_v"] < 9.0, figures
     # the tracking of the run nobody attacked. The target, within 0.1 % of the amplitude, is measured over several
     # runs by scripts/link_attack.py: on a loaded 2-CPU machine two runs nobody attacks differ by up to 0.11 % (the
