@@ -35,10 +35,9 @@ from contextlib import nullcontext
 
 import numpy as np
 
-from sim.controllers import INTERNAL_FACTORIES, make_controller
-from sim.detectors import guard_trip
+from sim.controllers import make_controller
+from sim.detectors import follow_monitor, guard_trip
 from sim.engine import Scenario
-from sim.follow import FollowMonitor, advice_for, limits_for, reference_for
 from sim.isolator import isolator_from_dict
 from sim.loop import CONTROL_PERIOD_S, ClosedLoop
 from sim.measurement import FLAG_LOST, Measurement
@@ -171,19 +170,6 @@ def hybrid_from_job(job: dict, scenario: Scenario):
                               spec["ground_acc_m_per_s2"])
 
 
-def follow_monitor(scenario: Scenario, table) -> FollowMonitor | None:
-    """The detector of a rig the controller cannot follow (sim.follow), judged against the rig's declared
-    position latency; None for the commissioning excitation, which follows no target by design."""
-    if scenario.controller in INTERNAL_FACTORIES:
-        return None
-    if scenario.profile:
-        reference = reference_for(scenario.profile)
-    else:
-        reference = reference_for([], table[:, 0] if table is not None and len(table) else np.zeros(1))
-    return FollowMonitor(reference, scenario.rig.position_latency_s, limits_for(scenario.controller),
-                         advice_for(scenario.controller))
-
-
 class Pacer:
     """Waits until each chunk is due on the wall clock; records how late every release was.
 
@@ -262,7 +248,7 @@ class Run:
             self.brake_m_per_s2 = self.loop.guard_displacement(limits.displacement_m)
         # judged against the test's planned target: a hybrid test's table is written as it runs (zeros now), its
         # prediction is the reference's motion (an amplitude of 0 made the oscillation bound its 40 um floor)
-        self.follow = follow_monitor(scenario, scenario.target_table() if self.hybrid is not None else table)
+        self.follow = follow_monitor(scenario, scenario.target_table())
         self.start_target_m = self.loop.start_target_m  # now, not in the first period (its first call compiles)
         self.realtime_section = "not entered"
         # a hybrid test computes each target from the last measurement: one period at a time on every rig
