@@ -85,6 +85,7 @@ def test_bad_controller_option_is_one_line(tmp_path):
     assert main(["simulate", "--controller-option", "gama=3", "--out", str(tmp_path)]) == 2
 
 
+@pytest.mark.realtime  # a rig emulator and a CPU hog: run alone, after the others (scripts/test.sh)
 def test_bench_rig_watchdog_part_refuses_bad_figures_and_runs_a_short_test(tmp_path, capsys):
     """``isorig bench-rig --parts watchdog`` (issue 21's target: 0 trips at 18 ms, p99 < 1 ms, two CPU hogs
     beside) names what it needs, and prints one row per test and the totals."""

@@ -24,6 +24,9 @@ from sim.emulator import auth
 from sim.emulator import protocol as proto
 from sim.rigfile import load_rig_file
 
+# real time against the rig emulator in its own process: scripts/test.sh runs these alone, after the others
+pytestmark = pytest.mark.realtime
+
 DROP_REASONS = ("short", "size", "magic", "version", "kind", "crc", "session", "stale", "future", "value", "busy",
                 "arm")
 SECTIONS = {"§1.1", "§1.2", "§1.3", "§1.4", "§1.5", "§1.7", "§2", "§3.1", "§3.2", "§3.3", "§3.4", "§3.5", "§4", "§5"}

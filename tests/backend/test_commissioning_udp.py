@@ -8,9 +8,13 @@ import json
 import subprocess
 
 import numpy as np
+import pytest
 from emulator import ISORIG, Emulator, read_record, simulate_on
 
 from sim.rigfile import load_rig_file
+
+# real time against the rig emulator in its own process: scripts/test.sh runs these alone, after the others
+pytestmark = pytest.mark.realtime
 
 #: a heavy table on a soft oil column (22 Hz), a slower valve with a wider dead zone, a late position reading
 LAB_RIG = {"mass_kg": 3000.0, "bulk_modulus_pa": 4.5e8, "valve_natural_frequency_rad_s": 300.0, "dead_zone_v": 1.1,

@@ -279,6 +279,7 @@ def test_the_stability_monitor_stops_a_hybrid_test_and_a_stop_brakes_it_to_rest(
     assert rec["summary"]["earthquake"]["structure"]["periods"] == k
 
 
+@pytest.mark.realtime  # the rig emulator in its own process: run alone, after the others (scripts/test.sh)
 def test_a_hybrid_test_on_the_rig_emulator_through_the_service(tmp_path):
     from emulator import Emulator
 

@@ -18,6 +18,9 @@ from emulator import ISORIG, Emulator, simulate_on
 from backend.drivers.udp import start_position_problem
 from sim.emulator import protocol as proto
 
+# real time against the rig emulator in its own process: scripts/test.sh runs these alone, after the others
+pytestmark = pytest.mark.realtime
+
 
 def wait_armed(emulator: Emulator, timeout_s: float = 30.0) -> dict:
     deadline = time.monotonic() + timeout_s

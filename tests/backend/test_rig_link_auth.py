@@ -31,6 +31,9 @@ from sim.emulator import protocol as proto
 from sim.emulator.server import HELLO_BURST, HELLO_RATE_PER_S
 from sim.measurement import STATUS_ARMED, STATUS_INTERLOCK
 
+# real time against the rig emulator in its own process: scripts/test.sh runs these alone, after the others
+pytestmark = pytest.mark.realtime
+
 V2 = proto.Codec(2)
 AMPLITUDE_M = 0.01  # simulate_on's
 NATURAL_DROPS = 3  # drops nobody forged that a loaded 2-CPU machine may add in a test (a command counted stale)

@@ -25,6 +25,9 @@ from sim.emulator import protocol as proto
 from sim.isolator import PRESETS
 from sim.measurement import FLAG_LOST, STATUS_ARMED, STATUS_COMMAND_MISSED, STATUS_WATCHDOG
 
+# real time against the rig emulator in its own process: scripts/test.sh runs these alone, after the others
+pytestmark = pytest.mark.realtime
+
 MISSED_PERIODS_MAX = 0.03  # a share of periods: what a loaded CI machine at normal priority may miss on loopback
 
 

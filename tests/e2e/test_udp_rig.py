@@ -9,6 +9,8 @@ from __future__ import annotations
 import json
 import re
 
+import pytest
+
 from .harness import (
     OPERATOR,
     WAIT_MS,
@@ -21,6 +23,9 @@ from .harness import (
     start_from_form,
     wait_start_enabled,
 )
+
+# real time against the rig emulator in its own process: scripts/test.sh runs these alone, after the others
+pytestmark = pytest.mark.realtime
 
 VIEWPORTS = [(1366, 768), (1920, 1080)]
 MS = r"\d+(\.\d{1,2})? ms"  # a latency: at most 2 decimals
