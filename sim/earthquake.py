@@ -320,7 +320,7 @@ def _history(spec: dict, isolator: Isolator, vertical_load_n: float, dt_s: float
 
 
 def _hybrid(spec: dict, isolator: Isolator, dt_s: float) -> EarthquakeProfile:
-    from .hybrid import ground_at_periods, predicted_with_rest, reference
+    from .hybrid import ground_at_periods, predicted_history, reference
     from .structure import ShearBuilding, StructureError
 
     _known(spec, HYBRID_FIELDS, "profile")
@@ -357,9 +357,7 @@ def _hybrid(spec: dict, isolator: Isolator, dt_s: float) -> EarthquakeProfile:
                      "motion's scale and units", "profile.ground_motion", None, "a finite response")
     source = f"hybrid: the reference's base displacement under {_ground_motion_name(info)} x {scale:g}"
     try:
-        rested = predicted_with_rest(base, ref["base_velocity_m_per_s"], dt_s)  # then the table rests
-        predicted = prepare_history(np.arange(rested.size) * dt_s, rested, dt_s, 1.0, 0.0, 0.0, require_rest=False,
-                                    source=source)
+        predicted = predicted_history(ref, dt_s, source)  # the base displacement, then the table rests
     except HistoryError as exc:
         raise _prefixed(exc, "profile") from None
     predicted = replace(predicted, ground_motion_scale=scale)

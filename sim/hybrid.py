@@ -91,6 +91,17 @@ def predicted_with_rest(base_displacement_m: np.ndarray, base_velocity_m_per_s: 
     return np.concatenate([x, tail[:, 0]])
 
 
+def predicted_history(ref: dict, dt_s: float = CONTROL_PERIOD_S, source: str = "the reference's base displacement"):
+    """The table's planned motion of a hybrid test as a time history (sim.history.HistoryTarget): the reference's
+    (``reference``) base displacement, then its rest (``predicted_with_rest``), neither tapered nor scaled. The
+    rig's envelope and the follow detector judge a hybrid test against it (sim.earthquake, isorig hybrid)."""
+    from .history import prepare_history
+
+    rested = predicted_with_rest(ref["base_displacement_m"], ref["base_velocity_m_per_s"], dt_s)
+    return prepare_history(np.arange(rested.size) * dt_s, rested, dt_s, 1.0, 0.0, 0.0, require_rest=False,
+                           source=source)
+
+
 def ground_at_periods(time_s: np.ndarray, acc_m_per_s2: np.ndarray, dt_s: float = CONTROL_PERIOD_S) -> np.ndarray:
     """The ground acceleration at every control period (linear between the record's samples, 0 after it)."""
     t = np.asarray(time_s, dtype=float)

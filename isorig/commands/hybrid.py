@@ -110,12 +110,12 @@ def run(args) -> int:
     from sim.controllers import make_controller
     from sim.engine import Scenario
     from sim.ground_motion import GROUND_MOTIONS, synthetic_ground_motion
-    from sim.history import prepare_history, read_ground_motion
+    from sim.history import read_ground_motion
     from sim.hybrid import (
         HybridSubstructure,
         compare_with_reference,
         ground_at_periods,
-        predicted_with_rest,
+        predicted_history,
         reference,
         run_virtual,
     )
@@ -137,9 +137,7 @@ def run(args) -> int:
     load_n = args.vertical_load_n if args.vertical_load_n is not None else building.total_mass_kg * 9.80665
     ref = reference(building, isolator, ag)
     # the rig's envelope, checked on the reference's base displacement before anything moves
-    rested = predicted_with_rest(ref["base_displacement_m"], ref["base_velocity_m_per_s"])  # then at rest
-    predicted = prepare_history(np.arange(rested.size) * 1e-3, rested, taper_in_s=0.0,
-                                taper_out_s=0.0, require_rest=False, source="the reference's base displacement")
+    predicted = predicted_history(ref)  # the base displacement, then the table at rest
     scenario = Scenario(isolator, args.supply_bar * 1e5, [], args.controller, vertical_load_n=load_n,
                         history=predicted)
     scenario.validate()
