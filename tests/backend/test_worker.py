@@ -146,14 +146,19 @@ def test_abort_writes_zero_at_once_and_disarms_unsuccessfully():
     assert driver.disarms == [False]
 
 
-def test_a_rig_fault_ends_the_test_failed_with_every_sample_before_it():
-    class LinkDies(Recorder):
+def link_lost_at(base, period: int = 777):
+    """The rig class ``base`` with its link lost at ``period``: no measurement comes (RigFault)."""
+    class LinkDies(base):
         def wait_next_period(self):
-            if self.plant.period >= 777:
+            if self.plant.period >= period:
                 raise RigFault("no measurement for 0.05 s: link lost")
             super().wait_next_period()
 
-    status, reason, out, driver = run_with(LinkDies)
+    return LinkDies
+
+
+def test_a_rig_fault_ends_the_test_failed_with_every_sample_before_it():
+    status, reason, out, driver = run_with(link_lost_at(Recorder))
     assert status == "failed" and "link lost" in reason
     assert driver.disarms == [False]
     assert [m["kind"] for k, m in out.sent if k == "event"] == ["rig_fault"]
@@ -316,13 +321,7 @@ def test_a_rig_in_real_time_waits_for_one_piece_of_the_workers_work_at_most():
 
 def test_a_rig_in_real_time_keeps_every_sample_after_a_fault_or_an_abort():
     """Samples whose release waited for an answer are sent when the link fails or the operator aborts."""
-    class LinkDies(RealtimeRig):
-        def wait_next_period(self):
-            if self.plant.period >= 777:
-                raise RigFault("no measurement for 0.05 s: link lost")
-            super().wait_next_period()
-
-    status, reason, out, _ = run_logged(LinkDies, job(speed=1.0))
+    status, reason, out, _ = run_logged(link_lost_at(RealtimeRig), job(speed=1.0))
     assert status == "failed" and "link lost" in reason
     np.testing.assert_array_equal(samples_of(out)["time_s"], np.arange(778) * 1e-3)
     status, reason, out, _ = run_logged(RealtimeRig, job(speed=1.0, cycles=10), commands=[(0.5, "abort")])
