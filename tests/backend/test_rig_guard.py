@@ -39,23 +39,27 @@ def free_udp_port() -> int:
 
 
 def test_a_second_host_cannot_take_over_a_rig_that_runs_a_test(tmp_path):
+    """The checks run while the first test runs: its 16 s outlast them on a loaded machine (a clean-clone run with
+    two CPU hogs beside took so long to start `isorig move` that an 8 s test had ended before the foreign ARMs)."""
     emulator = Emulator(tmp_path)
     first = None
     try:
-        first = simulate_on(emulator.url, tmp_path / "first", cycles=8, frequency_hz=1.0, wait=False)
+        first = simulate_on(emulator.url, tmp_path / "first", cycles=16, frequency_hz=1.0, wait=False)
         armed = wait_armed(emulator)
-        # the host side: neither a test nor a move starts while the rig is armed
-        problem = start_position_problem(emulator.url, timeout_s=0.5)
-        assert problem is not None and "armed" in problem and "nothing moved" in problem
-        move = subprocess.run([*ISORIG, "move", "--rig", emulator.url, "--position-m", "0.01"],
-                              capture_output=True, text=True, timeout=60)
-        assert move.returncode == 2 and "armed" in move.stderr and "Traceback" not in move.stderr, move.stderr
         # the rig side: an ARM of another session is dropped, the running test keeps the rig
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
             for _ in range(3):
                 sock.sendto(proto.encode(proto.ARM, armed["session"] + 1, 0, 0, 100e5, 1.25e5),
                             ("127.0.0.1", emulator.port))
                 time.sleep(0.05)
+        # the host side: neither a test nor a move starts while the rig is armed
+        problem = start_position_problem(emulator.url, timeout_s=0.5)
+        assert problem is not None and "armed" in problem and "nothing moved" in problem
+        move = subprocess.run([*ISORIG, "move", "--rig", emulator.url, "--position-m", "0.01"],
+                              capture_output=True, text=True, timeout=60)
+        still = emulator.fresh_status()
+        assert still["armed"] and still["session"] == armed["session"], "the first test ended before the checks"
+        assert move.returncode == 2 and "armed" in move.stderr and "Traceback" not in move.stderr, move.stderr
         out, _ = first.communicate(timeout=120)
         assert first.returncode == 0, out
         status = emulator.fresh_status()
