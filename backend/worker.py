@@ -458,7 +458,6 @@ class Run:
         first = len(self.produced)
         if self.compiled is not None:
             self.produced.append(self.compiled(loop, n))
-            self.run_after_answer()
         else:
             end = min(loop.period + n, loop.end_period)
             while loop.period < end:
