@@ -4,7 +4,6 @@ has ended. Timings (a 100 MB body, /api/health meanwhile, RSS) are measured by s
 
 from __future__ import annotations
 
-import asyncio
 import logging
 import os
 import sqlite3
@@ -12,6 +11,7 @@ import stat
 import threading
 import time
 
+import aio
 import pytest
 from conftest import AUTH, TOKEN, make_settings, sine_test, wait_for
 from fastapi.routing import APIRoute
@@ -51,7 +51,7 @@ def _drive(doors: ServiceDoors, scope: dict, chunks) -> tuple[list, int]:
     async def send(message):
         sent.append(message)
 
-    asyncio.run(doors(scope, receive, send))
+    aio.run(doors(scope, receive, send))
     return sent, taken
 
 

@@ -6,6 +6,8 @@ import asyncio
 import json
 import math
 
+import aio
+
 from backend.stream import Frame, Hub
 
 
@@ -75,4 +77,4 @@ def test_subscription_iterates_and_closes():
             return first
         raise AssertionError("closed subscription kept iterating")
 
-    assert asyncio.run(main())["type"] == "samples"
+    assert aio.run(main())["type"] == "samples"
