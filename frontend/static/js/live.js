@@ -63,7 +63,7 @@ export class LiveView {
     this.lastCyc = null;
     this.cyc = emptyExtremes(0);
     this.readoutAt = 0;
-    this.events = []; // [{key, e}] in order
+    this.events = []; // [{key, e, arrived}] in order
     this.eq = new EarthquakeLive(); // a time-history or hybrid test: the whole record, drifts, stability
     onUnits(() => this.onUnitsChanged());
     // between tests the readouts are the rig now (where the table is, its force, the valve command), as the rig

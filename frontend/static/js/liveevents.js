@@ -15,7 +15,7 @@ export class EventsPart {
     if (!e.created_at && !e.receivedAt) e.receivedAt = Date.now();
     const key = eventKey(e);
     if (this.events.some((x) => x.key === key)) return;
-    this.events.push({ key, e });
+    this.events.push({ key, e, arrived: e.created_at ? "record" : "stream" });
     if (this.events.length > 300) this.events.shift();
     this.noteEnding(e);
     if (e.kind === "rig_fault") state.faulted = e.message || "rig fault";
@@ -61,9 +61,16 @@ export class EventsPart {
     return this.trips.map((t) => t.words).join("; ");
   }
 
-  /** The record's events (ordered by the service): they replace what the stream gave, the rest follows. */
+  /**
+   * The record's events (ordered by the service): they replace what the stream gave, the rest follows. An event
+   * keeps how this page first learned of it (live from the stream, or from the record).
+   */
   mergeEvents(list) {
-    const fromRecord = (list || []).map((e) => ({ key: eventKey(e), e }));
+    const arrived = new Map(this.events.map((x) => [x.key, x.arrived]));
+    const fromRecord = (list || []).map((e) => {
+      const key = eventKey(e);
+      return { key, e, arrived: arrived.get(key) || "record" };
+    });
     const keys = new Set(fromRecord.map((x) => x.key));
     const live = this.events.filter((x) => !keys.has(x.key));
     this.events = [...fromRecord, ...live].slice(-300);
@@ -79,10 +86,10 @@ export class EventsPart {
     const list = $("live-events");
     const atEnd = list.scrollTop + list.clientHeight >= list.scrollHeight - 4;
     list.innerHTML = "";
-    for (const { e } of this.events) {
+    for (const { e, arrived } of this.events) {
       const li = document.createElement("li");
       li.className = e.kind || "";
-      li.dataset.source = e.created_at ? "record" : "stream"; // a streamed event arrived live, before any record
+      li.dataset.source = arrived; // "stream": this page learned of it live, before the record had it
       li.textContent = eventLine(e);
       list.append(li);
     }
