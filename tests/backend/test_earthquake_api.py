@@ -259,10 +259,13 @@ def test_the_stability_monitor_stops_a_hybrid_test_and_a_stop_brakes_it_to_rest(
 
     zero_table(client)
     # an operator's stop: the structure freezes, the table brakes and fades to rest, no jump in the target
-    r = client.post("/api/tests?start=true", json=hybrid_body(speed=2.0), headers=AUTH)
+    # at speed 1, the stop asked at t >= 1.2 s lands well before the 3 s record ends, on a loaded machine too
+    r = client.post("/api/tests?start=true", json=hybrid_body(speed=1.0), headers=AUTH)
     test_id = r.json()["id"]
     deadline = time.monotonic() + 20
-    while client.get(f"/api/tests/{test_id}").json()["time_s"] < 1.2 and time.monotonic() < deadline:
+    asked_s = 0.0
+    while asked_s < 1.2 and time.monotonic() < deadline:
+        asked_s = client.get(f"/api/tests/{test_id}").json()["time_s"]
         time.sleep(0.02)
     assert client.post(f"/api/tests/{test_id}/stop", headers=AUTH).status_code == 200
     rec = wait_for(client, test_id)
@@ -271,7 +274,8 @@ def test_the_stability_monitor_stops_a_hybrid_test_and_a_stop_brakes_it_to_rest(
                      for line in client.get(f"/api/tests/{test_id}/data.csv").text.splitlines()[1:]])
     t, r_m, y = rows[:, 0], rows[:, 1], rows[:, 3]
     stop = rec["summary"]["earthquake"]["judged"]["until_s"]
-    assert 1.2 <= stop < 2.5 and t[-1] == pytest.approx(stop + 1.0, abs=0.01)
+    # the structure froze where the stop was asked (not before it), before the shaking had ended
+    assert 1.2 <= asked_s <= stop < T[-1] and t[-1] == pytest.approx(stop + 1.0, abs=0.01), (asked_s, stop)
     step = np.abs(np.diff(r_m))
     k = int(round(stop * 1000))
     assert step[k - 5:].max() < 1.5 * step[:k].max()  # braked, no jump
