@@ -36,15 +36,18 @@ def encode_samples(rows: np.ndarray) -> bytes:
     return zlib.compress(b"".join(parts), 6)
 
 
-def decode_samples(data: bytes, n_rows: int, n_columns: int) -> np.ndarray:
-    raw = zlib.decompress(data)
-    out = np.empty((n_rows, n_columns))
+def decode_samples(data: bytes, n_rows: int, n_columns: int, out: np.ndarray | None = None) -> np.ndarray:
+    """The (n_rows, n_columns) float64 rows of encode_samples; written into ``out`` (float64, at least as many
+    columns; its first n_columns are filled) when given, which saves a copy when many chunks make one array."""
+    raw = memoryview(zlib.decompress(data))  # slices of a memoryview are views: no copy of each plane
+    if out is None:
+        out = np.empty((n_rows, n_columns))
     out[:, 0] = _unshuffle(raw[: 8 * n_rows], np.float64, n_rows)
-    offset = 8 * n_rows
-    for j in range(1, n_columns):
-        out[:, j] = _unshuffle(raw[offset: offset + 4 * n_rows], np.float32, n_rows)
-        offset += 4 * n_rows
-    return out
+    if n_columns > 1:  # the float32 planes in one go: (column, byte, row) -> (column, row, byte) -> float32
+        planes = np.frombuffer(raw, dtype=np.uint8, count=4 * n_rows * (n_columns - 1), offset=8 * n_rows)
+        columns = np.ascontiguousarray(planes.reshape(n_columns - 1, 4, n_rows).transpose(0, 2, 1))
+        out[:, 1:n_columns] = columns.view(np.float32).reshape(n_columns - 1, n_rows).T
+    return out[:, :n_columns]
 
 
 def encode_arrays(*arrays: np.ndarray) -> bytes:

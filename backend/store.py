@@ -18,7 +18,7 @@ import numpy as np
 from sqlalchemy import delete, func, or_, select
 from sqlalchemy.orm import Session
 
-from sim.samples import Samples
+from sim.samples import N_FIELDS, Samples
 
 from .codec import ARRAYS_CODEC, SAMPLES_CODEC, decode_arrays, decode_samples, encode_arrays, encode_samples
 from .models import CycleRecord, EventRecord, SampleChunk, TestRecord, UserIsolator, utcnow
@@ -212,11 +212,20 @@ def append_samples(session: Session, test: TestRecord, rows: np.ndarray | Sample
 
 def load_samples(session: Session, test_id: int) -> Samples:
     """Every sample of a test by name (sim.samples); fields an older record did not store read as NaN."""
-    chunks = session.execute(select(SampleChunk.data, SampleChunk.n_rows, SampleChunk.n_columns)
-                             .where(SampleChunk.test_id == test_id).order_by(SampleChunk.seq))
-    blocks = [Samples.from_stored(decode_samples(data, n_rows, n_columns))  # no ORM objects
-              for data, n_rows, n_columns in chunks]
-    return Samples.concatenate(blocks)
+    chunks = session.execute(select(SampleChunk.data, SampleChunk.n_rows, SampleChunk.n_columns)  # no ORM objects
+                             .where(SampleChunk.test_id == test_id).order_by(SampleChunk.seq)).all()
+    if not chunks:
+        return Samples.empty()
+    widest = max(n_columns for _, _, n_columns in chunks)
+    if widest > N_FIELDS:
+        raise ValueError(f"stored rows have {widest} columns, more than the {N_FIELDS} known fields")
+    rows = np.empty((sum(n_rows for _, n_rows, _ in chunks), N_FIELDS))
+    at = 0
+    for data, n_rows, n_columns in chunks:  # each chunk decoded in place: one array, no concatenation
+        decode_samples(data, n_rows, n_columns, out=rows[at: at + n_rows])
+        rows[at: at + n_rows, n_columns:] = np.nan  # fields an older record did not store
+        at += n_rows
+    return Samples(rows)
 
 
 def iter_sample_blocks(session: Session, test_id: int):

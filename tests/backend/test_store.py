@@ -39,6 +39,30 @@ def test_sample_codec_keeps_7_digits_and_compresses():
     assert len(data) < 0.5 * rows.size * 4  # well under raw float32
 
 
+def test_samples_of_older_and_newer_chunks_load_as_one_array(tmp_path):
+    """A record whose first chunk was stored with fewer fields (an older version) reads those fields as NaN; every
+    chunk lands in one array, as the codec decoded it, in the stored order."""
+    engine = make_engine(f"sqlite:///{tmp_path / 's.db'}")
+    upgrade(engine)
+    rng = np.random.default_rng(7)
+    old, new = rng.normal(size=(300, 9)), rng.normal(size=(200, N_FIELDS))
+    old[:, 0], new[:, 0] = np.arange(300) * 1e-3, 0.3 + np.arange(200) * 1e-3
+    with session_factory(engine)() as s:
+        t = store.create_test(s, rig_name="rig-1", isolator="IUT_a", supply_bar=100.0, controller="pid",
+                              speed=1.0, driver="simulated", request={}, scenario={}, limits={}, duration_s=0.5,
+                              cycles_total=0, label="")
+        store.append_samples(s, t, old)
+        store.append_samples(s, t, new)
+        s.commit()
+        loaded = store.load_samples(s, t.id).array
+        assert store.load_samples(s, t.id + 1).array.shape == (0, N_FIELDS)  # no chunk: an empty record
+    assert loaded.shape == (500, N_FIELDS)
+    assert np.array_equal(loaded[:300, :9], decode_samples(encode_samples(old), 300, 9))
+    assert np.isnan(loaded[:300, 9:]).all()
+    assert np.array_equal(loaded[300:], decode_samples(encode_samples(new), 200, N_FIELDS))
+    assert np.array_equal(loaded[:, 0], np.concatenate([old[:, 0], new[:, 0]]))  # time exact
+
+
 def make_bundle(url: str) -> store.TestBundle:
     engine = make_engine(url)
     upgrade(engine)
