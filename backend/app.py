@@ -52,10 +52,11 @@ def _warm_reports(sessions) -> threading.Event:
 
     def run() -> None:
         try:
-            from .reports.warm import warm_once, warm_store
+            from .reports.warm import freeze_startup_objects, warm_once, warm_store
 
             warm_once()
             warm_store(sessions)
+            freeze_startup_objects()
         except ImportError:  # an installation without reports: nothing to warm
             pass
         except Exception:  # noqa: BLE001 - a failed warm-up costs the first report its time, never the service

@@ -61,6 +61,32 @@ def store_sine_test(url: str) -> int:
     return test_id
 
 
+class GcClock:
+    """The time the garbage collector spent, and its full (generation 2) collections, while it is on."""
+
+    def __init__(self):
+        self.s, self.full, self._t0 = 0.0, 0, None
+
+    def __call__(self, phase: str, info: dict) -> None:
+        if phase == "start":
+            self._t0 = time.perf_counter()
+        elif self._t0 is not None:
+            self.s += time.perf_counter() - self._t0
+            self.full += info.get("generation") == 2
+            self._t0 = None
+
+    def __enter__(self):
+        import gc
+
+        gc.callbacks.append(self)
+        return self
+
+    def __exit__(self, *exc):
+        import gc
+
+        gc.callbacks.remove(self)
+
+
 def report_here(app, test_id: int) -> bytes:
     """What GET /api/tests/{id}/report.pdf does (backend.api.tests.report_pdf), in this thread."""
     import io
@@ -111,8 +137,9 @@ def main(argv=None) -> int:
                 warm.wait(60)
                 waited = time.perf_counter() - t0
             test_id = client.get("/api/tests").json()[0]["id"]
-            times, cpu = [], []
+            times, cpu, gcs = [], [], []
             for k in range(2):
+                gc_clock = GcClock().__enter__()
                 t0, c0 = time.perf_counter(), time.process_time()
                 if args.profile:
                     profiler = cProfile.Profile()
@@ -128,6 +155,8 @@ def main(argv=None) -> int:
                     size = len(r.content)
                 times.append(time.perf_counter() - t0)
                 cpu.append(time.process_time() - c0)
+                gc_clock.__exit__()
+                gcs.append(gc_clock)
         print(f"service start {started:.2f} s; warm-up " + ("not waited for" if args.no_wait or warm is None
                                                              else f"waited {waited:.2f} s more"))
         print(f"first report {times[0]:.2f} s, second report {times[1]:.2f} s ({size} bytes)"
@@ -136,6 +165,8 @@ def main(argv=None) -> int:
         # time cannot show (the warm-up, when not waited for, counts in the first)
         print(f"CPU: first report {cpu[0]:.2f} s, second report {cpu[1]:.2f} s; load average "
               f"{' '.join(open('/proc/loadavg').read().split()[:3])}")
+        print("garbage collection: " + ", ".join(f"{name} report {g.s:.2f} s ({g.full} full)"
+                                                 for name, g in zip(("first", "second"), gcs, strict=True)))
         return 0
     finally:
         shutil.rmtree(work, ignore_errors=True)

