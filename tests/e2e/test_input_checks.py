@@ -30,7 +30,7 @@ def _blocked_by(page, words: str) -> None:
 def test_a_bad_structure_file_keeps_start_disabled_until_replaced_or_cleared(server, open_page, artifacts,
                                                                             viewport, tmp_path):
     width, height = viewport
-    page, _ = open_page(server.url + "/", width=width, height=height, login=OPERATOR)
+    page, watch = open_page(server.url + "/", width=width, height=height, login=OPERATOR)
     fill_identity(page, "I23-HYBRID")
     page.select_option("#f-isolator", "IUT_a")
     page.fill("#f-supply", "100")
@@ -54,9 +54,10 @@ def test_a_bad_structure_file_keeps_start_disabled_until_replaced_or_cleared(ser
     assert page.get_attribute("#hy-file-note", "class") == "msg bad"
     assert page.is_visible("#hy-file-clear")
     page.screenshot(path=str(artifacts / f"i23_bad_structure_file_{width}x{height}.png"))
-    # no other change re-enables Start: the scale changed, the envelope checked again
+    # no other change re-enables Start: the scale changed, the envelope checked again (its answer drawn anew)
+    page.evaluate("document.querySelectorAll('#envelope > *').forEach((e) => { e.dataset.before = '1'; })")
     page.fill("#f-eq_scale", "0.25")
-    page.wait_for_selector("#envelope[data-state]", timeout=WAIT_MS)
+    page.wait_for_selector("#envelope[data-state] > :not([data-before])", timeout=WAIT_MS)
     _blocked_by(page, "structure file")
     # cleared: the building in the fields (unchanged) is what runs
     page.click("#hy-file-clear")
@@ -88,6 +89,24 @@ def test_a_bad_structure_file_keeps_start_disabled_until_replaced_or_cleared(ser
     assert f"{good_weight / 1e3:.2f} kN" in body and "vertical load: the building's weight" in body, body
     page.screenshot(path=str(artifacts / f"i23_hybrid_confirmation_{width}x{height}.png"))
     page.click("#confirm-cancel")
+
+    # a building heavier than the jack (125 t: 1226 kN against 850 kN): the refusal names the building's weight,
+    # the jack's capacity and how to set the load, and Start stays disabled
+    watch.allowed_status.add(422)  # the check's refusal
+    heavy = tmp_path / "heavy.json"
+    heavy.write_text(json.dumps({**GOOD_BUILDING, "name": "heavy", "base_mass_kg": 50000.0,
+                                 "masses_kg": [25000.0, 25000.0, 25000.0], "stiffness_n_per_m": [9e7, 8e7, 7e7]}))
+    page.set_input_files("#hy-file", str(heavy))
+    page.wait_for_selector("#envelope[data-state='refused']", timeout=FIRST_CHECK_MS)
+    refusal = page.inner_text("#envelope")
+    assert "the building weighs 1226 kN" in refusal and "carries at most 850 kN" in refusal, refusal
+    assert "vertical_load_n (the API; the console's vertical load)" in refusal, refusal
+    assert page.is_disabled("#start")
+    page.screenshot(path=str(artifacts / f"i23_building_heavier_than_the_jack_{width}x{height}.png"))
+    # the load set in the console (here 800 kN): the building runs
+    page.fill("#f-vertical_load", "800")
+    wait_start_enabled(page)
+    assert "Within the rig envelope" in page.inner_text("#envelope")
 
 
 @pytest.mark.parametrize("viewport", VIEWPORTS, ids=lambda v: f"{v[0]}x{v[1]}")

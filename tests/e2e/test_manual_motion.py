@@ -8,7 +8,17 @@ from __future__ import annotations
 
 import re
 
-from .harness import OPERATOR, WAIT_MS, fill_identity, poll, record_checks, shots, sine_test, wait_start_enabled
+from .harness import (
+    OPERATOR,
+    VIEWPORTS,
+    WAIT_MS,
+    fill_identity,
+    poll,
+    record_checks,
+    shots,
+    sine_test,
+    wait_start_enabled,
+)
 
 
 def _ids(server) -> set[int]:
@@ -134,9 +144,13 @@ def test_zero_and_move_from_the_console(server, open_page, artifacts):
     assert abs(_table(server) - 0.0125) < 0.0003
     page.wait_for_selector("#rig-warning[data-state='off-zero']", timeout=WAIT_MS)  # no test starts there
     assert page.is_hidden("#form-lock") and page.input_value("#f-specimen_id") == "MM-1"  # the draft is back
-    # a move's end: "end of move N" (the service said "end of test N" before issue 23; both are read)
-    poll(lambda: re.fullmatch(rf"\+12\.\d\d mm \u00b7 end of (test|move) {move['id']} \(completed\)",
-                               page.inner_text("#s-position")), 5, "the strip's table position")
+    # a move's end: "end of move N" (the service said "end of test N" before issue 23), at both viewports
+    for width, height in reversed(VIEWPORTS):
+        page.set_viewport_size({"width": width, "height": height})
+        poll(lambda: re.fullmatch(rf"\+12\.\d\d mm \u00b7 end of move {move['id']} \(completed\)",
+                                   page.inner_text("#s-position")), 5, f"the strip's table position at {width}")
+        assert page.locator("#s-position").is_visible()
+        page.screenshot(path=str(artifacts / f"i23_end_of_move_{width}x{height}.png"))
 
 
 def test_manual_motion_limits_refusals_units_and_offset(server, open_page, artifacts):

@@ -64,3 +64,18 @@ def test_en15129_levels_follow_the_design_displacement(server, open_page, artifa
     _, acceptance = server.call("GET", f"/api/tests/{test_id}/acceptance")
     levels = [round(lv["amplitude_m"], 6) for lv in acceptance["levels"]]
     assert levels == [0.0075, 0.015, 0.0201, 0.03], acceptance["levels"]
+    # the test page's acceptance levels and the report follow the specimen's d_bd, at both viewports
+    page.goto(f"{server.url}/#/tests/{test_id}")
+    shown = lambda: page.eval_on_selector_all(  # noqa: E731 - the test page's level table: amplitude, frequency
+        "#t-acc-levels tbody tr", "trs => trs.map(r => [r.cells[1].textContent, r.cells[2].textContent])")
+    for width, height in reversed(VIEWPORTS):
+        page.set_viewport_size({"width": width, "height": height})
+        poll(lambda: shown() == [["7.50 mm", "0.25 Hz"], ["15.00 mm", "0.25 Hz"], ["20.10 mm", "0.25 Hz"],
+                                 ["30.00 mm", "0.25 Hz"]], 10, f"the levels on the test page at {width}x{height}")
+        assert page.locator("#t-acc-levels").is_visible()
+        page.locator("#t-acc-levels").scroll_into_view_if_needed()
+        page.screenshot(path=str(artifacts / f"i23_protocol_scaled_test_page_{width}x{height}.png"))
+    _, report = server.call("GET", f"/api/tests/{test_id}/report.json")
+    assert [(round(lv["amplitude_m"], 6), lv["frequency_hz"]) for lv in report["headline"]["levels"]] == [
+        (0.0075, 0.25), (0.015, 0.25), (0.0201, 0.25), (0.03, 0.25)], report["headline"]["levels"]
+    assert report["acceptance"]["protocol"] == "en15129_type_test" and report["acceptance"]["verdicts"]
