@@ -266,7 +266,7 @@ def test_state_follows_the_running_test(server, open_page, browser, artifacts):
     page.mouse.wheel(0, -600)
     page.click("#start")
     page.wait_for_selector("#confirm-dialog[open]", timeout=WAIT_MS)
-    other_id = server.start_test(sine_test(cycles=10, speed=2.0))
+    other_id = server.start_test(sine_test(cycles=60, speed=2.0))  # 60 s: still running when the page asks
     page.wait_for_selector("#rig-status[data-status='running']", timeout=WAIT_MS)
     page.click("#confirm-ok")
     page.wait_for_function("document.getElementById('setup-message').dataset.cause === 'busy'", timeout=WAIT_MS)
