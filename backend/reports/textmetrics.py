@@ -56,14 +56,13 @@ def fast_str_bbox_and_descent(afm, s: str) -> tuple:
     return left, miny, total_width, maxy - miny, -miny
 
 
-_installed = False
-_ORIGINAL = None  # matplotlib's own, once replaced
+_ORIGINAL = None  # matplotlib's own, once replaced (None: not replaced)
 
 
 def install() -> bool:
     """Use fast_str_bbox_and_descent for matplotlib's AFM fonts if it gives the same answers (True if in use)."""
-    global _installed, _ORIGINAL
-    if _installed:
+    global _ORIGINAL
+    if _ORIGINAL is not None:
         return True
     try:
         from matplotlib import _afm, cbook
@@ -75,8 +74,8 @@ def install() -> bool:
         same = all(fast_str_bbox_and_descent(f, p) == original(f, p) for f in fonts for p in _PROBES)
     except Exception:  # another matplotlib: keep its own
         return False
-    if same:
-        _ORIGINAL = original
-        _afm.AFM.get_str_bbox_and_descent = fast_str_bbox_and_descent
-        _installed = True
-    return _installed
+    if not same:
+        return False
+    _ORIGINAL = original
+    _afm.AFM.get_str_bbox_and_descent = fast_str_bbox_and_descent
+    return True

@@ -115,9 +115,10 @@ def warm_store(sessions) -> None:
 def freeze_startup_objects() -> None:
     """Once the service has started and warmed up: the objects alive now (modules, matplotlib's font and text
     caches, the ORM's mappers; long-lived by nature) are moved out of the garbage collector's reach (gc.freeze),
-    so that a collection during a report traverses only what is new. Measured on the stored 10-minute sine test
-    (2 shared cores, 2 runs each): a report took 1.95-2.09 s with the collector as it was, 1.49-1.56 s after the
-    freeze. Objects frozen here are never collected: only what the start made, never a request's."""
+    so that a collection during a report traverses only what is new. Without it, the first report of a service ran
+    one full collection over all of them (scripts/bench_report.py prints the collector's time: 0.35-0.39 s of a
+    2.33-2.80 s first report, against 0.03-0.04 s with it; docs/reports.md). Objects frozen here are never
+    collected: what the start made, and whatever a request in flight at that moment holds."""
     import gc
 
     gc.collect()
