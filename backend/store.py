@@ -18,7 +18,7 @@ import numpy as np
 from sqlalchemy import delete, func, or_, select
 from sqlalchemy.orm import Session
 
-from sim.samples import N_FIELDS, Samples
+from sim.samples import N_FIELDS, Samples, check_stored_width
 
 from .codec import ARRAYS_CODEC, SAMPLES_CODEC, decode_arrays, decode_samples, encode_arrays, encode_samples
 from .models import CycleRecord, EventRecord, SampleChunk, TestRecord, UserIsolator, utcnow
@@ -216,9 +216,7 @@ def load_samples(session: Session, test_id: int) -> Samples:
                              .where(SampleChunk.test_id == test_id).order_by(SampleChunk.seq)).all()
     if not chunks:
         return Samples.empty()
-    widest = max(n_columns for _, _, n_columns in chunks)
-    if widest > N_FIELDS:
-        raise ValueError(f"stored rows have {widest} columns, more than the {N_FIELDS} known fields")
+    check_stored_width(max(n_columns for _, _, n_columns in chunks))
     rows = np.empty((sum(n_rows for _, n_rows, _ in chunks), N_FIELDS))
     at = 0
     for data, n_rows, n_columns in chunks:  # each chunk decoded in place: one array, no concatenation

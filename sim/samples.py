@@ -41,6 +41,12 @@ FIELD_INDEX = {name: i for i, name in enumerate(SAMPLE_FIELDS)}
  _FLAGS) = range(N_FIELDS)
 
 
+def check_stored_width(n_columns: int) -> None:
+    """Refuse stored rows wider than the fields this version knows (a record from a newer isorig)."""
+    if n_columns > N_FIELDS:
+        raise ValueError(f"stored rows have {n_columns} columns, more than the {N_FIELDS} known fields")
+
+
 class Samples:
     """Rows of a test addressed by field name; a thin view over an (n, len(fields)) float array.
 
@@ -67,8 +73,7 @@ class Samples:
     def from_stored(cls, array: np.ndarray) -> Samples:
         """Rows stored with the first k fields (an older record): the later fields read as NaN."""
         array = np.asarray(array, dtype=np.float64)
-        if array.shape[1] > N_FIELDS:
-            raise ValueError(f"stored rows have {array.shape[1]} columns, more than the {N_FIELDS} known fields")
+        check_stored_width(array.shape[1])
         if array.shape[1] < N_FIELDS:
             full = np.full((array.shape[0], N_FIELDS), np.nan)
             full[:, : array.shape[1]] = array

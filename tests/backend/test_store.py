@@ -63,6 +63,24 @@ def test_samples_of_older_and_newer_chunks_load_as_one_array(tmp_path):
     assert np.array_equal(loaded[:, 0], np.concatenate([old[:, 0], new[:, 0]]))  # time exact
 
 
+def test_samples_stored_by_a_newer_version_are_refused_with_their_width(tmp_path):
+    """Rows wider than the fields this version knows are refused by name, whole or chunk by chunk."""
+    engine = make_engine(f"sqlite:///{tmp_path / 'w.db'}")
+    upgrade(engine)
+    wide = np.zeros((10, N_FIELDS + 2))
+    with session_factory(engine)() as s:
+        t = store.create_test(s, rig_name="rig-1", isolator="IUT_a", supply_bar=100.0, controller="pid",
+                              speed=1.0, driver="simulated", request={}, scenario={}, limits={}, duration_s=0.5,
+                              cycles_total=0, label="")
+        store.append_samples(s, t, wide)
+        s.commit()
+        expected = f"stored rows have {N_FIELDS + 2} columns, more than the {N_FIELDS} known fields"
+        with pytest.raises(ValueError, match=expected):
+            store.load_samples(s, t.id)
+        with pytest.raises(ValueError, match=expected):
+            list(store.iter_sample_blocks(s, t.id))
+
+
 def make_bundle(url: str) -> store.TestBundle:
     engine = make_engine(url)
     upgrade(engine)
