@@ -244,7 +244,8 @@ def watch_rejections(context) -> None:
     context.add_init_script(REJECTIONS)
 
 
-BUSY_ROUTES = ("/api/tests/check", "/api/ground-motions/read-at2")  # the check pool's routes (backend.checks)
+# the check pool's routes (backend.checks): a check, an .AT2 file read, an earthquake test's figures
+BUSY_ROUTES = ("/api/tests/check", "/api/ground-motions/read-at2", "/earthquake?points=")
 
 
 class PageWatch:

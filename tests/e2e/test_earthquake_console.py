@@ -132,6 +132,26 @@ def test_time_history_from_a_preset_runs_to_completion(server, open_page, artifa
     assert page.is_hidden("#t-eq-peaks")
     shots(page, artifacts, "dashboard_earthquake_test_page", full_page=True)
 
+    # while the service's check pool is busy (503 with Retry-After), the page says so and asks again
+    refusals = []
+
+    def busy_three_times(route):
+        if len(refusals) < 3:
+            refusals.append(route.request.url)
+            route.fulfill(status=503, headers={"Retry-After": "1"}, content_type="application/json",
+                          body='{"detail": "the service is busy with 2 other requests"}')
+        else:
+            route.continue_()
+
+    figures = re.compile(rf"/api/tests/{test_id}/earthquake\?")
+    page.route(figures, busy_three_times)
+    page.reload()
+    page.wait_for_function("() => /the service is busy with other checks: asking again for the figures in 1 s/"
+                           ".test(document.getElementById('t-eq-judged').textContent)", timeout=WAIT_MS)
+    assert _criteria_on_the_test_page(server, page, test_id)["record"]["verdicts"] == eq["record"]["verdicts"]
+    assert len(refusals) == 3 and "judged on the whole record" in page.inner_text("#t-eq-judged")
+    page.unroute(figures)
+
 
 def test_hybrid_simulation_shows_drifts_and_the_stability_monitor(server, open_page, artifacts):
     """1366x768: the demo building on IUT_a under near_field_short x 0.6 (speed 10): units and ranges of the

@@ -141,6 +141,20 @@ async function request(method, path, body, { auth = false, retryAuth = true } = 
   return data;
 }
 
+/** GET a view that the service builds in its check pool (backend.checks), e.g. an earthquake test's figures: while
+ * the pool is busy (503), ask again after its Retry-After (1-10 s), at most `tries` times. `onBusy(seconds)` tells
+ * the page it waits; `wanted()` false stops asking (the page moved on). The last Response; a fetch error throws. */
+export async function fetchWhenFree(url, { tries = 10, onBusy = () => {}, wanted = () => true } = {}) {
+  for (let i = 1; ; i++) {
+    const res = await fetch(url, { headers: { Accept: "application/json" }, credentials: "same-origin" });
+    if (res.status !== 503 || i >= tries || !wanted()) return res;
+    const waitS = Math.min(Math.max(Number(res.headers.get("Retry-After")) || 2, 1), 10);
+    onBusy(waitS);
+    await new Promise((resolve) => { setTimeout(resolve, waitS * 1000); });
+    if (!wanted()) return res;
+  }
+}
+
 export const api = {
   get: (path) => request("GET", path),
   post: (path, body) => request("POST", path, body, { auth: true }),

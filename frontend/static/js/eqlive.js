@@ -8,6 +8,7 @@
 //   the detector rths_stability) turns it red with its reason.
 // Data are kept in SI and converted when drawn (a few thousand points, five times a second).
 
+import { fetchWhenFree } from "./api.js";
 import { lowerBound, resampleOnto, TimePlot } from "./plots.js";
 import { fmtU, toDisplay, unit } from "./units.js";
 
@@ -92,16 +93,17 @@ export class EarthquakeLive {
 
   /** The planned target (and for a hybrid test the prediction), rebuilt by the service from the test's spec. */
   loadPlanned(testId) {
-    fetch(`/api/tests/${testId}/earthquake?points=2000`).then((r) => (r.ok ? r.json() : null)).then((data) => {
-      if (!data || testId !== this.testId || !data.planned) return;
-      const { time_s: ts, target_m: rs } = data.planned;
-      if (!Array.isArray(ts) || !Array.isArray(rs) || ts.length < 2) return;
-      this.grid.planned = resampleOnto(ts, rs, this.grid.t); // linearly onto the overview's grid
-      this.plannedLoaded = true;
-      if (data.so_far) this.fillSoFar(data.so_far);
-      else if (data.record && data.record.series) this.fillSoFar(data.record.series); // it ended before the page came
-      this.drawnAt = 0;
-    }).catch(() => {});
+    fetchWhenFree(`/api/tests/${testId}/earthquake?points=2000`, { wanted: () => testId === this.testId })
+      .then((r) => (r.ok ? r.json() : null)).then((data) => {
+        if (!data || testId !== this.testId || !data.planned) return;
+        const { time_s: ts, target_m: rs } = data.planned;
+        if (!Array.isArray(ts) || !Array.isArray(rs) || ts.length < 2) return;
+        this.grid.planned = resampleOnto(ts, rs, this.grid.t); // linearly onto the overview's grid
+        this.plannedLoaded = true;
+        if (data.so_far) this.fillSoFar(data.so_far);
+        else if (data.record && data.record.series) this.fillSoFar(data.record.series); // it ended before the page came
+        this.drawnAt = 0;
+      }).catch(() => {});
   }
 
   /** A page that joined a running test late, or came after it ended: the stored record where the stream's rows

@@ -7,6 +7,7 @@
 //   peak, hybrid test against reference.
 // Data stay in SI and are converted when drawn; the page is drawn again when the unit choice changes.
 
+import { fetchWhenFree } from "./api.js";
 import { resampleOnto, TimePlot } from "./plots.js";
 import { el } from "./ui.js";
 import { fmtU, sigDigits, toDisplay, unit } from "./units.js";
@@ -53,16 +54,26 @@ export class EarthquakeRecord {
     const p = t.profile || (t.scenario && t.scenario.profile) || (t.request && t.request.profile) || {};
     const kind = p.kind;
     if (kind !== "history" && kind !== "hybrid") {
+      this.wanted = null;
       this.hide();
       return null;
     }
+    this.wanted = t.id;
+    const wanted = () => this.wanted === t.id;
     let data;
     try {
-      const res = await fetch(`/api/tests/${t.id}/earthquake?points=2000`);
+      const res = await fetchWhenFree(`/api/tests/${t.id}/earthquake?points=2000`, {
+        wanted,
+        onBusy: (waitS) => { // the service's check pool builds other figures or checks: say so, ask again
+          $("t-eq").classList.remove("hidden");
+          $("t-eq-judged").textContent = `the service is busy with other checks: asking again for the figures in ${waitS} s ...`;
+        },
+      });
       data = res.ok ? await res.json() : null;
     } catch {
       data = null;
     }
+    if (!wanted()) return null; // the page shows another test now
     if (!data || !data.record || !Array.isArray(data.record.verdicts)) {
       this.hide();
       $("t-eq").classList.remove("hidden");
