@@ -308,8 +308,21 @@ def test_refusals_and_records_are_said_in_words(server, open_page, artifacts, tm
     head = "PEER NGA STRONG MOTION DATABASE RECORD\nSYNTHETIC BURST, 1/1/2000, ISORIG, 000\n" \
            "ACCELERATION TIME HISTORY IN UNITS OF G\nNPTS=  {n}, DT=   .0100 SEC\n"
     at2.write_text(head.format(n=300) + body + "\n")
+    refusals = []  # the service's check pool, which reads it, is busy twice (503): the page asks again
+
+    def busy_twice(route):
+        if len(refusals) < 2:
+            refusals.append(route.request.url)
+            route.fulfill(status=503, headers={"Retry-After": "2"}, content_type="application/json",
+                          body='{"detail": "the service is busy with 2 other requests that read an .AT2 file"}')
+        else:
+            route.continue_()
+
+    page.route("**/api/ground-motions/read-at2", busy_twice)
     page.set_input_files("#f-eq_file", str(at2))  # the unit chosen is still m/s2
     poll(lambda: "a PEER .AT2 file is in g" in note.inner_text(), 5, "the .AT2 unit conflict")
+    assert len(refusals) == 2
+    page.unroute("**/api/ground-motions/read-at2")
     assert page.is_disabled("#start")
     page.select_option("#f-eq_acc_unit", "auto")
     poll(lambda: "300 values at 0.01 s" in note.inner_text(), 5, "the .AT2 file read")
