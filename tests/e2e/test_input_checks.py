@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 
 import pytest
 
@@ -145,3 +146,34 @@ def test_a_ground_motion_file_that_does_not_parse_keeps_start_disabled(server, o
     page.screenshot(path=str(artifacts / f"i23_ground_motion_cleared_{width}x{height}.png"))
     page.select_option("#f-eq_source", "preset")
     wait_start_enabled(page)
+
+
+def test_a_busy_check_pool_is_said_and_asked_again_after_its_retry_after(server, open_page):
+    """The set-up check runs in the service's check pool: while the pool is busy (503 with Retry-After) the page
+    says so and asks again after the answer's Retry-After (not a fixed wait), then draws the answer."""
+    page, watch = open_page(server.url + "/", login=OPERATOR)
+    page.evaluate("""() => { window.__envelopeTexts = [];
+        new MutationObserver(() => window.__envelopeTexts.push(document.getElementById('envelope').textContent))
+          .observe(document.getElementById('envelope'), { childList: true, characterData: true, subtree: true }); }""")
+    refused_at = []
+
+    def busy_three_times(route):
+        if len(refused_at) < 3:
+            refused_at.append(time.monotonic())
+            route.fulfill(status=503, headers={"Retry-After": "1"}, content_type="application/json",
+                          body='{"detail": "the service is busy with 2 other requests that build a sine profile"}')
+        else:
+            route.continue_()
+
+    page.route("**/api/tests/check", busy_three_times)
+    fill_identity(page, "BUSY-POOL")
+    page.fill("#f-amplitude", "5")
+    page.fill("#f-frequency", "0.5")
+    wait_start_enabled(page, FIRST_CHECK_MS)
+    assert len(refused_at) == 3, refused_at
+    assert "Within the rig envelope" in page.inner_text("#envelope")
+    said = page.evaluate("window.__envelopeTexts")
+    assert any("the service is busy with other checks; asking again in 1 s" in text for text in said), said
+    gaps = [b - a for a, b in zip(refused_at, refused_at[1:], strict=False)]
+    assert all(gap >= 0.9 for gap in gaps), gaps  # it waited the Retry-After before asking again
+    assert all("/api/tests/check" in url for _, url in watch.busy), watch.busy

@@ -113,23 +113,46 @@ export function errorField(detail) {
   return "";
 }
 
-async function request(method, path, body, { auth = false, retryAuth = true } = {}) {
+/** Seconds to wait before asking again a service whose check pool (backend.checks) answered 503: the answer's
+ * Retry-After, kept within 1-10 s (2 s if it has none). */
+function busyWaitS(res) {
+  return Math.min(Math.max(Number(res.headers.get("Retry-After")) || 2, 1), 10);
+}
+
+/** Send (a function that returns a fetch's Response) again while the service's check pool is busy (503): after its
+ * Retry-After, at most `tries` times. `onBusy(seconds)` tells the page it waits; `wanted()` false stops asking (the
+ * page moved on). The last Response; a fetch error throws. */
+async function askWhenFree(send, { tries = 10, onBusy = () => {}, wanted = () => true } = {}) {
+  for (let i = 1; ; i++) {
+    const res = await send();
+    if (res.status !== 503 || i >= tries || !wanted()) return res;
+    const waitS = busyWaitS(res);
+    onBusy(waitS);
+    await new Promise((resolve) => { setTimeout(resolve, waitS * 1000); });
+    if (!wanted()) return res;
+  }
+}
+
+/** `whenBusy` ({tries, onBusy, wanted}): ask again while the check pool is busy (askWhenFree). An error answer
+ * throws ApiError; a 503 carries `retryAfterS`, for a caller that asks again in its own way. */
+async function request(method, path, body, { auth = false, retryAuth = true, whenBusy = null } = {}) {
   // X-Isorig-Client: the service refuses a browser request that changes state without JSON or this header (a
   // foreign page cannot send it without a CORS preflight, which the service never grants): docs/backend.md.
   // Who acts is the login cookie (HttpOnly, SameSite=Strict), sent by the browser itself.
   const headers = { Accept: "application/json", "X-Isorig-Client": "console" };
   if (body !== undefined) headers["Content-Type"] = "application/json";
-  const res = await fetch(path, {
+  const send = () => fetch(path, {
     method,
     headers,
     credentials: "same-origin",
     body: body === undefined ? undefined : JSON.stringify(body),
   });
+  const res = await (whenBusy ? askWhenFree(send, whenBusy) : send());
   if (res.status === 401 && auth && retryAuth) {
     const wasIn = account.name;
     setAccount(null);
     if (await askLogin(wasIn ? "your login has ended: log in again" : "this needs an account with the right role")) {
-      return request(method, path, body, { auth, retryAuth: false });
+      return request(method, path, body, { auth, retryAuth: false, whenBusy });
     }
   }
   let data = null;
@@ -137,22 +160,18 @@ async function request(method, path, body, { auth = false, retryAuth = true } = 
   if (text) {
     try { data = JSON.parse(text); } catch { data = text; }
   }
-  if (!res.ok) throw new ApiError(res.status, data, describeError(res.status, data));
+  if (!res.ok) {
+    const error = new ApiError(res.status, data, describeError(res.status, data));
+    if (res.status === 503) error.retryAfterS = busyWaitS(res);
+    throw error;
+  }
   return data;
 }
 
-/** GET a view that the service builds in its check pool (backend.checks), e.g. an earthquake test's figures: while
- * the pool is busy (503), ask again after its Retry-After (1-10 s), at most `tries` times. `onBusy(seconds)` tells
- * the page it waits; `wanted()` false stops asking (the page moved on). The last Response; a fetch error throws. */
-export async function fetchWhenFree(url, { tries = 10, onBusy = () => {}, wanted = () => true } = {}) {
-  for (let i = 1; ; i++) {
-    const res = await fetch(url, { headers: { Accept: "application/json" }, credentials: "same-origin" });
-    if (res.status !== 503 || i >= tries || !wanted()) return res;
-    const waitS = Math.min(Math.max(Number(res.headers.get("Retry-After")) || 2, 1), 10);
-    onBusy(waitS);
-    await new Promise((resolve) => { setTimeout(resolve, waitS * 1000); });
-    if (!wanted()) return res;
-  }
+/** GET a view that the service builds in its check pool (backend.checks), e.g. an earthquake test's figures, asking
+ * again while the pool is busy (askWhenFree: `tries`, `onBusy`, `wanted`). The last Response; a fetch error throws. */
+export function fetchWhenFree(url, whenBusy = {}) {
+  return askWhenFree(() => fetch(url, { headers: { Accept: "application/json" }, credentials: "same-origin" }), whenBusy);
 }
 
 export const api = {
@@ -160,6 +179,8 @@ export const api = {
   post: (path, body) => request("POST", path, body, { auth: true }),
   /** POST that never asks for a login (read-only checks). */
   postQuiet: (path, body) => request("POST", path, body),
+  /** postQuiet to a route that runs in the service's check pool: asked again while the pool is busy (503). */
+  postWhenFree: (path, body, whenBusy = {}) => request("POST", path, body, { whenBusy }),
   /** Stop and abort: never ask for a login: the service ends a test for anyone (like an emergency stop) and
    * records who asked (the logged-in account, else the console's address). */
   endTest: (path) => request("POST", path, undefined, { auth: true, retryAuth: false }),

@@ -10,7 +10,7 @@
 // {time_s, displacement_m}); a file that cannot be read is refused with its line, never reinterpreted. The
 // service checks everything again (POST /api/tests/check; POST /api/tests).
 
-import { api, ApiError } from "./api.js";
+import { api } from "./api.js";
 import { parseNumber } from "./parse.js";
 import { el, fmtDuration } from "./ui.js";
 import { fmtU, sigDigits, unit } from "./units.js";
@@ -149,16 +149,8 @@ export async function readAt2(name, text, checkUnits = true) {
   try {
     const body = { filename: name, text };
     if (!checkUnits) body.check_units = false;
-    let r;
-    for (let tries = 1; ; tries++) { // the service reads it in its check pool: while that is busy (503), ask again
-      try {
-        r = await api.postQuiet("/api/ground-motions/read-at2", body);
-        break;
-      } catch (e) {
-        if (!(e instanceof ApiError && e.status === 503) || tries >= 10) throw e;
-        await new Promise((resolve) => { setTimeout(resolve, 2000); });
-      }
-    }
+    // the service reads it in its check pool: while that is busy (503), ask again after its Retry-After
+    const r = await api.postWhenFree("/api/ground-motions/read-at2", body);
     return { ok: true, time_s: r.time_s, values: r.acceleration, rows: r.rows, dt: r.dt_s, duration: r.duration_s,
       peak: r.peak, header: r.header.join(" / "), valueName: "PEER .AT2 header", timeName: "NPTS, DT",
       headerUnit: r.units, headerLength: "", sep: "PEER .AT2", commas: false, at2: true, title: r.header.slice(0, 2).join(", ") };

@@ -82,9 +82,9 @@ export class CheckPart {
         if (e instanceof ApiError && e.status === 422) {
           result = { ok: false, key, message: e.message, field: errorField(e.detail), data: e.detail };
         } else if (e instanceof ApiError && e.status === 503) { // the service's check pool is busy: ask again
-          if (seq === this.checkSeq) {
-            box.textContent = "Checking: the service is busy with other checks; asking again in 2 s ...";
-            this.scheduleCheck(2000);
+          if (seq === this.checkSeq) { // asked again with the form as it is then, after the answer's Retry-After
+            box.textContent = `Checking: the service is busy with other checks; asking again in ${e.retryAfterS} s ...`;
+            this.scheduleCheck(e.retryAfterS * 1000);
           }
           return;
         } else {
