@@ -11,6 +11,7 @@ import re
 import time
 
 from .harness import (
+    FIRST_CHECK_MS,
     OPERATOR,
     WAIT_MS,
     fill_identity,
@@ -35,6 +36,8 @@ def test_numbers_cannot_be_misread(server, open_page, artifacts):
     page, _ = open_page(server.url + "/", width=1366, height=768, login=OPERATOR)
     record_checks(page)
     fill_identity(page)
+    # the amplitude's range names the stroke and this frequency's limit once the first check has answered
+    page.wait_for_selector("#envelope[data-state='ok']", timeout=FIRST_CHECK_MS)
     # every numeric field is a text field with a decimal keypad, its unit and its allowed range
     for field in ("supply", "amplitude", "frequency", "vertical_load", "lim_displacement", "lim_force", "lim_velocity",
                   "lim_tracking"):

@@ -6,10 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from .harness import OPERATOR, VIEWPORTS, WAIT_MS, fill_identity, poll, wait_start_enabled
-
-# the first check of a service starts the check pool: slow on a loaded machine
-FIRST_CHECK_MS = 120000
+from .harness import FIRST_CHECK_MS, OPERATOR, VIEWPORTS, WAIT_MS, fill_identity, poll, wait_start_enabled
 
 
 def _set_up(page, controller: str) -> None:

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import pytest
 
-from .harness import OPERATOR, VIEWPORTS, WAIT_MS, fill_identity, poll, record_checks, start_from_form
+from .harness import OPERATOR, VIEWPORTS, WAIT_MS, fill_identity, poll, record_checks, start_from_form, started_test_id
 
 
 @pytest.mark.parametrize("viewport", VIEWPORTS, ids=lambda v: f"{v[0]}x{v[1]}")
@@ -57,7 +57,7 @@ def test_en15129_levels_follow_the_design_displacement(server, open_page, artifa
     levels = "7.50 mm at 0.25 Hz x 3, 15.00 mm at 0.25 Hz x 3, 20.10 mm at 0.25 Hz x 3, 30.00 mm at 0.25 Hz x 3"
     assert levels in summary, summary
     page.wait_for_function("location.hash === '#/live'", timeout=WAIT_MS)
-    test_id = poll(lambda: page.evaluate("window.__isorig.testId"), 20, "the test in view")
+    test_id = started_test_id(page)  # not the live view's id at once: the session's previous test for a moment
     rec = server.wait_status(test_id, {"completed"}, timeout_s=90)
     assert rec["profile"]["design_displacement_m"] == 0.03 and rec["profile"]["frequency_hz"] == 0.25, rec["profile"]
     assert {b["frequency_hz"] for b in rec["scenario"]["profile"]} == {0.25} and rec["duration_s"] == 80.0
