@@ -353,6 +353,25 @@ def start_from_form(page, login: tuple[str, str] | None = None) -> str:
     return summary
 
 
+class BusyPool:
+    """A Playwright route handler that answers the first ``times`` requests as the service's check pool does when it
+    is full (503 with ``Retry-After``), then lets requests through; ``refused_at`` holds when each was refused."""
+
+    def __init__(self, times: int, retry_after_s: int, what: str = "check"):
+        self.times = times
+        self.retry_after_s = retry_after_s
+        self.body = json.dumps({"detail": f"the service is busy with 2 other requests that {what}"})
+        self.refused_at: list[float] = []  # time.monotonic() of each refusal
+
+    def __call__(self, route) -> None:
+        if len(self.refused_at) < self.times:
+            self.refused_at.append(time.monotonic())
+            route.fulfill(status=503, headers={"Retry-After": str(self.retry_after_s)},
+                          content_type="application/json", body=self.body)
+        else:
+            route.continue_()
+
+
 def started_test_id(page) -> int:
     """The id of the test this page's Start created ("Test #N started."), once the live view shows that test: the
     live view may still show the session's previous test for a moment after the hash changed."""

@@ -11,7 +11,7 @@ import re
 
 import pytest
 
-from .harness import OPERATOR, WAIT_MS, fill_identity, poll, shots, start_from_form, wait_start_enabled
+from .harness import OPERATOR, WAIT_MS, BusyPool, fill_identity, poll, shots, start_from_form, wait_start_enabled
 
 
 def _earthquake_plots(page) -> dict:
@@ -133,23 +133,14 @@ def test_time_history_from_a_preset_runs_to_completion(server, open_page, artifa
     shots(page, artifacts, "dashboard_earthquake_test_page", full_page=True)
 
     # while the service's check pool is busy (503 with Retry-After), the page says so and asks again
-    refusals = []
-
-    def busy_three_times(route):
-        if len(refusals) < 3:
-            refusals.append(route.request.url)
-            route.fulfill(status=503, headers={"Retry-After": "1"}, content_type="application/json",
-                          body='{"detail": "the service is busy with 2 other requests"}')
-        else:
-            route.continue_()
-
+    busy = BusyPool(3, retry_after_s=1, what="rebuild an earthquake test's figures")
     figures = re.compile(rf"/api/tests/{test_id}/earthquake\?")
-    page.route(figures, busy_three_times)
+    page.route(figures, busy)
     page.reload()
     page.wait_for_function("() => /the service is busy with other checks: asking again for the figures in 1 s/"
                            ".test(document.getElementById('t-eq-judged').textContent)", timeout=WAIT_MS)
     assert _criteria_on_the_test_page(server, page, test_id)["record"]["verdicts"] == eq["record"]["verdicts"]
-    assert len(refusals) == 3 and "judged on the whole record" in page.inner_text("#t-eq-judged")
+    assert len(busy.refused_at) == 3 and "judged on the whole record" in page.inner_text("#t-eq-judged")
     page.unroute(figures)
 
 
@@ -308,20 +299,11 @@ def test_refusals_and_records_are_said_in_words(server, open_page, artifacts, tm
     head = "PEER NGA STRONG MOTION DATABASE RECORD\nSYNTHETIC BURST, 1/1/2000, ISORIG, 000\n" \
            "ACCELERATION TIME HISTORY IN UNITS OF G\nNPTS=  {n}, DT=   .0100 SEC\n"
     at2.write_text(head.format(n=300) + body + "\n")
-    refusals = []  # the service's check pool, which reads it, is busy twice (503): the page asks again
-
-    def busy_twice(route):
-        if len(refusals) < 2:
-            refusals.append(route.request.url)
-            route.fulfill(status=503, headers={"Retry-After": "2"}, content_type="application/json",
-                          body='{"detail": "the service is busy with 2 other requests that read an .AT2 file"}')
-        else:
-            route.continue_()
-
-    page.route("**/api/ground-motions/read-at2", busy_twice)
+    busy = BusyPool(2, retry_after_s=2, what="read an .AT2 file")  # the check pool, which reads it, busy twice
+    page.route("**/api/ground-motions/read-at2", busy)
     page.set_input_files("#f-eq_file", str(at2))  # the unit chosen is still m/s2
     poll(lambda: "a PEER .AT2 file is in g" in note.inner_text(), 5, "the .AT2 unit conflict")
-    assert len(refusals) == 2
+    assert len(busy.refused_at) == 2
     page.unroute("**/api/ground-motions/read-at2")
     assert page.is_disabled("#start")
     page.select_option("#f-eq_acc_unit", "auto")

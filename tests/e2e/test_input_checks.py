@@ -6,11 +6,10 @@ from __future__ import annotations
 
 import json
 import math
-import time
 
 import pytest
 
-from .harness import FIRST_CHECK_MS, OPERATOR, VIEWPORTS, WAIT_MS, fill_identity, poll, wait_start_enabled
+from .harness import FIRST_CHECK_MS, OPERATOR, VIEWPORTS, WAIT_MS, BusyPool, fill_identity, poll, wait_start_enabled
 
 GOOD_BUILDING = {"name": "two storeys", "base_mass_kg": 5000.0, "masses_kg": [4000.0, 3000.0],
                  "stiffness_n_per_m": [9e6, 7e6], "damping_ratio": 0.05}
@@ -152,25 +151,16 @@ def test_a_busy_check_pool_is_said_and_asked_again_after_its_retry_after(server,
     page.evaluate("""() => { window.__envelopeTexts = [];
         new MutationObserver(() => window.__envelopeTexts.push(document.getElementById('envelope').textContent))
           .observe(document.getElementById('envelope'), { childList: true, characterData: true, subtree: true }); }""")
-    refused_at = []
-
-    def busy_three_times(route):
-        if len(refused_at) < 3:
-            refused_at.append(time.monotonic())
-            route.fulfill(status=503, headers={"Retry-After": "1"}, content_type="application/json",
-                          body='{"detail": "the service is busy with 2 other requests that build a sine profile"}')
-        else:
-            route.continue_()
-
-    page.route("**/api/tests/check", busy_three_times)
+    busy = BusyPool(3, retry_after_s=1, what="build a sine profile")
+    page.route("**/api/tests/check", busy)
     fill_identity(page, "BUSY-POOL")
     page.fill("#f-amplitude", "5")
     page.fill("#f-frequency", "0.5")
     wait_start_enabled(page, FIRST_CHECK_MS)
-    assert len(refused_at) == 3, refused_at
+    assert len(busy.refused_at) == 3, busy.refused_at
     assert "Within the rig envelope" in page.inner_text("#envelope")
     said = page.evaluate("window.__envelopeTexts")
     assert any("the service is busy with other checks; asking again in 1 s" in text for text in said), said
-    gaps = [b - a for a, b in zip(refused_at, refused_at[1:], strict=False)]
+    gaps = [b - a for a, b in zip(busy.refused_at, busy.refused_at[1:], strict=False)]
     assert all(gap >= 0.9 for gap in gaps), gaps  # it waited the Retry-After before asking again
     assert all("/api/tests/check" in url for _, url in watch.busy), watch.busy
