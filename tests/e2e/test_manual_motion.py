@@ -127,7 +127,9 @@ def test_zero_and_move_from_the_console(server, open_page, artifacts):
     move = _new_record(server, known)
     assert move["profile"]["end_m"] == 0.0125 and move["profile"]["speed_m_per_s"] == 0.001, move["profile"]
     page.wait_for_selector("#s-rig-cell[data-state='running']", timeout=WAIT_MS)
-    assert page.inner_text("#s-rig-why") == f"manual move #{move['id']}"
+    # the strip names the move once the page has its record (RUNNING comes first, with the service's state)
+    poll(lambda: page.inner_text("#s-rig-why") == f"manual move #{move['id']}", 10, "the strip naming the move",
+         shown=lambda: page.inner_text("#s-rig-why"))
     page.wait_for_selector("#mm-status[data-kind='running']", timeout=WAIT_MS)
     poll(lambda: re.search(r"now \+\d+\.\d\d mm \(\d+ % of the way\)", page.inner_text("#mm-status")), 5,
           "the move's progress")
