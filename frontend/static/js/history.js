@@ -133,8 +133,14 @@ export class History {
     sel.value = (rigs.on_record || []).includes(keep) ? keep : "";
   }
 
+  /** Show the tests the filter asks for. A list asked for later wins: an earlier answer that arrives after it is
+   * dropped, so the table never shows an unfiltered list under a filter. The table's data-query names the
+   * query its rows answer. */
   async showList() {
+    const asked = (this.listsAsked = (this.listsAsked || 0) + 1);
+    const superseded = () => asked !== this.listsAsked;
     await this.loadRigs();
+    if (superseded()) return;
     const q = new URLSearchParams();
     if ($("h-rig").value) q.set("rig_name", $("h-rig").value);
     if ($("h-isolator").value) q.set("isolator", $("h-isolator").value);
@@ -146,17 +152,22 @@ export class History {
     const archived = $("h-archived").checked;
     if (archived) q.set("archived", "true");
     const table = $("history-table");
-    table.dataset.archived = archived ? "1" : "0";
     const tbody = table.querySelector("tbody");
     let tests = [];
     try {
       tests = listOf(await api.get(`/api/tests?${q}`), "tests");
     } catch (e) {
+      if (superseded()) return;
       tbody.innerHTML = "";
       tbody.append(el("tr", {}, el("td", { text: `could not load: ${e.message}`, colspan: "13" })));
+      table.dataset.query = q.toString();
+      table.dataset.archived = archived ? "1" : "0";
       return;
     }
+    if (superseded()) return;
     tbody.innerHTML = "";
+    table.dataset.query = q.toString();
+    table.dataset.archived = archived ? "1" : "0";
     for (const t of tests) {
       const s = summaryOf(t);
       const action = recordAction(t, this.thisRig);
