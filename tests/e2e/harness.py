@@ -383,17 +383,17 @@ def started_test_id(page) -> int:
 
 
 def record_checks(page) -> None:
-    """Keep the bodies and answers of the page's envelope checks (window.__checks, window.__checkAnswers)."""
+    """Keep the bodies (in the order sent) and answers (in the order answered) of the page's envelope checks
+    (window.__checks, window.__checkAnswers)."""
     page.evaluate("""() => {
       window.__checks = [];
       window.__checkAnswers = [];
       const orig = window.fetch;
       window.fetch = async (url, opts) => {
+        const check = String(url).includes('/api/tests/check') && opts && opts.body;
+        if (check) window.__checks.push(JSON.parse(opts.body)); // in the order sent
         const res = await orig(url, opts);
-        if (String(url).includes('/api/tests/check') && opts && opts.body) {
-          window.__checks.push(JSON.parse(opts.body));
-          res.clone().json().then((a) => window.__checkAnswers.push(a)).catch(() => {});
-        }
+        if (check) res.clone().json().then((a) => window.__checkAnswers.push(a)).catch(() => {});
         return res;
       };
     }""")

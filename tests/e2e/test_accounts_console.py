@@ -95,3 +95,41 @@ def test_a_viewer_reads_but_may_not_start(server, open_page, artifacts):
     page.wait_for_selector("#setup-message:has-text('needs the role operator')", timeout=WAIT_MS)
     assert len(server.call("GET", "/api/tests")[1]) == before  # nothing was created
     shots(page, artifacts, "accounts_viewer_refused")
+
+
+def test_a_late_answer_for_the_test_page_left_behind_never_lands_on_the_next(server, open_page):
+    """Opening test A, then test B before A's record has come: A's late answer is dropped. B's page shows B
+    alone, and its buttons act on B (before the fix A's rows were appended under "Test #B" and the review and
+    archive buttons were bound to A)."""
+    first, second = 0, 0
+    for name in ("PAGE-A", "PAGE-B"):
+        first, second = second, server.start_test({**sine_test(cycles=2, speed=4.0), "specimen_id": name})
+        assert server.wait_status(second, {"completed"}, timeout_s=60)["status"] == "completed"
+    page, _ = open_page(f"{server.url}/#/history", width=1366, height=768)
+    page.wait_for_selector(f"#history-table tr[data-id='{second}']", timeout=WAIT_MS)
+    page.evaluate("""(slow) => {
+      window.__slowAnswered = false;
+      const orig = window.fetch;
+      window.fetch = async (url, opts) => {
+        const res = await orig(url, opts);
+        if (String(url).endsWith(`/api/tests/${slow}`)) {
+          await new Promise((r) => setTimeout(r, 1500));
+          setTimeout(() => { window.__slowAnswered = true; }, 0);
+        }
+        return res;
+      };
+    }""", first)
+    page.goto(f"{server.url}/#/tests/{first}")
+    page.goto(f"{server.url}/#/tests/{second}")
+    page.wait_for_selector("#t-summary .kv", timeout=WAIT_MS)
+    page.wait_for_function("window.__slowAnswered", timeout=WAIT_MS)
+    page.wait_for_timeout(300)  # whatever the late answer would draw has been drawn
+    assert page.inner_text("#t-title") == f"Test #{second}"
+    summary = page.inner_text("#t-summary")
+    assert "PAGE-B" in summary and "PAGE-A" not in summary, summary
+    assert page.locator("#t-summary .kv span", has_text="specimen").count() == 1
+    assert page.get_attribute("#t-csv", "href") == f"/api/tests/{second}/data.csv"
+    page.click("#t-action")  # archive: the dialog names the test on the page
+    page.wait_for_selector("#confirm-dialog[open]", timeout=WAIT_MS)
+    assert page.inner_text("#confirm-title") == f"Archive test #{second}?"
+    page.click("#confirm-cancel")

@@ -158,6 +158,9 @@ def test_state_follows_the_running_test(server, open_page, browser, artifacts):
 
     # the strip, the header, the readouts, the margins, the form (locked) and the buttons
     page.wait_for_selector("#s-rig-cell[data-state='running']", timeout=WAIT_MS)
+    # RUNNING comes with the service's state; the header and the strip's set values once the page has the test's
+    # record (they are drawn together)
+    page.wait_for_function("document.getElementById('l-specimen').textContent === 'B-2024-017'", timeout=WAIT_MS)
     # the setting, with the measured supply pressure once GET /api/rig/state has answered
     supply = page.inner_text("#s-supply")
     assert re.fullmatch(r"70\.0 bar set|\d+\.\d bar \(set 70\.0\)", supply), supply
@@ -165,7 +168,8 @@ def test_state_follows_the_running_test(server, open_page, browser, artifacts):
     assert "|y-r| 20 mm" in page.inner_text("#s-limits")
     poll(lambda: re.fullmatch(r"[+-]?\d+\.\d\d mm \u00b7 live", page.inner_text("#s-position")), 5,
           "the table position, live")
-    assert "started" in page.inner_text("#s-event").lower()
+    poll(lambda: "started" in page.inner_text("#s-event").lower(), 10, "the strip's start event",
+         shown=lambda: page.inner_text("#s-event"))
     assert page.inner_text("#l-specimen") == "B-2024-017" and page.inner_text("#l-operator") == OPERATOR[0]
     assert page.inner_text("#l-profile") == "sine 30.00 mm at 0.5 Hz x 30"
     # the readouts with the running test's samples and the current cycle's peak and valley

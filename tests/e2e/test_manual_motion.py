@@ -94,14 +94,15 @@ def test_zero_and_move_from_the_console(server, open_page, artifacts):
     assert move["isolator"] == "IUT_b" and move["operator_name"] == OPERATOR[0], move
     assert move["limits"]["tracking_error_m"] == 0.03 and move["limits"]["actions"]["force_n"] == "valve_close"
     server.wait_status(move["id"], {"completed"}, timeout_s=30)
-    page.wait_for_selector("#mm-status[data-kind='ok']", timeout=WAIT_MS)
+    page.wait_for_selector("#mm-status[data-kind='ok']:has-text('completed')", timeout=WAIT_MS)
     assert page.inner_text("#mm-status").startswith(f"Move #{move['id']} completed ({at} to 0.00 mm at 50 mm/s)")
     assert abs(_table(server)) < 0.0005
     page.wait_for_selector("#rig-warning[data-state='ok']", state="attached", timeout=WAIT_MS)
     assert page.is_hidden("#rig-warning")
     wait_start_enabled(page)  # the table at zero: a test may start
     assert page.inner_text("#alert-text") == f"Manual move {move['id']} completed"
-    assert page.inner_text("#l-cycle") == "none (a manual move)"
+    poll(lambda: page.inner_text("#l-cycle") == "none (a manual move)", 10, "the header's cycle",
+         shown=lambda: page.inner_text("#l-cycle"))
     # the move's events say it was a move, not a test
     poll(lambda: page.inner_text("#s-event").endswith("Manual move completed"), 10, "the strip's last event")
     page.goto(f"{server.url}/?viewer=off#/tests/{move['id']}")
@@ -142,7 +143,7 @@ def test_zero_and_move_from_the_console(server, open_page, artifacts):
     assert re.fullmatch(r"manual move [+-]?\d+\.\d\d mm to \+12\.50 mm at 1\.0 mm/s", page.inner_text("#l-profile"))
     shots(page, artifacts, "dashboard_manual_move")
     server.wait_status(move["id"], {"completed"}, timeout_s=60)
-    page.wait_for_selector("#mm-status[data-kind='ok']", timeout=WAIT_MS)
+    page.wait_for_selector("#mm-status[data-kind='ok']:has-text('completed')", timeout=WAIT_MS)
     assert abs(_table(server) - 0.0125) < 0.0003
     page.wait_for_selector("#rig-warning[data-state='off-zero']", timeout=WAIT_MS)  # no test starts there
     assert page.is_hidden("#form-lock") and page.input_value("#f-specimen_id") == "MM-1"  # the draft is back

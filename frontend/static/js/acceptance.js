@@ -19,11 +19,13 @@ export function isProtocol(t) {
 
 export class ProtocolAcceptance {
   hide() {
+    this.wanted = null;
     $("t-acc").classList.add("hidden");
   }
 
   /** Show test `t`'s acceptance if it ran a protocol; else hide the panel. */
   async show(t) {
+    this.wanted = t && t.id; // a late answer for another test (the page moved on) is dropped
     if (!isProtocol(t) || t.status === "ready") {
       this.hide();
       return;
@@ -37,6 +39,7 @@ export class ProtocolAcceptance {
     } catch (e) {
       why = e.message;
     }
+    if (this.wanted !== t.id) return;
     $("t-acc").classList.remove("hidden");
     if (!data) {
       $("t-acc-verdict").textContent = "not available";

@@ -93,9 +93,10 @@ export class History {
     this.loopPlot = null;
     this.eqRecord = new EarthquakeRecord(); // an earthquake test's J criteria and reference (js/eqrecord.js)
     this.acceptance = new ProtocolAcceptance(); // a protocol test's verdict and levels (js/acceptance.js)
-    this.current = null; // the test page's record
+    this.current = null; // the test page's record, once loaded
+    this.shownId = null; // the test the page shows (its hash), set at once: a late answer for another is dropped
     this.thisRig = null; // the rig this service drives (GET /api/rigs): another rig's tests are its service's
-    this.review = new ReviewPanel(() => this.showTest(this.current.id, true)); // approve / reject (js/review.js)
+    this.review = new ReviewPanel(() => this.showTest(this.shownId, true)); // approve / reject (js/review.js)
     $("history-filter").addEventListener("submit", (ev) => {
       ev.preventDefault();
       this.showList();
@@ -106,7 +107,7 @@ export class History {
 
   refresh() {
     if (!$("view-history").classList.contains("hidden")) this.showList();
-    if (!$("view-test").classList.contains("hidden") && this.current) this.showTest(this.current.id, true);
+    if (!$("view-test").classList.contains("hidden") && this.shownId !== null) this.showTest(this.shownId, true);
   }
 
   message(id, text, kind = "") {
@@ -251,20 +252,42 @@ export class History {
     return true;
   }
 
+  /** Show test `id`'s page. The page asked for last wins: every await is followed by a check that no other
+   * showTest began meanwhile, so a late answer for test A never lands on test B's page (nor binds its buttons). */
   async showTest(id, keepMessage = false) {
+    const asked = (this.pagesAsked = (this.pagesAsked || 0) + 1);
+    const superseded = () => asked !== this.pagesAsked;
+    const other = this.shownId !== id;
+    this.shownId = id;
     $("t-title").textContent = `Test #${id}`;
     const summary = $("t-summary");
     summary.innerHTML = "";
+    if (other) { // another test: nothing of the previous one stays under this title
+      this.current = null;
+      $("t-events").innerHTML = "";
+      $("t-cycles").querySelector("tbody").innerHTML = "";
+      this.renderLoops([]);
+      delete $("t-loops").dataset.boldCycle; // set again once this test's cycles are drawn
+      delete $("t-loops").dataset.boldPhase;
+      this.acceptance.hide();
+      this.review.clear();
+      $("t-action").classList.add("hidden");
+    }
     if (!keepMessage) this.message("t-message", "");
     if (this.thisRig === null) await this.loadRigs(); // whose the test is decides what may be done with it
+    if (superseded()) return;
     let t;
     try {
       t = await api.get(`/api/tests/${id}`);
     } catch (e) {
+      if (superseded()) return;
+      summary.innerHTML = "";
       summary.append(el("div", { class: "field-error", text: `could not load test ${id}: ${e.message}` }));
       $("t-action").classList.add("hidden");
       return;
     }
+    if (superseded()) return;
+    summary.innerHTML = "";
     this.current = t;
     const s = summaryOf(t);
     const kv = (k, v, cls = "") => el("div", { class: `kv ${cls}` }, el("span", { text: k }), el("b", { text: v }));
@@ -335,10 +358,12 @@ export class History {
     try {
       cycles = listOf(await api.get(`/api/tests/${id}/cycles?arrays=true`), "cycles");
     } catch { /* no cycles yet */ }
+    if (superseded()) return;
     this.renderCycles(cycles);
     this.renderLoops(cycles);
     this.acceptance.show(t);
     const eqSeries = await this.eqRecord.show(t);
+    if (superseded()) return;
     if (eqSeries && !cycles.length) { // an earthquake test has no cycles: its whole F-d history, thinned
       this.renderLoops([{ displacement_m: eqSeries.displacement_m, force_n: eqSeries.force_n }]);
       $("t-cycles").querySelector("tbody").append(el("tr", {}, el("td", { colspan: "10", class: "muted",

@@ -204,9 +204,12 @@ function trackChromeHeight() {
  */
 async function pollRigState() {
   const poll = async () => {
+    const asked = ++state.rigStateAsked; // polls overlap (the timer, a reconnect, a run's end): the newest wins
     try {
-      state.rigState = await api.get("/api/rig/state");
-      state.rigStateSeq++;
+      const answer = await api.get("/api/rig/state");
+      if (asked <= state.rigStateSeq) return; // a later request has answered already
+      state.rigState = answer;
+      state.rigStateSeq = asked;
       changed("rigState");
     } catch (e) {
       if (e.status === 404) {

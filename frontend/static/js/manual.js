@@ -292,9 +292,14 @@ export class ManualMotion {
     try {
       const rec = await operatorPost(kind === "zero" ? "/api/rig/zero" : "/api/rig/move", body);
       this.busy = false;
-      this.endedShown = null;
-      this.say(`${runName(rec, rec.id)} started: ${fmtU("length", rec.profile.start_m, { sign: true })} to ` +
-        `${fmtU("length", rec.profile.end_m, { sign: true })}.`, "ok");
+      if (state.testId === rec.id && FINAL.has(state.status)) { // the stream has already said how it ended
+        this.endedShown = rec.id;
+        this.say("");
+      } else {
+        this.endedShown = null;
+        this.say(`${runName(rec, rec.id)} started: ${fmtU("length", rec.profile.start_m, { sign: true })} to ` +
+          `${fmtU("length", rec.profile.end_m, { sign: true })}.`, "info");
+      }
       location.hash = "#/live";
       $("manual-motion").scrollIntoView({ block: "nearest" }); // where the move's progress is said
     } catch (e) {

@@ -49,6 +49,15 @@ export class ReviewPanel {
     $("t-verify").addEventListener("click", () => this.verify());
   }
 
+  /** Another test's page is loading: nothing of the previous test's review stays, nothing acts on it. */
+  clear() {
+    this.t = null;
+    for (const id of ["t-approve", "t-reject", "t-verify"]) $(id).classList.add("hidden");
+    for (const id of ["t-review-words", "t-review-hash", "t-review-why", "t-verify-result"]) $(id).textContent = "";
+    $("t-review-state").className = "pill";
+    $("t-review-state").textContent = "loading...";
+  }
+
   show(t) {
     this.t = t;
     const r = reviewOf(t);
@@ -80,6 +89,7 @@ export class ReviewPanel {
 
   async decide(action) {
     const t = this.t;
+    if (!t) return; // the page's record has not loaded yet
     if (!account.name && !(await refreshAccount()).name && !(await askLogin("reviewing needs the role approver"))) return;
     const why = whyNot(t);
     if (why) {
@@ -107,13 +117,17 @@ export class ReviewPanel {
   }
 
   async verify() {
+    const t = this.t;
+    if (!t) return; // the page's record has not loaded yet
     const out = $("t-verify-result");
     out.textContent = "checking...";
     try {
-      const v = await api.get(`/api/tests/${this.t.id}/approval`);
+      const v = await api.get(`/api/tests/${t.id}/approval`);
+      if (!this.t || this.t.id !== t.id) return; // the page shows another test by now
       out.textContent = v.intact ? "intact: the record is as it was approved" : `CHANGED: ${v.words}`;
       out.className = v.intact ? "ok" : "field-error";
     } catch (e) {
+      if (!this.t || this.t.id !== t.id) return;
       out.textContent = `could not check: ${e.message}`;
       out.className = "field-error";
     }

@@ -200,7 +200,7 @@ export class SetupPanel {
   }
 
   refuse(cause, text) {
-    this.refusal = { cause, text, rigStateSeq: state.rigStateSeq };
+    this.refusal = { cause, text, rigStateSeq: state.rigStateAsked }; // only a reading asked for after it counts
     this.message(text, "error");
     $("setup-message").dataset.cause = cause;
   }

@@ -10,7 +10,8 @@ export const state = {
   linkConnected: "unknown", // "true" / "false" / "unknown" (RigLink.connected())
   linkArmed: false, // a UDP rig answered HELLO as armed
   rigState: null, // GET /api/rig/state (polled every 2 s)
-  rigStateSeq: 0, // answers of GET /api/rig/state received so far
+  rigStateAsked: 0, // requests of GET /api/rig/state sent so far, numbered 1, 2, ...
+  rigStateSeq: 0, // the number of the request whose answer rigState is (an older answer that comes later is dropped)
   testId: null, // the test in view (the live stream's)
   test: null, // its record
   status: null, // its status
