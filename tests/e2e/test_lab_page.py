@@ -59,3 +59,38 @@ def test_the_lab_units_set_on_the_lab_page_reach_the_reports_and_new_browsers(se
 
 def page_enabled(page) -> bool:
     return page.evaluate("!document.getElementById('lab-fields').disabled")
+
+
+def test_a_late_read_of_the_lab_never_undoes_a_save(server, open_page):
+    """The page reads the lab on each visit; a read answered after a save (it was asked before it) is dropped:
+    the saved name stays in the field. Before the fix the late read put the old name back."""
+    server.add_account(*ADMIN, role="admin")
+    admin = _lab_page(open_page, server, VIEWPORTS[0], ADMIN)
+    before = server.call("GET", "/api/lab")[1]
+    admin.evaluate("""() => {
+      window.__slowReadAnswered = false;
+      const orig = window.fetch;
+      window.fetch = async (url, opts) => {
+        const res = await orig(url, opts);
+        if (String(url).endsWith('/api/lab') && !(opts && opts.method && opts.method !== 'GET')) {
+          await new Promise((r) => setTimeout(r, 1500));
+          setTimeout(() => { window.__slowReadAnswered = true; }, 0);
+        }
+        return res;
+      };
+    }""")
+    admin.goto(server.url + "/#/live")
+    admin.goto(server.url + "/#/lab")  # a visit: the page reads the lab again (slowly)
+    try:
+        admin.fill("#lab-name", "Late Read Lab")
+        admin.click("#lab-save")
+        poll(lambda: admin.inner_text("#lab-message").startswith("Saved"), 10, "the lab saved",
+             shown=lambda: admin.inner_text("#lab-message"))
+        admin.wait_for_function("window.__slowReadAnswered", timeout=WAIT_MS)
+        admin.wait_for_timeout(300)  # whatever the late read would draw has been drawn
+        assert admin.input_value("#lab-name") == "Late Read Lab"
+        assert server.call("GET", "/api/lab")[1]["name"] == "Late Read Lab"
+    finally:  # the other tests of this service expect the lab as it was
+        admin.fill("#lab-name", before["name"])
+        admin.click("#lab-save")
+        poll(lambda: server.call("GET", "/api/lab")[1]["name"] == before["name"], 10, "the lab's name back")

@@ -232,22 +232,30 @@ export class CommissionPage {
       this.renderButtons();
       return;
     }
+    if (this.check && this.check.bodyKey !== JSON.stringify(r.body)) this.check = null; // a check of another form
     clearTimeout(this.checkTimer);
     this.checkTimer = setTimeout(() => this.askCheck(), 150);
     this.renderWhat();
     this.renderButtons();
   }
 
+  /** Ask the service to check the form as it is. The check asked last wins: an earlier answer that comes later
+   * is dropped, so the page never shows (nor starts on) a check of a form it no longer has. */
   async askCheck() {
     const body = this.form && this.form.ok ? this.form.body : null;
     if (!body) return;
-    const key = JSON.stringify(body) + JSON.stringify(tablePosition());
+    const asked = (this.checksAsked = (this.checksAsked || 0) + 1);
+    const bodyKey = JSON.stringify(body);
+    const key = bodyKey + JSON.stringify(tablePosition());
+    let check;
     try {
       const answer = await api.postQuiet("/api/commissioning/check", body);
-      this.check = { ...answer, key };
+      check = { ...answer, key, bodyKey };
     } catch (e) {
-      this.check = { ok: false, detail: e.message, field: errorField(e.detail), key };
+      check = { ok: false, detail: e.message, field: errorField(e.detail), key, bodyKey };
     }
+    if (asked !== this.checksAsked) return;
+    this.check = check;
     this.checkKey = key;
     const blamed = { supply_bar: "c-supply", vertical_load_n: "c-vertical_load", max_stroke_m: "c-stroke",
       max_velocity_m_per_s: "c-velocity", speed: "c-speed", isolator: "c-isolator" }[this.check.field];
@@ -324,6 +332,7 @@ export class CommissionPage {
   async start() {
     this.say("", "");
     this.formChanged();
+    clearTimeout(this.checkTimer); // this start asks now; a timer's check would supersede its answer
     await this.askCheck();
     if (this.whyNot()) return;
     const b = this.form.body;

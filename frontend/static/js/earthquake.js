@@ -348,6 +348,7 @@ export class EarthquakeForm {
       return;
     }
     if (file.size > MAX_FILE_BYTES) {
+      this.seq = (this.seq || 0) + 1; // a read of an earlier file still under way is not this choice
       this.files[kind] = { name: file.name, record: { ok: false, error: `${file.name} is ${(file.size / 1e6).toFixed(1)} MB, more than 12 MB` } };
       this.renderFileNote();
       this.changed();
@@ -371,11 +372,7 @@ export class EarthquakeForm {
         });
       } else done(parseRecordCsv(reader.result, kind));
     };
-    reader.onerror = () => {
-      this.files[kind] = { name: file.name, record: { ok: false, error: `${file.name} could not be read` } };
-      this.renderFileNote();
-      this.changed();
-    };
+    reader.onerror = () => done({ ok: false, error: `${file.name} could not be read` });
     reader.readAsText(file);
   }
 

@@ -22,13 +22,24 @@ export class LabPage {
 
   /** Read the lab (at start: its default units apply to a browser that has not chosen). */
   async load() {
+    const written = this.written || 0;
+    let lab;
     try {
-      this.lab = await api.get("/api/lab");
+      lab = await api.get("/api/lab");
     } catch {
       return;
     }
+    if ((this.written || 0) !== written) return; // saved meanwhile: this answer is older than what the page has
+    this.lab = lab;
     applyLabDefault(this.lab.units);
-    this.render();
+    this.render(true);
+  }
+
+  /** The lab as the service answered a change of it; `fields`: draw the fields too (a logo change keeps them). */
+  changed(lab, fields = true) {
+    this.written = (this.written || 0) + 1;
+    this.lab = lab;
+    this.render(fields);
   }
 
   say(text, kind = "") {
@@ -36,16 +47,19 @@ export class LabPage {
     $("lab-message").className = `message ${kind}`;
   }
 
-  render() {
+  /** Draw the lab; the fields only with `fields` (a load or a save), so an account change keeps what is typed. */
+  render(fields = false) {
     const lab = this.lab;
     if (!lab) return;
     const admin = account.role === "admin";
     $("lab-fields").disabled = !admin;
     $("lab-who").textContent = admin ? "You are an admin: changes apply to every report from now on."
       : "An admin changes these (log in as one).";
-    $("lab-name").value = lab.name;
-    $("lab-address").value = lab.address;
-    $("lab-units").value = lab.units;
+    if (fields) {
+      $("lab-name").value = lab.name;
+      $("lab-address").value = lab.address;
+      $("lab-units").value = lab.units;
+    }
     $("lab-updated").textContent = lab.updated_by ? `last changed by ${lab.updated_by} on ${fmtTime(lab.updated_at)}` : "never changed in the console";
     const img = $("lab-logo");
     img.classList.toggle("hidden", lab.logo !== "stored");
@@ -57,9 +71,8 @@ export class LabPage {
 
   async save() {
     try {
-      this.lab = await asAccount("PUT", "/api/lab", { name: $("lab-name").value, address: $("lab-address").value,
-        units: $("lab-units").value });
-      this.render();
+      this.changed(await asAccount("PUT", "/api/lab", { name: $("lab-name").value, address: $("lab-address").value,
+        units: $("lab-units").value }));
       this.say("Saved: every report uses it from now on.", "ok");
     } catch (e) {
       this.say(`Not saved: ${e.message}`, "error");
@@ -80,8 +93,7 @@ export class LabPage {
       reader.readAsDataURL(file);
     });
     try {
-      this.lab = await asAccount("PUT", "/api/lab/logo", { data_base64: data });
-      this.render();
+      this.changed(await asAccount("PUT", "/api/lab/logo", { data_base64: data }), false);
       this.say("Logo saved.", "ok");
     } catch (e) {
       this.say(`Logo not saved: ${e.message}`, "error");
@@ -91,8 +103,7 @@ export class LabPage {
 
   async removeLogo() {
     try {
-      this.lab = await asAccount("PUT", "/api/lab/logo", { data_base64: null });
-      this.render();
+      this.changed(await asAccount("PUT", "/api/lab/logo", { data_base64: null }), false);
       this.say("Logo removed.", "ok");
     } catch (e) {
       this.say(`Logo not removed: ${e.message}`, "error");
