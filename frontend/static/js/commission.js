@@ -415,14 +415,18 @@ export class CommissionPage {
     this.open(state.testId);
   }
 
+  /** Show commissioning `id`. The one asked for last wins: an earlier open answered later is dropped. */
   async open(id) {
+    const asked = (this.opensAsked = (this.opensAsked || 0) + 1);
     let res;
     try {
       res = await api.get(`/api/commissioning/${id}`);
     } catch (e) {
+      if (asked !== this.opensAsked) return;
       this.renderResult(null, `commissioning #${id}: ${e.message}`);
       return;
     }
+    if (asked !== this.opensAsked) return;
     if (!this.current || this.current.id !== id) {
       this.trace = { t: [], y: [], u: [] };
       this.phase = null;
@@ -433,7 +437,8 @@ export class CommissionPage {
     if (res.status === "running" || res.status === "ready") this.connect(id);
     this.renderResult(res);
     if (BUSY.has(res.state)) this.poll(id);
-    if (!this.trace.t.length && !BUSY.has(res.state)) this.loadTrace(id);
+    // a run that ended before the page looked (its fit may still go on): its whole trace from the record
+    if (FINAL.has(res.status) && (!this.trace.t.length || this.trace.t[0] > 0.1)) this.loadTrace(id);
   }
 
   /** While the run or its fit goes on, ask for the result every second (the state is the truth). */
@@ -444,6 +449,10 @@ export class CommissionPage {
       try {
         const res = await api.get(`/api/commissioning/${id}`);
         if (this.runId !== id) return;
+        if (this.current && FINAL.has(this.current.status) && !FINAL.has(res.status)) { // asked before the end
+          this.poll(id);
+          return;
+        }
         const was = this.current && this.current.state;
         this.current = res;
         this.renderResult(res);
@@ -812,8 +821,10 @@ export class CommissionPage {
 
   async listEarlier() {
     const list = $("c-earlier");
+    const asked = (this.listsAsked = (this.listsAsked || 0) + 1);
     try {
       const tests = (await api.get("/api/tests?limit=200")).filter((t) => t.profile && t.profile.kind === "commissioning").slice(0, 8);
+      if (asked !== this.listsAsked) return; // a newer list was asked for
       list.innerHTML = "";
       for (const t of tests) {
         const state = ((t.summary || {}).commissioning || {}).state || t.status;

@@ -210,10 +210,9 @@ export class LiveView {
     if (msg.status === "failed") state.faulted = msg.reason || "the test failed";
     setStatusBadge(state.stopping && msg.status === "running" ? "stopping" : msg.status);
     if (msg.stability) this.eq.onStability(msg.stability);
-    if (this.eq.kind) {
-      $("l-cycle").textContent = `none (${this.eq.kind === "hybrid" ? "a hybrid simulation" : "a time history"})`;
-    } else if (isMove(this.test) || isCommissioning(this.test)) {
-      $("l-cycle").textContent = `none (a ${isMove(this.test) ? "manual move" : "commissioning"})`;
+    const none = this.noCycles();
+    if (none) {
+      $("l-cycle").textContent = none;
     } else if (msg.cycle !== undefined && msg.cycle !== null) {
       $("l-cycle").textContent = msg.cycles_total ? `${msg.cycle} / ${msg.cycles_total}` : String(msg.cycle);
     }
@@ -316,6 +315,13 @@ export class LiveView {
     this.renderHeadline();
   }
 
+  /** A run without cycles (a history, a move, a commissioning) says so in the header's cycle field; else null. */
+  noCycles() {
+    if (this.eq.kind) return `none (${this.eq.kind === "hybrid" ? "a hybrid simulation" : "a time history"})`;
+    if (isMove(this.test) || isCommissioning(this.test)) return `none (a ${isMove(this.test) ? "manual move" : "commissioning"})`;
+    return null;
+  }
+
   /** A message of a test we have no record of (started after hello): fetch its record for the header. */
   followNew(testId) {
     this.resetTest(testId, null);
@@ -332,6 +338,8 @@ export class LiveView {
       this.mergeEvents(rec.events);
       this.renderHead();
       this.renderMargins(true);
+      const none = this.noCycles(); // the record may come after the run's last status message
+      if (none) $("l-cycle").textContent = none;
       changed("test");
     }).catch(() => {});
   }

@@ -192,8 +192,10 @@ export class PlotsPart {
    */
   loadStoredLoops(testId, cyclesDone) {
     if (!(cyclesDone > 0) || cyclesDone > PREFILL_MAX_CYCLES) return;
+    const asked = (this.loopsAsked = (this.loopsAsked || 0) + 1); // two reconnects: the later answer has more cycles
     fetch(`/api/tests/${testId}/cycles?arrays=true`).then((r) => (r.ok ? r.json() : [])).then((cycles) => {
-      if (this.testId !== testId || !Array.isArray(cycles) || !cycles.length || !this.plots) return;
+      if (asked !== this.loopsAsked || this.testId !== testId) return;
+      if (!Array.isArray(cycles) || !cycles.length || !this.plots) return;
       const loop = this.plots.loop;
       loop.past = [];
       loop.cacheDirty = true;

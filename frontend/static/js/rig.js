@@ -116,7 +116,11 @@ export class RigLink {
 
   /** GET /api/rig/link, unless the status messages bring fresh figures (a UDP rig only). */
   async poll() {
-    if (this.kind !== "udp" || this.polling) return;
+    if (this.kind !== "udp") return;
+    if (this.polling) { // one at a time; the one in flight may have been asked before what changed: ask again after
+      this.pollAgain = true;
+      return;
+    }
     if (performance.now() - this.wsAt < WS_FRESH_MS) return;
     this.polling = true;
     try {
@@ -129,6 +133,10 @@ export class RigLink {
       this.render();
     } finally {
       this.polling = false;
+      if (this.pollAgain) {
+        this.pollAgain = false;
+        this.poll();
+      }
     }
   }
 
