@@ -274,6 +274,13 @@ export class History {
       $("t-action").classList.add("hidden");
     }
     if (!keepMessage) this.message("t-message", "");
+    // the downloads name this test from the start (they need only its id)
+    this.showBundle(id);
+    const csv = $("t-csv");
+    csv.href = `/api/tests/${id}/data.csv`;
+    csv.setAttribute("download", `isorig-test-${id}.csv`);
+    this.checkPdf(id);
+    if (other) summary.append(el("div", { class: "muted", text: `loading test #${id}...` }));
     if (this.thisRig === null) await this.loadRigs(); // whose the test is decides what may be done with it
     if (superseded()) return;
     let t;
@@ -348,11 +355,6 @@ export class History {
         this.showTest(id, true);
       }
     };
-    this.showBundle(id);
-    const csv = $("t-csv");
-    csv.href = `/api/tests/${id}/data.csv`;
-    csv.setAttribute("download", `isorig-test-${id}.csv`);
-    this.checkPdf(id, t.status);
     this.renderEvents(t.events || []);
     let cycles = [];
     try {
@@ -380,6 +382,7 @@ export class History {
       } catch {
         this.paths = {};
       }
+      if (this.shownId !== id) return; // the page moved on to another test meanwhile
     }
     const a = $("t-bundle");
     const has = Boolean(this.paths["/api/tests/{test_id}/bundle.zip"]);
