@@ -382,6 +382,24 @@ def started_test_id(page) -> int:
     return test_id
 
 
+def hold_back_answer(page, url_ends: str, ms: int = 1500, method: str = "GET") -> None:
+    """Make the page's answers to ``method`` requests whose URL ends with ``url_ends`` reach it ``ms`` later (as on
+    a loaded service), so a newer request's answer comes first; ``window.__heldBackAnswered`` turns true once one
+    held back has been handed to the page. Set after the page has loaded: a change of hash keeps it."""
+    page.evaluate("""([ends, ms, method]) => {
+      window.__heldBackAnswered = false;
+      const orig = window.fetch;
+      window.fetch = async (url, opts) => {
+        const res = await orig(url, opts);
+        if (String(url).endsWith(ends) && ((opts && opts.method) || 'GET').toUpperCase() === method) {
+          await new Promise((r) => setTimeout(r, ms));
+          setTimeout(() => { window.__heldBackAnswered = true; }, 0);
+        }
+        return res;
+      };
+    }""", [url_ends, ms, method])
+
+
 def record_checks(page) -> None:
     """Keep the bodies (in the order sent) and answers (in the order answered) of the page's envelope checks
     (window.__checks, window.__checkAnswers)."""

@@ -4,7 +4,7 @@ SHA-256 shown and checked), History filtered by review state. Screenshots at 136
 
 from __future__ import annotations
 
-from .harness import WAIT_MS, shots, sine_test
+from .harness import WAIT_MS, hold_back_answer, shots, sine_test
 
 APPROVER = ("e2e-approver", "e2e-approver-password")
 VIEWER = ("e2e-viewer", "e2e-viewer-password")
@@ -49,23 +49,12 @@ def test_an_approver_logs_in_and_approves_a_record(server, open_page, artifacts)
 
     # History filtered by review state. The unfiltered list that opening History asks for is made to answer
     # after the filtered one (as it may on a loaded service): the table must keep the filtered list
-    page.evaluate("""() => {
-      window.__unfilteredListAnswered = false;
-      const orig = window.fetch;
-      window.fetch = async (url, opts) => {
-        const res = await orig(url, opts);
-        if (String(url).endsWith('/api/tests?')) {
-          await new Promise((r) => setTimeout(r, 1500));
-          setTimeout(() => { window.__unfilteredListAnswered = true; }, 0);
-        }
-        return res;
-      };
-    }""")
+    hold_back_answer(page, "/api/tests?")
     page.goto(f"{server.url}/#/history")  # the same page: only its hash changes
     page.select_option("#h-review", "approved")
     page.click("#history-filter button[type=submit]")
     page.wait_for_selector("#history-table[data-query='review=approved']", timeout=WAIT_MS)
-    page.wait_for_function("window.__unfilteredListAnswered", timeout=WAIT_MS)
+    page.wait_for_function("window.__heldBackAnswered", timeout=WAIT_MS)
     page.wait_for_selector(f"#history-table tr[data-id='{test_id}'] .review-approved", timeout=WAIT_MS)
     assert page.get_attribute("#history-table", "data-query") == "review=approved"
     ids = page.eval_on_selector_all("#history-table tbody tr[data-id]", "rows => rows.map(r => r.dataset.id)")
@@ -107,22 +96,11 @@ def test_a_late_answer_for_the_test_page_left_behind_never_lands_on_the_next(ser
         assert server.wait_status(second, {"completed"}, timeout_s=60)["status"] == "completed"
     page, _ = open_page(f"{server.url}/#/history", width=1366, height=768)
     page.wait_for_selector(f"#history-table tr[data-id='{second}']", timeout=WAIT_MS)
-    page.evaluate("""(slow) => {
-      window.__slowAnswered = false;
-      const orig = window.fetch;
-      window.fetch = async (url, opts) => {
-        const res = await orig(url, opts);
-        if (String(url).endsWith(`/api/tests/${slow}`)) {
-          await new Promise((r) => setTimeout(r, 1500));
-          setTimeout(() => { window.__slowAnswered = true; }, 0);
-        }
-        return res;
-      };
-    }""", first)
+    hold_back_answer(page, f"/api/tests/{first}")
     page.goto(f"{server.url}/#/tests/{first}")
     page.goto(f"{server.url}/#/tests/{second}")
     page.wait_for_selector("#t-summary .kv", timeout=WAIT_MS)
-    page.wait_for_function("window.__slowAnswered", timeout=WAIT_MS)
+    page.wait_for_function("window.__heldBackAnswered", timeout=WAIT_MS)
     page.wait_for_timeout(300)  # whatever the late answer would draw has been drawn
     assert page.inner_text("#t-title") == f"Test #{second}"
     summary = page.inner_text("#t-summary")

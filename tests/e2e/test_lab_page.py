@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from .harness import OPERATOR, VIEWPORTS, WAIT_MS, poll, sine_test
+from .harness import OPERATOR, VIEWPORTS, WAIT_MS, hold_back_answer, poll, sine_test
 
 ADMIN = ("e2e-lab-admin", "e2e-lab-admin-password")
 
@@ -67,18 +67,7 @@ def test_a_late_read_of_the_lab_never_undoes_a_save(server, open_page):
     server.add_account(*ADMIN, role="admin")
     admin = _lab_page(open_page, server, VIEWPORTS[0], ADMIN)
     before = server.call("GET", "/api/lab")[1]
-    admin.evaluate("""() => {
-      window.__slowReadAnswered = false;
-      const orig = window.fetch;
-      window.fetch = async (url, opts) => {
-        const res = await orig(url, opts);
-        if (String(url).endsWith('/api/lab') && !(opts && opts.method && opts.method !== 'GET')) {
-          await new Promise((r) => setTimeout(r, 1500));
-          setTimeout(() => { window.__slowReadAnswered = true; }, 0);
-        }
-        return res;
-      };
-    }""")
+    hold_back_answer(admin, "/api/lab")  # reads only: the save (PUT) answers at once
     admin.goto(server.url + "/#/live")
     admin.goto(server.url + "/#/lab")  # a visit: the page reads the lab again (slowly)
     try:
@@ -86,7 +75,7 @@ def test_a_late_read_of_the_lab_never_undoes_a_save(server, open_page):
         admin.click("#lab-save")
         poll(lambda: admin.inner_text("#lab-message").startswith("Saved"), 10, "the lab saved",
              shown=lambda: admin.inner_text("#lab-message"))
-        admin.wait_for_function("window.__slowReadAnswered", timeout=WAIT_MS)
+        admin.wait_for_function("window.__heldBackAnswered", timeout=WAIT_MS)
         admin.wait_for_timeout(300)  # whatever the late read would draw has been drawn
         assert admin.input_value("#lab-name") == "Late Read Lab"
         assert server.call("GET", "/api/lab")[1]["name"] == "Late Read Lab"
