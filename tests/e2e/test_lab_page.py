@@ -20,7 +20,7 @@ def _lab_page(open_page, server, viewport, login):
 
 def _save_units(page, units: str) -> None:
     page.select_option("#lab-units", units)
-    page.click("#lab-save")
+    page.click("#lab-save")  # the message says "saving..." at once, then "Saved" once this save has answered
     poll(lambda: page.inner_text("#lab-message").startswith("Saved"), 10, "the lab saved",
          shown=lambda: page.inner_text("#lab-message"))
 

@@ -70,6 +70,7 @@ export class LabPage {
   }
 
   async save() {
+    this.say("saving...");
     try {
       this.changed(await asAccount("PUT", "/api/lab", { name: $("lab-name").value, address: $("lab-address").value,
         units: $("lab-units").value }));
