@@ -12,6 +12,20 @@ export class ApiError extends Error {
 export const account = { name: null, role: null };
 const accountListeners = [];
 
+/**
+ * Requests of one kind, numbered as they are sent, so that a page draws only the newest answer: `const stale =
+ * this.lists.ask();` before the request, `if (stale()) return;` after each await (an older answer that comes later
+ * is dropped).
+ */
+export class NewestOnly {
+  constructor() { this.asked = 0; }
+
+  ask() {
+    const n = ++this.asked;
+    return () => n !== this.asked;
+  }
+}
+
 export function onAccount(fn) { accountListeners.push(fn); }
 
 function setAccount(who) {

@@ -8,7 +8,7 @@
 // (POST /api/commissioning/{id}/apply).
 
 import uPlot from "../vendor/uplot/uPlot.esm.js";
-import { account, api, errorField, operatorPost } from "./api.js";
+import { NewestOnly, account, api, errorField, operatorPost } from "./api.js";
 import { confirmDialog, summaryTable } from "./dialogs.js";
 import { parseNumber } from "./parse.js";
 import { onState, sourceWords, state, tablePosition, testRunning } from "./state.js";
@@ -123,6 +123,9 @@ function readForm(rigAnswer) {
 
 export class CommissionPage {
   constructor({ onApplied } = {}) {
+    this.checks = new NewestOnly(); // the form's checks, the commissioning opened, the earlier ones: the newest wins
+    this.opens = new NewestOnly();
+    this.lists = new NewestOnly();
     this.onApplied = onApplied || (() => {});
     this.rig = null; // GET /api/rig
     this.check = null; // the service's answer for the form as it is
@@ -244,7 +247,7 @@ export class CommissionPage {
   async askCheck() {
     const body = this.form && this.form.ok ? this.form.body : null;
     if (!body) return;
-    const asked = (this.checksAsked = (this.checksAsked || 0) + 1);
+    const stale = this.checks.ask();
     const bodyKey = JSON.stringify(body);
     const key = bodyKey + JSON.stringify(tablePosition());
     let check;
@@ -254,7 +257,7 @@ export class CommissionPage {
     } catch (e) {
       check = { ok: false, detail: e.message, field: errorField(e.detail), key, bodyKey };
     }
-    if (asked !== this.checksAsked) return;
+    if (stale()) return;
     this.check = check;
     this.checkKey = key;
     const blamed = { supply_bar: "c-supply", vertical_load_n: "c-vertical_load", max_stroke_m: "c-stroke",
@@ -417,16 +420,16 @@ export class CommissionPage {
 
   /** Show commissioning `id`. The one asked for last wins: an earlier open answered later is dropped. */
   async open(id) {
-    const asked = (this.opensAsked = (this.opensAsked || 0) + 1);
+    const stale = this.opens.ask();
     let res;
     try {
       res = await api.get(`/api/commissioning/${id}`);
     } catch (e) {
-      if (asked !== this.opensAsked) return;
+      if (stale()) return;
       this.renderResult(null, `commissioning #${id}: ${e.message}`);
       return;
     }
-    if (asked !== this.opensAsked) return;
+    if (stale()) return;
     if (!this.current || this.current.id !== id) {
       this.trace = { t: [], y: [], u: [] };
       this.phase = null;
@@ -821,10 +824,10 @@ export class CommissionPage {
 
   async listEarlier() {
     const list = $("c-earlier");
-    const asked = (this.listsAsked = (this.listsAsked || 0) + 1);
+    const stale = this.lists.ask();
     try {
       const tests = (await api.get("/api/tests?limit=200")).filter((t) => t.profile && t.profile.kind === "commissioning").slice(0, 8);
-      if (asked !== this.listsAsked) return; // a newer list was asked for
+      if (stale()) return; // a newer list was asked for
       list.innerHTML = "";
       for (const t of tests) {
         const state = ((t.summary || {}).commissioning || {}).state || t.status;

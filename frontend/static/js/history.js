@@ -3,7 +3,7 @@
 // the record actions: delete a test of this rig that never ran, archive a test that ran (who and why), restore
 // an archived one. Each asks first and says what happened.
 
-import { account, api, askLogin, refreshAccount } from "./api.js";
+import { NewestOnly, account, api, askLogin, refreshAccount } from "./api.js";
 import { confirmDialog, summaryTable } from "./dialogs.js";
 import { indicationsText, limitsText } from "./limits.js";
 import { isProtocol, ProtocolAcceptance, VERDICT_CLASS } from "./acceptance.js";
@@ -95,6 +95,8 @@ export class History {
     this.acceptance = new ProtocolAcceptance(); // a protocol test's verdict and levels (js/acceptance.js)
     this.current = null; // the test page's record, once loaded
     this.shownId = null; // the test the page shows (its hash), set at once: a late answer for another is dropped
+    this.lists = new NewestOnly(); // History's list and a test's page: only the newest answer is drawn
+    this.pages = new NewestOnly();
     this.thisRig = null; // the rig this service drives (GET /api/rigs): another rig's tests are its service's
     this.review = new ReviewPanel(() => this.showTest(this.shownId, true)); // approve / reject (js/review.js)
     $("history-filter").addEventListener("submit", (ev) => {
@@ -138,8 +140,7 @@ export class History {
    * dropped, so the table never shows an unfiltered list under a filter. The table's data-query names the
    * query its rows answer. */
   async showList() {
-    const asked = (this.listsAsked = (this.listsAsked || 0) + 1);
-    const superseded = () => asked !== this.listsAsked;
+    const superseded = this.lists.ask();
     await this.loadRigs();
     if (superseded()) return;
     const q = new URLSearchParams();
@@ -255,8 +256,7 @@ export class History {
   /** Show test `id`'s page. The page asked for last wins: every await is followed by a check that no other
    * showTest began meanwhile, so a late answer for test A never lands on test B's page (nor binds its buttons). */
   async showTest(id, keepMessage = false) {
-    const asked = (this.pagesAsked = (this.pagesAsked || 0) + 1);
-    const superseded = () => asked !== this.pagesAsked;
+    const superseded = this.pages.ask();
     const other = this.shownId !== id;
     this.shownId = id;
     $("t-title").textContent = `Test #${id}`;

@@ -9,6 +9,7 @@
 // liveplots.js (plots and loops), livereadouts.js (readouts and margins), liveevents.js (events and trips),
 // liveconnection.js (the websocket); the samples are kept in livebuffer.js.
 
+import { NewestOnly } from "./api.js";
 import { EarthquakeLive } from "./eqlive.js";
 import { BAD, Buffer, CAP, emptyExtremes, FINAL } from "./livebuffer.js";
 import { ConnectionPart } from "./liveconnection.js";
@@ -34,6 +35,7 @@ export class LiveView {
     this.onTest = onTest || (() => {});
     this.onLink = onLink || (() => {}); // a status message with a real rig's link figures
     this.buf = new Buffer();
+    this.loopRequests = new NewestOnly(); // the stored loops (a reconnect, a test's end): only the newest answer drawn
     this.testId = null;
     this.test = null;
     this.status = null;

@@ -63,7 +63,7 @@ export class HeadlinePart {
    * cycles dashed, the others grey; the view keeps them until the next test.
    */
   showEndedLoops(testId) {
-    this.loopsAsked = (this.loopsAsked || 0) + 1; // a running test's loops asked for before are not drawn over these
+    this.loopRequests.ask(); // a running test's loops asked for before are not drawn over these
     fetch(`/api/tests/${testId}/cycles?arrays=true`).then((r) => (r.ok ? r.json() : [])).then((cycles) => {
       if (this.testId !== testId || !FINAL.has(this.status) || !Array.isArray(cycles) || !this.plots) return;
       const loops = cycles.filter((c) => Array.isArray(c.displacement_m) && Array.isArray(c.force_n));

@@ -192,9 +192,9 @@ export class PlotsPart {
    */
   loadStoredLoops(testId, cyclesDone) {
     if (!(cyclesDone > 0) || cyclesDone > PREFILL_MAX_CYCLES) return;
-    const asked = (this.loopsAsked = (this.loopsAsked || 0) + 1); // two reconnects: the later answer has more cycles
+    const stale = this.loopRequests.ask(); // two reconnects: the later answer has more cycles
     fetch(`/api/tests/${testId}/cycles?arrays=true`).then((r) => (r.ok ? r.json() : [])).then((cycles) => {
-      if (asked !== this.loopsAsked || this.testId !== testId) return;
+      if (stale() || this.testId !== testId) return;
       if (!Array.isArray(cycles) || !cycles.length || !this.plots) return;
       const loop = this.plots.loop;
       loop.past = [];
