@@ -711,6 +711,7 @@ class RigService:
         if len(closed):
             tracking = tracking_summary(closed, scenario)
             tracking.pop("samples", None)
+            tracking.pop("lost_periods", None)  # the summary's own lost_periods counts the whole record
             summary["tracking"] = tracking
         cycles = store.load_cycles(session, test.id, arrays=False)
         headline = headline_figures(cycles)

@@ -58,6 +58,7 @@ from .hybrid_metrics import (
 )
 from .isolator import Isolator
 from .loop import CONTROL_PERIOD_S
+from .measurement import measured_rows
 from .structure import G_M_PER_S2
 
 KINDS = ("history", "hybrid")
@@ -479,9 +480,12 @@ def record_figures(profile: EarthquakeProfile | None, isolator: Isolator, sample
                  "targets": {k: v for k, v in _TARGETS.items()
                              if kind == "hybrid" or k in ("j1_delay_ms", "j2_rms_percent",
                                                                   "j3_peak_percent")}}
+    measured = measured_rows(samples["flags"][:n])
+    out["judged"]["lost_periods"] = int(np.count_nonzero(~measured))  # held readings: J2, J3 leave them out
     criteria: dict = {}
     if n >= MIN_JUDGED_SAMPLES:
-        criteria.update(tracking_criteria(samples["target_m"][:n], samples["displacement_m"][:n], dt_s))
+        criteria.update(tracking_criteria(samples["target_m"][:n], samples["displacement_m"][:n], dt_s,
+                                          measured=measured))
     else:
         out["judged"]["note"] = (f"{n} samples judged: at least {MIN_JUDGED_SAMPLES} are needed for the criteria "
                                  "(J1 searches delays of up to 0.1 s)")

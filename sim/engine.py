@@ -354,10 +354,12 @@ class Result:
                                         for i in self.indications]
         if self.scenario.history is not None:
             from .hybrid_metrics import tracking_criteria
+            from .measurement import measured_rows
 
             s = self.samples
             if len(s) > 10:
-                out["criteria"] = tracking_criteria(s["target_m"], s["displacement_m"], CONTROL_PERIOD_S)
+                out["criteria"] = tracking_criteria(s["target_m"], s["displacement_m"], CONTROL_PERIOD_S,
+                                                    measured=measured_rows(s["flags"]))
             out["tracking_verdict"] = self.verdict(out.get("criteria", {}))
             return out
         loops = {c["cycle"]: c for c in scenario_cycle_metrics(self.samples, self.scenario)} \

@@ -25,7 +25,7 @@ import numpy as np
 from .hybrid_metrics import EnergyMonitor, reference_criteria, tracking_criteria
 from .isolator import Isolator
 from .loop import CONTROL_PERIOD_S, ClosedLoop
-from .measurement import Measurement
+from .measurement import Measurement, measured_rows
 from .structure import CRIntegrator, ShearBuilding, channel_names, reference_response
 
 MIN_CRITERIA_SAMPLES = 4  # the criteria of fewer samples are NaN (a run that ended in its first periods)
@@ -255,11 +255,15 @@ class HybridSubstructure:
         return min(end, self.stopped_period) if self.stopped_period is not None else end
 
     def results(self, samples) -> dict:
-        """The structure's channels (as recorded) and the tracking criteria J1-J3 of the rig."""
+        """The structure's channels (as recorded), the tracking criteria J1-J3 of the rig over the periods
+        measured, and ``lost_periods`` (those whose measurement was lost)."""
         n = min(len(samples), self.n_periods)
         out = {name: self.channels[:n, j] for j, name in enumerate(self.names)}
+        measured = measured_rows(samples["flags"][:n])
+        out["lost_periods"] = int(np.count_nonzero(~measured))  # held readings, left out of J2 and J3
         if n >= MIN_CRITERIA_SAMPLES:
-            out["criteria"] = tracking_criteria(samples["target_m"][:n], samples["displacement_m"][:n], self.dt_s)
+            out["criteria"] = tracking_criteria(samples["target_m"][:n], samples["displacement_m"][:n], self.dt_s,
+                                                 measured=measured)
         else:  # a run that ended at once (a fault in its first periods): no criteria, but a summary
             out["criteria"] = {"j1_delay_ms": math.nan, "j2_rms_percent": math.nan, "j3_peak_percent": math.nan}
         out["stability"] = self.monitor.to_dict()

@@ -12,6 +12,10 @@ of the test, in the normalisation computed here:
     J2 = 100 sqrt( sum (x_m - x_c)^2 / sum x_c^2 )            (%, normalised RMS tracking error)
     J3 = 100 max |x_m - x_c| / max |x_c|                      (%, normalised peak tracking error)
 
+over the periods whose measurement arrived: a period whose packet was lost holds the previous reading (its row
+is flagged FLAG_LOST), which is not where the table was, so J2 and J3 leave it out, and J1 bridges it by a
+straight line between the measurements around it (a delay fit needs evenly spaced samples).
+
 and, for the RTHS's base displacement x (the numerical substructure's) against the full-numerical reference
 x_ref (sim.structure.reference_response) on the same time grid:
 
@@ -117,11 +121,31 @@ def time_delay_s(command, measured, dt_s: float, max_delay_s: float = DEFAULT_MA
     return float(res.x) * dt_s
 
 
-def tracking_criteria(command_m, measured_m, dt_s: float, max_delay_s: float = DEFAULT_MAX_DELAY_S) -> dict:
-    """{"j1_delay_ms", "j2_rms_percent", "j3_peak_percent"} of a command/measurement pair (module docstring)."""
-    return {"j1_delay_ms": 1e3 * time_delay_s(command_m, measured_m, dt_s, max_delay_s),
-            "j2_rms_percent": nrms_percent(measured_m, command_m),
-            "j3_peak_percent": npeak_percent(measured_m, command_m)}
+def tracking_criteria(command_m, measured_m, dt_s: float, max_delay_s: float = DEFAULT_MAX_DELAY_S,
+                      measured=None) -> dict:
+    """{"j1_delay_ms", "j2_rms_percent", "j3_peak_percent"} of a command/measurement pair (module docstring).
+
+    ``measured``: True where the period's measurement arrived (sim.measurement.measured_rows of the record's
+    flags; None: every period). J2 and J3 are taken over those periods; J1 over every period, a lost one bridged
+    by a straight line between the measurements around it."""
+    c, m = _pair(command_m, measured_m, ("command", "measured"))
+    if measured is not None:
+        fresh = np.asarray(measured, dtype=bool)
+        if fresh.shape != c.shape:
+            raise ValueError("measured must be one flag per sample of the command")
+        if fresh.sum() < 4:
+            nan = float("nan")
+            return {"j1_delay_ms": nan, "j2_rms_percent": nan, "j3_peak_percent": nan}
+        if not fresh.all():
+            index = np.arange(c.size)
+            m = np.interp(index, index[fresh], m[fresh])  # for J1 only: lost periods bridged
+            c_fresh, m_fresh = c[fresh], m[fresh]
+            return {"j1_delay_ms": 1e3 * time_delay_s(c, m, dt_s, max_delay_s),
+                    "j2_rms_percent": nrms_percent(m_fresh, c_fresh),
+                    "j3_peak_percent": npeak_percent(m_fresh, c_fresh)}
+    return {"j1_delay_ms": 1e3 * time_delay_s(c, m, dt_s, max_delay_s),
+            "j2_rms_percent": nrms_percent(m, c),
+            "j3_peak_percent": npeak_percent(m, c)}
 
 
 def reference_criteria(response_m, reference_m) -> dict:

@@ -13,6 +13,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 # Reported by the rig (bits 0-7).
 STATUS_ARMED = 1 << 0  # hydraulics on, valve amplifier enabled, commands are applied
 STATUS_SENSOR_FAULT = 1 << 1  # the rig's own sensor diagnostics found a fault (open wire, out of range)
@@ -32,6 +34,12 @@ FLAG_OPEN_LOOP = 1 << 9  # the controller was not stepped (command ramp of a con
 FLAG_PREDICTED = 1 << 10  # a lost period: the controller ran on a predicted reading (target less the last error)
 FLAG_BRAKE = 1 << 11  # a controlled stop: the target brakes to rest (sim.loop.brake_target), the controller in the loop
 FLAG_GUARD = 1 << 12  # the displacement guard began the stop here: the target would have carried the table past it
+
+
+def measured_rows(flags) -> np.ndarray:
+    """True where a period's measurement arrived; False where it was lost (FLAG_LOST: the row holds the previous
+    reading, not a measurement). Tracking figures are taken over the measured rows only."""
+    return (np.nan_to_num(np.asarray(flags, dtype=float)).astype(np.int64) & FLAG_LOST) == 0
 
 
 def describe_status(bits: int) -> str:

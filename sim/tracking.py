@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 
+from .measurement import measured_rows
 from .rig import LITRE_PER_MIN_M3_S
 
 
@@ -67,11 +68,15 @@ def _rms(x: np.ndarray) -> float:
 
 def closed_loop_error(samples) -> dict:
     """RMS and peak |y - r| over the rows run in closed loop (those with a target: an open-loop valve ramp has
-    none), and the peak |valve command| there (None if unknown); {} when no row has a target."""
+    none) whose measurement arrived (a lost one holds an older reading: sim.measurement.measured_rows), and the
+    peak |valve command| there (None if unknown); {} when no such row."""
     closed = np.isfinite(samples["target_m"])  # three columns only: copying whole rows of a long test is slow
     if not closed.any():
         return {}
-    e = samples["displacement_m"][closed] - samples["target_m"][closed]
+    judged = closed & measured_rows(samples["flags"])
+    e = samples["displacement_m"][judged] - samples["target_m"][judged]
+    if not e.size:
+        return {}
     u_peak = _peak_abs(samples["voltage_v"][closed])
     return {"rms_y_minus_r_m": _rms(e), "peak_abs_y_minus_r_m": float(np.max(np.abs(e))),
             "peak_abs_voltage_v": u_peak if math.isfinite(u_peak) else None}
@@ -80,18 +85,24 @@ def closed_loop_error(samples) -> dict:
 def tracking_summary(samples, scenario) -> dict:
     """Per-cycle RMS of y - y_m and y - r, and figures over the last two full-amplitude cycles.
 
-    ``samples``: a ``sim.samples.Samples`` of the test's rows from period 0.
+    ``samples``: a ``sim.samples.Samples`` of the test's rows from period 0. Errors are taken over the rows
+    whose measurement arrived (a lost period holds an older reading, not where the table was:
+    sim.measurement.measured_rows); ``lost_periods`` says how many were left out.
     """
     n = len(samples)
     y, r, y_m = samples["displacement_m"], samples["target_m"], samples["model_m"]
+    fresh = measured_rows(samples["flags"])
     limit = scenario.rig.command_limit_v
     per_cycle = []
     windows = cycle_windows(scenario)
     for number, (b_index, i0, i1, _f) in enumerate(windows, start=1):
         if i1 > n:
             break
-        e_model = y[i0:i1] - y_m[i0:i1]
-        e_target = y[i0:i1] - r[i0:i1]
+        seen = fresh[i0:i1]
+        e_model = (y[i0:i1] - y_m[i0:i1])[seen]
+        e_target = (y[i0:i1] - r[i0:i1])[seen]
+        if not e_target.size:  # every period of the cycle lost: nothing measured to judge
+            continue
         per_cycle.append({
             "cycle": number,
             "block": b_index,
@@ -105,7 +116,8 @@ def tracking_summary(samples, scenario) -> dict:
         "all_finite": finite,
         "saturated_share": float(np.mean(np.abs(samples["command_raw_v"]) >= limit)) if n else 0.0,
         "peak_flow_l_per_min": _peak_abs(samples["flow_m3_per_s"]) / LITRE_PER_MIN_M3_S,
-        "rms_y_minus_r_m": _rms((y - r)[np.isfinite(r)]),  # closed loop only (a stop's valve ramp has no target)
+        "rms_y_minus_r_m": _rms((y - r)[np.isfinite(r) & fresh]),  # closed loop only (a stop's ramp has no target)
+        "lost_periods": int(np.count_nonzero(~fresh)),
         "cycles": per_cycle,
     }
     if not scenario.profile:  # a time history: no cycles (its figures: sim.hybrid_metrics)
@@ -115,7 +127,8 @@ def tracking_summary(samples, scenario) -> dict:
     last_block = [w for w in windows if w[0] == len(scenario.profile) - 1]
     full = last_block[block.taper_cycles:block.cycles - block.taper_cycles]
     if len(full) >= 2 and full[-1][2] <= n:
-        sel = slice(full[-2][1], full[-1][2])
+        sel = np.arange(full[-2][1], full[-1][2])
+        sel = sel[fresh[sel]]
         t = samples["time_s"][sel]
         amp_y, ph_y = fitted_sine(t, y[sel], block.frequency_hz)
         amp_r, ph_r = fitted_sine(t, r[sel], block.frequency_hz)

@@ -129,3 +129,25 @@ def test_virtual_rths_delay_shows_in_j1_j4_and_the_monitor():
     mon = EnergyMonitor()
     out = virtual_rths(b, iso, t, ag, delay_steps=40, monitor=mon)
     assert mon.tripped and out["time_s"].size < t.size
+
+
+def test_lost_periods_are_left_out_of_j2_j3_and_bridged_for_j1():
+    """A lost period's row holds the previous reading, not where the table was: 12 held rows in the middle of a
+    fast stroke made J3 read 5.6 % on a hogged CI run whose measured periods tracked at 0.5 %."""
+    t = np.arange(0, 5, DT)
+    c = 0.02 * np.sin(2 * np.pi * 1.0 * t)
+    m = 0.02 * np.sin(2 * np.pi * 1.0 * (t - 0.002))
+    clean = tracking_criteria(c, m, DT)
+    held = m.copy()
+    held[1000:1012] = m[999]  # a host stall: twelve periods hold the last reading, at full speed (0.13 m/s)
+    fresh = np.ones(t.size, dtype=bool)
+    fresh[1000:1012] = False
+    assert tracking_criteria(c, held, DT)["j3_peak_percent"] > 3 * clean["j3_peak_percent"]  # what was judged
+    judged = tracking_criteria(c, held, DT, measured=fresh)
+    assert judged["j3_peak_percent"] == pytest.approx(clean["j3_peak_percent"], rel=1e-3)
+    assert judged["j2_rms_percent"] == pytest.approx(clean["j2_rms_percent"], rel=1e-2)
+    assert judged["j1_delay_ms"] == pytest.approx(2.0, abs=0.01)
+    assert tracking_criteria(c, m, DT, measured=np.ones(t.size, dtype=bool)) == clean
+    with pytest.raises(ValueError, match="one flag per sample"):
+        tracking_criteria(c, m, DT, measured=fresh[:-1])
+    assert all(math.isnan(v) for v in tracking_criteria(c, m, DT, measured=np.zeros(t.size, dtype=bool)).values())

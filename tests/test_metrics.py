@@ -317,3 +317,36 @@ def test_closed_loop_error_leaves_out_the_open_loop_ramp():
     assert abs(err["rms_y_minus_r_m"] - np.sqrt(2 * 0.001 ** 2 / 4)) < 1e-15
     rows["target_m"] = np.nan
     assert closed_loop_error(rows) == {}
+
+
+def test_tracking_figures_leave_out_the_periods_whose_measurement_was_lost():
+    """Per-cycle errors, the last two cycles' fit and |y - r| are taken over the measured rows: a lost period
+    (FLAG_LOST) holds an older reading, and a host stall must not read as the table's tracking error."""
+    import numpy as np
+
+    from sim.engine import Scenario
+    from sim.measurement import FLAG_LOST
+    from sim.samples import Samples
+    from sim.tracking import closed_loop_error, tracking_summary
+
+    scenario = Scenario.sine("IUT_a", 100, 0.02, 1.0, 4, taper_cycles=1)
+    t = np.arange(0, 4.0, 1e-3)
+    rows = Samples(np.zeros((t.size, len(Samples.empty().fields))))
+    rows["time_s"] = t
+    rows["target_m"] = 0.02 * np.sin(2 * np.pi * t)
+    rows["model_m"] = rows["target_m"]
+    rows["displacement_m"] = 0.02 * np.sin(2 * np.pi * (t - 0.001))
+    lost = slice(2000, 2012)  # in the third cycle (a steady one), at full speed
+    rows["flags"][lost] = FLAG_LOST
+    clean = tracking_summary(rows, scenario)
+    clean_error = closed_loop_error(rows)
+    rows["displacement_m"][lost] = rows["displacement_m"][1999]  # what a lost period's row holds
+    judged = tracking_summary(rows, scenario)
+    assert judged["lost_periods"] == 12 and clean["lost_periods"] == 12
+    assert judged["cycles"] == clean["cycles"] and judged["last_two_cycles"] == clean["last_two_cycles"]
+    assert judged["rms_y_minus_r_m"] == clean["rms_y_minus_r_m"]
+    assert closed_loop_error(rows) == clean_error
+    # the measured rows alone: a 1 ms lag on 20 mm at 1 Hz peaks at 2 sin(pi / 1000) 20 mm = 0.126 mm
+    assert judged["cycles"][2]["peak_abs_y_minus_r_m"] == pytest.approx(0.02 * 2 * np.sin(np.pi * 1e-3), rel=1e-3)
+    rows["flags"][lost] = 0  # the same held rows taken as measurements: the stall reads as a 1.5 mm error
+    assert tracking_summary(rows, scenario)["cycles"][2]["peak_abs_y_minus_r_m"] > 1e-3

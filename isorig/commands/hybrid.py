@@ -177,7 +177,8 @@ def run(args) -> int:
     summary = {"structure": building.to_dict(), "ground_motion": args.ground_motion, "scale": args.scale,
                "scenario": scenario.describe(), "status": status,
                "limit_detectors": not args.no_limit_detectors,
-               "reason": stopped, "criteria": {**res["criteria"], **j45}, "stability": res["stability"],
+               "reason": stopped, "criteria": {**res["criteria"], **j45}, "lost_periods": res["lost_periods"],
+               "stability": res["stability"],
                "reference_peaks": {k: float(np.max(np.abs(v))) for k, v in ref.items()
                                    if k.endswith(("_m", "_n", "_m_per_s2")) and np.ndim(v) == 1},
                "wall_time_s": elapsed}
@@ -186,5 +187,6 @@ def run(args) -> int:
     print(f"wrote {out / 'timeseries.csv'} ({n} samples) and {out / 'summary.json'}")
     print(f"{status}" + (f" ({stopped})" if stopped else "")
           + f"; J1 {c['j1_delay_ms']:.3f} ms, J2 {c['j2_rms_percent']:.2f} %, J3 {c['j3_peak_percent']:.2f} %; "
-          f"against the reference: J4 {c['j4_rms_percent']:.2f} %, J5 {c['j5_peak_percent']:.2f} %")
+          f"against the reference: J4 {c['j4_rms_percent']:.2f} %, J5 {c['j5_peak_percent']:.2f} %"
+          + (f"; {res['lost_periods']} periods lost (J2, J3 over the periods measured)" if res["lost_periods"] else ""))
     return 0 if not stopped else 1

@@ -556,8 +556,9 @@ def test_hybrid_simulation_on_the_emulator_matches_its_reference(tmp_path):
     j = summary["criteria"]
     # measured (IUT_b, 21 mm, 0.14 m/s peak: a third of the pump's 0.39 m/s, so that the velocity detector's
     # estimate across a few lost packets stays below its limit): J1 0.28 ms, J2 0.30 %, J3 0.50 %, J4 0.10 %,
-    # J5 0.11 % (the simulated rig: 0.29 ms, 0.28 %, 0.47 %, 0.08 %, 0.08 %). J3 takes one sample: a stall of
-    # this shared VM that loses a few periods makes a spike there (0.81 % with one lost, up to 3.6 % measured on
-    # a stronger motion with five), so it is held to 5 %, the others to the targets
+    # J5 0.11 % (the simulated rig: 0.29 ms, 0.28 %, 0.47 %, 0.08 %, 0.08 %). A stall of this shared VM loses
+    # periods; their rows hold an older reading, which J2 and J3 leave out (they read 5.6 % on a hogged run that
+    # lost 12 periods at full speed, 0.50 % over the periods measured), so all are held to the targets
     assert abs(j["j1_delay_ms"]) <= 1.0 and j["j2_rms_percent"] <= 1.0 and j["j4_rms_percent"] <= 2.0, j
-    assert j["j3_peak_percent"] <= 5.0 and j["j5_peak_percent"] <= 3.0, j
+    assert j["j3_peak_percent"] <= 3.0 and j["j5_peak_percent"] <= 3.0, j
+    assert isinstance(summary["lost_periods"], int) and summary["lost_periods"] >= 0
