@@ -37,7 +37,7 @@ def _criteria_on_the_test_page(server, page, test_id: int) -> dict:
 
 def _envelope(page, state: str, contains: str = "", timeout_s: float = 20) -> str:
     """The envelope box once it says `state` (and `contains`): the service's answer for the set-up now."""
-    page.wait_for_selector(f"#envelope[data-state='{state}']", timeout=timeout_s * 1000)
+    page.wait_for_selector(f"#envelope[data-state='{state}']", timeout=timeout_s * 1000)  # 'checking' till then
     return poll(lambda: (lambda t: t if contains in t else None)(page.inner_text("#envelope")), timeout_s,
                  f"the envelope box saying {contains!r}")
 

@@ -61,6 +61,7 @@ export class CheckPart {
   scheduleCheck(delay = 250) {
     clearTimeout(this.checkTimer);
     this.checkPending = true;
+    $("envelope").dataset.state = "checking"; // the answer on show is for the form as it was, until the new one
     this.checkTimer = setTimeout(() => this.check(), delay);
   }
 
@@ -68,6 +69,7 @@ export class CheckPart {
   async check() {
     const seq = ++this.checkSeq;
     const box = $("envelope");
+    box.dataset.state = "checking";
     const { body, problems } = this.body();
     const key = checkKey(body);
     const firstProblem = Object.entries(problems)[0];
@@ -83,6 +85,7 @@ export class CheckPart {
           result = { ok: false, key, message: e.message, field: errorField(e.detail), data: e.detail };
         } else if (e instanceof ApiError && e.status === 503) { // the service's check pool is busy: ask again
           if (seq === this.checkSeq) { // asked again with the form as it is then, after the answer's Retry-After
+            box.className = "envelope";
             box.textContent = `Checking: the service is busy with other checks; asking again in ${e.retryAfterS} s ...`;
             this.scheduleCheck(e.retryAfterS * 1000);
           }
