@@ -384,14 +384,20 @@ def abort_test(test_id: TestId, request: Request, response: Response, session: S
     return _record_after(session, test_id, abort)
 
 
+def _is_running(test, request: Request) -> bool:
+    """The record says running, or the service is starting it. The record's end is committed (everything of
+    it written) before the service lets go of the run: an ended record is not running."""
+    starting = test.status == "ready" and request.app.state.service.running_test_id() == test.id
+    return test.status == "running" or starting
+
+
 @router.delete("/api/tests/{test_id}", status_code=204, summary="Delete a test that never ran (role operator)",
                responses=ERROR_RESPONSES)
 def delete_test(test_id: TestId, request: Request, session: SessionDep, actor: OperatorDep) -> Response:
     """Only a test that never ran (status ``ready``) is erased; the record of a test that ran is a lab's
     record: archive it (``POST /api/tests/{id}/archive``, who and why), never erase it."""
     test = _test_or_404(session, test_id)
-    # the record's end is written before the service lets go of the run: an ended record is not "running"
-    if test.status == "running" or (test.status == "ready" and request.app.state.service.running_test_id() == test_id):
+    if _is_running(test, request):
         raise ApiError(409, f"test {test_id} is running; stop or abort it before deleting it")
     rig_name = request.app.state.service.rig_name
     if test.rig_name != rig_name:  # its own service may be starting it now
@@ -415,7 +421,7 @@ def delete_test(test_id: TestId, request: Request, session: SessionDep, actor: O
 def archive_test(test_id: TestId, body: ArchiveIn, request: Request, session: SessionDep,
                  actor: OperatorDep) -> TestOut:
     test = _test_or_404(session, test_id)
-    if test.status == "running" or request.app.state.service.running_test_id() == test_id:
+    if _is_running(test, request):
         raise ApiError(409, f"test {test_id} is running; it can be archived once it has ended")
     if test.archived_at is not None:
         raise ApiError(409, f"test {test_id} is archived already (by {test.archived_by})")

@@ -183,12 +183,16 @@ def test_a_test_that_ran_is_archived_never_erased(client):
 
 def test_a_test_whose_record_has_ended_is_not_running_while_the_service_lets_go_of_it(client, monkeypatch):
     """The record's end is written before the service lets go of the run (a hogged .ci/run asked to delete in
-    that window and was told the test was running): an ended record gets the archive answer."""
+    that window and was told the test was running): an ended record gets the archive answer, and can be
+    archived."""
     test_id = create_and_start(client)
     assert wait_for(client, test_id)["status"] == "completed"
     monkeypatch.setattr(client.app.state.service, "running_test_id", lambda: test_id)  # that window, held open
     r = client.delete(f"/api/tests/{test_id}", headers=AUTH)
     assert r.status_code == 409 and "archive" in r.json()["detail"], r.json()
+    r = client.post(f"/api/tests/{test_id}/archive", json={"by": "A. Tester", "reason": "wrong specimen mounted"},
+                    headers=AUTH)
+    assert r.status_code == 200 and r.json()["archived"], r.json()
     ready = client.post("/api/tests", json=sine_test(), headers=AUTH).json()["id"]
     monkeypatch.setattr(client.app.state.service, "running_test_id", lambda: ready)  # a start under way
     r = client.delete(f"/api/tests/{ready}", headers=AUTH)
