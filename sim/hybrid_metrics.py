@@ -129,23 +129,17 @@ def tracking_criteria(command_m, measured_m, dt_s: float, max_delay_s: float = D
     flags; None: every period). J2 and J3 are taken over those periods; J1 over every period, a lost one bridged
     by a straight line between the measurements around it."""
     c, m = _pair(command_m, measured_m, ("command", "measured"))
-    if measured is not None:
-        fresh = np.asarray(measured, dtype=bool)
-        if fresh.shape != c.shape:
-            raise ValueError("measured must be one flag per sample of the command")
-        if fresh.sum() < 4:
-            nan = float("nan")
-            return {"j1_delay_ms": nan, "j2_rms_percent": nan, "j3_peak_percent": nan}
-        if not fresh.all():
-            index = np.arange(c.size)
-            m = np.interp(index, index[fresh], m[fresh])  # for J1 only: lost periods bridged
-            c_fresh, m_fresh = c[fresh], m[fresh]
-            return {"j1_delay_ms": 1e3 * time_delay_s(c, m, dt_s, max_delay_s),
-                    "j2_rms_percent": nrms_percent(m_fresh, c_fresh),
-                    "j3_peak_percent": npeak_percent(m_fresh, c_fresh)}
-    return {"j1_delay_ms": 1e3 * time_delay_s(c, m, dt_s, max_delay_s),
-            "j2_rms_percent": nrms_percent(m, c),
-            "j3_peak_percent": npeak_percent(m, c)}
+    fresh = np.ones(c.size, dtype=bool) if measured is None else np.asarray(measured, dtype=bool)
+    if fresh.shape != c.shape:
+        raise ValueError("measured must be one flag per sample of the command")
+    if fresh.sum() < 4:
+        nan = float("nan")
+        return {"j1_delay_ms": nan, "j2_rms_percent": nan, "j3_peak_percent": nan}
+    index = np.arange(c.size)
+    bridged = m if fresh.all() else np.interp(index, index[fresh], m[fresh])  # for J1 only
+    return {"j1_delay_ms": 1e3 * time_delay_s(c, bridged, dt_s, max_delay_s),
+            "j2_rms_percent": nrms_percent(m[fresh], c[fresh]),
+            "j3_peak_percent": npeak_percent(m[fresh], c[fresh])}
 
 
 def reference_criteria(response_m, reference_m) -> dict:
