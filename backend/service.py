@@ -91,9 +91,9 @@ def worker_scenario(job_scenario: dict, plant_changes: dict) -> dict:
 
 def lost_periods(samples: Samples) -> int:
     """Periods whose measurement never arrived (flagged by the loop, sim.measurement.FLAG_LOST)."""
-    from sim.measurement import FLAG_LOST
+    from sim.measurement import measured_rows
 
-    return int(np.count_nonzero(np.nan_to_num(samples["flags"]).astype(np.int64) & FLAG_LOST))
+    return int(np.count_nonzero(~measured_rows(samples["flags"])))
 
 
 class Conflict(Exception):

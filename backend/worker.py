@@ -42,7 +42,7 @@ from sim.detectors import follow_monitor, guard_trip
 from sim.engine import Scenario
 from sim.isolator import isolator_from_dict
 from sim.loop import CONTROL_PERIOD_S, ClosedLoop
-from sim.measurement import FLAG_LOST, Measurement
+from sim.measurement import Measurement, measured_rows
 from sim.profiles import B_CYCLES, B_TAPER, blocks_from_dicts
 from sim.realtime import RealtimeSection, raise_priority, realtime_priority
 from sim.rig import DEFAULT_RIG
@@ -576,7 +576,7 @@ class Run:
             return
         if pace and not self.rig.realtime:  # a real rig paced the chunk itself
             self.pacer.wait_until(self.loop.time_s)
-        self.lost_periods += int(np.count_nonzero(np.nan_to_num(rows["flags"]).astype(np.int64) & FLAG_LOST))
+        self.lost_periods += int(np.count_nonzero(~measured_rows(rows["flags"])))
         if self.hybrid is not None:  # the stability monitor and the structure's response, just before the samples
             k0 = int(round(float(rows["time_s"][0]) / CONTROL_PERIOD_S))
             structure = np.full((len(rows), len(self.hybrid.names)), np.nan)

@@ -30,7 +30,7 @@ import numpy as np
 from scipy import signal
 
 from .loop import CONTROL_PERIOD_S
-from .measurement import FLAG_LOST
+from .measurement import measured_rows
 
 LAB_TARGET_SHARE = 0.001  # the labs' target: the table follows within 0.1 % of the amplitude
 HISTORY_J2_BOUND = 0.01  # a time history follows when its J2 is within this (sim.hybrid_metrics.CRITERIA)
@@ -193,7 +193,7 @@ class FollowMonitor:
         r = np.asarray(rows["target_m"], dtype=float)
         y = np.asarray(rows["measured_displacement_m"], dtype=float)
         k = np.round(t / CONTROL_PERIOD_S).astype(np.int64)
-        lost = (np.nan_to_num(np.asarray(rows["flags"], dtype=float)).astype(np.int64) & FLAG_LOST) != 0
+        lost = ~measured_rows(rows["flags"])
         y = self._bridge_lost(k, y, lost)
         self.lost_recent = np.concatenate([self.lost_recent, lost])[-LOST_WINDOW_PERIODS:]
         e = y - self._late_target(r)

@@ -32,7 +32,7 @@ import numpy as np
 
 from sim.errors import FieldError
 from sim.loop import CONTROL_PERIOD_S
-from sim.measurement import FLAG_LOST, RIG_FAULT_BITS, describe_status
+from sim.measurement import RIG_FAULT_BITS, describe_status, measured_rows
 from sim.rig import RigParameters
 from sim.samples import Samples
 
@@ -184,8 +184,7 @@ class Trip:
 def velocity_readings(rows: Samples) -> np.ndarray:
     """The position readings for the velocity: NaN in the rows of lost periods, which hold an older reading
     (a difference across them would divide the motion of more periods by n T)."""
-    lost = (np.nan_to_num(rows["flags"]).astype(np.int64) & FLAG_LOST) != 0
-    return np.where(lost, np.nan, rows["measured_displacement_m"])
+    return np.where(measured_rows(rows["flags"]), rows["measured_displacement_m"], np.nan)
 
 
 def measured_velocity(y: np.ndarray, before: np.ndarray | None = None) -> np.ndarray:
@@ -347,7 +346,7 @@ class SafetyMonitor:
         """The first sample whose reading has not changed for a tier's periods with the valve open beyond
         the tier's voltage (``FROZEN_TIERS``), or None. Lost periods (FLAG_LOST) hold an older reading: a host
         that did not get a measurement says nothing about the sensor, so they neither count nor break a run."""
-        fresh = np.flatnonzero((np.nan_to_num(rows["flags"]).astype(np.int64) & FLAG_LOST) == 0)
+        fresh = np.flatnonzero(measured_rows(rows["flags"]))
         n = fresh.size
         if n == 0:
             return None

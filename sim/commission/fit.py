@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import optimize, signal
 
-from ..measurement import FLAG_LOST, STATUS_COMMAND_MISSED
+from ..measurement import STATUS_COMMAND_MISSED, measured_rows
 from ..rig import RigParameters
 from ..samples import Samples
 
@@ -137,7 +137,7 @@ def signals_from_samples(samples: Samples, dt_s: float) -> Signals:
         if not np.all(np.isfinite(x)):
             raise FitError(f"the record's {name} has non-finite values: the fit needs every reading")
     flags = np.nan_to_num(np.asarray(samples["flags"], dtype=float)).astype(np.int64)
-    lost = (flags & FLAG_LOST) != 0
+    lost = ~measured_rows(flags)
     missed = np.zeros(n, dtype=bool)
     missed[:-1] = (flags[1:] & STATUS_COMMAND_MISSED) != 0  # the measurement after a missed period says so
     if np.count_nonzero(lost | missed) > MAX_ANOMALY_SHARE * n:

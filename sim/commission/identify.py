@@ -232,11 +232,10 @@ def record_figures(samples: Samples, conditions: Conditions) -> dict:
     """What the excitation did: its length, how far and how fast the table went (the velocity as the velocity
     detector reads it: the reading's difference over 5 periods, not across a lost period's held reading), the
     phases it reached."""
-    from ..measurement import FLAG_LOST
+    from ..measurement import measured_rows
 
     y = np.asarray(samples["measured_displacement_m"], dtype=float)
-    lost = (np.nan_to_num(np.asarray(samples["flags"], dtype=float)).astype(np.int64) & FLAG_LOST) != 0
-    readings = np.where(lost, np.nan, y)
+    readings = np.where(measured_rows(samples["flags"]), y, np.nan)
     v5 = np.zeros_like(y)
     v5[5:] = (readings[5:] - readings[:-5]) / (5 * CONTROL_PERIOD_S)
     phase = np.nan_to_num(np.asarray(samples["as_hat"], dtype=float), nan=-1)

@@ -129,7 +129,6 @@ export class CommissionPage {
     this.onApplied = onApplied || (() => {});
     this.rig = null; // GET /api/rig
     this.check = null; // the service's answer for the form as it is
-    this.checkKey = "";
     this.current = null; // GET /api/commissioning/{id} of the commissioning on the page
     this.runId = null; // the commissioning being run or fitted
     this.ws = null;
@@ -259,7 +258,6 @@ export class CommissionPage {
     }
     if (stale()) return;
     this.check = check;
-    this.checkKey = key;
     const blamed = { supply_bar: "c-supply", vertical_load_n: "c-vertical_load", max_stroke_m: "c-stroke",
       max_velocity_m_per_s: "c-velocity", speed: "c-speed", isolator: "c-isolator" }[this.check.field];
     document.querySelectorAll("#commission-form .refused").forEach((x) => x.classList.remove("refused", "invalid"));
