@@ -307,14 +307,16 @@ class Run:
             self.pending_start = i1
 
     def send_cycle(self, number: int, block: int, index_in_block: int, seg: Samples) -> None:
-        """The cycle's loop at full resolution and its phase (after a stop, the loop's blocks are cut: its
-        last cycles are the ramp-out); the service computes its metrics (service.cycle_with_metrics)."""
+        """The cycle's loop at full resolution, its measured periods only, and its phase (after a stop, the
+        loop's blocks are cut: its last cycles are the ramp-out); the service computes its metrics
+        (service.cycle_with_metrics)."""
         packed = self.loop.blocks[block]
         phase = cycle_phase(index_in_block, int(packed[B_CYCLES]), int(packed[B_TAPER]),
                             self.scenario.profile[block].cycles)
+        measured = measured_rows(seg["flags"])  # a lost period's row holds an older reading: not in the loop
         self.send("cycle", {"cycle": number, "block": block, "phase": phase, "t_start_s": float(seg["time_s"][0]),
                             "t_end_s": float(seg["time_s"][-1] + CONTROL_PERIOD_S),
-                            "displacement_m": seg["displacement_m"].copy(), "force_n": seg["force_n"].copy()})
+                            "displacement_m": seg["displacement_m"][measured], "force_n": seg["force_n"][measured]})
 
     # --- the loop ------------------------------------------------------------------------------------
     def execute(self) -> tuple[str, str | None]:

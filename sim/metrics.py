@@ -226,12 +226,14 @@ def split_cycles(time_s, displacement_m, cycle_starts_s: Sequence[float] | None 
 
 
 def cycle_metrics(time_s, displacement_m, force_n, cycle_starts_s: Sequence[float] | None = None,
-                  end_s: float | None = None, skip_bad: bool = False) -> list[dict]:
+                  end_s: float | None = None, skip_bad: bool = False, measured=None) -> list[dict]:
     """``loop_metrics`` of every complete cycle, numbered from 1, with its time span and sample range.
 
     Each loop includes the first sample of the next cycle (when there is one) so that it closes. With
     ``skip_bad`` (and the cycle starts given) a cycle with non-finite samples gets ``{"error": ...}`` instead
-    of its metrics, and the others are computed (a record whose sensor failed mid-test).
+    of its metrics, and the others are computed (a record whose sensor failed mid-test). ``measured``: True
+    where a period's reading arrived (sim.measurement.measured_rows); the rows of lost periods, which hold an
+    older reading, are left out of the loops (``i_start``/``i_end`` still index the whole record).
     """
     t = _as_array("time_s", time_s)
     if skip_bad and cycle_starts_s is not None:
@@ -240,11 +242,15 @@ def cycle_metrics(time_s, displacement_m, force_n, cycle_starts_s: Sequence[floa
         d, f = _as_array("displacement_m", displacement_m), _as_array("force_n", force_n)
     if f.size != d.size:
         raise ValueError(f"displacement_m has {d.size} samples but force_n has {f.size}")
+    keep = np.ones(d.size, dtype=bool) if measured is None else np.asarray(measured, dtype=bool)
+    if keep.shape != d.shape:
+        raise ValueError(f"measured has {keep.size} rows but the record has {d.size}")
     out = []
     for number, (i0, i1) in enumerate(split_cycles(t, d, cycle_starts_s, end_s), start=1):
         j1 = min(i1 + 1, d.size)
+        rows = i0 + np.flatnonzero(keep[i0:j1])
         try:
-            m = loop_metrics(d[i0:j1], f[i0:j1])
+            m = loop_metrics(d[rows], f[rows])
         except ValueError as exc:
             if not skip_bad:
                 raise
@@ -290,12 +296,14 @@ def headline_figures(cycles: list[dict]) -> dict:
 
 
 def scenario_cycle_metrics(samples, scenario) -> list[dict]:
-    """Per-cycle metrics of an engine run (``sim.samples.Samples``), split by the command's phase."""
+    """Per-cycle metrics of an engine run (``sim.samples.Samples``), split by the command's phase; the rows of
+    lost periods are left out of the loops."""
+    from .measurement import measured_rows
     from .tracking import cycle_phases
 
     starts, end = profile_cycle_starts_s(scenario.profile)
     cycles = cycle_metrics(samples["time_s"], samples["displacement_m"], samples["force_n"], starts, end,
-                           skip_bad=True)
+                           skip_bad=True, measured=measured_rows(samples["flags"]))
     phases = cycle_phases(scenario.profile)
     for c in cycles:
         c["phase"] = phases[c["cycle"] - 1] if c["cycle"] <= len(phases) else "steady"

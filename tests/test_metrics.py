@@ -8,6 +8,7 @@ import pytest
 from sim.isolator import PRESETS, simulate_loop
 from sim.metrics import (
     CYCLE_KEYS,
+    METRIC_KEYS,
     cycle_metrics,
     loop_area_j,
     loop_metrics,
@@ -350,3 +351,42 @@ def test_tracking_figures_leave_out_the_periods_whose_measurement_was_lost():
     assert judged["cycles"][2]["peak_abs_y_minus_r_m"] == pytest.approx(0.02 * 2 * np.sin(np.pi * 1e-3), rel=1e-3)
     rows["flags"][lost] = 0  # the same held rows taken as measurements: the stall reads as a 1.5 mm error
     assert tracking_summary(rows, scenario)["cycles"][2]["peak_abs_y_minus_r_m"] > 1e-3
+
+
+def test_loops_leave_out_the_rows_of_lost_periods():
+    """A lost period's row holds the previous reading (FLAG_LOST): a point of the loop repeated, which weights
+    the fitted branches (Q_d, K_d) towards it. The loop is judged on the measured rows only, in the per-cycle
+    metrics of a record (sim.metrics.scenario_cycle_metrics) as in cycle_metrics."""
+    from sim.engine import Scenario
+    from sim.measurement import FLAG_LOST
+    from sim.metrics import scenario_cycle_metrics
+    from sim.samples import Samples
+
+    iso = PRESETS["IUT_a"]
+    scenario = Scenario.sine("IUT_a", 100, 0.02, 1.0, 4, taper_cycles=1)
+    starts, end = profile_cycle_starts_s(scenario.profile)
+    t = np.arange(0.0, end, DT)
+    d = target_series(pack_profile(scenario.profile), t)
+    f = simulate_loop(iso, d, DT)
+    lost = np.zeros(t.size, dtype=bool)
+    lost[2100:2250] = True  # 150 ms in the third cycle (a steady one), on the loading branch
+    held_d, held_f = d.copy(), f.copy()
+    held_d[lost], held_f[lost] = d[2099], f[2099]  # what the rows of lost periods hold
+
+    judged = cycle_metrics(t, held_d, held_f, starts, end, measured=~lost)
+    third = np.flatnonzero(~lost[2000:3001]) + 2000  # the third cycle's loop (closed by the next cycle's first row)
+    expected = loop_metrics(d[third], f[third])
+    assert (judged[2]["i_start"], judged[2]["i_end"]) == (2000, 3000)
+    for key in METRIC_KEYS:
+        assert judged[2][key] == pytest.approx(expected[key], rel=1e-12), key
+    as_measured = cycle_metrics(t, held_d, held_f, starts, end)  # the held rows taken as readings
+    assert abs(as_measured[2]["kd_n_per_m"] / expected["kd_n_per_m"] - 1) > 1e-4  # 0.045 % (a small bias)
+    assert [c["edc_j"] for c in judged[:2]] == [c["edc_j"] for c in as_measured[:2]]  # no lost row there
+
+    rows = Samples(np.zeros((t.size, len(Samples.empty().fields))))
+    rows["time_s"], rows["displacement_m"], rows["force_n"] = t, held_d, held_f
+    rows["flags"][lost] = FLAG_LOST
+    from_record = scenario_cycle_metrics(rows, scenario)
+    assert from_record[2]["kd_n_per_m"] == pytest.approx(expected["kd_n_per_m"], rel=1e-12)
+    with pytest.raises(ValueError, match="measured has 5 rows"):
+        cycle_metrics(t, d, f, starts, end, measured=np.ones(5, dtype=bool))

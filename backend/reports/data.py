@@ -48,6 +48,7 @@ def bundle_from_csv(path, summary_path=None, isolator=None, supply_bar: float | 
     sim.metrics.RecordError (a ValueError) for a malformed CSV.
     """
     from sim.isolator import Isolator, isolator_from_dict, load_isolator
+    from sim.measurement import measured_rows
     from sim.metrics import cycle_metrics, profile_cycle_starts_s, read_csv_columns
     from sim.protocols import Protocol, load_protocol
 
@@ -98,21 +99,22 @@ def bundle_from_csv(path, summary_path=None, isolator=None, supply_bar: float | 
         blocks = [SineProfile(b["amplitude_m"], b["frequency_hz"], int(b["cycles"]), int(b["taper_cycles"]),
                               b.get("offset_m", 0.0)) for b in scenario["profile"]]
     t, d, f = cols["time_s"], cols["displacement_m"], cols["force_n"]
+    measured = measured_rows(samples["flags"])  # a lost period's row holds an older reading: not in the loops
     phases = []
     if blocks:
         from sim.tracking import cycle_phases
 
         starts, end = profile_cycle_starts_s(blocks)
-        cycles = cycle_metrics(t, d, f, starts, end)
+        cycles = cycle_metrics(t, d, f, starts, end, measured=measured)
         phases = cycle_phases(blocks)
     else:
-        cycles = cycle_metrics(t, d, f)
+        cycles = cycle_metrics(t, d, f, measured=measured)
     for c in cycles:
         if phases:  # the split's own plan says which cycles are tapers (without a plan: unknown, none marked)
             c["phase"] = phases[c["cycle"] - 1] if c["cycle"] <= len(phases) else "steady"
-        j1 = min(c["i_end"] + 1, n)
-        c["displacement_m"] = d[c["i_start"]:j1]
-        c["force_n"] = f[c["i_start"]:j1]
+        rows = c["i_start"] + np.flatnonzero(measured[c["i_start"]:min(c["i_end"] + 1, n)])
+        c["displacement_m"] = d[rows]
+        c["force_n"] = f[rows]
 
     if proto is not None:
         profile = {"kind": "protocol", "protocol": proto.to_dict()}

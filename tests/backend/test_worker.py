@@ -342,3 +342,25 @@ def test_a_rig_in_real_time_is_stopped_by_the_follow_detector_as_a_simulated_one
     assert (status, reason) == (ref_status, ref_reason)
     trips = [m for k, m in out.sent if k == "event" and m["kind"] == "limit_trip"]
     assert [t["values"]["detector"] for t in trips] == ["not_following"]
+
+
+def test_a_cycles_loop_holds_only_the_periods_that_were_measured():
+    """A lost period's row holds the previous reading (FLAG_LOST): the cycle sent for the live loop and the
+    store leaves it out, and keeps the cycle's time span."""
+    from sim.measurement import FLAG_LOST
+
+    out = Pipe()
+    run = Run(job(), out, Pipe())
+    seg = Samples.empty(500)
+    seg["time_s"] = 1.0 + np.arange(500) * 1e-3
+    seg["displacement_m"] = np.arange(500) * 1e-5
+    seg["force_n"] = np.arange(500) * 10.0
+    seg["flags"][:] = 0
+    seg["flags"][0] = FLAG_LOST
+    seg["flags"][100:112] = FLAG_LOST
+    run.send_cycle(2, 0, 1, seg)
+    kind, cycle = out.sent[-1]
+    assert kind == "cycle" and (cycle["t_start_s"], cycle["t_end_s"]) == pytest.approx((1.0, 1.5))
+    kept = np.r_[1:100, 112:500]
+    np.testing.assert_array_equal(cycle["displacement_m"], kept * 1e-5)
+    np.testing.assert_array_equal(cycle["force_n"], kept * 10.0)
