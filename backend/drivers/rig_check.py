@@ -13,8 +13,9 @@ protocol document, one row per rule naming its section (``isorig check-rig``, do
   the rig's ``packets_rejected`` and in the command not being applied (``command_sequence`` not reaching it);
 - DISARM (the stream stops), the rig unarmed (silent, commands dropped), the watchdog (its time from the last
   command and from ARM, its last measurement, stale commands not feeding it);
-- with ``motion``: the direction of the table, the signs of ``load_pressure_pa`` and ``force_n``, the position
-  a HELLO reports after the table moved.
+- with ``motion``: the direction of the table, the signs of ``load_pressure_pa`` (its change from the rest
+  before each push, ``pressure_change``: whatever specimen is mounted) and ``force_n``, the position a HELLO
+  reports after the table moved.
 
 Every command it sends is 0.0 V, except the ones a conforming rig must refuse (NaN, infinite, 1.2 x the command
 limit: never applied), and, with ``motion``, +-``motion_v`` until the table has moved 0.3 mm (stopped at once
@@ -62,9 +63,26 @@ POSITION_AGREE_M = 0.5e-3  # a HELLO's position and the armed stream's, at rest
 MOTION_STEP_M = 0.3e-3  # --motion: how far the table is pushed
 MOTION_STOP_M = 1e-3  # ... and where the command goes to 0 V at once
 MOTION_MAX_V = 3.0
+MOTION_REST_PERIODS = 20  # readings at rest before each push: the load pressure's level and noise there
+MOTION_PRESSURE_MIN_PA = 0.1e5  # a push changes the mean load pressure by at least this much ...
+MOTION_PRESSURE_SIGMAS = 4.0  # ... and by this many standard errors of the reading's noise (seen at rest)
 HELLO_FOLLOW_M = 0.05e-3  # a HELLO after the motion: where the last measurement left the table
 HELLO_BURST_SENT = 40  # version 2: HELLOs sent at once to see the rate limit (section 9.6) ...
 HELLO_BURST, HELLO_RATE_PER_S = 10, 100.0  # ... which answers about this many at once and per second
+
+
+def pressure_change(rest_pa: list[float], pushed_pa: list[float]) -> tuple[float, float]:
+    """(the mean load pressure over a push less its mean at rest just before it, the smallest change that is
+    not noise): MOTION_PRESSURE_MIN_PA, or MOTION_PRESSURE_SIGMAS standard errors of that difference with the
+    reading's noise estimated at rest, the larger. The rest reading holds the specimen (and friction); a push
+    towards +y must add to it, so the change has the push's sign whatever specimen is mounted (docs/rig-
+    protocol.md section 4.2)."""
+    if len(rest_pa) < 2 or not pushed_pa:
+        return math.nan, math.nan
+    noise_pa = statistics.stdev(rest_pa)
+    error_pa = noise_pa * math.sqrt(1.0 / len(rest_pa) + 1.0 / len(pushed_pa))
+    change_pa = statistics.fmean(pushed_pa) - statistics.fmean(rest_pa)
+    return change_pa, max(MOTION_PRESSURE_MIN_PA, MOTION_PRESSURE_SIGMAS * error_pa)
 
 
 class RigUnreachable(Exception):
@@ -1150,19 +1168,18 @@ class RigCheck:
         return pushed, stopped
 
     def _move(self, s: Stream):
-        rest = s.steady(20)[-10:]
+        rest = s.steady(MOTION_REST_PERIODS + 10)[-MOTION_REST_PERIODS:]
         y0 = statistics.fmean(x["position_m"] for x in rest)
         f0 = statistics.fmean(x["force_n"] for x in rest)
-        p0 = statistics.fmean(x["load_pressure_pa"] for x in rest)
         up, stop_up = self._push(s, self.motion_v, y0, lambda y: y - y0 >= MOTION_STEP_M)
-        settled = s.steady(40)[-5:]
-        y1 = statistics.fmean(x["position_m"] for x in settled)
-        f1 = statistics.fmean(x["force_n"] for x in settled)
+        settled = s.steady(40)
+        y1 = statistics.fmean(x["position_m"] for x in settled[-5:])
+        f1 = statistics.fmean(x["force_n"] for x in settled[-5:])
         coast = max(0.0, y1 - y0 - MOTION_STEP_M)  # how far the table ran on after 0 V: stop back that much early
         down, stop_down = self._push(s, -self.motion_v, y0, lambda y: y <= y0 + coast)
-        settled = s.steady(40)
-        y2 = statistics.fmean(x["position_m"] for x in settled[-5:])
-        last_y = settled[-1]["position_m"]
+        back = s.steady(40)
+        y2 = statistics.fmean(x["position_m"] for x in back[-5:])
+        last_y = back[-1]["position_m"]
         s.disarm()
         self.stream = None
         answer = self.hello()
@@ -1174,12 +1191,7 @@ class RigCheck:
                      f"{moved_back * 1e3:+.3f} mm at {-self.motion_v:+g} V{stopped}",
                      "" if moved_up > 0 and moved_back < 0 else "the table moved against the command (or not at all: "
                      "a dead zone wider than --motion-v?)")
-        up_dp = [x["load_pressure_pa"] - p0 for x in up]
-        down_dp = [x["load_pressure_pa"] - p0 for x in down]
-        pressure_ok = bool(up_dp and down_dp) and max(up_dp) > -min(up_dp) and -min(down_dp) > max(down_dp)
-        pressure = (pressure_ok, f"{max(up_dp, default=0) / 1e5:+.2f} bar pushing +y, "
-                    f"{min(down_dp, default=0) / 1e5:+.2f} bar pushing -y",
-                    "" if pressure_ok else "P_L must be positive while the table is pushed towards +y")
+        pressure = self._pressure_rule(rest, up, settled[-MOTION_REST_PERIODS:], down)
         df = f1 - f0
         force_ok = df * moved_up > 0
         force = (force_ok, f"{df / 1e3:+.3f} kN for {moved_up * 1e3:+.3f} mm",
@@ -1189,6 +1201,33 @@ class RigCheck:
         follows = (abs(dy) <= HELLO_FOLLOW_M, f"{answer['position_m'] * 1e3:+.3f} mm ({dy * 1e3:+.3f} mm from the "
                    "last measurement)", "" if abs(dy) <= HELLO_FOLLOW_M else "the HELLO's position is not the table's")
         return [direction, pressure, force, follows]
+
+    def _pressure_rule(self, rest_up: list[Received], up: list[Received], rest_down: list[Received],
+                       down: list[Received]) -> tuple[bool, str, str]:
+        """Section 4.2: the mean load pressure over each push, from its rest just before (``pressure_change``),
+        rises pushing towards +y and falls pushing towards -y, each beyond the noise."""
+        def readings(recs):
+            return [x["load_pressure_pa"] for x in recs]
+
+        up_pa, up_min_pa = pressure_change(readings(rest_up), readings(up))
+        down_pa, down_min_pa = pressure_change(readings(rest_down), readings(down))
+        self.figures["motion"]["pressure_change_pa"] = {"up": up_pa, "down": down_pa, "up_min": up_min_pa,
+                                                         "down_min": down_min_pa}
+        figure = (f"{up_pa / 1e5:+.2f} bar pushing +y, {down_pa / 1e5:+.2f} bar pushing -y (mean change from the "
+                  f"rest before; at least {up_min_pa / 1e5:.2f}, {down_min_pa / 1e5:.2f} bar)")
+        rose, fell = up_pa >= up_min_pa, -down_pa >= down_min_pa  # False on NaN
+        if rose and fell:
+            return True, figure, ""
+        if up_pa <= -up_min_pa and down_pa >= down_min_pa:
+            why = ("P_L fell pushing towards +y and rose pushing towards -y: its sign is inverted (P_L = P_A - P_B, "
+                   "positive when it pushes the table towards +y)")
+        elif not (math.isfinite(up_pa) and math.isfinite(down_pa)):
+            why = "no reading of a push to judge (the table did not move, or was stopped at once)"
+        elif abs(up_pa) < up_min_pa and abs(down_pa) < down_min_pa:
+            why = "P_L did not change beyond its noise while the valve pushed the table: is the channel P_A - P_B?"
+        else:
+            why = "P_L must rise while the valve pushes the table towards +y and fall while it pushes towards -y"
+        return False, figure, why
 
     # --- the link ---------------------------------------------------------------------------------------------
     def _link_rules(self) -> None:
