@@ -1193,6 +1193,7 @@ class RigCheck:
                      "a dead zone wider than --motion-v?)")
         pressure = self._pressure_rule(rest, up, settled[-MOTION_REST_PERIODS:], down)
         df = f1 - f0
+        self.figures["motion"]["force_change_n"] = df
         force_ok = df * moved_up > 0
         force = (force_ok, f"{df / 1e3:+.3f} kN for {moved_up * 1e3:+.3f} mm",
                  "" if force_ok else "force_n must rise with the displacement (the specimen's force, positive when "

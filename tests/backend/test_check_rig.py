@@ -1,16 +1,19 @@
 """isorig check-rig against the rig emulator in its own process (``isorig rig-emulator``, real time): it passes on
-the emulator, with and without --motion; it fails, naming the rule, on each emulator broken on purpose
-(--defect); the emulator plays a lab's rig file; and an emulator that overruns its period does what
-docs/rig-protocol.md section 1.6 says.
+the emulator, with and without --motion, and with --motion with a stiff specimen mounted; it fails, naming the
+rule, on each emulator broken on purpose (--defect) and on a rig whose load pressure has the wrong sign; the
+emulator plays a lab's rig file; and an emulator that overruns its period does what docs/rig-protocol.md section
+1.6 says.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import select
 import signal
 import socket
 import subprocess
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 
@@ -18,7 +21,7 @@ import pytest
 from emulator import ISORIG, Emulator
 
 from backend.drivers import ArmConditions, RigFault
-from backend.drivers.rig_check import check_rig
+from backend.drivers.rig_check import MOTION_PRESSURE_MIN_PA, check_rig, pressure_change
 from backend.drivers.udp import UdpRig
 from sim.emulator import auth
 from sim.emulator import protocol as proto
@@ -112,6 +115,115 @@ def test_check_rig_with_motion_moves_the_table_both_ways_and_back(good):
     assert max(abs(motion["up_m"]), abs(motion["back_m"])) < 1e-3  # small, bounded
     status = good.fresh_status()
     assert not status["armed"] and abs(status["position_m"]) < 0.2e-3  # left near where it was
+
+
+#: a specimen 50 times as stiff as IUT_a (k_d): at +0.3 mm it pulls back with about 20 kN, more than the 1.5 V
+#: push holds at 20 bar, so the load pressure at rest there is about 15 bar
+STIFF = {"name": "stiff_50x", "rho_bw_per_m": 141.0, "sigma_bw": 0.5, "n": 1.0, "kd_n_per_m": 50 * 1.25e6,
+         "kw_n": 1.7e4}
+PRESSURE_NOISE_PA = 0.2e5  # a real transducer's, per reading
+
+
+@pytest.fixture(scope="class")
+def stiff(tmp_path_factory):
+    """An emulator with the stiff specimen mounted and 0.2 bar of noise on its load pressure readings."""
+    path = tmp_path_factory.mktemp("stiff")
+    (path / "stiff.json").write_text(json.dumps(STIFF))
+    emulator = Emulator(path, "--plant-set", f"pressure_noise_rms_pa={PRESSURE_NOISE_PA:g}",
+                        isolator=str(path / "stiff.json"), name="stiff", watchdog_ms=18.0)
+    yield emulator
+    emulator.stop()
+
+
+class InvertedPressure:
+    """A UDP relay in front of a rig that negates ``load_pressure_pa`` in every measurement it passes on (protocol
+    1): a rig whose P_L has the wrong sign, everything else as the rig's. Each host socket gets its own socket to
+    the rig, so the rig sees the host's sockets as distinct, and replies leave from the port the host sent to."""
+
+    def __init__(self, rig_port: int):
+        self.rig = ("127.0.0.1", rig_port)
+        self.front = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.front.bind(("127.0.0.1", 0))
+        self.url = f"udp://127.0.0.1:{self.front.getsockname()[1]}"
+        self.back: dict[tuple, socket.socket] = {}
+        self.host_of: dict[socket.socket, tuple] = {}
+        self.inverted = 0
+        self.running = True
+        self.thread = threading.Thread(target=self._relay, daemon=True)
+        self.thread.start()
+
+    def _invert(self, data: bytes) -> bytes:
+        try:
+            packet = proto.decode(data)
+        except proto.PacketError:
+            return data
+        if packet.kind != proto.MEASUREMENT:
+            return data
+        values = dict(packet.fields, load_pressure_pa=-packet.fields["load_pressure_pa"])
+        self.inverted += 1
+        return proto.encode(packet.kind, packet.session, packet.sequence, packet.time_ns,
+                            *(values[name] for name in proto.MEASUREMENT_FIELDS))
+
+    def _relay(self) -> None:
+        while self.running:
+            ready, _, _ = select.select([self.front, *self.host_of], [], [], 0.05)
+            for sock in ready:
+                if sock is self.front:
+                    data, host = self.front.recvfrom(2048)
+                    if host not in self.back:
+                        back = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                        back.connect(self.rig)
+                        self.back[host], self.host_of[back] = back, host
+                    self.back[host].send(data)
+                else:
+                    try:
+                        data = sock.recv(2048)
+                    except ConnectionRefusedError:
+                        continue
+                    self.front.sendto(self._invert(data), self.host_of[sock])
+
+    def close(self) -> None:
+        self.running = False
+        self.thread.join(1.0)
+        for sock in (self.front, *self.host_of):
+            sock.close()
+
+
+class TestStiffSpecimen:
+    """The rule of section 4.2 on the sign of load_pressure_pa, with the specimen of ``stiff`` mounted."""
+
+    def test_check_rig_with_motion_passes_with_a_stiff_specimen_mounted(self, stiff):
+        """The rest reading at +0.3 mm holds the specimen: the push back lowers P_L from there, and a rule that
+        judged its level (or its change from the rest before the first push) failed this correct rig."""
+        report = check_rig(stiff.url, motion=True)
+        assert report.ok, report.table()
+        motion = report.figures["motion"]
+        assert motion["force_change_n"] / motion["up_m"] > 40 * 1.25e6  # the specimen is that stiff
+        change = motion["pressure_change_pa"]
+        assert change["up"] > 10 * change["up_min"] and -change["down"] > 10 * change["down_min"], change
+        assert change["up_min"] > MOTION_PRESSURE_MIN_PA  # the noise, seen at rest, raised the bar
+
+    def test_check_rig_with_motion_fails_on_an_inverted_load_pressure_naming_the_rule(self, stiff):
+        relay = InvertedPressure(stiff.port)
+        try:
+            report = check_rig(relay.url, motion=True)
+        finally:
+            relay.close()
+        assert relay.inverted > 500
+        assert matches(failed(report), {("§4.2", "load_pressure_pa")}), report.table()
+        row = next(r for r in report.failures if r.rule.startswith("load_pressure_pa"))
+        assert "sign is inverted" in row.detail, row
+
+
+def test_a_load_pressure_that_only_moves_by_its_noise_does_not_pass():
+    """pressure_change: a change within the reading's noise is below the bar, whichever its sign."""
+    import numpy as np
+
+    noise = np.random.default_rng(1).normal(0.0, PRESSURE_NOISE_PA, 200)
+    change, least = pressure_change(list(noise[:20]), list(noise[20:]))
+    assert abs(change) < least and least > MOTION_PRESSURE_MIN_PA
+    change, least = pressure_change([0.0] * 20, [0.05e5] * 30)  # no noise at all: the floor
+    assert least == MOTION_PRESSURE_MIN_PA and change < least
 
 
 @pytest.fixture
