@@ -19,14 +19,24 @@ target (the target of ``L`` ago for a reading ``L`` late, as the servo aims) and
 amplitude), followed outside it, or did not follow (above ``rms_share``), over each block's last two steady
 cycles (the learning's converged cycles; fewer when a block has fewer). Pure numerics: the worker acts on a
 trip (the valve closes at once: the controller is no longer trusted), the summaries carry the verdict.
+
+The monitor judges in one compiled call (``_judge_blocks``: a whole record cut into the worker's blocks, or one
+block), bit for bit the per-block numpy path it replaced (``FollowMonitor._check_reference``, kept as the
+reference tests/test_follow.py compares with): the same sums in the same order (numpy's pairwise mean,
+``numpy.interp``'s arithmetic, OpenBLAS's dot of a block, probed once per process: ``dot_is_fused``).
 """
 
 from __future__ import annotations
 
+import copy
+import functools
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from llvmlite import ir
+from numba import njit, types
+from numba.extending import intrinsic
 from scipy import signal
 
 from .loop import CONTROL_PERIOD_S
@@ -135,6 +145,14 @@ class FollowTrip:
     values: dict = field(default_factory=dict)
 
 
+@functools.lru_cache(maxsize=64)
+def high_pass_biquad(corner_hz: float) -> tuple[float, float, float, float, float]:
+    """(b0, b1, b2, a1, a2) of the second-order Butterworth high-pass at ``corner_hz`` (kept: scipy's design
+    costs more than judging a whole run)."""
+    b, a = signal.butter(2, corner_hz, btype="highpass", fs=1.0 / CONTROL_PERIOD_S)
+    return (*(float(x) for x in b), float(a[1]), float(a[2]))
+
+
 class FollowMonitor:
     """Feed it the test's rows in order (``check``); it returns the first ``FollowTrip`` or None."""
 
@@ -147,8 +165,7 @@ class FollowMonitor:
         self.n_osc = max(1, int(round(self.limits.oscillation_window_s / CONTROL_PERIOD_S)))
         top_hz = max((1.0 / (p * CONTROL_PERIOD_S) for p in reference.periods if p > 0), default=0.0)
         self.corner_hz = min(max(self.limits.corner_hz, self.limits.corner_harmonic * top_hz), 200.0)
-        b, a = signal.butter(2, self.corner_hz, btype="highpass", fs=1.0 / CONTROL_PERIOD_S)
-        self.biquad = (*(float(x) for x in b), float(a[1]), float(a[2]))
+        self.biquad = high_pass_biquad(self.corner_hz)
         self.z = [0.0, 0.0]  # the high-pass's state (transposed direct form II)
         self.r_hist = np.full(int(math.ceil(self.lag)) + 2, np.nan)  # the last targets (for r(t - L))
         self.e_hf = np.full(self.n_osc, np.nan)
@@ -160,6 +177,8 @@ class FollowMonitor:
         self.tripped: FollowTrip | None = None
         self.last_fresh: tuple[int, float] | None = None  # (period, reading) of the last fresh measurement
         self.lost_recent = np.zeros(LOST_WINDOW_PERIODS, dtype=bool)  # which of the last periods were lost
+        self.cycle_steady = False  # the cycle being summed is a steady one
+        warm_up()  # before the first check: a real-time worker builds its monitor before the rig is armed
 
     def _late_target(self, r: np.ndarray) -> np.ndarray:
         """r(t - L) for each row of this block, from the targets kept."""
@@ -184,11 +203,98 @@ class FollowMonitor:
         out[lost] = np.interp(k[lost], known_k, known_y)
         return out
 
-    def check(self, rows) -> FollowTrip | None:
+    def check(self, rows, reference: bool = False) -> FollowTrip | None:
         """Take the next rows of the test (the worker's blocks of ten periods; ``feed`` cuts a record into
-        such blocks) and judge what they complete."""
+        such blocks) and judge what they complete. Compiled (``_judge_blocks``); ``reference``: the per-block
+        numpy path it reproduces bit for bit (tests/test_follow.py compares them)."""
         if self.tripped is not None or len(rows) == 0:
             return None
+        if reference or not fast_path(len(rows)):
+            return self._check_reference(rows)
+        return self._judged(rows, len(rows))
+
+    def feed(self, samples, block: int = 10, reference: bool = False) -> FollowTrip | None:
+        """``check`` a whole record in blocks of ``block`` rows, as the worker would, in one compiled call; the
+        first trip or None (``reference``: block by block on the numpy path)."""
+        if reference or not fast_path(block):
+            for i in range(0, len(samples), block):
+                trip = self.check(samples[i:i + block], reference=True)
+                if trip is not None:
+                    trip.index += i
+                    return trip
+            return None
+        if self.tripped is not None or len(samples) == 0:
+            return None
+        return self._judged(samples, block)
+
+    def feed_to_trip(self, samples, block: int = 10) -> int | None:
+        """``feed`` a record up to the block in which the monitor first trips, without that block: the trip's
+        row, or None (all rows taken). The monitor is then where the worker's is before that block (whose
+        ``check`` trips), so a run's rows are fed once (sim.detectors.RunDetectors.first_trip_period)."""
+        if self.tripped is not None:
+            raise ValueError("feed_to_trip: this monitor has tripped already")
+        if not fast_path(block):  # the numpy path: find the trip on a copy, then feed up to its block
+            probe = copy.deepcopy(self)
+            trip = probe.feed(samples, block, reference=True)
+            if trip is None:
+                self.__dict__.update(probe.__dict__)
+                return None
+            self.feed(samples[:trip.index // block * block], block, reference=True)
+            return trip.index
+        if len(samples) == 0:
+            return None
+        kind, at, *_ = self._judge(samples, block, rollback=True)
+        return None if kind == NO_TRIP else at
+
+    def _judged(self, rows, block: int) -> FollowTrip | None:
+        """The compiled judge over ``rows`` in blocks of ``block``: its trip (``_trip``) or None."""
+        kind, at, value, bound, amplitude = self._judge(rows, block, rollback=False)
+        if kind == NO_TRIP:
+            return None
+        t = float(rows["time_s"][at])
+        return self._trip(at, t, "oscillation" if kind == OSCILLATION else "tracking", value, bound, amplitude)
+
+    def _judge(self, rows, block: int, rollback: bool) -> tuple[int, int, float, float, float]:
+        """Run ``_judge_blocks`` on ``rows`` from this monitor's state, and keep the state it ends in:
+        (kind, row, value, bound, amplitude) of the first trip (kind NO_TRIP: none)."""
+        t = np.asarray(rows["time_s"], dtype=float)
+        k = np.round(t / CONTROL_PERIOD_S).astype(np.int64)
+        lost = ~measured_rows(rows["flags"])
+        span, cycle, steady = self.reference.cycle(k)
+        y = np.ascontiguousarray(rows["measured_displacement_m"], dtype=float)
+        h = self.r_hist.size
+        r_ext = np.concatenate([self.r_hist, np.asarray(rows["target_m"], dtype=float)])
+        fresh_k, fresh_y = self.last_fresh if self.last_fresh is not None else (0, 0.0)
+        fs = np.array([self.z[0], self.z[1], fresh_k, fresh_y, self.cycle_sum,
+                       0.0 if self.previous_share is None else self.previous_share], dtype=float)
+        ist = np.array([self.last_fresh is not None, self.cycle_key[0], self.cycle_key[1], self.cycle_n,
+                        self.cycle_steady, self.previous_share is not None, self.steady_judged, 0,
+                        np.count_nonzero(np.isnan(self.e_hf)), 0, np.count_nonzero(self.lost_recent)], dtype=np.int64)
+        osc = np.concatenate([self.e_hf, self.e_hf])
+        lost_ring = self.lost_recent.copy()
+        lim = self.limits
+        kind, at, value, bound, amplitude, taken = _judge_blocks(
+            k, y, r_ext, lost, span, cycle, steady, block, rollback, dot_is_fused(), self.lag, h,
+            np.asarray(self.biquad, dtype=float), np.asarray(self.reference.amplitudes, dtype=float),
+            np.asarray(self.reference.periods, dtype=np.int64),
+            np.array([lim.oscillation_share, lim.floor_m, lim.rms_share, lim.min_improvement]),
+            np.array([lim.learning_cycles, lim.improving_cycles], dtype=np.int64), fs, ist, osc, osc * osc, lost_ring)
+        self.z = [float(fs[_F_Z1]), float(fs[_F_Z2])]
+        self.last_fresh = (int(fs[_F_FRESH_K]), float(fs[_F_FRESH_Y])) if ist[_I_HAS_FRESH] else None
+        self.cycle_key = (int(ist[_I_SPAN]), int(ist[_I_CYCLE]))
+        self.cycle_sum, self.cycle_n = float(fs[_F_CYCLE_SUM]), int(ist[_I_CYCLE_N])
+        self.cycle_steady = bool(ist[_I_STEADY])
+        self.previous_share = float(fs[_F_PREVIOUS]) if ist[_I_HAS_PREVIOUS] else None
+        self.steady_judged = int(ist[_I_JUDGED])
+        head = int(ist[_I_OSC_HEAD])
+        self.e_hf = osc[head:head + self.n_osc].copy()
+        head = int(ist[_I_LOST_HEAD])
+        self.lost_recent = np.concatenate([lost_ring[head:], lost_ring[:head]])
+        self.r_hist = r_ext[taken:taken + h].copy()
+        return kind, at, value, bound, amplitude
+
+    def _check_reference(self, rows) -> FollowTrip | None:
+        """``check`` on the numpy path, block by block: the reference the compiled judge reproduces."""
         t = np.asarray(rows["time_s"], dtype=float)
         r = np.asarray(rows["target_m"], dtype=float)
         y = np.asarray(rows["measured_displacement_m"], dtype=float)
@@ -228,7 +334,7 @@ class FollowMonitor:
         """The cycle being summed has ended: judge it if it was a steady one after its block's first
         ``learning_cycles``."""
         b, c = self.cycle_key
-        if b < 0 or not getattr(self, "cycle_steady", False) or self.cycle_n < 0.9 * self.reference.periods[b]:
+        if b < 0 or not self.cycle_steady or self.cycle_n < 0.9 * self.reference.periods[b]:
             return None
         a = float(self.reference.amplitudes[b])
         share = math.sqrt(self.cycle_sum / self.cycle_n) / a if a > 0 else 0.0
@@ -256,15 +362,6 @@ class FollowMonitor:
             out[i] = yi
         self.z = [z1, z2]
         return out
-
-    def feed(self, samples, block: int = 10) -> FollowTrip | None:
-        """``check`` a whole record in blocks of ``block`` rows, as the worker would; the first trip or None."""
-        for i in range(0, len(samples), block):
-            trip = self.check(samples[i:i + block])
-            if trip is not None:
-                trip.index += i
-                return trip
-        return None
 
     def _trip(self, i: int, t: float, kind: str, value: float, bound: float, amplitude: float) -> FollowTrip:
         share = value / amplitude if amplitude > 0 else math.inf
@@ -367,3 +464,284 @@ def _verdict(share: float, limits: FollowLimits, basis: str, advice: str) -> dic
         out.update(verdict="did_not_follow", words=f"did not follow: {100 * share:.3g} % (more than "
                                                     f"{100 * limits.rms_share:g} %); {advice}")
     return out
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# the compiled judge: ``FollowMonitor.check`` and ``feed`` over many blocks in one call, bit for bit the per-block
+# numpy path (``FollowMonitor._check_reference``), which stays as the reference tests/test_follow.py compares with
+
+#: the fast path's largest block: a block's sums of squares are numpy.dot's of at most this many numbers, which
+#: OpenBLAS adds one product at a time (from 16 on it adds them in SIMD lanes, in an order not reproduced here)
+FAST_BLOCK_MAX = 15
+_F_Z1, _F_Z2, _F_FRESH_K, _F_FRESH_Y, _F_CYCLE_SUM, _F_PREVIOUS = range(6)  # the judge's float state
+(_I_HAS_FRESH, _I_SPAN, _I_CYCLE, _I_CYCLE_N, _I_STEADY, _I_HAS_PREVIOUS, _I_JUDGED, _I_OSC_HEAD, _I_OSC_NAN,
+ _I_LOST_HEAD, _I_LOST_COUNT) = range(11)  # ... and its integer state
+NO_TRIP, OSCILLATION, TRACKING = 0, 1, 2
+
+
+@intrinsic
+def _fma(typingctx, x, y, z):
+    """x y + z rounded once (llvm.fma), as OpenBLAS's x86 dot kernels add each product."""
+    sig = types.float64(types.float64, types.float64, types.float64)
+
+    def codegen(context, builder, signature, args):
+        double = ir.DoubleType()
+        fn = builder.module.declare_intrinsic("llvm.fma", [double], ir.FunctionType(double, [double] * 3))
+        return builder.call(fn, args)
+
+    return sig, codegen
+
+
+@njit(cache=True, error_model="numpy")
+def _sum_of_squares(x: np.ndarray, n: int, fused: bool) -> float:
+    """sum x[i]^2 over the first n, one product at a time from 0 (fused: each with a fused multiply-add)."""
+    s = 0.0
+    for i in range(n):
+        s = _fma(x[i], x[i], s) if fused else s + x[i] * x[i]
+    return s
+
+
+@njit(cache=True, error_model="numpy")
+def _pairwise_sum(x: np.ndarray, i0: int, n: int) -> float:
+    """numpy's sum of x[i0:i0 + n] (its pairwise summation, eight partial sums in blocks of up to 128), to the
+    last bit."""
+    if n < 8:
+        s = 0.0
+        for i in range(i0, i0 + n):
+            s += x[i]
+        return s
+    if n <= 128:
+        r = x[i0:i0 + 8].copy()
+        m = n - n % 8
+        i = 8
+        while i < m:
+            for j in range(8):
+                r[j] += x[i0 + i + j]
+            i += 8
+        s = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+        while i < n:
+            s += x[i0 + i]
+            i += 1
+        return s
+    n2 = n // 2
+    n2 -= n2 % 8
+    return _pairwise_sum(x, i0, n2) + _pairwise_sum(x, i0 + n2, n - n2)
+
+
+@njit(cache=True, error_model="numpy")
+def _interp(x: float, xp: np.ndarray, fp: np.ndarray, n: int) -> float:
+    """numpy.interp(x, xp[:n], fp[:n]) for one x (xp increasing; constant beyond the ends), to the last bit."""
+    if n == 1 or x <= xp[0]:
+        return fp[0]
+    if x >= xp[n - 1]:
+        return fp[n - 1]
+    j = 0
+    while xp[j + 1] <= x:
+        j += 1
+    if xp[j] == x:
+        return fp[j]
+    slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
+    out = slope * (x - xp[j]) + fp[j]
+    if np.isnan(out):
+        out = slope * (x - xp[j + 1]) + fp[j + 1]
+        if np.isnan(out) and fp[j] == fp[j + 1]:
+            out = fp[j]
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def _late_at(r_ext: np.ndarray, b0: int, i: int, h: int, lag_periods: float) -> float:
+    """r ``lag_periods`` before row i of the block that starts at b0 (``late`` over the block's targets after the
+    ``h`` kept, r_ext[b0:], with the same local positions, so the same rounding)."""
+    if lag_periods <= 0.0:
+        return r_ext[b0 + h + i]
+    x = float(h + i) - lag_periods
+    if x < 0.0:
+        return np.nan
+    j = int(np.floor(x))
+    f0 = r_ext[b0 + j]
+    if float(j) == x:
+        return f0
+    f1 = r_ext[b0 + j + 1]
+    slope = (f1 - f0) / (float(j + 1) - float(j))
+    out = slope * (x - float(j)) + f0
+    if np.isnan(out):
+        out = slope * (x - float(j + 1)) + f1
+        if np.isnan(out) and f0 == f1:
+            out = f0
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def _judge_blocks(k, y, r_ext, lost, span, cycle, steady, block, rollback, fused, lag_periods, h, biquad,
+                  amplitudes, ref_periods, limits_f, limits_i, fs, ist, osc, osc_sq, lost_ring):
+    """``FollowMonitor._check_reference`` over rows cut into blocks of ``block``, in one call: the state (fs, ist,
+    the oscillation window osc / osc_sq twice over so that the last ``n_osc`` are contiguous, the lost periods'
+    ring) is updated in place. Stops at the first trip: (kind, row, value, bound, amplitude, rows taken); with
+    ``rollback`` the block that trips is not taken (the state is that of its start)."""
+    n = k.size
+    n_osc = osc.size // 2
+    n_lost = lost_ring.size
+    b0c, b1c, b2c, a1c, a2c = biquad[0], biquad[1], biquad[2], biquad[3], biquad[4]
+    osc_share, floor_m, rms_share, min_improvement = limits_f[0], limits_f[1], limits_f[2], limits_f[3]
+    learning_cycles, improving_cycles = limits_i[0], limits_i[1]
+    known_k = np.empty(block + 1)
+    known_y = np.empty(block + 1)
+    e = np.empty(block)
+    part = np.empty(block)
+    judged = np.empty(block, dtype=np.bool_)
+    saved_osc = np.empty(block)
+    saved_lost = np.empty(block, dtype=lost_ring.dtype)
+    saved_fs = fs.copy()
+    saved_ist = ist.copy()
+    b0 = 0
+    while b0 < n:
+        b1 = min(b0 + block, n)
+        m = b1 - b0
+        saved_fs[:] = fs
+        saved_ist[:] = ist
+        # the readings, each lost one bridged between the fresh ones around it (those of this block and before)
+        nk = 0
+        if ist[_I_HAS_FRESH]:
+            known_k[0] = fs[_F_FRESH_K]
+            known_y[0] = fs[_F_FRESH_Y]
+            nk = 1
+        for i in range(b0, b1):
+            if not lost[i] and np.isfinite(y[i]):
+                known_k[nk] = float(k[i])
+                known_y[nk] = y[i]
+                nk += 1
+        if nk > 0:
+            ist[_I_HAS_FRESH] = 1
+            fs[_F_FRESH_K] = known_k[nk - 1]
+            fs[_F_FRESH_Y] = known_y[nk - 1]
+        z1, z2 = fs[_F_Z1], fs[_F_Z2]
+        for i in range(m):
+            row = b0 + i
+            yi = y[row]
+            if lost[row] and nk > 0:
+                yi = _interp(float(k[row]), known_k, known_y, nk)
+            p = ist[_I_LOST_HEAD]
+            saved_lost[i] = lost_ring[p]
+            ist[_I_LOST_COUNT] += int(lost[row]) - int(lost_ring[p])
+            lost_ring[p] = lost[row]
+            ist[_I_LOST_HEAD] = (p + 1) % n_lost
+            ei = yi - _late_at(r_ext, b0, i, h, lag_periods)
+            closed = np.isfinite(ei)
+            e[i] = ei
+            judged[i] = closed and not lost[row]
+            xi = ei if closed else 0.0
+            hp = b0c * xi + z1
+            z1 = b1c * xi - a1c * hp + z2
+            z2 = b2c * xi - a2c * hp
+            v = hp if closed else np.nan
+            p = ist[_I_OSC_HEAD]
+            saved_osc[i] = osc[p]
+            ist[_I_OSC_NAN] += int(np.isnan(v)) - int(np.isnan(osc[p]))
+            osc[p] = v
+            osc[p + n_osc] = v
+            osc_sq[p] = v * v
+            osc_sq[p + n_osc] = v * v
+            ist[_I_OSC_HEAD] = (p + 1) % n_osc
+        fs[_F_Z1], fs[_F_Z2] = z1, z2
+        kind, at, value, bound, amplitude = NO_TRIP, -1, 0.0, 0.0, 0.0
+        # an oscillation: the high-passed error's RMS over the window, at the block's end
+        a = amplitudes[span[b1 - 1]]
+        if ist[_I_OSC_NAN] == 0:
+            hf = np.sqrt(_pairwise_sum(osc_sq, ist[_I_OSC_HEAD], n_osc) / n_osc)
+            bound = max(osc_share * a, floor_m)
+            if hf > bound:
+                kind, at, value, amplitude = OSCILLATION, b1 - 1, hf, a
+        # tracking: each cycle's RMS error, judged when the next one begins
+        s0 = b0
+        while kind == NO_TRIP and s0 < b1:
+            s1 = s0 + 1
+            while s1 < b1 and span[s1] == span[s0] and cycle[s1] == cycle[s0]:
+                s1 += 1
+            if span[s0] != ist[_I_SPAN] or cycle[s0] != ist[_I_CYCLE]:
+                b = ist[_I_SPAN]
+                if b >= 0 and ist[_I_STEADY] and ist[_I_CYCLE_N] >= 0.9 * ref_periods[b]:
+                    ab = amplitudes[b]
+                    share = np.sqrt(fs[_F_CYCLE_SUM] / ist[_I_CYCLE_N]) / ab if ab > 0 else 0.0
+                    has_previous, previous = ist[_I_HAS_PREVIOUS], fs[_F_PREVIOUS]
+                    fs[_F_PREVIOUS], ist[_I_HAS_PREVIOUS] = share, 1
+                    ist[_I_JUDGED] += 1
+                    if ist[_I_JUDGED] > learning_cycles:
+                        stuck = (not has_previous or share > (1.0 - min_improvement) * previous
+                                 or ist[_I_JUDGED] > learning_cycles + improving_cycles)
+                        if share > rms_share and stuck:
+                            kind, at, value, bound, amplitude = TRACKING, s0, share * ab, rms_share * ab, ab
+                            break
+                if span[s0] != ist[_I_SPAN]:
+                    ist[_I_HAS_PREVIOUS], ist[_I_JUDGED] = 0, 0
+                ist[_I_SPAN], ist[_I_CYCLE] = span[s0], cycle[s0]
+                fs[_F_CYCLE_SUM], ist[_I_CYCLE_N] = 0.0, 0
+                ist[_I_STEADY] = int(steady[s0])
+            count = 0
+            for i in range(s0 - b0, s1 - b0):  # the judged rows in order, summed as numpy.dot sums them
+                if judged[i]:
+                    part[count] = e[i]
+                    count += 1
+            fs[_F_CYCLE_SUM] += _sum_of_squares(part, count, fused)
+            ist[_I_CYCLE_N] += count
+            s0 = s1
+        if kind != NO_TRIP:
+            if not rollback:
+                return kind, at, value, bound, amplitude, b1
+            for i in range(m - 1, -1, -1):  # back to the block's start, last write first
+                p = (saved_ist[_I_OSC_HEAD] + i) % n_osc
+                osc[p] = saved_osc[i]
+                osc[p + n_osc] = saved_osc[i]
+                osc_sq[p] = saved_osc[i] * saved_osc[i]
+                osc_sq[p + n_osc] = osc_sq[p]
+                lost_ring[(saved_ist[_I_LOST_HEAD] + i) % n_lost] = saved_lost[i]
+            fs[:] = saved_fs
+            ist[:] = saved_ist
+            return kind, at, value, bound, amplitude, b0
+        b0 = b1
+    return NO_TRIP, -1, 0.0, 0.0, 0.0, n
+
+
+_DOT_FUSED: list = []
+
+
+def dot_is_fused() -> bool | None:
+    """How numpy.dot adds up to ``FAST_BLOCK_MAX`` products here (the tracking sums of ``_check_reference``):
+    True, one fused multiply-add at a time (OpenBLAS's x86 kernels); False, a plain product and sum at a time;
+    None, neither (the compiled judge is then not used). Tried once per process on fixed numbers."""
+    if not _DOT_FUSED:
+        rng = np.random.default_rng(20261129)
+        probes = [rng.normal(size=n) * 10.0 ** rng.uniform(-7.0, -2.0, size=n)
+                  for n in range(1, FAST_BLOCK_MAX + 1) for _ in range(20)]
+        dots = [float(np.dot(x, x)) for x in probes]
+        found = None
+        for fused in (True, False):
+            if all(d == _sum_of_squares(x, x.size, fused) for x, d in zip(probes, dots, strict=True)):
+                found = fused
+                break
+        _DOT_FUSED.append(found)
+    return _DOT_FUSED[0]
+
+
+def fast_path(block: int) -> bool:
+    """The compiled judge gives the numpy path's result, bit for bit, for blocks of ``block`` rows here."""
+    return 0 < block <= FAST_BLOCK_MAX and dot_is_fused() is not None
+
+
+_WARM: list = []
+
+
+def warm_up() -> None:
+    """Load the compiled judge (compile it, the first time after a change to sim/) now, once per process, and
+    not in a test's first check, where a real rig's watchdog would not wait."""
+    if _WARM:
+        return
+    _WARM.append(True)
+    if not fast_path(1):
+        return
+    from .samples import N_FIELDS, Samples
+
+    rows = np.zeros((2, N_FIELDS))
+    rows[1, 0] = CONTROL_PERIOD_S
+    reference = Reference(np.array([0]), np.array([0.01]), np.array([1000]), np.array([0]), np.array([1]))
+    FollowMonitor(reference).feed(Samples(rows))

@@ -144,3 +144,101 @@ def test_a_trip_among_many_lost_periods_blames_the_link_not_the_rig():
     trip = FollowMonitor(reference_for(Scenario.sine("IUT_a", 100.0, 0.02, 0.5, 10).profile)).feed(samples)
     assert trip is not None and "lost on the link" in trip.message and "commission it" not in trip.message
     assert trip.values["lost_periods_last_s"] >= 40
+
+
+# ---- the compiled judge against the per-block numpy path -----------------------------------------------------
+def _state(monitor):
+    """All a monitor carries from one block to the next, as bytes and numbers (NaN compared bit for bit)."""
+    return (np.array(monitor.z).tobytes(), monitor.r_hist.tobytes(), monitor.e_hf.tobytes(),
+            monitor.lost_recent.tobytes(), monitor.last_fresh, monitor.cycle_key, monitor.cycle_sum, monitor.cycle_n,
+            monitor.cycle_steady, monitor.previous_share, monitor.steady_judged)
+
+
+def _trip(trip):
+    return None if trip is None else (trip.index, trip.time_s, trip.kind, trip.message, repr(trip.values))
+
+
+def _records():
+    """(name, reference, latency_s, samples): records that trip on an oscillation and on tracking, that follow,
+    with lost periods (bridged, at block ends too), non-finite readings, a late reading and a time history."""
+    from sim.measurement import FLAG_LOST
+
+    out = []
+    for name, plant, amplitude_m, frequency_hz, controller in [
+            ("soft servo", SOFT, 0.02, 0.5, "servo"), ("soft pid", SOFT, 0.02, 0.5, "pid"),
+            ("soft mrac", SOFT, 0.02, 0.5, "mrac"), ("hard 2 mm", HARD, 0.002, 1.0, "servo"),
+            ("told exactly", {}, 0.01, 2.0, "servo")]:
+        s = Scenario.sine("IUT_a", 100.0, amplitude_m, frequency_hz, 10, controller=controller,
+                          plant_changes=plant)
+        samples = Simulation(s, validate=False).run().samples
+        out.append((name, reference_for(s.profile), 0.0, samples))
+    samples = Samples(out[-1][3].array.copy())
+    rng = np.random.default_rng(5)
+    y = samples["measured_displacement_m"]
+    for k in rng.choice(np.arange(1, len(samples) - 6), 400, replace=False):  # stalls of 1-5 periods
+        n = int(rng.integers(1, 6))
+        y[k:k + n] = y[k - 1]
+        samples["flags"][k:k + n] = FLAG_LOST
+    samples["flags"][9::500] = FLAG_LOST  # the last period of a block
+    y[3000:3003] = np.nan  # a reading that is not a number: not judged, and the window waits
+    profile = Scenario.sine("IUT_a", 100.0, 0.01, 2.0, 10).profile
+    out.append(("lost periods", reference_for(profile), 0.0, samples))
+    late_rig = DEFAULT_RIG.with_changes(position_latency_s=0.00183)
+    s = Scenario.sine("IUT_a", 100.0, 0.02, 1.5, 8, rig=late_rig, plant_changes=HARD)
+    out.append(("late reading", reference_for(s.profile), 0.00183, Simulation(s, validate=False).run().samples))
+    soft = out[0][3]
+    out.append(("time history", reference_for([], soft["target_m"]), 0.0, soft))
+    return out
+
+
+def test_the_compiled_judge_is_the_numpy_path_bit_for_bit():
+    """FollowMonitor.check / feed run compiled (sim.follow._judge_blocks); the per-block numpy path they replace
+    stays as the reference: the same trips (row, time, kind, message, values) and the same state after every
+    block, for the worker's blocks of ten and other sizes, and feed_to_trip stops where the reference is before
+    the block that trips."""
+    from sim.follow import fast_path
+
+    assert fast_path(10), "the compiled judge is not used on this machine: nothing to compare"
+    kinds = set()
+    for name, reference, latency_s, samples in _records():
+        for block in (10, 7, 15):
+            fast = FollowMonitor(reference, latency_s)
+            slow = FollowMonitor(reference, latency_s)
+            trip = fast.feed(samples, block)
+            assert _trip(trip) == _trip(slow.feed(samples, block, reference=True)), (name, block)
+            assert _state(fast) == _state(slow), (name, block)
+            if block == 10:
+                kinds.add(trip.kind if trip is not None else None)
+        worker, slow = FollowMonitor(reference, latency_s), FollowMonitor(reference, latency_s)
+        for i in range(0, len(samples), 10):  # the worker's checks, one block at a time
+            a, b = worker.check(samples[i:i + 10]), slow.check(samples[i:i + 10], reference=True)
+            assert _trip(a) == _trip(b) and _state(worker) == _state(slow), (name, i)
+            if a is not None:
+                break
+        primed, slow = FollowMonitor(reference, latency_s), FollowMonitor(reference, latency_s)
+        at = primed.feed_to_trip(samples)
+        whole = FollowMonitor(reference, latency_s).feed(samples, reference=True)
+        assert at == (None if whole is None else whole.index), name
+        slow.feed(samples if at is None else samples[:at // 10 * 10], reference=True)
+        assert _state(primed) == _state(slow), name
+        if at is not None:
+            block = samples[at // 10 * 10: at // 10 * 10 + 10]
+            assert _trip(primed.check(block)) == _trip(slow.check(block, reference=True)), name
+    assert kinds == {"oscillation", "tracking", None}
+
+
+def test_the_compiled_sums_are_numpys():
+    """The pieces the judge needs bit for bit: numpy's pairwise mean, numpy.interp, numpy.dot of a block."""
+    from sim.follow import FAST_BLOCK_MAX, _interp, _pairwise_sum, _sum_of_squares, dot_is_fused
+
+    rng = np.random.default_rng(11)
+    for n in (1, 7, 8, 9, 127, 128, 129, 500, 1001):
+        x = rng.normal(size=n) ** 2 * 10.0 ** rng.uniform(-12, 0, size=n)
+        assert _pairwise_sum(np.concatenate([x, x]), 3 % n, n) / n == np.mean(np.roll(x, -(3 % n)))
+    xp = np.cumsum(rng.integers(1, 4, size=12)).astype(float)
+    fp = rng.normal(size=12)
+    for x in np.linspace(xp[0] - 2, xp[-1] + 2, 97):
+        assert _interp(x, xp, fp, xp.size) == np.interp(x, xp, fp)
+    for n in range(1, FAST_BLOCK_MAX + 1):
+        x = rng.normal(size=n) * 1e-4
+        assert _sum_of_squares(x, n, dot_is_fused()) == float(np.dot(x, x))
