@@ -35,12 +35,18 @@ class RunDetectors:
     """The worker's detectors over a run of ``loop`` (sim.loop.ClosedLoop) for ``scenario`` (sim.engine.Scenario):
     ``check(block)`` after every ``CHECK_PERIODS`` periods acts on the first trip as the worker does and keeps it
     (``trip``); later trips are kept in ``escalations``, indications of ``indicate`` limits in ``indications``.
-    ``limits`` None: the follow detector alone (``follow``: with it)."""
+    ``limits`` None: the follow detector alone (``follow``: with it). ``reference``: the follow detector on its
+    per-block numpy path and each detector fed as many times as before the compiled judge (a test compares
+    the two)."""
 
     def __init__(self, scenario, loop, limits: SafetyLimits | None, follow: bool = True, table=None,
-                 act: bool = True):
+                 act: bool = True, reference: bool = False):
         self.loop = loop
         self.act = act  # False: judge only (the trip is kept, the loop runs on)
+        self.reference = reference
+        #: rows of this run each detector has taken already (``first_trip_period`` feeds them on its way)
+        self.safety_fed = 0
+        self.follow_fed = 0
         self.limits = limits
         self.monitor = None
         self.guard_m = None
@@ -68,7 +74,7 @@ class RunDetectors:
                 trip = self._guard_trip(block) or trip
             self.indications += self.monitor.take_indications()
         if trip is None and self.follow is not None and self.trip is None and not loop.stopping:
-            lost = self.follow.check(block)
+            lost = self.follow.check(block, reference=self.reference)
             if lost is not None:
                 trip = Trip("not_following", lost.index, lost.time_s, lost.message, lost.values)
         if trip is not None and self.trip is None:
@@ -88,33 +94,68 @@ class RunDetectors:
     def prime(self, rows) -> None:
         """Take the rows a run made before its first trip (``first_trip_period``) as the worker's blocks would
         have: the detectors' state (the recent readings, the frozen-reading runs, the follow monitor's cycles, the
-        indications) is then where it would be, without a check per block."""
-        if self.monitor is not None and len(rows):
-            if self.monitor.check(rows) is not None:
+        indications) is then where it would be, without a check per block. Each detector takes only the rows
+        it has not taken yet."""
+        if self.monitor is not None and len(rows) > self.safety_fed:
+            if self.monitor.check(self._rest(rows, self.safety_fed)) is not None:
                 raise ValueError("prime: these rows trip a detector; give only the rows before the first trip")
+            self.safety_fed = len(rows)
+        if self.monitor is not None:
             self.indications += self.monitor.take_indications()
-        if self.follow is not None and self.follow.feed(rows, CHECK_PERIODS) is not None:
-            raise ValueError("prime: these rows trip the follow detector")
+        if self.follow is not None and len(rows) > self.follow_fed:
+            if self.follow.feed(self._rest(rows, self.follow_fed), CHECK_PERIODS, self.reference) is not None:
+                raise ValueError("prime: these rows trip the follow detector")
+            self.follow_fed = len(rows)
+
+    @staticmethod
+    def _rest(rows, fed: int):
+        """The rows past the ``fed`` taken already, which must end a whole block (the worker's blocks)."""
+        if fed % CHECK_PERIODS:
+            raise ValueError(f"prime: {fed} rows taken, not a whole number of blocks of {CHECK_PERIODS}")
+        return rows[fed:] if fed else rows
 
     def first_trip_period(self, rows) -> int | None:
         """Over a whole run made without acting (the same rows up to the first trip, since nothing acts
         before it): the first period of the block of ``CHECK_PERIODS`` in which the worker would meet its first
-        trip, or None. Uses fresh detectors (this object's own are left as they are)."""
+        trip, or None. The limit detectors judge the run on a fresh monitor (kept as this object's own when
+        nothing trips); this object's follow monitor takes the rows up to that block (or all of them), so
+        ``prime`` then feeds each detector only what it has not taken, and the follow monitor of a run made
+        again to its first trip can be taken over (``take_follow``). Call it before ``prime`` or ``check``."""
+        if self.safety_fed or self.follow_fed:
+            raise ValueError("first_trip_period: these detectors have taken rows already")
         candidates = []
+        fresh = None
         if self.limits is not None:
-            trip = SafetyMonitor(self.monitor.limits, self.monitor.supply_pa, self.monitor.sensor_range_m).check(rows)
+            fresh = SafetyMonitor(self.monitor.limits, self.monitor.supply_pa, self.monitor.sensor_range_m)
+            trip = fresh.check(rows)
             if trip is not None:
                 candidates.append(trip.index)
             if self.guard_m is not None:
                 hits = np.flatnonzero(np.nan_to_num(rows["flags"]).astype(np.int64) & FLAG_GUARD)
                 if hits.size:
                     candidates.append(int(hits[0]))
-        end = (min(candidates) // CHECK_PERIODS + 1) * CHECK_PERIODS if candidates else len(rows)
-        if self.follow is not None:
-            lost = follow_monitor_like(self.follow).feed(rows[:end], CHECK_PERIODS)
+        if self.follow is not None and self.reference:  # as before the compiled judge: a fresh monitor
+            end = (min(candidates) // CHECK_PERIODS + 1) * CHECK_PERIODS if candidates else len(rows)
+            lost = follow_monitor_like(self.follow).feed(rows[:end], CHECK_PERIODS, reference=True)
             if lost is not None:
                 candidates.append(lost.index)
+        elif self.follow is not None:
+            # the first trip's block is at or before the limit detectors' one: the follow monitor judges up to
+            # that block (a trip of its own in that block comes after theirs in the worker's order)
+            stop = min(candidates) // CHECK_PERIODS * CHECK_PERIODS if candidates else len(rows)
+            lost_index = self.follow.feed_to_trip(rows[:stop], CHECK_PERIODS)
+            if lost_index is not None:
+                candidates.append(lost_index)
+            self.follow_fed = stop if lost_index is None else lost_index // CHECK_PERIODS * CHECK_PERIODS
+        if not candidates and fresh is not None and not self.reference:
+            self.monitor, self.safety_fed = fresh, len(rows)  # it has judged the whole run: prime need not
         return min(candidates) // CHECK_PERIODS * CHECK_PERIODS if candidates else None
+
+    def take_follow(self, other: RunDetectors) -> None:
+        """Take over ``other``'s follow monitor, fed by its ``first_trip_period`` up to the first trip's block
+        of the same run: a run made again to that block has the same rows (nothing acted before it)."""
+        if not self.reference and self.follow is not None and other.follow is not None and not self.follow_fed:
+            self.follow, self.follow_fed = other.follow, other.follow_fed
 
     def first_trip(self, rows) -> Trip | None:
         """Judge a whole run made without acting (``first_trip_period``): its first trip, in the worker's words,

@@ -231,7 +231,7 @@ class Simulation:
         return Samples(out[:filled])
 
     def run(self, chunk_periods: int = 5000, progress=None, follow: bool = False, limits=None,
-            act: bool = True) -> Result:
+            act: bool = True, reference_detectors: bool = False) -> Result:
         """Run to the end; ``progress(fraction)`` is called after each chunk. ``limits`` (sim.safety.SafetyLimits)
         and ``follow``: with the service's detectors (the limits and sensor detectors; ``follow``: the detector
         of a rig the controller cannot follow, sim.follow), judged every 10 periods and acted on as the worker
@@ -243,13 +243,17 @@ class Simulation:
         only a run that trips is run again, to its first trip's block in one call and on from there a block
         at a time (the same rows as the worker's checks every 10 periods, at a fraction of their cost).
         ``act`` False: the detectors judge only; the run goes on past a trip (``Result.ran_past_trip``), its
-        status and reason still the service's (a study, isorig compare)."""
+        status and reason still the service's (a study, isorig compare). ``reference_detectors``: the detectors
+        on their per-block path, each fed as before the compiled follow judge (tests/test_detectors.py compares
+        the two)."""
         from .detectors import CHECK_PERIODS, RunDetectors
 
         if not (follow or limits is not None):
             return Result(self.scenario, self._run_rows(chunk_periods, progress), self.diverged)
         start = self.period
-        detectors = RunDetectors(self.scenario, self.loop, limits, follow=follow, table=self.scenario.target_table())
+        table = self.scenario.target_table()
+        detectors = RunDetectors(self.scenario, self.loop, limits, follow=follow, table=table,
+                                 reference=reference_detectors)
         rows = self._run_rows(chunk_periods, progress)
         if not act:
             trip = detectors.first_trip(rows)
@@ -262,7 +266,10 @@ class Simulation:
         if start != 0:
             raise ValueError("a run with detectors that trips is run again from its start: begin it at period 0")
         self._restart()
-        detectors = RunDetectors(self.scenario, self.loop, limits, follow=follow, table=self.scenario.target_table())
+        judged = detectors
+        detectors = RunDetectors(self.scenario, self.loop, limits, follow=follow, table=table,
+                                 reference=reference_detectors)
+        detectors.take_follow(judged)  # fed up to the first trip's block by first_trip_period: the same rows
         before = self.advance(first)
         detectors.prime(before)
         parts = [before]

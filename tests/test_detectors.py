@@ -93,3 +93,59 @@ def test_a_study_is_judged_as_the_service_would_and_runs_on():
     free = run_judged(scenario, detectors=False)
     assert free.status == "completed" and free.trip is None
     assert np.array_equal(free.samples.array, judged.samples.array, equal_nan=True)
+
+
+def _drawn_rigs():
+    """A small campaign: rigs drawn from docs/examples/unknown_rigs.toml's ranges, run uncommissioned at 2 mm
+    1 Hz and 20 mm 0.5 Hz (oscillation and tracking stops, rigs that follow), and the lab spread's pid (a
+    tracking stop at the end of its first steady cycle)."""
+    from pathlib import Path
+
+    from sim.campaign import load_campaign
+
+    campaign = load_campaign(Path(__file__).resolve().parents[1] / "docs" / "examples" / "unknown_rigs.toml")
+    campaign.runs = 6
+    out = {}
+    for run, (plant, seed) in enumerate(campaign.draws()):
+        for amplitude_m, frequency_hz in ((0.002, 1.0), (0.02, 0.5)):
+            out[f"drawn rig {run}, {amplitude_m * 1e3:g} mm"] = (
+                Scenario.sine("IUT_a", 100.0, amplitude_m, frequency_hz, 10, plant_changes=plant, noise_seed=seed),
+                None)
+    out["pid on a heavier rig"] = (Scenario.sine("IUT_a", 100.0, 0.02, 1.0, 10, controller="pid",
+                                                 plant_changes={"mass_kg": 1400.0, "dead_zone_v": 0.9}), None)
+    return out
+
+
+SOFT_RIG = {"mass_kg": 3000.0, "bulk_modulus_pa": 4.5e8}
+COMPARED = {**CASES, **_drawn_rigs(),
+            "a soft rig: servo": (Scenario.sine("IUT_a", 100.0, 0.02, 0.5, 10, plant_changes=SOFT_RIG), None),
+            "a soft rig: mrac": (Scenario.sine("IUT_a", 100.0, 0.02, 0.5, 10, controller="mrac",
+                                               plant_changes=SOFT_RIG), None)}
+
+
+def _trip(trip):
+    return None if trip is None else (trip.detector, trip.index, trip.time_s, trip.message, repr(trip.values),
+                                      trip.action)
+
+
+@pytest.mark.parametrize("name", list(COMPARED))
+def test_the_compiled_detectors_give_the_reference_trips(name):
+    """The follow detector compiled and each detector fed once per run (sim.follow._judge_blocks,
+    RunDetectors.first_trip_period) against the per-block numpy path fed as before (``reference_detectors``):
+    the same trip (detector, row, time, message, values, action), indications and rows, acted on and judged
+    only (isorig compare)."""
+    scenario, asked = COMPARED[name]
+    limits = make_limits(scenario.rig, asked)
+    for act in (True, False):
+        fast = Simulation(scenario, validate=False).run(follow=True, limits=limits, act=act)
+        slow = Simulation(scenario, validate=False).run(follow=True, limits=limits, act=act, reference_detectors=True)
+        assert _trip(fast.trip) == _trip(slow.trip), (name, act)
+        assert (fast.status, fast.reason) == (slow.status, slow.reason)
+        assert [_trip(i) for i in fast.indications] == [_trip(i) for i in slow.indications]
+        assert np.array_equal(fast.samples.array, slow.samples.array, equal_nan=True)
+    kind = None if fast.trip is None else fast.trip.values.get("kind", fast.trip.detector)
+    expected = {"mrac trips the pump-flow velocity limit": "velocity", "a soft rig: servo": "oscillation",
+                "a soft rig: mrac": "tracking", "pid on a heavier rig": "tracking",
+                "a controlled-stop displacement limit inside the sine (the guard)": "displacement"}
+    if name in expected:  # every kind of trip is compared
+        assert kind == expected[name]
