@@ -25,6 +25,7 @@ from backend.drivers.rig_check import MOTION_PRESSURE_MIN_PA, check_rig, pressur
 from backend.drivers.udp import UdpRig
 from sim.emulator import auth
 from sim.emulator import protocol as proto
+from sim.realtime import raise_priority
 from sim.rigfile import load_rig_file
 
 # real time against the rig emulator in its own process: scripts/test.sh runs these alone, after the others
@@ -122,6 +123,8 @@ def test_check_rig_with_motion_moves_the_table_both_ways_and_back(good):
 STIFF = {"name": "stiff_50x", "rho_bw_per_m": 141.0, "sigma_bw": 0.5, "n": 1.0, "kd_n_per_m": 50 * 1.25e6,
          "kw_n": 1.7e4}
 PRESSURE_NOISE_PA = 0.2e5  # a real transducer's, per reading
+#: the starts of the rows of check-rig --motion
+MOTION_RULES = ("a command of", "load_pressure_pa", "force_n", "HELLO reports the position after")
 
 
 @pytest.fixture(scope="class")
@@ -165,6 +168,7 @@ class InvertedPressure:
                             *(values[name] for name in proto.MEASUREMENT_FIELDS))
 
     def _relay(self) -> None:
+        raise_priority(10)  # this thread's, as the check's: a relay starved by other work trips the rig's watchdog
         while self.running:
             ready, _, _ = select.select([self.front, *self.host_of], [], [], 0.05)
             for sock in ready:
@@ -210,9 +214,13 @@ class TestStiffSpecimen:
         finally:
             relay.close()
         assert relay.inverted > 500
-        assert matches(failed(report), {("§4.2", "load_pressure_pa")}), report.table()
-        row = next(r for r in report.failures if r.rule.startswith("load_pressure_pa"))
-        assert "sign is inverted" in row.detail, row
+        # the motion's rows: only the pressure's fails (the relay's own timing, on a loaded machine, can fail a
+        # timing row such as 1.1's period; those are not the rig's)
+        motion = [r for r in report.results if r.rule.startswith(MOTION_RULES)]
+        assert len(motion) == len(MOTION_RULES), report.table()
+        failing = [r for r in motion if not r.ok]
+        assert len(failing) == 1 and failing[0].section == "§4.2", report.table()
+        assert failing[0].rule.startswith("load_pressure_pa") and "sign is inverted" in failing[0].detail, failing
 
 
 def test_a_load_pressure_that_only_moves_by_its_noise_does_not_pass():
