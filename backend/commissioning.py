@@ -56,6 +56,7 @@ def build(session, body, request) -> dict:
     what the rig's state forbids (409)."""
     from .api.isolators import resolve_isolator
     from .drivers import SIMULATED
+    from .settings import MIN_SPEED
 
     settings = request.app.state.settings
     service = request.app.state.service
@@ -63,9 +64,9 @@ def build(session, body, request) -> dict:
     if running is not None:
         raise ApiError(409, f"test {running} is running; the rig is commissioned only when no test runs (nothing "
                             "moved)")
-    if not (0 < body.speed <= settings.max_speed):
-        raise ApiError(422, f"speed = {body.speed:g} is outside (0, {settings.max_speed:g}]", "speed", body.speed,
-                       f"(0, {settings.max_speed:g}]")
+    if not (MIN_SPEED <= body.speed <= settings.max_speed):  # the schema bounds it to [MIN_SPEED, MAX_SPEED_LIMIT]
+        raise ApiError(422, f"speed = {body.speed:g} is outside [{MIN_SPEED:g}, {settings.max_speed:g}] (this "
+                            "service's max_speed)", "speed", body.speed, f"[{MIN_SPEED:g}, {settings.max_speed:g}]")
     if body.speed != 1.0 and service.driver != SIMULATED:
         raise ApiError(422, f"the rig {service.driver} runs in real time: speed must be 1", "speed", body.speed, "1")
     start_m = service.resting_position_m()

@@ -74,6 +74,38 @@ def _location(loc) -> str:
     return out or "body"
 
 
+# what each JSON type error asks for: a number is a JSON number, never a string or a boolean
+_TYPE_ASKED = {"float_type": ("must be a number (a JSON integer or decimal, e.g. 100 or 2.5)", "a JSON number"),
+               "float_parsing": ("must be a number (a JSON integer or decimal, e.g. 100 or 2.5)", "a JSON number"),
+               "int_type": ("must be a whole number (a JSON integer, e.g. 3)", "a JSON integer"),
+               "int_parsing": ("must be a whole number (a JSON integer, e.g. 3)", "a JSON integer"),
+               "int_from_float": ("must be a whole number (a JSON integer, e.g. 3)", "a JSON integer"),
+               "bool_type": ("must be true or false", "true or false"),
+               "bool_parsing": ("must be true or false", "true or false")}
+
+
+def _json_kind(value) -> str:
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, str):
+        return f"the string {_jsonable(value)!r}"
+    if isinstance(value, (list, tuple)):
+        return "a list"
+    if isinstance(value, dict):
+        return "an object"
+    return repr(_jsonable(value))
+
+
+def _wrong_type(kind: str, value) -> tuple[str, str] | None:
+    """(message, what is allowed) for a value of the wrong JSON type, else None."""
+    asked = _TYPE_ASKED.get(kind)
+    if asked is None:
+        return None
+    return f"{asked[0]}, not {_json_kind(value)}", asked[1]
+
+
 def install(app: FastAPI) -> None:
     @app.exception_handler(ApiError)
     async def _api_error(_request: Request, exc: ApiError):
@@ -108,16 +140,29 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(RequestValidationError)
     async def _validation(_request: Request, exc: RequestValidationError):
-        errors = []
+        errors, said = [], []
         for e in exc.errors():
             field = _location(e.get("loc", ()))
             item = {"field": field, "message": e.get("msg", "invalid"), "value": _jsonable(e.get("input"))}
             ctx = e.get("ctx") or {}
+            cause = ctx.get("error")
+            if isinstance(cause, FieldError):  # a range checked in the schema (backend.schemas): its own words
+                item["message"], item["limit"] = str(cause), str(cause.limit)
+                said.append(str(cause) if field.endswith(cause.field) else f"{field}: {cause}")
+                errors.append(item)
+                continue
+            wrong_type = _wrong_type(e.get("type", ""), e.get("input"))
+            if wrong_type is not None:  # "100" or true where a number is asked (the models are strict)
+                item["message"], item["limit"] = wrong_type
+                said.append(f"{field}: {item['message']}")
+                errors.append(item)
+                continue
             if ctx:
                 item["limit"] = ", ".join(f"{k} {_jsonable(v)}" for k, v in ctx.items() if k != "error")
+            said.append(f"{field}: {item['message']} (got {item['value']!r})")
             errors.append(item)
         first = errors[0] if errors else {"field": "body", "message": "invalid request", "value": None}
-        detail = "; ".join(f"{e['field']}: {e['message']} (got {e['value']!r})" for e in errors[:5])
+        detail = "; ".join(said[:5]) or "invalid request"
         return error_response(422, detail, first["field"], first.get("value"), first.get("limit"), errors=errors)
 
     @app.exception_handler(StarletteHTTPException)

@@ -1,16 +1,45 @@
-"""Pydantic models at the API's edge (requests and responses). SI units, the unit in every name."""
+"""Pydantic models at the API's edge (requests and responses). SI units, the unit in every name.
+
+Every request model is strict (``StrictModel``): a JSON number is a number, never a string ("100") or a boolean
+(true); an integer is accepted where a decimal is asked, a decimal is not where a whole number is. The numbers
+that size what a request makes (a test's speed factor, a move's speed) are bounded here, before anything is built;
+the rest are bounded by the numerics that use them (sim.profiles, sim.protocols, sim.earthquake: cycles, tapers,
+durations, samples) before any array is sized, and the query parameters by their ``Query`` bounds.
+"""
 
 from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag
+from pydantic import AfterValidator, BaseModel, ConfigDict, Discriminator, Field, Tag
 
 from sim.controllers import DEFAULT_CONTROLLER
+from sim.errors import FieldError
+from sim.motion import MAX_DURATION_S, MAX_SPEED_M_PER_S, MIN_SPEED_M_PER_S, check_speed
+
+from .settings import MAX_SPEED_LIMIT, MIN_SPEED
+
+SPEED_RANGE = f"[{MIN_SPEED:g}, {MAX_SPEED_LIMIT:g}] (and at most the service's max_speed, GET /api/rig)"
 
 
 class StrictModel(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
+
+
+def _test_speed(value: float) -> float:
+    if not MIN_SPEED <= value <= MAX_SPEED_LIMIT:
+        raise FieldError("speed", value, SPEED_RANGE,
+                         f"speed = {value!r} is outside {SPEED_RANGE}: a simulated test runs from {MIN_SPEED:g} "
+                         f"(10 times slower than real time) to the service's max_speed times faster; 1 is real time")
+    return value
+
+
+# the speed factor of a simulated test or commissioning (1 = real time); the service's max_speed is checked after
+SpeedFactor = Annotated[float, AfterValidator(_test_speed),
+                        Field(json_schema_extra={"minimum": MIN_SPEED, "maximum": MAX_SPEED_LIMIT})]
+# the peak speed of a manual move (sim.motion.check_speed: a MotionError names the range)
+MoveSpeed = Annotated[float, AfterValidator(check_speed),
+                      Field(json_schema_extra={"minimum": MIN_SPEED_M_PER_S, "maximum": MAX_SPEED_M_PER_S})]
 
 
 class SineProfileIn(StrictModel):
@@ -156,7 +185,9 @@ class TestCreate(StrictModel):
     controller_options: dict[str, float | bool] | None = Field(
         None, description="overrides of the controller's defaults (GET /api/rig lists each controller's options "
                           "with range and unit)")
-    speed: float = Field(1.0, description="time scale of a simulated test: 1 = real time, 20 = 20x faster")
+    speed: SpeedFactor = Field(1.0, description=f"time scale of a simulated test: 1 = real time, 20 = 20x "
+                               f"faster ({MIN_SPEED:g} to the service's max_speed, at most {MAX_SPEED_LIMIT:g}; a "
+                               "real rig: 1)")
     profile: ProfileIn
     limits: LimitsIn | None = None
     label: str = Field("", max_length=200, description="free text")
@@ -164,7 +195,7 @@ class TestCreate(StrictModel):
     operator_name: str = Field("", max_length=64, description="who runs the test")
     notes: str = Field("", max_length=2000, description="free notes kept with the test")
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, json_schema_extra={"examples": [{
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True, json_schema_extra={"examples": [{
         "isolator": "IUT_b", "supply_bar": 70, "controller": "mrac", "speed": 1.0,
         "profile": {"kind": "sine", "amplitude_m": 0.03, "frequency_hz": 1.0, "cycles": 10, "taper_cycles": 1}}]})
 
@@ -315,7 +346,8 @@ class MoveIn(StrictModel):
 
     position_m: float = Field(0.0, description="where to move the table, m (within the stroke and the "
                                                "displacement limit)")
-    speed_m_per_s: float = Field(0.005, description="peak speed of the move, m/s (0 < speed <= 0.05)")
+    speed_m_per_s: MoveSpeed = Field(0.005, description=f"peak speed of the move, m/s ({MIN_SPEED_M_PER_S:g} to "
+                                     f"{MAX_SPEED_M_PER_S:g}; a move lasts at most {MAX_DURATION_S:g} s)")
     isolator: str = Field(min_length=1, max_length=64, description="the isolator mounted (a preset or user isolator)")
     supply_bar: float = Field(description="supply pressure in bar")
     vertical_load_n: float | None = Field(None, description="vertical load in N (default as for a test)")
@@ -336,7 +368,8 @@ class CommissioningIn(StrictModel):
                                                    "(0.0002 to 0.01)")
     max_velocity_m_per_s: float = Field(0.02, description="... and below this velocity, m/s (0.01 to 0.1)")
     operator_name: str = Field("", max_length=64, description="who commissions the rig")
-    speed: float = Field(1.0, description="simulated rig only: time scale of the run (a real rig runs at 1)")
+    speed: SpeedFactor = Field(1.0, description=f"simulated rig only: time scale of the run ({MIN_SPEED:g} to the "
+                               "service's max_speed; a real rig runs at 1)")
 
 
 class ApplyRigIn(StrictModel):

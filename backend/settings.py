@@ -11,6 +11,11 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 
 REPO_STATIC_DIR = Path(__file__).resolve().parent.parent / "frontend" / "static"
 
+# a simulated test's (and commissioning's) speed factor: at most 10 times slower than real time, and no faster than
+# this however ISORIG_MAX_SPEED is set (1e-300 overflowed the worker's clock; below 0.1 a 4 h test takes weeks)
+MIN_SPEED = 0.1
+MAX_SPEED_LIMIT = 1000.0
+
 DEFAULT_RIG_NAME = "rig-1"  # the one rig of a lab's database before rigs were named (migration 0007)
 RIG_NAME_RULE = "1-64 characters: letters, digits, '-', '_' and '.'"
 _RIG_NAME = re.compile(r"[A-Za-z0-9._-]{1,64}")
@@ -55,11 +60,13 @@ class Settings(BaseSettings):
     abort_wait_s: float = Field(default=5.0, ge=0.0, le=60.0, description="POST .../abort answers once the test "
                                 "has ended, waiting at most this long (else 202 with the record's URL)")
     static_dir: Path = REPO_STATIC_DIR
-    max_test_duration_s: float = Field(default=4 * 3600.0, description="longest test the API accepts")
+    max_test_duration_s: float = Field(default=4 * 3600.0, gt=0, le=7 * 24 * 3600.0,
+                                       description="longest test the API accepts, s (at most a week)")
     report_warm_up: bool = Field(default=True, description="warm the report renderer up in the background when "
                                  "the service starts (imports, numba kernels, fonts: about 2 s of one CPU), so that "
                                  "the first report takes no longer than the next ones")
-    max_speed: float = Field(default=100.0, description="largest speed factor of a simulated test")
+    max_speed: float = Field(default=100.0, ge=1.0, le=MAX_SPEED_LIMIT, description="largest speed factor of a "
+                             f"simulated test (1 to {MAX_SPEED_LIMIT:g}; the smallest is {MIN_SPEED:g})")
     stream_history_s: float = Field(default=10.0, description="simulated seconds of samples a late client gets")
     worker_start_method: str = Field(default="forkserver", description="multiprocessing start method: forkserver "
                                      "or spawn (never fork from the threaded server)")

@@ -6,12 +6,13 @@ from __future__ import annotations
 from fastapi import APIRouter, Request
 
 from sim.controllers import DEFAULT_CONTROLLER, describe_controllers
-from sim.motion import DEFAULT_SPEED_M_PER_S, HOLD_S, MAX_SPEED_M_PER_S
+from sim.motion import DEFAULT_SPEED_M_PER_S, HOLD_S, MAX_DURATION_S, MAX_SPEED_M_PER_S, MIN_SPEED_M_PER_S
 from sim.profiles import MAX_CYCLES, MAX_FREQUENCY_HZ
 from sim.rig import BAR_PA, LITRE_PER_MIN_M3_S
 
 from .. import store
 from ..safety import ACTIONS, UNITS, default_limits, hard_limits
+from ..settings import MIN_SPEED
 
 router = APIRouter(tags=["rig"])
 
@@ -91,10 +92,12 @@ def rig(request: Request) -> dict:
             "max_frequency_hz": MAX_FREQUENCY_HZ,
             "max_cycles": MAX_CYCLES,
             "max_test_duration_s": request.app.state.settings.max_test_duration_s,
+            "min_speed": MIN_SPEED,
             "max_speed": request.app.state.settings.max_speed,
         },
-        "manual_motion": {"max_speed_m_per_s": MAX_SPEED_M_PER_S, "default_speed_m_per_s": DEFAULT_SPEED_M_PER_S,
-                          "hold_s": HOLD_S},
+        "manual_motion": {"min_speed_m_per_s": MIN_SPEED_M_PER_S, "max_speed_m_per_s": MAX_SPEED_M_PER_S,
+                          "default_speed_m_per_s": DEFAULT_SPEED_M_PER_S, "hold_s": HOLD_S,
+                          "max_duration_s": MAX_DURATION_S},
         "limits_default": default_limits(rig).to_dict(),
         "limits_max": hard_limits(rig).to_dict(),
         "limit_actions": ACTIONS,

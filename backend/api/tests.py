@@ -36,6 +36,7 @@ from ..schemas import (
     TestCreate,
     TestOut,
 )
+from ..settings import MIN_SPEED
 from ..store import clean_json
 from .deps import AnyoneDep, ApproverDep, OperatorDep, SessionDep, TestId, acting_name, not_found
 from .isolators import resolve_isolator
@@ -108,9 +109,9 @@ def build_test(isolator, body: TestCreate, env: TestEnv) -> dict:
                        "controller", body.controller, ", ".join(CONTROLLER_NAMES))
     options = dict(body.controller_options or {})
     make_controller(body.controller, **options)  # ControllerOptionError (422) names the option and its range
-    if not (0 < body.speed <= env.max_speed):
-        raise ApiError(422, f"speed = {body.speed:g} is outside (0, {env.max_speed:g}]", "speed", body.speed,
-                       f"(0, {env.max_speed:g}]")
+    if not (MIN_SPEED <= body.speed <= env.max_speed):  # the schema bounds it to [MIN_SPEED, MAX_SPEED_LIMIT]
+        raise ApiError(422, f"speed = {body.speed:g} is outside [{MIN_SPEED:g}, {env.max_speed:g}] (this service's "
+                            "max_speed)", "speed", body.speed, f"[{MIN_SPEED:g}, {env.max_speed:g}]")
     from ..drivers import SIMULATED
 
     if body.speed != 1.0 and env.driver != SIMULATED:

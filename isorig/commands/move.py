@@ -11,14 +11,14 @@ from isorig.cli import UsageError
 
 def register(sub) -> None:
     from sim.isolator import PRESETS
-    from sim.motion import DEFAULT_SPEED_M_PER_S, MAX_SPEED_M_PER_S
+    from sim.motion import DEFAULT_SPEED_M_PER_S, MAX_DURATION_S, MAX_SPEED_M_PER_S, MIN_SPEED_M_PER_S
 
     p = sub.add_parser("move", help="move a rig's table to a position (default 0) at a safe speed")
     p.add_argument("--rig", required=True, help="udp://HOST:PORT (a real-time I/O target or `isorig rig-emulator`)")
     p.add_argument("--position-m", type=float, default=0.0, help="where to move the table, m (default 0: zero)")
     p.add_argument("--speed-m-per-s", type=float, default=DEFAULT_SPEED_M_PER_S,
-                   help=f"peak speed of the move, m/s (default {DEFAULT_SPEED_M_PER_S:g}, at most "
-                        f"{MAX_SPEED_M_PER_S:g})")
+                   help=f"peak speed of the move, m/s (default {DEFAULT_SPEED_M_PER_S:g}; {MIN_SPEED_M_PER_S:g} "
+                        f"to {MAX_SPEED_M_PER_S:g}; a move lasts at most {MAX_DURATION_S:g} s)")
     p.add_argument("--isolator", default="IUT_a", help=f"the specimen mounted: a preset ({', '.join(PRESETS)})")
     p.add_argument("--supply-bar", type=float, default=100.0, help="supply pressure in bar (default 100)")
     p.add_argument("--rig-file", default=None, help="the rig file in force (what `isorig identify rig` wrote; default: "
@@ -47,7 +47,7 @@ def run(args) -> int:
     from backend.drivers import rig_kind
     from sim.engine import Scenario
     from sim.isolator import PRESETS
-    from sim.motion import MotionError, check_move, move_target
+    from sim.motion import MotionError, check_move, check_speed, move_target
     from sim.profiles import ProfileError
     from sim.rig import BAR_PA
 
@@ -60,6 +60,10 @@ def run(args) -> int:
         raise UsageError(f"isorig move: --rig: {exc}") from None
     if args.isolator not in PRESETS:
         raise UsageError(f"isorig move: --isolator {args.isolator!r} is not a preset ({', '.join(PRESETS)})")
+    try:
+        check_speed(args.speed_m_per_s)  # before the rig is asked anything
+    except MotionError as exc:
+        raise UsageError(f"isorig move: --speed-m-per-s: {exc}") from None
     from .rig_key import link_options, link_security
 
     options = link_options(link_security("move", args.rig, args), args)

@@ -20,7 +20,9 @@ def test_health_and_rig(client):
     assert rig["limits_default"]["displacement_m"] <= rig["limits_max"]["displacement_m"]
     # what the console needs to say when a start or a move can succeed, from the service, not copied into it
     assert rig["rig"]["start_tolerance_m"] == 0.002
-    assert rig["manual_motion"] == {"max_speed_m_per_s": 0.05, "default_speed_m_per_s": 0.005, "hold_s": 0.5}
+    assert rig["manual_motion"] == {"min_speed_m_per_s": 0.001, "max_speed_m_per_s": 0.05,
+                                    "default_speed_m_per_s": 0.005, "hold_s": 0.5, "max_duration_s": 600.0}
+    assert (rig["envelope"]["min_speed"], rig["envelope"]["max_speed"]) == (0.1, 100.0)
 
 
 def test_isolators_presets_and_user(client):
