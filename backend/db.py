@@ -4,6 +4,9 @@ A SQLite file is the lab's record and holds no secret, but it is nobody else's b
 creates it owner-only (0600; its -wal and -shm files take the same mode) and a directory it creates for it
 owner-only (0700). A directory that already exists is left as it is (it may be shared on purpose, e.g. a group's
 data directory); an existing database file readable by group or others is logged as a warning and made 0600.
+Only a missing file is created (whole: a new, empty SQLite database from its first byte on); a file that is empty
+(0 bytes) or is not an SQLite database is refused with its path (``DatabaseFileError``), never taken for a new
+database (which would have started a second lab record beside the one the user meant, with a new admin).
 
 SQLite gets WAL mode (readers never block the writer), ``synchronous=NORMAL`` (a committed transaction
 survives a killed process) and foreign keys. Any other SQLAlchemy URL (PostgreSQL) is used as given; there,
@@ -14,6 +17,8 @@ from __future__ import annotations
 
 import logging
 import os
+import secrets
+import sqlite3
 import stat
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -27,6 +32,7 @@ if TYPE_CHECKING:
 
 MIGRATIONS_DIR = Path(__file__).resolve().parent / "migrations"
 MIGRATION_LOCK = 0x69736F726967  # PostgreSQL advisory lock key held while migrating ("isorig" in ASCII)
+SQLITE_HEADER = b"SQLite format 3\x00"  # the first 16 bytes of every SQLite database file
 
 log = logging.getLogger("isorig")
 
@@ -39,13 +45,69 @@ def owner_only_dir(path: Path) -> None:
         os.chmod(path, 0o700)  # mkdir's mode is subject to the umask; this is not
 
 
+class DatabaseFileError(ValueError):
+    """A database file that exists but cannot be the lab's database (empty, not SQLite, not a file): its path and
+    what to do. Nothing is written to it."""
+
+
+def check_sqlite_file(path: Path) -> None:
+    """Nothing if ``path`` is missing or an SQLite database file, else a DatabaseFileError naming it."""
+    advice = ("isorig creates a database only where no file exists: move the file away, or give the data "
+              "directory or --database-url of the lab's database")
+    try:
+        info = path.stat()
+        if not stat.S_ISREG(info.st_mode):
+            raise DatabaseFileError(f"the database path {path} is not a file; {advice}")
+        if info.st_size == 0:
+            raise DatabaseFileError(f"the database file {path} is empty (0 bytes), not an SQLite database; {advice}")
+        with open(path, "rb") as f:
+            head = f.read(len(SQLITE_HEADER))
+    except FileNotFoundError:
+        return
+    except OSError as exc:
+        raise DatabaseFileError(f"the database file {path} cannot be read: {exc.strerror}") from None
+    if head != SQLITE_HEADER:
+        raise DatabaseFileError(f"the database file {path} is not an SQLite database (it begins {head!r}, not "
+                                f"{SQLITE_HEADER!r}); {advice}")
+
+
+def _create_sqlite_file(path: Path) -> None:
+    """A new, empty SQLite database (WAL mode) at ``path``, 0600, made beside it and linked into place whole, so
+    that a service starting at the same moment never finds it half made (0 bytes); an existing file is kept."""
+    spare = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.new")
+    os.close(os.open(spare, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
+    try:
+        os.chmod(spare, 0o600)
+        connection = sqlite3.connect(spare)
+        try:
+            connection.execute("PRAGMA journal_mode=WAL")  # writes the database's first page (4 kB)
+        finally:
+            connection.close()
+        try:
+            os.link(spare, path)
+        except FileExistsError:  # another service made it first: that one is the database
+            pass
+        except OSError:  # a file system without hard links: create it exclusively and copy the bytes in
+            try:
+                fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+            except FileExistsError:
+                return
+            with os.fdopen(fd, "wb") as out:
+                out.write(spare.read_bytes())
+    finally:
+        for p in (spare, spare.with_name(spare.name + "-wal"), spare.with_name(spare.name + "-shm")):
+            p.unlink(missing_ok=True)
+
+
 def owner_only_sqlite_file(path: Path) -> None:
-    """The SQLite file owner-only: created 0600 if missing (an empty file is an empty database), made 0600 with
-    a warning if it (or its -wal, -shm) is readable or writable by group or others."""
+    """The SQLite file owner-only: created 0600 if missing (a new, empty database), made 0600 with a warning if it
+    (or its -wal, -shm) is readable or writable by group or others. A file that is empty or not an SQLite database
+    is a DatabaseFileError, left as it is."""
     owner_only_dir(path.parent)
+    check_sqlite_file(path)
     if not path.exists():
-        os.close(os.open(path, os.O_WRONLY | os.O_CREAT, 0o600))
-        os.chmod(path, 0o600)
+        _create_sqlite_file(path)
+        check_sqlite_file(path)
         return
     for p in (path, path.with_name(path.name + "-wal"), path.with_name(path.name + "-shm")):
         try:

@@ -80,8 +80,13 @@ def run(args) -> int:
         except OSError as exc:
             print(f"isorig serve: ISORIG_SERVICE_NICE={settings.service_nice} not applied ({exc.strerror})",
                   file=sys.stderr)
+    from backend.db import DatabaseFileError
+
     try:
         app = create_app(settings)
+    except DatabaseFileError as exc:  # an empty file, or one that is not a database: its path, nothing written
+        print(f"isorig serve: {exc}", file=sys.stderr)
+        return 2
     except Exception as exc:  # bad URL, unreachable database: one clear line
         print(f"isorig serve: cannot open the database {_masked(settings.resolved_database_url)!r}: "
               f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}", file=sys.stderr)

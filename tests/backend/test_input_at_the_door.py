@@ -1,15 +1,18 @@
 """Input at the door (issue 33, item 5): a test's and a move's speed within documented ranges, checked before
-anything is built; JSON numbers that are numbers (no strings, no booleans) in every numeric field. Each finding
-failed on the code before its fix (6f24fb7)."""
+anything is built; JSON numbers that are numbers (no strings, no booleans) in every numeric field; a database
+file that is empty or not a database refused with its path. Each finding failed on the code before its fix
+(6f24fb7)."""
 
 from __future__ import annotations
 
+import stat
 import time
 
 import pytest
 from conftest import AUTH, make_settings, sine_test, wait_for
 from fastapi.testclient import TestClient
 
+from backend import db
 from backend.app import create_app
 from isorig.cli import main
 from sim import motion
@@ -161,4 +164,42 @@ def test_a_json_integer_is_a_number_and_a_decimal_is_not_a_whole_number(one_serv
     assert r.status_code == 200 and r.json()["ok"], r.text
     r = one_service.post("/api/tests/check", json=_with(body, "profile.cycles", 3.5))
     assert r.status_code == 422 and r.json()["limit"] == "a JSON integer", r.text
+
+
+# --- the database file -----------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("content", [b"", b"time_s,force_n\n0.0,12.5\n"], ids=["empty", "a text file"])
+def test_a_database_file_that_is_empty_or_not_a_database_is_refused_with_its_path(tmp_path, capsys, content):
+    """A 0-byte isorig.db started as a fresh database with a new admin."""
+    data = tmp_path / "data"
+    data.mkdir()
+    path = data / "isorig.db"
+    path.write_bytes(content)
+    with pytest.raises(ValueError) as err:  # db.DatabaseFileError
+        create_app(make_settings(data))
+    assert type(err.value).__name__ == "DatabaseFileError"
+    what = "is empty (0 bytes)" if not content else "is not an SQLite database"
+    assert f"the database file {path} {what}" in str(err.value), err.value
+    assert "only where no file exists" in str(err.value)
+    assert main(["serve", "--data-dir", str(data), "--port", "8765"]) == 2
+    said = capsys.readouterr().err
+    assert str(path) in said and what in said and "Traceback" not in said and "first start" not in said, said
+    assert main(["user", "list", "--database-url", f"sqlite:///{path}"]) == 2  # every command that opens it
+    assert str(path) in capsys.readouterr().err
+    # left as it was: nothing written to it or beside it, no admin made
+    assert path.read_bytes() == content and [p.name for p in data.iterdir()] == ["isorig.db"]
+
+
+def test_only_a_missing_database_file_is_created_and_whole(tmp_path):
+    path = tmp_path / "new" / "isorig.db"
+    engine = db.make_engine(f"sqlite:///{path}")  # before any connection: a database from its first byte on
+    try:
+        assert path.read_bytes()[:16] == b"SQLite format 3\x00" and stat.S_IMODE(path.stat().st_mode) == 0o600
+        assert [p.name for p in path.parent.iterdir()] == ["isorig.db"]  # no spare left beside it
+        db.upgrade(engine)
+    finally:
+        engine.dispose()
+    db.make_engine(f"sqlite:///{path}").dispose()  # an existing database is used as it is
+    assert path.stat().st_size > 4096
 
