@@ -13,14 +13,19 @@ import os
 from pathlib import Path
 
 PACKAGE_DIR = Path(__file__).resolve().parent
+#: compiled code of sim/ inlines the foreign rigs' physics too (sim.foreign_plant): its sources count as well
+FOREIGN_RIGS_DIR = PACKAGE_DIR.parent / "foreign_rigs"
 
 
 def source_fingerprint(root: Path = PACKAGE_DIR) -> str:
-    """SHA-1 of the relative paths and contents of every .py file below root (12 hex digits)."""
+    """SHA-1 of the relative paths and contents of every .py file below root (and, for sim/, of the foreign
+    rigs' physics) (12 hex digits)."""
     digest = hashlib.sha1()
-    for path in sorted(root.rglob("*.py")):
-        digest.update(str(path.relative_to(root)).encode())
-        digest.update(path.read_bytes())
+    roots = [root] + ([FOREIGN_RIGS_DIR] if root == PACKAGE_DIR and FOREIGN_RIGS_DIR.is_dir() else [])
+    for base in roots:
+        for path in sorted(base.rglob("*.py")):
+            digest.update(str(path.relative_to(base.parent)).encode())
+            digest.update(path.read_bytes())
     return digest.hexdigest()[:12]
 
 

@@ -50,6 +50,17 @@ class Scenario:
     timed_changes: list = field(default_factory=list)
     #: a displacement time history (sim.history.HistoryTarget) instead of the sine ``profile``
     history: object | None = None
+    #: a foreign rig (foreign_rigs.ForeignRigSpec: a rig written from the physics, not from sim's model) as the
+    #: plant instead of ``plant_rig`` and ``plant_isolator``; ``rig`` stays what the controller is told
+    foreign_rig: object | None = None
+
+    def make_plant(self, substeps: int = PLANT_SUBSTEPS):
+        """The simulated hardware of this scenario: sim's model (SimulatedPlant), or the foreign rig."""
+        if self.foreign_rig is not None:
+            from .foreign_plant import ForeignPlant
+
+            return ForeignPlant(self.foreign_rig, self.supply_pa, self.effective_vertical_load_n)
+        return SimulatedPlant(self.plant_rig, self.plant_isolator, self.supply_pa, self.noise_seed, substeps=substeps)
 
     @classmethod
     def sine(cls, isolator: str | Isolator, supply_bar: float, amplitude_m: float, frequency_hz: float,
@@ -173,8 +184,7 @@ class Simulation:
                                                    **scenario.effective_controller_options())
         self.loop = ClosedLoop(scenario.profile, controller, scenario.rig.command_limit_v,
                                table=scenario.target_table())
-        self.plant = SimulatedPlant(scenario.plant_rig, scenario.plant_isolator, scenario.supply_pa,
-                                    scenario.noise_seed, substeps=plant_substeps)
+        self.plant = scenario.make_plant(plant_substeps)
         self.pending_changes = sorted(scenario.timed_changes)
         self.changes_applied: dict = {}
 
@@ -286,8 +296,7 @@ class Simulation:
         scenario = self.scenario
         self.loop = ClosedLoop(scenario.profile, controller, scenario.rig.command_limit_v,
                                table=scenario.target_table())
-        self.plant = SimulatedPlant(scenario.plant_rig, scenario.plant_isolator, scenario.supply_pa,
-                                    scenario.noise_seed, substeps=self.plant.substeps)
+        self.plant = scenario.make_plant(getattr(self.plant, "substeps", PLANT_SUBSTEPS))
         self.pending_changes = sorted(scenario.timed_changes)
         self.changes_applied = {}
 

@@ -23,6 +23,7 @@ from .loop import CONTROL_PERIOD_S, ClosedLoop, control_period
 from .measurement import STATUS_ARMED, Measurement
 from .rig import (
     N_STATES,
+    P_FRICTION,
     P_KD,
     P_KW,
     P_SUPPLY,
@@ -41,6 +42,7 @@ from .samples import _FLOW, _VALVE, _VEL, _Y, N_FIELDS, Samples
 from .sensors import new_history, pack_sensors, sense
 
 PLANT_SUBSTEPS = 5  # 0.2 ms RK4 step
+SUPPLY_DECAY_S = 0.05  # time constant of the supply pressure after a pump loss (lose_supply)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -121,6 +123,22 @@ class SimulatedPlant:
     @property
     def supply_pa(self) -> float:
         return float(self.params[P_SUPPLY])
+
+    @property
+    def position_m(self) -> float:
+        return float(self.state[X_Y])
+
+    def set_conditions(self, supply_pa: float, vertical_load_n: float) -> None:
+        """What ARM asks for: the supply pressure and the vertical jack (the guides' friction mu N + F_c follows)."""
+        self.params[P_SUPPLY] = supply_pa
+        self.params[P_FRICTION] = self.rig.with_changes(vertical_load_n=vertical_load_n).friction_force_n
+
+    def hydraulics_off(self) -> None:
+        """Disarmed: nothing to do, the model's valve at 0 V stays inside its dead zone and the table rests."""
+
+    def lose_supply(self, since_s: float, set_pa: float) -> None:
+        """The pump lost ``since_s`` ago: the supply decays from ``set_pa`` (SUPPLY_DECAY_S)."""
+        self.params[P_SUPPLY] = set_pa * np.exp(-since_s / SUPPLY_DECAY_S)
 
     @property
     def force_n(self) -> float:

@@ -41,6 +41,12 @@ def register(sub) -> None:
     p.add_argument("--monte-carlo", metavar="FILE", default=None,
                    help="run the Monte Carlo campaign of FILE (.json or .toml: distributions of rig and isolator "
                         "parameters of the simulated plant; docs/compare.md, Campaigns) instead of the grid")
+    p.add_argument("--foreign-rigs", metavar="N", type=whole_number, default=None,
+                   help="commission N rigs of the foreign family (foreign_rigs: written from the physics, not from "
+                        "isorig's model) from what their labs know, then run 20 mm 0.5 Hz, 2 mm 1 Hz and 0.5 mm 1 Hz "
+                        "on each with its rig file (docs/commissioning.md, 'Foreign rigs')")
+    p.add_argument("--seed", metavar="S", type=whole_number, default=0,
+                   help="with --foreign-rigs: the first rig's seed (rigs S .. S+N-1)")
     p.add_argument("--controllers", default=None,
                    help="comma-separated controllers (default: servo,mrac,pid; --robust: servo)")
     p.add_argument("--cycles", type=whole_number, default=None, help="cycles per run (default 10, taper 1)")
@@ -163,6 +169,8 @@ def run(args) -> int:
     from sim.rig import DEFAULT_RIG
 
     check_arguments(args, cmp)
+    if args.foreign_rigs is not None:
+        return run_foreign(args)
     campaign = None
     base_rig, described, plant = DEFAULT_RIG, None, {}
     notes: list[str] = []
@@ -360,6 +368,56 @@ def run_commissioning(args, campaign) -> int:
     print()
     print(cc.summary_tables(rows, tests, runs[0].max_stroke_m, runs[0].max_velocity_m_per_s))
     print(f"\n{len(rows)} rigs in {wall:.1f} s wall time on {where} (and {startup:.1f} s to start it)")
+    for path in (args.csv, args.figure):
+        if path:
+            print(f"wrote {path}", file=sys.stderr)
+    return 0
+
+
+def run_foreign(args) -> int:
+    """``--foreign-rigs N``: the foreign rig family commissioned and tested (sim.commission.foreign_campaign)."""
+    from sim import campaign as cpg
+    from sim.commission import foreign_campaign as fc
+
+    given = [flag for flag, on in (("--robust", args.robust), ("--ablation", args.ablation),
+                                   ("--robustness", args.robustness), ("--monte-carlo", args.monte_carlo is not None),
+                                   ("--controllers", args.controllers is not None),
+                                   ("--cycles", args.cycles is not None), ("--rig-file", args.rig_file is not None),
+                                   ("--rig-set", bool(args.rig_set)), ("--plant-set", bool(args.plant_set)),
+                                   ("--controller-option", bool(args.controller_option))) if on]
+    if given:
+        raise UsageError(f"isorig compare: {', '.join(given)} cannot go with --foreign-rigs (each foreign rig is "
+                         "commissioned from what its lab knows and tested on the three cases of the issue)")
+    if not (1 <= args.foreign_rigs <= 100_000):
+        raise UsageError(f"isorig compare: --foreign-rigs {args.foreign_rigs} must be between 1 and 100000")
+    if not (0 <= args.seed and args.seed + args.foreign_rigs <= 2 ** 32):
+        raise UsageError("isorig compare: --seed S must be >= 0 with S + N below 2**32")
+    runs = [fc.ForeignRun(args.seed + i) for i in range(args.foreign_rigs)]
+    timeout = cpg.SCHEDULER_TIMEOUT_S if args.scheduler_timeout is None else args.scheduler_timeout
+    with cpg.Engine(scheduler=args.scheduler, workers=args.processes, timeout_s=timeout) as engine:
+        print(f"commissioning {len(runs)} foreign rigs (seeds {args.seed}..{args.seed + len(runs) - 1}), then 3 tests "
+              f"on each commissioned one, on {engine.description} ...", file=sys.stderr)
+        bar = ProgressBar()
+        bar(0, len(runs))
+        try:
+            rows, wall = engine.map(fc.run_chunk, runs, 1, progress=bar)
+        finally:
+            bar.close()
+    title = f"foreign rigs {args.seed}..{args.seed + len(runs) - 1}: {len(rows)} rigs, 100 bar, {fc.TEST_CYCLES} cycles"
+    if args.csv:
+        from sim.commission import campaign as cc
+
+        with open(args.csv, "w") as f:
+            f.write(cc.csv_text([{k: ("; ".join(map(str, v)) if isinstance(v, list) else v) for k, v in r.items()}
+                                 for r in rows]))
+    if args.figure:
+        fc.figure(rows, title).savefig(args.figure, dpi=110)
+    if args.json:
+        print(json.dumps(fc.summary(rows)))
+    else:
+        print(f"\n### {title}\n")
+        print(fc.markdown(rows))
+        print(f"\n{len(rows)} rigs in {wall:.1f} s wall time on {engine.description}")
     for path in (args.csv, args.figure):
         if path:
             print(f"wrote {path}", file=sys.stderr)

@@ -30,6 +30,11 @@ def register(sub) -> None:
     p.add_argument("--plant-set", action="append", default=[], metavar="NAME=VALUE",
                    help="change one parameter of the rig it plays (after --plant-file), e.g. piston_area_m2=0.02 "
                         "(repeatable)")
+    p.add_argument("--foreign-rig", metavar="SEED", type=int, default=None,
+                   help="play rig SEED of the foreign family (foreign_rigs: written from the physics, not from "
+                        "isorig's model: valve lands, pump and accumulator, LuGre friction, its own specimen, a "
+                        "load cell, late and noisy sensors; docs/commissioning.md, 'Foreign rigs') instead of "
+                        "isorig's model; --isolator, --plant-file and --plant-set do not apply")
     from .rig_key import add_link_flags
 
     add_link_flags(p)
@@ -88,11 +93,23 @@ def run(args) -> int:
     faults = Faults(args.packet_loss_pct, args.latency_ms, args.jitter_ms, args.drop_link_after_s,
                     args.restart_after_s, args.sensor_fault, args.sensor_fault_after_s, args.supply_loss_after_s)
     rig, plant_name, plant_source = plant(args)
+    foreign = None
+    if args.foreign_rig is not None:
+        from foreign_rigs import draw_rig
+
+        if args.plant_file or args.plant_set:
+            raise UsageError("isorig rig-emulator: --foreign-rig plays a rig of its own; leave out --plant-file and "
+                             "--plant-set")
+        try:
+            foreign = draw_rig(args.foreign_rig)
+        except ValueError as exc:
+            raise UsageError(f"isorig rig-emulator: --foreign-rig: {exc}") from None
+        plant_name, plant_source = foreign.name, f"foreign_rigs.draw_rig({args.foreign_rig})"
     config = EmulatorConfig(load_isolator(args.isolator), args.port, args.host, rig=rig, period_s=args.period_s,
                             watchdog_s=args.watchdog_ms / 1e3, seed=args.seed, faults=faults,
                             status_file=Path(args.status_file) if args.status_file else None,
                             plant_name=plant_name, plant_source=plant_source, defects=tuple(dict.fromkeys(args.defect)),
-                            security=security, tap_port=args.tap_port)
+                            security=security, tap_port=args.tap_port, foreign_rig=foreign)
     try:
         emulator = RigEmulator(config)
     except ValueError as exc:  # a value out of its range (period, watchdog, tap port, ...): said, no traceback
@@ -112,7 +129,8 @@ def run(args) -> int:
                     "link-attack tests)")
     link = (f"protocol 2, authenticated with {security.key_file}" if security.authenticated else
             f"protocol 1, NOT AUTHENTICATED ({security.why})")
-    print(f"isorig rig-emulator: udp://{args.host}:{emulator.port}, {link}, isolator {config.isolator.name}, plant "
+    specimen = "its own specimen" if foreign is not None else f"isolator {config.isolator.name}"
+    print(f"isorig rig-emulator: udp://{args.host}:{emulator.port}, {link}, {specimen}, plant "
           f"{plant_text}, period {config.period_s:g} s, watchdog {config.watchdog_s * 1e3:g} ms, priority "
           f"{priority}{defects}", file=sys.stderr, flush=True)
     try:

@@ -43,7 +43,7 @@ from ..isolator import Isolator
 from ..latency import LatencyHistogram
 from ..measurement import STATUS_ARMED, STATUS_COMMAND_MISSED, STATUS_SUPPLY_LOW, STATUS_WATCHDOG
 from ..plant import SimulatedPlant
-from ..rig import DEFAULT_RIG, P_FRICTION, P_SUPPLY, RigParameters
+from ..rig import DEFAULT_RIG, RigParameters
 from . import auth
 from . import protocol as proto
 from .defects import check_defects
@@ -54,7 +54,6 @@ SENSOR_FAULTS = ("stuck", "nan", "out-of-range")
 # b"H" + datagram goes to the host from the rig's address
 TAP_IN, TAP_OUT, FORGE_TO_RIG, FORGE_TO_HOST = b">", b"<", b"R", b"H"
 OUT_OF_RANGE_M = 1.0  # what a broken position sensor reads in the out-of-range fault
-SUPPLY_DECAY_S = 0.05  # time constant of the supply pressure after a pump loss
 SUPPLY_LOW_FRACTION = 0.5
 STALE_PERIODS = 10  # a command answering a measurement older than this is stale
 SPIN_S = 2e-4  # the loop sleeps until this long before a tick, then polls
@@ -119,6 +118,17 @@ class EmulatorConfig:
     #: for the link-attack tests only: copies of every datagram to 127.0.0.1:tap_port, and a forging port (what an
     #: attacker on the lab network sees and can send, without a relay in the rig's real-time path); None: off
     tap_port: int | None = None
+    #: a foreign rig (foreign_rigs.ForeignRigSpec: written from the physics, not from sim's model) played instead
+    #: of ``rig`` and ``isolator``; its own specimen is mounted
+    foreign_rig: object | None = None
+
+    def make_plant(self, supply_pa: float):
+        """The hardware this emulator plays: sim's model with ``rig`` and ``isolator``, or the foreign rig."""
+        if self.foreign_rig is not None:
+            from ..foreign_plant import ForeignPlant
+
+            return ForeignPlant(self.foreign_rig, supply_pa, self.rig.vertical_load_n, self.period_s)
+        return SimulatedPlant(self.rig, self.isolator, supply_pa, self.seed, self.period_s)
 
     def check(self) -> None:
         if not (1e-4 <= self.period_s <= 0.1):
@@ -137,6 +147,9 @@ class EmulatorConfig:
 
     def plant(self) -> dict:
         """The plant's name, where it came from and the parameters that differ from isorig's default rig."""
+        if self.foreign_rig is not None:
+            return {"name": self.foreign_rig.name, "source": f"foreign_rigs.draw_rig({self.foreign_rig.seed})",
+                    "changed": {}}
         changed = {f.name: getattr(self.rig, f.name) for f in fields(RigParameters)
                    if getattr(self.rig, f.name) != getattr(DEFAULT_RIG, f.name)}
         return {"name": self.plant_name, "source": self.plant_source, "changed": changed}
@@ -151,8 +164,8 @@ class RigEmulator:
         self.period_s = config.period_s
         self.faults = config.faults
         self.random = random.Random(config.seed)
-        self.plant = SimulatedPlant(config.rig, config.isolator, 0.0, config.seed, config.period_s)
-        warm = SimulatedPlant(config.rig, config.isolator, 1e7, config.seed, config.period_s)
+        self.plant = config.make_plant(0.0)
+        warm = config.make_plant(1e7)
         warm.measure()  # load the compiled plant before serving: a real-time target does not stall at its first ARM
         warm.advance(0.0)
         warm.advance(0.0, 1.0, 0.5)
@@ -197,6 +210,7 @@ class RigEmulator:
     def _reset_session(self) -> None:
         """What a restart forgets: the session, the host, the command, the counters of the test."""
         self.armed = False
+        self.plant.hydraulics_off()
         self.session = 0
         self.host_addr = None
         self.sequence = -1
@@ -271,6 +285,7 @@ class RigEmulator:
             if self.armed and packet.session == self.session:
                 self._apply(0.0, arrival)
                 self.armed = False
+                self.plant.hydraulics_off()
                 self.counters["disarms"] += 1
             elif packet.session != self.session:
                 self._reject("session")
@@ -311,8 +326,7 @@ class RigEmulator:
         self.arm_time = arrival
         self.last_command_time = arrival
         self.supply_set_pa = supply
-        self.plant.params[P_SUPPLY] = supply
-        self.plant.params[P_FRICTION] = rig.with_changes(vertical_load_n=load).friction_force_n  # the jack
+        self.plant.set_conditions(supply, load)  # the pump's set point and the jack (friction follows the load)
         self.vertical_load_n = load
         if self.codec.version == 2:
             self.session_key = auth.session_key(self.lab_key, challenge, packet.session)
@@ -389,6 +403,7 @@ class RigEmulator:
                                         "last_command_v": self.command_v})
             self.command_v = 0.0  # the valve closes now: the next period integrates at 0 V
             self.armed = False
+            self.plant.hydraulics_off()
             self.latched_status |= STATUS_WATCHDOG  # until the next ARM, in every HELLO answer too
             self.sequence += 1
             # the host hears why, if it still can: the test's session, the next sequence, WATCHDOG and (no command
@@ -405,7 +420,7 @@ class RigEmulator:
             self.counters["link_dropped"] = True
         if self._fault_due(faults.supply_loss_after_s, now):
             t = self.test_time(now) - faults.supply_loss_after_s
-            self.plant.params[P_SUPPLY] = self.supply_set_pa * math.exp(-t / SUPPLY_DECAY_S)
+            self.plant.lose_supply(t, self.supply_set_pa)
         if self.armed:
             self.sequence += 1
             self._send_measurement(self.host_addr, self.session, self.sequence, extra_status=status_missed)
@@ -427,7 +442,7 @@ class RigEmulator:
         if addr is None or self.counters["link_dropped"]:
             return
         m = self.plant.measure()
-        supply = float(self.plant.params[P_SUPPLY])
+        supply = self.plant.supply_pa
         status = self.latched_status | extra_status
         if self.armed:
             status |= STATUS_ARMED
@@ -580,7 +595,7 @@ class RigEmulator:
                 "watchdog_s": self.config.watchdog_s, "faults": asdict(self.faults),
                 "armed": self.armed, "session": self.session, "sequence": self.sequence,
                 "supply_pa": self.supply_set_pa, "vertical_load_n": self.vertical_load_n,
-                "command_v": self.command_v, "position_m": float(self.plant.state[0]),
+                "command_v": self.command_v, "position_m": self.plant.position_m,
                 "counters": dict(self.counters), "rejected": dict(self.rejected),
                 "command_latency": self.latency.summary(above_ms=self.period_s * 1e3),
                 "tick_lateness": self.tick_lateness.summary(above_ms=1.0),

@@ -1,0 +1,264 @@
+"""Commissioning and small-motion control on foreign rigs: rigs written from their physics, not from sim's model.
+
+A family of rigs that varies only sim's model's numbers proves that the fit inverts the model. The foreign rigs
+(``foreign_rigs``: valve lands and spool, unequal chambers, hoses, pump and accumulator, LuGre friction, specimens
+beyond Bouc-Wen, a load cell, late and noisy sensors) are the test instrument. For each drawn rig:
+
+1. **commission it** from what its lab knows (``ForeignRigSpec.lab_knows``: piston area, oil volume, stroke, pump
+   flow) at the default bounds; a refused fit is tried once more with the bounds the refusal suggests
+   (``retry_bounds``), as an operator would;
+2. **judge the values it trusted** against the rig's physics (``ForeignRigSpec.equivalents``): a value the
+   controller relies on outside 3 sigma of its truth makes the rig ``wrong_trusted``;
+3. **test it** with the commissioned rig file: 20 mm at 0.5 Hz, 2 mm at 1 Hz, 0.5 mm at 1 Hz (12 cycles, taper
+   1), with the service's follow monitor; the figure is the tracking verdict's (``summary.tracking_verdict``).
+
+Every run is deterministic in the rig's seed. ``summary(rows)`` is the object ``isorig compare --foreign-rigs N
+--json`` prints.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..engine import Scenario, Simulation
+from ..isolator import load_isolator
+from ..rig import DEFAULT_RIG, RigParameters
+from .identify import DEFAULT_MAX_STROKE_M, DEFAULT_MAX_VELOCITY_M_PER_S, Conditions, excitation_scenario, identify
+
+SUPPLY_PA = 1.0e7
+TEST_CYCLES = 12
+#: the cases and the labs' targets on them (RMS |y - r| of the verdict over the amplitude)
+CASES = (("20mm_0.5Hz", 0.02, 0.5, 0.001), ("2mm_1Hz", 0.002, 1.0, 0.005), ("0.5mm_1Hz", 0.0005, 1.0, 0.01))
+CONTROLLER_ISOLATOR = "IUT_a"  # what the scenario names as mounted; the foreign rig's own specimen is what moves
+SIGMAS_WRONG = 3.0
+
+
+@dataclass(frozen=True)
+class ForeignRun:
+    """One foreign rig of the family and how to commission it."""
+
+    seed: int
+    max_stroke_m: float = DEFAULT_MAX_STROKE_M
+    max_velocity_m_per_s: float = DEFAULT_MAX_VELOCITY_M_PER_S
+    cases: tuple = CASES
+
+
+def declared_rig(lab: dict) -> RigParameters:
+    """The start rig file a lab writes from what it knows (catalogue and drawing values); everything the
+    controller relies on beyond them is isorig's default until commissioning measures it."""
+    return DEFAULT_RIG.with_changes(piston_area_m2=lab["piston_area_m2"], half_volume_m3=lab["half_volume_m3"],
+                                    stroke_m=lab["stroke_m"], pump_max_flow_m3_per_s=lab["pump_max_flow_m3_per_s"],
+                                    max_supply_pa=lab["max_supply_pa"], command_limit_v=lab["command_limit_v"])
+
+
+def retry_bounds(problems: list[str], max_stroke_m: float, max_velocity_m_per_s: float) -> tuple[float, float] | None:
+    """The bounds of a second attempt after a refusal, or None when a second attempt cannot help: a record whose
+    fit or replay did not explain the motion gets twice the velocity bound (more motion over the rig's friction
+    and noise), within the bounds commissioning takes."""
+    words = " ".join(problems)
+    if not any(key in words for key in ("explains", "reproduces", "uncertain")):
+        return None
+    faster = min(2.0 * max_velocity_m_per_s, 0.04)
+    if faster <= max_velocity_m_per_s:
+        return None
+    return max_stroke_m, faster
+
+
+def judged_values(ident, spec, declared: RigParameters) -> dict:
+    """Each value the controller relies on, fitted and true (the rig's physics), with its one-sigma uncertainty;
+    the oil column judged as its stiffness 2 beta A_p^2 / V_0 with the declared A_p and V_0."""
+    truth = spec.equivalents(SUPPLY_PA)
+    est = ident.fit.estimates
+    out = {}
+    for name in ("mass_kg", "position_latency_s", "valve_natural_frequency_rad_s", "dead_zone_v", "driver_offset_v"):
+        if name in truth and name in est:
+            out[name] = (est[name].value, est[name].std, truth[name])
+    if "bulk_modulus_pa" in est:
+        scale = 2.0 * declared.piston_area_m2 ** 2 / declared.half_volume_m3
+        e = est["bulk_modulus_pa"]
+        out["oil_column_stiffness_n_per_m"] = (e.value * scale, e.std * scale, truth["oil_column_stiffness_n_per_m"])
+    return out
+
+
+def wrong_values(values: dict) -> list[str]:
+    """The names of the values outside SIGMAS_WRONG of their truth."""
+    wrong = []
+    for name, (value, std, true_value) in values.items():
+        if not (math.isfinite(value) and math.isfinite(std)) or abs(value - true_value) > SIGMAS_WRONG * std:
+            wrong.append(name)
+    return wrong
+
+
+def commission(spec, declared: RigParameters, max_stroke_m: float, max_velocity_m_per_s: float):
+    """One commissioning run of the foreign rig and its fit (sim.commission.identify)."""
+    load = float(spec.drawn["table.vertical_load_n"])
+    conditions = Conditions("simulated", SUPPLY_PA, load, "foreign", 0.0, max_stroke_m, max_velocity_m_per_s)
+    scenario = excitation_scenario(load_isolator(CONTROLLER_ISOLATOR), conditions, declared)
+    scenario.foreign_rig = spec
+    samples = Simulation(scenario, validate=False).run().samples
+    return identify(samples, declared, conditions)
+
+
+def tested(spec, rig: RigParameters, amplitude_m: float, frequency_hz: float) -> dict:
+    """One sine on the foreign rig with the controller told ``rig``; with the service's follow monitor."""
+    scenario = Scenario.sine(load_isolator(CONTROLLER_ISOLATOR), SUPPLY_PA / 1e5, amplitude_m, frequency_hz,
+                             TEST_CYCLES, rig=rig, vertical_load_n=float(spec.drawn["table.vertical_load_n"]),
+                             foreign_rig=spec)
+    result = Simulation(scenario, validate=False).run(follow=True)
+    verdict = result.summary()["tracking_verdict"]
+    trip = result.trip
+    kind = None if trip is None else trip.values.get("kind", trip.detector)
+    return {"share": verdict.get("rms_share"), "verdict": verdict["verdict"],
+            "stopped_s": None if trip is None else trip.time_s, "stop_kind": kind,
+            "oscillation": trip is not None and "oscillation" in (result.reason or "")}
+
+
+def commission_and_test(run: ForeignRun) -> dict:
+    """A row: the rig, its commissioning (first attempt, and a second where the first suggests one), the judged
+    values and the cases."""
+    from foreign_rigs import draw_rig
+
+    spec = draw_rig(run.seed)
+    declared = declared_rig(spec.lab_knows())
+    t0 = time.perf_counter()
+    ident = commission(spec, declared, run.max_stroke_m, run.max_velocity_m_per_s)
+    row = {"seed": run.seed, "name": spec.name, "first_trusted": ident.trusted, "attempts": 1,
+           "first_problems": list(ident.problems)}
+    if not ident.trusted:
+        bounds = retry_bounds(ident.problems, run.max_stroke_m, run.max_velocity_m_per_s)
+        if bounds is not None:
+            ident = commission(spec, declared, *bounds)
+            row["attempts"] = 2
+            row["retry_max_velocity_m_per_s"] = bounds[1]
+    row["trusted"] = ident.trusted
+    row["problems"] = list(ident.problems)
+    row["commission_wall_s"] = time.perf_counter() - t0
+    row["wrong"] = []
+    if ident.fit is not None:
+        values = judged_values(ident, spec, declared)
+        for name, (value, std, true_value) in values.items():
+            row[f"fit.{name}"] = value
+            row[f"std.{name}"] = std
+            row[f"true.{name}"] = true_value
+        if ident.trusted:
+            row["wrong"] = wrong_values(values)
+    if ident.trusted:
+        for label, amplitude_m, frequency_hz, _target in run.cases:
+            row.update({f"{label}.{k}": v for k, v in tested(spec, ident.rig, amplitude_m, frequency_hz).items()})
+    for key in ("actuator.rod", "valve.lap", "valve.spool_frequency_hz", "table.mass_kg", "specimen.kind",
+                "sensors.position_latency_s"):
+        row[f"drawn.{key}"] = spec.drawn[key]
+    return row
+
+
+def run_chunk(runs: list[ForeignRun]) -> list[dict]:
+    """A worker's task (sim.campaign.Engine.map)."""
+    return [commission_and_test(r) for r in runs]
+
+
+def summary(rows: list[dict], cases: tuple = CASES) -> dict:
+    """The figures of ``isorig compare --foreign-rigs N --json`` (docs/commissioning.md, "Foreign rigs")."""
+    out = {"rigs": len(rows), "commissioned_first_attempt": sum(1 for r in rows if r["first_trusted"]),
+           "commissioned": sum(1 for r in rows if r["trusted"]),
+           "wrong_trusted": sum(1 for r in rows if r["trusted"] and r["wrong"]), "cases": {}}
+    for label, _a, _f, target in cases:
+        ran = [r for r in rows if r["trusted"] and f"{label}.verdict" in r]
+        shares = [100.0 * r[f"{label}.share"] for r in ran if r[f"{label}.share"] is not None]
+        out["cases"][label] = {
+            "runs": len(ran),
+            "worst_pct": max(shares) if shares else None,
+            "median_pct": float(np.median(shares)) if shares else None,
+            "oscillation_stops": sum(1 for r in ran if r[f"{label}.oscillation"]),
+            "other_stops": sum(1 for r in ran if r[f"{label}.stopped_s"] is not None and not r[f"{label}.oscillation"]),
+            "within_target": sum(1 for r in ran if r[f"{label}.stopped_s"] is None and r[f"{label}.share"] is not None
+                                 and r[f"{label}.share"] <= target),
+            "target_pct": 100.0 * target,
+        }
+    return out
+
+
+#: a refusal's reason by its words (sim.commission.identify.trust_problems), for the tables
+PROBLEM_CATEGORIES = (("force balance", "the force balance explains too little of the measured forces"),
+                      ("flow balance", "the flow balance explains too little of the motion"),
+                      ("given the same commands", "the fitted rig's replay misses the measured velocity"),
+                      ("reproduces", "the fitted rig's replay misses the measured velocity"),
+                      ("is uncertain by", "a value the controller relies on is too uncertain"),
+                      ("not a positive value", "a fitted value is not positive"),
+                      ("not a rig", "the fitted values are not a rig"),
+                      ("bound", "a fitted value ended on the fit's bound"),
+                      ("did not run to its end", "the excitation did not run to its end"))
+
+
+def problem_category(problem: str) -> str:
+    """The category of one refusal reason (PROBLEM_CATEGORIES), or its first words."""
+    for words, category in PROBLEM_CATEGORIES:
+        if words in problem:
+            return category
+    return problem[:80]
+
+
+def markdown(rows: list[dict], cases: tuple = CASES) -> str:
+    """The summary as the tables of docs/commissioning.md."""
+    s = summary(rows, cases)
+    n = s["rigs"]
+    lines = ["| commissioning | rigs |", "|---|---|", f"| drawn | {n} |",
+             f"| trusted at the first attempt | {s['commissioned_first_attempt']} |",
+             f"| trusted (with a second attempt where suggested) | {s['commissioned']} |",
+             f"| trusted with a value outside 3 sigma of its truth | {s['wrong_trusted']} |", "",
+             "| case | runs | within target | median % | worst % | oscillation stops | other stops |",
+             "|---|---|---|---|---|---|---|"]
+    for label, c in s["cases"].items():
+        med = "-" if c["median_pct"] is None else f"{c['median_pct']:.3g}"
+        worst = "-" if c["worst_pct"] is None else f"{c['worst_pct']:.3g}"
+        lines.append(f"| {label} (<= {c['target_pct']:g} %) | {c['runs']} | {c['within_target']} | {med} | {worst} | "
+                     f"{c['oscillation_stops']} | {c['other_stops']} |")
+    reasons: dict[str, int] = {}
+    for r in rows:
+        if not r["trusted"]:
+            problems = r["problems"] if isinstance(r["problems"], list) else r["problems"].split("; ")
+            for key in sorted({problem_category(p) for p in problems}):
+                reasons[key] = reasons.get(key, 0) + 1
+    if reasons:
+        lines += ["", "| refusal reason (of the refused rigs' last attempt) | rigs |", "|---|---|"]
+        lines += [f"| {k} | {v} |" for k, v in sorted(reasons.items(), key=lambda kv: -kv[1])[:10]]
+    return "\n".join(lines)
+
+
+def figure(rows: list[dict], title: str, cases: tuple = CASES):
+    """The tracking figures of the commissioned rigs per case (ECDF), and what became of every rig."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(cases) + 1, figsize=(5.0 * (len(cases) + 1), 4.5), squeeze=False)
+    ax0 = axes[0][0]
+    n = len(rows)
+    first = sum(1 for r in rows if r["first_trusted"])
+    trusted = sum(1 for r in rows if r["trusted"])
+    wrong = sum(1 for r in rows if r["trusted"] and r["wrong"])
+    ax0.bar(["trusted,\nfirst attempt", "trusted", "trusted with\na wrong value", "refused"],
+            [first, trusted, wrong, n - trusted], color=["tab:green", "tab:olive", "tab:red", "tab:gray"])
+    ax0.set_ylabel("rigs")
+    ax0.set_title(f"commissioning, {n} foreign rigs")
+    for ax, (label, _a, _f, target) in zip(axes[0][1:], cases, strict=True):
+        v = np.sort([100 * r[f"{label}.share"] for r in rows if r.get(f"{label}.share") is not None
+                     and r.get(f"{label}.stopped_s") is None])
+        stopped = sum(1 for r in rows if r.get(f"{label}.stopped_s") is not None)
+        if v.size:
+            ax.step(v, np.arange(1, v.size + 1) / max(trusted, 1), where="post",
+                    label=f"ran to the end ({v.size}); stopped: {stopped}")
+        ax.axvline(100 * target, color="k", lw=0.8, ls=":", label=f"target {100 * target:g} %")
+        ax.set_xscale("log")
+        ax.set_xlabel("RMS |y - r| of the verdict, % of the amplitude")
+        ax.set_ylabel("share of the commissioned rigs")
+        ax.set_title(label)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return fig
