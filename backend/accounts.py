@@ -13,10 +13,12 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import os
 import re
 import secrets
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
+from pathlib import Path
 
 from argon2 import PasswordHasher
 from argon2.exceptions import InvalidHashError, VerificationError
@@ -26,6 +28,7 @@ from sqlalchemy.orm import Session
 from .models import Credential, UserAccount, utcnow
 
 ROLES = ("viewer", "operator", "approver", "admin")
+FIRST_PASSWORD_FILE = "first-admin-password.txt"  # in the data directory: the first admin's password, mode 0600
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._@-]{0,63}$")
 NAME_RULE = "1-64 characters: letters, digits and . _ @ -, starting with a letter or digit"
 PASSWORD_MIN_CHARS = 10
@@ -145,7 +148,7 @@ def ensure_service_account(session: Session) -> UserAccount:
 
 def first_admin(session: Session) -> tuple[str, str] | None:
     """On the first start (no account with a password yet): create ``admin`` with a random password and return
-    (name, password) for the server's terminal; else None."""
+    (name, password), for ``write_first_password``; else None."""
     people = session.scalars(select(UserAccount).where(UserAccount.password_hash.is_not(None))).first()
     if people is not None:
         return None
@@ -264,3 +267,26 @@ def acting_name(account: str, given: str, field: str) -> str:
         raise AccountError(f"{field} is who is logged in ({account}); leave it out or give {account!r}, not "
                            f"{given!r}: every record names the account that acted")
     return account
+
+
+def write_first_password(path: Path, password: str) -> Path:
+    """The first admin's password (one line, as ``isorig user --password-file`` reads) written to ``path``, owner
+    only (0600) from its first byte: a new file beside it, renamed over any old one, so no other account on the
+    machine ever reads it and no log or terminal ever holds it. A missing directory is made 0700. Its path."""
+    from .db import owner_only_dir
+
+    path = Path(path)
+    owner_only_dir(path.parent)
+    spare = path.with_name(f".{path.name}.{secrets.token_hex(4)}.new")
+    fd = os.open(spare, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o600)
+    try:
+        os.fchmod(fd, 0o600)  # the umask never widens it; fchmod only narrows what open made
+        with os.fdopen(fd, "w", encoding="utf-8") as out:
+            out.write(password + "\n")
+            out.flush()
+            os.fsync(out.fileno())
+        os.replace(spare, path)
+    except BaseException:
+        spare.unlink(missing_ok=True)
+        raise
+    return path

@@ -2,7 +2,8 @@
 
 At creation the database is migrated (Alembic) and any test of this service's rig left ``running`` by a dead
 service is marked ``interrupted`` (another rig's service may share the database: its tests are left alone).
-Accounts (backend.accounts): the first start creates ``admin`` and prints its password on the server's terminal;
+Accounts (backend.accounts): the first start creates ``admin`` and writes its password to a file of mode 0600 in
+the data directory (``first-admin-password.txt``), saying only where on the server's terminal;
 ``ISORIG_OPERATOR_TOKEN``, where set, is the token of the service account ``automation``. Routes: ``/api/...``
 (REST, OpenAPI at ``/docs``), ``/ws/...`` (websocket schema v1), the 3D viewer if ``backend.viewer`` is
 installed, and the dashboard's static files at ``/``.
@@ -15,6 +16,7 @@ import logging
 import sys
 import threading
 from contextlib import asynccontextmanager
+from pathlib import Path
 
 from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
@@ -33,14 +35,22 @@ from .stream import Hub
 log = logging.getLogger("isorig")
 
 
-def bootstrap_accounts(sessions, service_token: bool) -> tuple[str, str] | None:
+def bootstrap_accounts(sessions, service_token: bool, password_file: Path | None = None) -> tuple[str, str] | None:
     """The service account (if a service token is set) and, on the first start, ``admin`` (its name and password
-    returned). Several rigs' services may start together on one database: one at a time (db.startup_lock)."""
+    returned; the password written to ``password_file`` before the account is committed, so an account is never
+    made whose password nobody was told). Several rigs' services may start together on one database: one at a
+    time (db.startup_lock)."""
     with sessions() as session:
         db.startup_lock(session)
         if service_token:
             accounts.ensure_service_account(session)
         first = accounts.first_admin(session)
+        if first is not None and password_file is not None:
+            try:
+                accounts.write_first_password(password_file, first[1])
+            except OSError as exc:  # no account is made whose password nobody could read
+                raise RuntimeError(f"cannot write the first admin's password to {password_file} ({exc.strerror}): "
+                                   "give a data directory this user can write (--data-dir, ISORIG_DATA_DIR)") from None
         session.commit()
     return first
 
@@ -79,7 +89,8 @@ def create_app(settings: Settings | None = None, driver: str | None = None) -> F
     if interrupted:
         log.warning("tests %s were running when the service stopped: marked interrupted", interrupted)
     service_token = settings.operator_token.get_secret_value() if settings.operator_token else ""
-    first = bootstrap_accounts(sessions, bool(service_token))
+    password_file = settings.data_dir / accounts.FIRST_PASSWORD_FILE
+    first = bootstrap_accounts(sessions, bool(service_token), password_file)
     hub = Hub(settings.stream_history_s)
     service = RigService(settings, sessions, hub, driver)
     checks = CheckPool(service.context, settings.check_workers, settings.check_queue,  # heavy token-free work
@@ -94,10 +105,12 @@ def create_app(settings: Settings | None = None, driver: str | None = None) -> F
         threading.Thread(target=fitter.resume, daemon=True, name="isorig-fit-resume").start()
         if settings.report_warm_up:
             app.state.report_warm = _warm_reports(sessions)
-        if first is not None:  # told once, on the server's terminal only (never to a browser)
-            print(f"isorig: first start: created the account '{first[0]}' (role admin) with the password "
-                  f"{first[1]}\n        log in at http://{settings.host}:{settings.port}/ and add the lab's accounts "
-                  "with `isorig user add NAME --role operator` (`isorig user --help`)", file=sys.stderr, flush=True)
+        if first is not None:  # where its password is, on the server's terminal only (never the password itself)
+            print(f"isorig: first start: created the account '{first[0]}' (role admin); its password is in "
+                  f"{password_file} (mode 0600: only this user reads it)\n        log in at "
+                  f"http://{settings.host}:{settings.port}/ as {first[0]} with it, then delete the file; add the "
+                  "lab's accounts with `isorig user add NAME --role operator` (`isorig user --help`)",
+                  file=sys.stderr, flush=True)
         try:
             yield
         finally:

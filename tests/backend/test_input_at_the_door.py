@@ -1,10 +1,11 @@
 """Input at the door (issue 33, item 5): a test's and a move's speed within documented ranges, checked before
 anything is built; JSON numbers that are numbers (no strings, no booleans) in every numeric field; a database
-file that is empty or not a database refused with its path. Each finding failed on the code before its fix
-(6f24fb7)."""
+file that is empty or not a database refused with its path; the first admin's password in a 0600 file, never on
+the terminal. Each finding failed on the code before its fix (6f24fb7)."""
 
 from __future__ import annotations
 
+import logging
 import stat
 import time
 
@@ -203,3 +204,25 @@ def test_only_a_missing_database_file_is_created_and_whole(tmp_path):
     db.make_engine(f"sqlite:///{path}").dispose()  # an existing database is used as it is
     assert path.stat().st_size > 4096
 
+
+# --- the first admin's password ----------------------------------------------------------------------------------
+
+
+def test_the_first_admins_password_goes_to_an_owner_only_file_never_to_the_terminal(tmp_path, capsys, caplog):
+    """It went to stderr, and so into any captured log (docker compose logs, journald, a CI log)."""
+    caplog.set_level(logging.DEBUG)
+    data = tmp_path / "data"  # made by the service (0700)
+    with TestClient(create_app(make_settings(data))) as c:
+        said = capsys.readouterr().err
+        path = data / "first-admin-password.txt"
+        assert stat.S_IMODE(path.stat().st_mode) == 0o600 and stat.S_IMODE(data.stat().st_mode) == 0o700
+        password = path.read_text()
+        assert password.endswith("\n") and len(password.strip()) >= 20, "one line: the password"
+        password = password.strip()
+        assert password not in said and not any(password in r.getMessage() for r in caplog.records)
+        assert f"its password is in {path}" in said and "log in at http://" in said, said
+        r = c.post("/api/session", json={"name": "admin", "password": password})
+        assert r.status_code == 200 and r.json()["role"] == "admin", r.text
+    path.unlink()  # as the terminal says, once logged in
+    with TestClient(create_app(make_settings(data))):  # a second start makes no admin and writes nothing
+        assert "first start" not in capsys.readouterr().err and not path.exists()
