@@ -49,6 +49,10 @@ def register(sub) -> None:
                    help="the position sensor sticks, reads NaN or reads out of range (silently)")
     g.add_argument("--sensor-fault-after-s", type=float, default=0.0, help="when the sensor fault begins")
     g.add_argument("--supply-loss-after-s", type=float, help="the pump stops: supply pressure decays from this time")
+    g.add_argument("--supply-rise-s", type=float, metavar="S",
+                   help="a pump that takes time: after ARM the supply pressure goes from the previous setting (0 at "
+                        "the first ARM) towards the asked one with time constant S s, instead of at once "
+                        "(docs/rig-protocol.md, 3.1)")
     d = p.add_argument_group("protocol defects (only for testing isorig check-rig: a rig that does not conform)")
     d.add_argument("--defect", action="append", default=[], choices=tuple(DEFECTS), metavar="NAME",
                    help="break one rule of docs/rig-protocol.md on purpose (repeatable): "
@@ -91,7 +95,8 @@ def run(args) -> int:
     except ValueError as exc:
         raise UsageError(f"isorig rig-emulator: {exc}") from None
     faults = Faults(args.packet_loss_pct, args.latency_ms, args.jitter_ms, args.drop_link_after_s,
-                    args.restart_after_s, args.sensor_fault, args.sensor_fault_after_s, args.supply_loss_after_s)
+                    args.restart_after_s, args.sensor_fault, args.sensor_fault_after_s, args.supply_loss_after_s,
+                    args.supply_rise_s)
     rig, plant_name, plant_source = plant(args)
     foreign = None
     if args.foreign_rig is not None:
@@ -124,6 +129,8 @@ def run(args) -> int:
     changed = config.plant()["changed"]
     plant_text = config.plant_name + (f" ({', '.join(f'{k}={v:g}' for k, v in changed.items())})" if changed else "")
     defects = f", DEFECTS {', '.join(config.defects)} (for testing check-rig)" if config.defects else ""
+    if faults.supply_rise_s is not None:
+        defects += f", pump rising to each ARM's supply with time constant {faults.supply_rise_s:g} s"
     if emulator.forge_port is not None:
         defects += (f", TAPPED to 127.0.0.1:{config.tap_port}, forging port {emulator.forge_port} (for the "
                     "link-attack tests)")

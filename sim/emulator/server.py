@@ -11,7 +11,10 @@ does. Before ARM and after DISARM it only answers HELLO; the valve stays closed 
 Faults are injected by ``Faults`` (the ``isorig rig-emulator`` flags), timed from the ARM of the test:
 packet loss (each datagram, both ways), added latency and jitter on measurements, a link that drops for
 good, a restart (the rig forgets session and host: nothing moves until a new ARM), a position sensor
-stuck, NaN or out of range (silent: the host must see it in the values), and supply pressure loss.
+stuck, NaN or out of range (silent: the host must see it in the values), and supply pressure loss. A pump
+that needs time to reach a new set point (``Faults.supply_rise_s``: after ARM the supply rises, or falls, from
+where it was towards what ARM asked, with that time constant) plays the rig of issue 32 whose host judged the
+supply on measurement 0.
 The link is protocol version 2 (every packet tagged with the lab's key, the session's key derived from the
 rig's challenge at ARM: sim.emulator.auth) or, when ``security`` says so, the unauthenticated version 1.
 ``defects`` break the protocol on purpose (sim.emulator.defects): a rig that does not conform, for testing
@@ -55,6 +58,7 @@ SENSOR_FAULTS = ("stuck", "nan", "out-of-range")
 TAP_IN, TAP_OUT, FORGE_TO_RIG, FORGE_TO_HOST = b">", b"<", b"R", b"H"
 OUT_OF_RANGE_M = 1.0  # what a broken position sensor reads in the out-of-range fault
 SUPPLY_LOW_FRACTION = 0.5
+SUPPLY_RISE_DONE = 1e-3  # a rising supply this close to its set point (share of it) is set to it: the rise ends
 STALE_PERIODS = 10  # a command answering a measurement older than this is stale
 SPIN_S = 2e-4  # the loop sleeps until this long before a tick, then polls
 #: the status writer holds the GIL for ~3 ms (its JSON) twice a second; with CPython's default switch interval (5 ms)
@@ -77,6 +81,9 @@ class Faults:
     sensor_fault: str | None = None
     sensor_fault_after_s: float = 0.0
     supply_loss_after_s: float | None = None
+    #: a pump that takes time: after ARM the supply goes from where it was (the previous ARM's setting, or 0 at
+    #: the first) towards the asked one with this time constant, instead of at once (None: at once)
+    supply_rise_s: float | None = None
 
     def check(self) -> None:
         """A clear ValueError for anything out of range."""
@@ -90,6 +97,9 @@ class Faults:
             value = getattr(self, name)
             if value is not None and not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"{name} = {value!r} s must be a time >= 0 s")
+        if self.supply_rise_s is not None and not (math.isfinite(self.supply_rise_s) and
+                                                   0.0 < self.supply_rise_s <= 3600.0):
+            raise ValueError(f"supply rise = {self.supply_rise_s!r} s must be a time constant in (0, 3600] s")
         if self.sensor_fault is not None and self.sensor_fault not in SENSOR_FAULTS:
             raise ValueError(f"sensor fault {self.sensor_fault!r} is unknown; allowed: {', '.join(SENSOR_FAULTS)}")
 
@@ -230,6 +240,7 @@ class RigEmulator:
         self.last_latency_us = 0
         self.session_key: bytes | None = None  # version 2: the armed session's key
         self.arm_challenge = b""  # ... and the challenge its ARM carried
+        self.supply_rise: tuple[float, float, float] | None = None  # (from Pa, to Pa, ARM time): the pump rising
 
     def test_time(self, now: float) -> float | None:
         return None if self.arm_time is None else now - self.arm_time
@@ -326,8 +337,14 @@ class RigEmulator:
         self.arm_time = arrival
         self.last_command_time = arrival
         self.supply_set_pa = supply
-        self.plant.set_conditions(supply, load)  # the pump's set point and the jack (friction follows the load)
         self.vertical_load_n = load
+        if self.faults.supply_rise_s is None:
+            self.plant.set_conditions(supply, load)  # the pump's set point and the jack (friction follows the load)
+        else:  # the pump starts from where the supply is (the last setting; 0 at the first ARM)
+            start = self.plant.supply_pa
+            start = start if math.isfinite(start) and start > 0.0 else 0.0
+            self.supply_rise = (start, supply, arrival)
+            self._pump(start)
         if self.codec.version == 2:
             self.session_key = auth.session_key(self.lab_key, challenge, packet.session)
             self.arm_challenge = challenge
@@ -419,11 +436,31 @@ class RigEmulator:
         if self._fault_due(faults.drop_link_after_s, now):
             self.counters["link_dropped"] = True
         if self._fault_due(faults.supply_loss_after_s, now):
+            self.supply_rise = None  # the pump stopped
             t = self.test_time(now) - faults.supply_loss_after_s
             self.plant.lose_supply(t, self.supply_set_pa)
+        if self.supply_rise is not None and self.armed:
+            self._rise(now)
         if self.armed:
             self.sequence += 1
             self._send_measurement(self.host_addr, self.session, self.sequence, extra_status=status_missed)
+
+    def _rise(self, now: float) -> None:
+        """The pump on its way to the set point (``Faults.supply_rise_s``): one exp and one set per tick."""
+        start, target, t0 = self.supply_rise
+        left = (start - target) * math.exp(-(now - t0) / self.faults.supply_rise_s)
+        if abs(left) <= SUPPLY_RISE_DONE * target:
+            left, self.supply_rise = 0.0, None
+        self._pump(target + left)
+
+    def _pump(self, supply_pa: float) -> None:
+        """The supply the pump delivers now. A foreign rig's pump and accumulator follow the rising set point at
+        the pump's own flow (``pump_ready=False``): jumping its accumulator would also reset its chambers every
+        tick, in the middle of a test's first motion."""
+        if self.config.foreign_rig is not None:
+            self.plant.set_conditions(supply_pa, self.vertical_load_n, pump_ready=False)
+        else:
+            self.plant.set_conditions(supply_pa, self.vertical_load_n)
 
     def _reading(self, m) -> float:
         faults = self.faults
@@ -594,7 +631,8 @@ class RigEmulator:
                 "plant": self.config.plant(), "defects": sorted(self.defects), "period_s": self.period_s,
                 "watchdog_s": self.config.watchdog_s, "faults": asdict(self.faults),
                 "armed": self.armed, "session": self.session, "sequence": self.sequence,
-                "supply_pa": self.supply_set_pa, "vertical_load_n": self.vertical_load_n,
+                "supply_pa": self.supply_set_pa, "supply_measured_pa": self.plant.supply_pa,
+                "vertical_load_n": self.vertical_load_n,
                 "command_v": self.command_v, "position_m": self.plant.position_m,
                 "counters": dict(self.counters), "rejected": dict(self.rejected),
                 "command_latency": self.latency.summary(above_ms=self.period_s * 1e3),
