@@ -9,10 +9,16 @@ sets the rhythm by blocking until its next period; a simulated rig is paced here
 never touches the database: the server stores and streams what it sends, so a crash here loses nothing
 that was sent.
 
+After ARM and before the test's clock starts, the worker answers every measurement with 0 V until the
+measured supply pressure reaches ``SUPPLY_SETTLE_FRACTION`` of the asked one (a real pump needs time to reach
+a new set point; the simulated rig is there at once), at most ``SUPPLY_SETTLE_TIMEOUT_S``
+(``Run.settle_supply``); only then does period 0 of the loop run, and the supply-loss detector judge.
+
 Every way a test ends closes the valve and says why: completed; ``stop`` (the operator: the target ramps
 out, then ``stopped``); a limit trip (the command ramps to zero open loop, ``aborted``); ``abort`` (0 V at
-once, ``aborted``); a rig fault or a lost link (``failed``: the rig's own watchdog closes the valve when
-the link is gone); an error in the worker (``failed``). The driver is disarmed on every path.
+once, ``aborted``); a rig fault, a lost link or a supply that did not come up after ARM (``failed``: the rig's
+own watchdog closes the valve when the link is gone); an error in the worker (``failed``). The driver is
+disarmed on every path.
 
 Messages to the server (tuples): ``("started", {...})``, ``("samples", rows)`` (an (n, len(SAMPLE_FIELDS))
 array, sim.samples), ``("hybrid", {...})`` (a hybrid test, just before each chunk's samples: ``monitor``, the
@@ -25,6 +31,7 @@ Commands from the server: ``"stop"`` and ``"abort"``.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import queue
 import signal
@@ -42,7 +49,7 @@ from sim.detectors import follow_monitor, guard_trip
 from sim.engine import Scenario
 from sim.isolator import isolator_from_dict
 from sim.loop import CONTROL_PERIOD_S, ClosedLoop
-from sim.measurement import Measurement, measured_rows
+from sim.measurement import RIG_FAULT_BITS, Measurement, describe_status, measured_rows
 from sim.profiles import B_CYCLES, B_TAPER, blocks_from_dicts
 from sim.realtime import RealtimeSection, raise_priority, realtime_priority
 from sim.rig import DEFAULT_RIG
@@ -59,6 +66,11 @@ CHECK_PERIODS = 10  # safety detectors run every 10 control periods (10 ms of te
 GIL_SWITCH_INTERVAL_S = 0.0005  # CPython's default is 5 ms, longer than the 2 ms lateness budget
 SPIN_S = 0.001  # the pacer sleeps until this long before a chunk is due, then polls the clock (~5 % of one CPU)
 LINK_REPORT_S = 0.25  # test time between link-health messages of a driver with a link
+#: after ARM the test's clock starts once the measured supply pressure is this share of the asked one ...
+SUPPLY_SETTLE_FRACTION = 0.9
+#: ... or the run ends before any motion when it is not within this long of ARM (the job's
+#: ``supply_settle_timeout_s`` overrides it). A real pump reaches its set point within a second or two.
+SUPPLY_SETTLE_TIMEOUT_S = 5.0
 
 
 class ServerGone(Exception):
@@ -265,6 +277,9 @@ class Run:
         # (``after_answer``), so that no measurement waits for more than one piece
         self.after_answer_work: deque[tuple[str, object]] = deque()
         self.answered = False  # a command was written for the rig's current period: wait for the next one
+        # the rig's period of the loop's period 0: the periods the host waited for the supply (settle_supply)
+        self.period_base = 0
+        self.supply_settle: dict | None = None  # the wait for the supply, when there was one (in ``pacing``)
         self.pacer: Pacer | None = None
         self.trip: Trip | None = None
         self.lost_periods = 0
@@ -329,6 +344,10 @@ class Run:
             self.realtime_section = section.granted
             driver.arm(ArmConditions(self.scenario.supply_pa, self.scenario.effective_vertical_load_n,
                                      self.job.get("test_id")))
+            ended = self.settle_supply()
+            if ended is not None:  # the operator ended it while the supply rose: nothing moved
+                status, reason = ended
+                return status, reason
             status, reason = self._run()
             return status, reason
         except RigFault as exc:
@@ -466,6 +485,9 @@ class Run:
                 if self.answered:
                     driver.wait_next_period()
                 m = driver.read()
+                if self.period_base:  # the test's clock started after the host waited for the supply
+                    m = dataclasses.replace(m, period=m.period - self.period_base,
+                                            time_s=(m.period - self.period_base) * CONTROL_PERIOD_S)
                 if not self.answered:
                     self.check_start(m)
                 if self.hybrid is not None:
@@ -500,12 +522,83 @@ class Run:
 
     def check_start(self, m: Measurement) -> None:
         """The first reading after arming: the table must rest where the target begins (the service and the
-        command line ask the rig before; this is the check that cannot be raced), else no command is sent."""
+        command line ask the rig before; this is the check that cannot be raced), else no command is sent (but
+        the 0 V of a wait for the supply, ``settle_supply``, which checks it before it waits)."""
         start_m = self.start_target_m
         tolerance_m = self.job.get("start_tolerance_m", START_TOLERANCE_M)
         if not abs(m.position_m - start_m) <= tolerance_m:
+            sent = "no command was sent" if self.supply_settle is None else "no command but 0 V was sent"
             raise RigFault(f"the table reads {m.position_m * 1e3:.2f} mm at arming and the run starts at "
-                           f"{start_m * 1e3:.2f} mm (within +-{tolerance_m * 1e3:g} mm): no command was sent")
+                           f"{start_m * 1e3:.2f} mm (within +-{tolerance_m * 1e3:g} mm): {sent}")
+
+    def settle_supply(self) -> tuple[str, str] | None:
+        """After ARM, before the test's clock starts: wait until the measured supply pressure is
+        ``SUPPLY_SETTLE_FRACTION`` of the asked one, answering every measurement with 0 V (the rig's watchdog
+        needs a command every period), at most ``supply_settle_timeout_s`` (wall time from ARM on a rig in real
+        time, the rig's own clock on a simulated one). A supply there at once (the simulated rig) costs one
+        read and nothing is written. Not there in time: ``RigFault`` with the figures, nothing but 0 V sent (the
+        run ends ``failed``, the rig disarmed). The loop's period 0 is then the measurement that reached it
+        (``period_base``), so the supply-loss detector judges only from there. A fault the rig reports meanwhile
+        ends it at once; the operator's stop, abort or the service's shutdown end it with nothing moved: the
+        final (status, reason), else None."""
+        driver = self.driver
+        asked_pa = self.scenario.supply_pa
+        need_pa = SUPPLY_SETTLE_FRACTION * asked_pa
+        m = driver.read()
+        if not m.supply_pressure_pa < need_pa:  # there (or not finite: the loop's detectors judge that at once)
+            return None
+        self.check_start(m)  # a table not where the run begins: nothing is sent, not even the 0 V of the wait
+        timeout_s = float(self.job.get("supply_settle_timeout_s", SUPPLY_SETTLE_TIMEOUT_S))
+        wall0 = time.perf_counter()
+        self.supply_settle = {"asked_pa": asked_pa, "fraction": SUPPLY_SETTLE_FRACTION, "timeout_s": timeout_s,
+                              "supply_at_arm_pa": m.supply_pressure_pa, "reached": False}
+        n = 0
+        while m.supply_pressure_pa < need_pa:
+            waited_s = time.perf_counter() - wall0 if self.rig.realtime else m.time_s
+            self.supply_settle.update(waited_s=waited_s, supply_pa=m.supply_pressure_pa)
+            if m.status & RIG_FAULT_BITS:
+                raise RigFault(f"the rig reports a fault ({describe_status(m.status & RIG_FAULT_BITS)}) "
+                               f"{waited_s:.2f} s after ARM, while its supply rose ({m.supply_pressure_pa / 1e5:.3g} "
+                               f"of {asked_pa / 1e5:.3g} bar): nothing but 0 V was sent")
+            if waited_s >= timeout_s:
+                raise RigFault(f"the supply reached only {m.supply_pressure_pa / 1e5:.3g} bar of "
+                               f"{asked_pa / 1e5:.3g} bar within {timeout_s:g} s after ARM (a run starts at "
+                               f"{SUPPLY_SETTLE_FRACTION:.0%} of it): check the pump, its set point and the supply "
+                               "line; nothing but 0 V was sent")
+            driver.write(0.0)
+            n += 1
+            if n % CHECK_PERIODS == 0:
+                ended = self.settle_ended(self.poll_command(), m.supply_pressure_pa, waited_s)
+                if ended is not None:
+                    return ended
+            driver.wait_next_period()
+            m = driver.read()
+        waited_s = time.perf_counter() - wall0 if self.rig.realtime else m.time_s
+        self.supply_settle.update(waited_s=waited_s, supply_pa=m.supply_pressure_pa, reached=True,
+                                  rig_periods=m.period)
+        self.period_base = m.period  # the loop answers this measurement: its period 0
+        if self.compiled is not None:  # a compiled path runs on the rig's own periods: per period from here
+            self.compiled = None
+        self.event("status", f"the supply reached {m.supply_pressure_pa / 1e5:.3g} bar of {asked_pa / 1e5:.3g} bar "
+                   f"{waited_s:.2f} s after ARM (the valve held at 0 V meanwhile); the test's clock starts now",
+                   dict(self.supply_settle), time_s=0.0)
+        return None
+
+    def settle_ended(self, command: str | None, supply_pa: float, waited_s: float) -> tuple[str, str] | None:
+        """An operator's command (or the service's shutdown) while the host waits for the supply: the run ends
+        with nothing moved (the driver is disarmed on the way out)."""
+        if command is None:
+            return None
+        status = {"abort": "aborted", "stop": "stopped", "shutdown": "interrupted"}.get(command)
+        if status is None:
+            return None
+        what = {"abort": "operator abort", "stop": "operator stop",
+                "shutdown": "the service was told to stop"}[command]
+        reason = (f"{what} {waited_s:.2f} s after ARM, while the host waited for the supply "
+                  f"({supply_pa / 1e5:.3g} of {self.scenario.supply_pa / 1e5:.3g} bar): nothing moved, the valve "
+                  "was held at 0 V and closed")
+        self.event("operator", reason, {"action": command}, time_s=0.0)
+        return status, reason
 
     def take_produced(self) -> Samples:
         rows, self.produced = Samples.concatenate(self.produced), []
@@ -598,6 +691,8 @@ class Run:
         stats = self.pacer.stats() if self.pacer is not None else {}
         if self.rig.realtime:
             stats = {"chunks": stats.get("chunks", 0), "realtime_rig": True}
+        if self.supply_settle is not None:  # the host waited for the supply after ARM
+            stats = {**stats, "supply_settle": dict(self.supply_settle)}
         return {**stats, "priority": self.priority, "realtime_section": self.realtime_section}
 
 
