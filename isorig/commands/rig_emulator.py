@@ -52,7 +52,7 @@ def register(sub) -> None:
     g.add_argument("--supply-rise-s", type=float, metavar="S",
                    help="a pump that takes time: after ARM the supply pressure goes from the previous setting (0 at "
                         "the first ARM) towards the asked one with time constant S s, instead of at once "
-                        "(docs/rig-protocol.md, 3.1)")
+                        "(docs/rig-protocol.md, 3.7)")
     d = p.add_argument_group("protocol defects (only for testing isorig check-rig: a rig that does not conform)")
     d.add_argument("--defect", action="append", default=[], choices=tuple(DEFECTS), metavar="NAME",
                    help="break one rule of docs/rig-protocol.md on purpose (repeatable): "
