@@ -240,7 +240,7 @@ class RigEmulator:
         self.last_latency_us = 0
         self.session_key: bytes | None = None  # version 2: the armed session's key
         self.arm_challenge = b""  # ... and the challenge its ARM carried
-        self.supply_rise: tuple[float, float, float] | None = None  # (from Pa, to Pa, ARM time): the pump rising
+        self.supply_rise: tuple[float, float, int] | None = None  # (from Pa, to Pa, ARM's tick): the pump rising
 
     def test_time(self, now: float) -> float | None:
         return None if self.arm_time is None else now - self.arm_time
@@ -343,7 +343,7 @@ class RigEmulator:
         else:  # the pump starts from where the supply is (the last setting; 0 at the first ARM)
             start = self.plant.supply_pa
             start = start if math.isfinite(start) and start > 0.0 else 0.0
-            self.supply_rise = (start, supply, arrival)
+            self.supply_rise = (start, supply, self.counters["ticks"])
             self._pump(start)
         if self.codec.version == 2:
             self.session_key = auth.session_key(self.lab_key, challenge, packet.session)
@@ -440,15 +440,18 @@ class RigEmulator:
             t = self.test_time(now) - faults.supply_loss_after_s
             self.plant.lose_supply(t, self.supply_set_pa)
         if self.supply_rise is not None and self.armed:
-            self._rise(now)
+            self._rise()
         if self.armed:
             self.sequence += 1
             self._send_measurement(self.host_addr, self.session, self.sequence, extra_status=status_missed)
 
-    def _rise(self, now: float) -> None:
-        """The pump on its way to the set point (``Faults.supply_rise_s``): one exp and one set per tick."""
-        start, target, t0 = self.supply_rise
-        left = (start - target) * math.exp(-(now - t0) / self.faults.supply_rise_s)
+    def _rise(self) -> None:
+        """The pump on its way to the set point (``Faults.supply_rise_s``): one exp and one set per tick. Timed
+        by the plant's ticks, as the rest of the plant: measurement n is n periods into the rise, and the pump
+        pauses with the plant when this process is not scheduled (1.6 of docs/rig-protocol.md)."""
+        start, target, k0 = self.supply_rise
+        t = (self.counters["ticks"] - k0) * self.period_s
+        left = (start - target) * math.exp(-t / self.faults.supply_rise_s)
         if abs(left) <= SUPPLY_RISE_DONE * target:
             left, self.supply_rise = 0.0, None
         self._pump(target + left)

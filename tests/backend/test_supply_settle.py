@@ -198,9 +198,10 @@ def test_the_emulators_pump_rises_with_its_time_constant(tmp_path):
             # measurement 0 comes at the tick after the ARM; the last one the host saw was a few ticks before the
             # DISARM arrived (the rise: up to 200 bar/s, 0.2 bar a period)
             assert seen[0][1] == pytest.approx(start_pa, abs=1.5e5), seen[0]
-            for t, p in seen[50::50]:  # the rig's clock: the tick of measurement 0 is up to a period after the ARM
-                expected = asked_pa + (start_pa - asked_pa) * math.exp(-t / 0.5)
-                assert p == pytest.approx(expected, abs=abs(asked_pa - start_pa) * 0.01), (t, p, expected)
+            p0 = seen[0][1]
+            for t, p in seen[50::50]:  # timed by the rig's ticks: measurement n is n periods into the rise
+                expected = asked_pa + (p0 - asked_pa) * math.exp(-t / 0.5)
+                assert p == pytest.approx(expected, abs=abs(asked_pa - p0) * 1e-3), (t, p, expected)
             start_pa = seen[-1][1]
             assert 0.4 * asked_pa < start_pa < 0.95 * asked_pa  # 0.3 s of 0.5 s: on its way
             time.sleep(1.0)
@@ -226,7 +227,9 @@ def test_a_test_waits_for_the_pump_then_completes(tmp_path):
         record = read_record(tmp_path / "run")
         assert record["time_s"].size == 1500 and record["time_s"][0] == 0.0  # the clock starts after the wait
         settle = summary["pacing"]["supply_settle"]
-        assert settle["reached"] is True and 1.0 <= settle["waited_s"] <= 1.6, settle
+        # 0.5 s ln 10 = 1.151 s: measurement 1152 is the first at 90 % (a later one if that one was lost); the wall
+        # time waited is longer when the emulator's ticks stall (a loaded machine)
+        assert settle["reached"] is True and 1152 <= settle["rig_periods"] <= 1170 and settle["waited_s"] > 1.1, settle
         assert settle["supply_pa"] >= SUPPLY_SETTLE_FRACTION * 100e5
         assert took_s >= 1.0 + 1.5
         status = emulator.fresh_status()
