@@ -724,7 +724,8 @@ class RigService:
         summary["tracking_verdict"] = tracking_verdict(samples, scenario.profile, summary.get("criteria")
                                                        if not scenario.profile else None,
                                                        advice=advice_for(scenario.controller),
-                                                       latency_s=scenario.rig.position_latency_s)
+                                                       latency_s=scenario.rig.position_latency_s,
+                                                       commissioning=scenario.rig_commissioning)
         return store.clean_json(summary)
 
     @staticmethod

@@ -213,14 +213,16 @@ def follow_monitor(scenario, table=None):
         r = table[:, 0] if table is not None and len(table) else scenario.history.r_m
         reference = reference_for([], r)
     return FollowMonitor(reference, scenario.rig.position_latency_s, limits_for(scenario.controller),
-                         advice_for(scenario.controller))
+                         advice_for(scenario.controller), getattr(scenario, "rig_commissioning", None),
+                         scenario.controller)
 
 
 def follow_monitor_like(monitor):
     """A fresh follow monitor with the settings of ``monitor``."""
     from .follow import FollowMonitor
 
-    return FollowMonitor(monitor.reference, monitor.lag * CONTROL_PERIOD_S, monitor.limits, monitor.advice)
+    return FollowMonitor(monitor.reference, monitor.lag * CONTROL_PERIOD_S, monitor.limits, monitor.advice,
+                         monitor.commissioning, monitor.controller)
 
 
 def verdict(trip: Trip | None, diverged: bool = False, time_s: float = 0.0) -> tuple[str, str | None]:

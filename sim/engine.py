@@ -53,6 +53,11 @@ class Scenario:
     #: a foreign rig (foreign_rigs.ForeignRigSpec: a rig written from the physics, not from sim's model) as the
     #: plant instead of ``plant_rig`` and ``plant_isolator``; ``rig`` stays what the controller is told
     foreign_rig: object | None = None
+    #: how the rig the controller is told was measured: the rig file's ``commissioning`` section
+    #: (sim.rigfile.RigDescription.commissioning) or its few facts (sim.follow.commissioning_facts); None for a rig
+    #: nobody commissioned. The follow monitor names an oscillation on a commissioned rig as the controller's, and
+    #: the tracking verdict judges with the latency's uncertainty (sim.follow)
+    rig_commissioning: dict | None = None
 
     def make_plant(self, substeps: int = PLANT_SUBSTEPS):
         """The simulated hardware of this scenario: sim's model (SimulatedPlant), or the foreign rig."""
@@ -393,7 +398,8 @@ class Result:
 
         return tracking_verdict(self.samples, self.scenario.profile, criteria,
                                 advice=advice_for(self.scenario.controller),
-                                latency_s=self.scenario.rig.position_latency_s)
+                                latency_s=self.scenario.rig.position_latency_s,
+                                commissioning=self.scenario.rig_commissioning)
 
 
 FOLLOW_CHECK_PERIODS = 10  # as the worker's detectors (backend.worker.CHECK_PERIODS; sim.detectors.CHECK_PERIODS)

@@ -150,6 +150,7 @@ def test_a_trip_among_many_lost_periods_blames_the_link_not_the_rig():
 def _state(monitor):
     """All a monitor carries from one block to the next, as bytes and numbers (NaN compared bit for bit)."""
     return (np.array(monitor.z).tobytes(), monitor.r_hist.tobytes(), monitor.e_hf.tobytes(),
+            monitor.e_comb.tobytes(), monitor.hf_ring.tobytes(),
             monitor.lost_recent.tobytes(), monitor.last_fresh, monitor.cycle_key, monitor.cycle_sum, monitor.cycle_n,
             monitor.cycle_steady, monitor.previous_share, monitor.steady_judged)
 
@@ -242,3 +243,118 @@ def test_the_compiled_sums_are_numpys():
     for n in range(1, FAST_BLOCK_MAX + 1):
         x = rng.normal(size=n) * 1e-4
         assert _sum_of_squares(x, n, dot_is_fused()) == float(np.dot(x, x))
+
+
+# ---- issue 32 item 5: the right cause on a commissioned rig, and an oscillation stopped within 2 s -----------
+#: a heavy table on a soft column (about 13 Hz: issue 32's rig 2 met a 13 Hz oscillation at 2 mm)
+HEAVY = {"mass_kg": 5000.0, "bulk_modulus_pa": 3.0e8}
+COMMISSIONED = {"date": "2026-11-27T10:00:00", "trusted": True, "max_velocity_m_per_s": 0.02,
+                "estimates": {"position_latency_s": {"value": 0.0, "std": 5e-5, "unit": "s", "meaning": "L"}}}
+
+
+def _onset_s(samples, scenario) -> float:
+    """When the oscillation starts, from a record the monitor did not stop: the first time the 0.1 s RMS of the
+    error above the monitor's corner (a fourth-order high-pass) reaches half the monitor's bound."""
+    from scipy import signal
+
+    from sim.follow import FollowLimits, late
+
+    block = scenario.profile[0]
+    lim = FollowLimits()
+    e = samples["measured_displacement_m"] - late(samples["target_m"], scenario.rig.position_latency_s / 1e-3)
+    corner = min(max(lim.corner_hz, lim.corner_harmonic * block.frequency_hz), 200.0)
+    hp = signal.sosfilt(signal.butter(4, corner, btype="highpass", fs=1000.0, output="sos"), np.nan_to_num(e))
+    c = np.concatenate([[0.0], np.cumsum(hp * hp)])
+    rms = np.sqrt((c[100:] - c[:-100]) / 100)
+    bound = max(lim.oscillation_share * block.amplitude_m, lim.floor_m)
+    return float(samples["time_s"][99 + np.flatnonzero(rms > 0.5 * bound)[0]])
+
+
+@pytest.mark.parametrize("plant, amplitude_m, frequency_hz", [(HEAVY, 0.002, 1.0), (HEAVY, 0.02, 0.5),
+                                                              (SOFT, 0.002, 1.0), (HARD, 0.002, 1.0)])
+def test_an_oscillation_is_stopped_within_2_s_of_its_start(plant, amplitude_m, frequency_hz):
+    """Rigs the controller is not told of oscillate at 13-27 Hz; each is stopped as an oscillation, within 2 s of
+    the oscillation's start (not by the tracking rule, 4-10 s in). Measured: 13 Hz 2 mm 0.37 s, 13 Hz 20 mm 0.22 s,
+    20 Hz 2 mm 0.54 s, 19 Hz 0.40 s after the start."""
+    free = run(plant, amplitude_m=amplitude_m, frequency_hz=frequency_hz, follow=False)
+    onset = _onset_s(free.samples, free.scenario)
+    trip = run(plant, amplitude_m=amplitude_m, frequency_hz=frequency_hz).trip
+    assert trip is not None and trip.values["kind"] == "oscillation", trip and trip.message
+    assert trip.time_s - onset <= 2.0, (onset, trip.time_s)
+
+
+def test_an_oscillation_on_a_commissioned_rig_is_the_controllers():
+    """Issue 32 item 5: a rig file written by isorig identify rig is what the controller was told; an oscillation
+    there is the loop's own, named with its frequency and what a lab can change, never 'commission it'. The same
+    rig without a commissioning keeps the advice to commission it."""
+    s = Scenario.sine("IUT_a", 100.0, 0.002, 1.0, 10, plant_changes=HEAVY, rig_commissioning=COMMISSIONED)
+    trip = Simulation(s, validate=False).run(follow=True).trip
+    assert trip is not None and trip.values["kind"] == "oscillation" and trip.values["commissioned"] is True
+    f = trip.values["frequency_hz"]
+    assert 10.0 < f < 20.0 and f"at {f:.0f} Hz" in trip.message
+    assert "commissioned on 2026-11-27" in trip.message and "controller's loop oscillating" in trip.message
+    assert "learning_gain" in trip.message and "pressure_feedback_max_damping" in trip.message
+    assert "--max-velocity-m-per-s 0.04" in trip.message  # twice the bound it was commissioned at
+    assert "commission it" not in trip.message and "not what the controller was told" not in trip.message
+    plain = run(HEAVY, amplitude_m=0.002, frequency_hz=1.0).trip
+    assert "commission it" in plain.message and plain.values["commissioned"] is False
+
+
+def test_simulate_with_a_commissioned_rig_file_names_the_controller(tmp_path, capsys):
+    """isorig simulate --rig-file passes the file's commissioning section to the monitor."""
+    import json
+
+    rig_file = tmp_path / "rig.json"
+    rig_file.write_text(json.dumps({"name": "commissioned", "commissioning": COMMISSIONED}))
+    code = main(["simulate", "--cycles", "10", "--frequency-hz", "1", "--amplitude-m", "0.002", "--rig-file",
+                 str(rig_file), "--plant-set", "mass_kg=5000", "--plant-set", "bulk_modulus_pa=3e8",
+                 "--out", str(tmp_path / "run")])
+    out = capsys.readouterr().out
+    assert code == 1 and "sustained oscillation" in out and "controller's loop oscillating" in out
+    assert "commission it" not in out
+
+
+# ---- issue 34 item 1: a component at a whole multiple of the test frequency is tracking error -----------------
+@pytest.mark.parametrize("frequency_hz, taper_cycles", [(0.5, 0), (1.0, 1)])
+def test_the_papers_mrac_is_not_stopped_as_an_oscillation(frequency_hz, taper_cycles):
+    """The paper's MRAC on IUT_a (20 mm) is 100 % of the amplitude off in its first cycles; a second-order
+    high-pass let that slow error's harmonics through and the test was stopped as 'a sustained oscillation near
+    1 Hz' (0.5 Hz, 0.665 s) or 'near 4 Hz' (1 Hz, 1.41 s). It is tracking error: the tracking rule may stop it."""
+    s = Scenario.sine("IUT_a", 100.0, 0.02, frequency_hz, 15, controller="mrac", taper_cycles=taper_cycles)
+    trip = Simulation(s).run(follow=True).trip
+    assert trip is None or trip.values["kind"] == "tracking", trip.message
+
+
+def _synthetic(frequency_hz=0.5, cycles=10, harmonic_share=0.018, harmonic=25, tone_hz=13.3, tone_share=0.0,
+               tone_from_s=5.0):
+    """A 20 mm sine the table follows, with a steady error at a whole multiple of the test frequency (above the
+    monitor's corner) and a tone of its own from ``tone_from_s``."""
+    from sim.samples import N_FIELDS
+
+    a = 0.02
+    n = int(round(cycles / frequency_hz / 1e-3))
+    t = np.arange(n) * 1e-3
+    rows = np.zeros((n, N_FIELDS))
+    s = Samples(rows)
+    r = a * np.sin(2 * np.pi * frequency_hz * t)
+    e = harmonic_share * a * np.sqrt(2) * np.sin(2 * np.pi * harmonic * frequency_hz * t + 0.3)
+    e += np.where(t >= tone_from_s, tone_share * a * np.sqrt(2) * np.sin(2 * np.pi * tone_hz * (t - tone_from_s)), 0)
+    s["time_s"][:] = t
+    s["target_m"][:] = r
+    s["measured_displacement_m"][:] = r + e
+    return s, [SineProfile(a, frequency_hz, cycles, 0)]
+
+
+def test_a_harmonic_of_the_test_is_not_counted_as_an_oscillation():
+    """A steady error at the 25th harmonic of a 0.5 Hz test (12.5 Hz, 1.8 % of the amplitude) and a tone of 13.3 Hz
+    at 1 % from 5 s: together 2.06 % above the corner, but only the tone is an oscillation, and it is within the
+    2 % bound. The same tone at 2.5 % is stopped, named near 13 Hz. Tracking is not judged here."""
+    from sim.follow import FollowLimits
+
+    limits = FollowLimits(rms_share=1.0)
+    samples, profile = _synthetic(tone_share=0.01)
+    assert FollowMonitor(reference_for(profile), limits=limits).feed(samples) is None
+    samples, profile = _synthetic(tone_share=0.025)
+    trip = FollowMonitor(reference_for(profile), limits=limits).feed(samples)
+    assert trip is not None and trip.kind == "oscillation" and 5.0 < trip.time_s < 5.6
+    assert 12.0 < trip.values["frequency_hz"] < 15.0

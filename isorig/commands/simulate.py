@@ -152,6 +152,10 @@ def run(args) -> int:
                              controller=args.controller, taper_cycles=args.taper_cycles, offset_m=args.offset_m,
                              controller_options=dict(args.controller_option), vertical_load_n=args.vertical_load_n,
                              rig=rig, plant_changes=plant_changes, timed_changes=timed_changes)
+    if args.rig_file:  # a commissioned rig file: the follow monitor and the verdict use how it was measured
+        from sim.rigfile import load_rig_file
+
+        scenario.rig_commissioning = load_rig_file(args.rig_file).commissioning
     if args.history or args.ground_motion:
         import dataclasses
 
