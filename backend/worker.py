@@ -47,6 +47,7 @@ import numpy as np
 from sim.controllers import make_controller
 from sim.detectors import follow_monitor, guard_trip
 from sim.engine import Scenario
+from sim.follow import commissioning_facts
 from sim.isolator import isolator_from_dict
 from sim.loop import CONTROL_PERIOD_S, ClosedLoop
 from sim.measurement import RIG_FAULT_BITS, Measurement, describe_status, measured_rows
@@ -133,7 +134,8 @@ def scenario_from_job(job: dict) -> Scenario:
     return Scenario(isolator, spec["supply_pa"], blocks_from_dicts(spec["profile"]),
                     spec["controller"],
                     dict(spec.get("controller_options") or {}), rig=rig, vertical_load_n=spec.get("vertical_load_n"),
-                    history=history, plant_changes=dict(spec.get("plant_changes") or {}))
+                    history=history, plant_changes=dict(spec.get("plant_changes") or {}),
+                    rig_commissioning=commissioning_facts(spec.get("rig_commissioning")))
 
 
 def earthquake_from_job(job: dict, isolator=None):

@@ -14,6 +14,7 @@ from fastapi.responses import Response, StreamingResponse
 from sim.controllers import CONTROLLER_NAMES, make_controller
 from sim.engine import Scenario
 from sim.errors import FieldError
+from sim.follow import commissioning_facts
 from sim.isolator import IsolatorError
 from sim.profiles import ProfileError, SineProfile, max_amplitude_m, max_frequency_hz, motion_summary
 from sim.rig import BAR_PA, RigParameters
@@ -135,7 +136,9 @@ def build_test(isolator, body: TestCreate, env: TestEnv) -> dict:
     job_scenario = {"isolator": isolator.to_dict(), "supply_pa": scenario.supply_pa,
                     "vertical_load_n": scenario.effective_vertical_load_n,
                     "profile": [b.to_dict() for b in blocks], "controller": body.controller,
-                    "controller_options": options, "rig_changes": scenario.describe()["rig_changes"]}
+                    "controller_options": options, "rig_changes": scenario.describe()["rig_changes"],
+                    # the commissioned latency's uncertainty and the follow monitor's advice (sim.follow)
+                    "rig_commissioning": commissioning_facts(getattr(env.rig_description, "commissioning", None))}
     asked = body.model_dump(mode="json")
     if earthquake is not None:  # the spec as asked rebuilds the target (the worker); the record shows it built
         job_scenario["earthquake"] = asked["profile"]

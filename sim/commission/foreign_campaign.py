@@ -103,11 +103,21 @@ def commission(spec, declared: RigParameters, max_stroke_m: float, max_velocity_
     return identify(samples, declared, conditions)
 
 
-def tested(spec, rig: RigParameters, amplitude_m: float, frequency_hz: float) -> dict:
-    """One sine on the foreign rig with the controller told ``rig``; with the service's follow monitor."""
+def commissioning_section(ident, max_velocity_m_per_s: float) -> dict:
+    """What a rig file's ``commissioning`` section tells the follow monitor and the verdict (sim.follow
+    commissioning_facts): trusted, the velocity bound, the latency's estimate with its uncertainty."""
+    latency = ident.fit.estimates["position_latency_s"]
+    return {"trusted": ident.trusted, "max_velocity_m_per_s": max_velocity_m_per_s,
+            "estimates": {"position_latency_s": {"value": latency.value, "std": latency.std}}}
+
+
+def tested(spec, rig: RigParameters, amplitude_m: float, frequency_hz: float,
+           commissioning: dict | None = None) -> dict:
+    """One sine on the foreign rig with the controller told ``rig`` (and its ``commissioning`` section: the verdict
+    judges the latency within its uncertainty); with the service's follow monitor."""
     scenario = Scenario.sine(load_isolator(CONTROLLER_ISOLATOR), SUPPLY_PA / 1e5, amplitude_m, frequency_hz,
                              TEST_CYCLES, rig=rig, vertical_load_n=float(spec.drawn["table.vertical_load_n"]),
-                             foreign_rig=spec)
+                             foreign_rig=spec, rig_commissioning=commissioning)
     result = Simulation(scenario, validate=False).run(follow=True)
     verdict = result.summary()["tracking_verdict"]
     trip = result.trip
@@ -147,8 +157,10 @@ def commission_and_test(run: ForeignRun) -> dict:
         if ident.trusted:
             row["wrong"] = wrong_values(values)
     if ident.trusted:
+        section = commissioning_section(ident, row.get("retry_max_velocity_m_per_s", run.max_velocity_m_per_s))
         for label, amplitude_m, frequency_hz, _target in run.cases:
-            row.update({f"{label}.{k}": v for k, v in tested(spec, ident.rig, amplitude_m, frequency_hz).items()})
+            row.update({f"{label}.{k}": v for k, v in
+                        tested(spec, ident.rig, amplitude_m, frequency_hz, section).items()})
     for key in ("actuator.rod", "valve.lap", "valve.spool_frequency_hz", "table.mass_kg", "specimen.kind",
                 "sensors.position_latency_s"):
         row[f"drawn.{key}"] = spec.drawn[key]

@@ -104,6 +104,8 @@ def test_a_rig_unlike_its_file_is_commissioned_trusted_and_becomes_the_services_
         assert rec["scenario"]["rig_changes"]["mass_kg"] == pytest.approx(3000.0, rel=0.05)
         assert rec["scenario"]["plant_changes"] == PLANT  # the record says the plant was not its rig file
         assert rec["summary"]["tracking_verdict"]["words"]
+        # judged with the commissioned latency's uncertainty (the job carries the rig file's commissioning facts)
+        assert rec["summary"]["tracking_verdict"]["latency_std_s"] > 0
     # a restart without --rig-file keeps the applied rig; with --rig-file that file wins
     with TestClient(create_app(make_settings(tmp_path, plant_set=PLANT_SET))) as client:
         rig = client.get("/api/rig").json()

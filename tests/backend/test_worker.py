@@ -12,6 +12,7 @@ from backend import worker
 from backend.drivers import RigFault, SimulatedRig
 from backend.safety import default_limits
 from backend.worker import Pacer, Run
+from sim.follow import commissioning_facts
 from sim.isolator import PRESETS
 from sim.profiles import SineProfile
 from sim.rig import DEFAULT_RIG
@@ -367,3 +368,17 @@ def test_a_cycles_loop_holds_only_the_periods_that_were_measured():
     kept = np.r_[1:100, 112:500]
     np.testing.assert_array_equal(cycle["displacement_m"], kept * 1e-5)
     np.testing.assert_array_equal(cycle["force_n"], kept * 10.0)
+
+
+def test_a_commissioned_rigs_facts_reach_the_worker_scenario():
+    """The job carries the rig file's commissioning facts (backend.api.tests.build_test), so the follow monitor gives
+    a commissioned rig's advice and the verdict judges the latency within its uncertainty (sim.follow)."""
+    section = {"trusted": True, "date": "2026-11-29T03:00:00Z", "max_velocity_m_per_s": 0.02,
+               "estimates": {"position_latency_s": {"value": 7e-4, "std": 1e-4}}}
+    spec = job()
+    assert worker.scenario_from_job(spec).rig_commissioning is None
+    spec["scenario"]["rig_commissioning"] = commissioning_facts(section)
+    facts = worker.scenario_from_job(spec).rig_commissioning
+    assert facts["position_latency_s"] == 7e-4 and facts["position_latency_std_s"] == 1e-4
+    spec["scenario"]["rig_commissioning"] = commissioning_facts({**section, "trusted": False})
+    assert worker.scenario_from_job(spec).rig_commissioning is None  # a refused fit is no commissioning
