@@ -33,10 +33,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
-from sim.engine import Result, Scenario, Simulation  # noqa: E402
+from sim.engine import Scenario, Simulation  # noqa: E402
 from sim.loop import CONTROL_PERIOD_S  # noqa: E402
 from sim.rig import DEFAULT_RIG  # noqa: E402
 from sim.samples import Samples  # noqa: E402
+from sim.tracking import tracking_summary  # noqa: E402
 
 QUIET_RANGE_M = 0.5e-3  # a window in which the target moves less than this is "still"
 WINDOW_S = 1.0
@@ -49,11 +50,13 @@ STRUCTURE = ROOT / "docs" / "examples" / "structure_3_storey.json"
 
 
 def quiet_windows(target_m: np.ndarray, command_v: np.ndarray, dt: float = CONTROL_PERIOD_S) -> dict:
-    """The worst command std (V) over the 1 s windows in which the target's range is below QUIET_RANGE_M, where
-    it starts (s) and how many such windows there are."""
+    """The worst command std (V) over the 1 s windows in which the target's range is below QUIET_RANGE_M (``std_v``,
+    where it starts ``at_s``, how many ``windows``), and over those of them that follow a second as still
+    (``settled_std_v``: the target was still for the second before too, so the window holds no motion a controller
+    had to follow a moment before)."""
     n = int(round(WINDOW_S / dt))
     step = int(round(STEP_S / dt))
-    worst, where, count = 0.0, float("nan"), 0
+    worst, where, count, settled = 0.0, float("nan"), 0, 0.0
     for i0 in range(0, max(len(target_m) - n, 0) + 1, step):
         r = target_m[i0:i0 + n]
         if not np.all(np.isfinite(r)) or np.ptp(r) >= QUIET_RANGE_M:
@@ -62,7 +65,10 @@ def quiet_windows(target_m: np.ndarray, command_v: np.ndarray, dt: float = CONTR
         sd = float(np.std(command_v[i0:i0 + n]))
         if sd > worst:
             worst, where = sd, i0 * dt
-    return {"std_v": worst, "at_s": where, "windows": count}
+        before = target_m[max(i0 - n, 0):i0 + n]
+        if i0 >= n and np.all(np.isfinite(before)) and np.ptp(before) < QUIET_RANGE_M:
+            settled = max(settled, sd)
+    return {"std_v": worst, "at_s": where, "windows": count, "settled_std_v": settled}
 
 
 def hybrid_case(scale: float, ground_motion: str = "near_field_short", options: dict | None = None) -> dict:
@@ -84,10 +90,12 @@ def hybrid_case(scale: float, ground_motion: str = "near_field_short", options: 
     sub, s, stopped, status = _simulated(building, ag, scenario)
     res = sub.results(s)
     q = quiet_windows(s["target_m"], s["voltage_v"])
-    # the tracking error where the target is quiet (the building's ringing the table no longer follows)
-    return {**q, "status": status, "j2_pct": res["criteria"]["j2_rms_percent"],
-            "j3_pct": res["criteria"]["j3_peak_percent"], "peak_error_um": 1e6 * float(np.max(np.abs(
-                s["displacement_m"] - s["target_m"])))}
+    # the quiet end: the windows after the target's largest displacement (a ground motion's start is quiet too)
+    peak = int(np.argmax(np.abs(s["target_m"])))
+    end = quiet_windows(s["target_m"][peak:], s["voltage_v"][peak:])
+    return {**q, "end_std_v": end["std_v"], "end_settled_std_v": end["settled_std_v"], "status": status,
+            "j2_pct": res["criteria"]["j2_rms_percent"], "j3_pct": res["criteria"]["j3_peak_percent"],
+            "peak_error_um": 1e6 * float(np.max(np.abs(s["displacement_m"] - s["target_m"])))}
 
 
 def sine_run(amplitude_m, frequency_hz, plant=None, options=None, hold_s=0.0):
@@ -96,7 +104,7 @@ def sine_run(amplitude_m, frequency_hz, plant=None, options=None, hold_s=0.0):
                        controller_options=dict(options or {}))
     sim = Simulation(sc, validate=False)
     main = sim.advance(sim.total_periods)
-    figure = Result(sc, main).summary()["last_two_cycles"]["rms_y_minus_r_over_amplitude"] * 100
+    figure = tracking_summary(main, sc)["last_two_cycles"]["rms_y_minus_r_over_amplitude"] * 100
     s = main
     if hold_s > 0:
         sim.loop.total_periods += int(round(hold_s / CONTROL_PERIOD_S))  # the target rests at its end value
@@ -137,10 +145,13 @@ def rig_row(job) -> dict:
         if a == 0.0005:
             dz = (plant or {}).get("dead_zone_v", DEFAULT_RIG.dead_zone_v)
             out["0.5mm crossings/cycle"] = crossings_per_cycle(main, f, max(dz, 0.05))
-        out[f"quiet std {a * 1e3:g}mm+hold"] = quiet_windows(s["target_m"], s["voltage_v"])["std_v"]
+        q = quiet_windows(s["target_m"], s["voltage_v"])
+        out[f"{a * 1e3:g}mm end std"] = q["std_v"]
+        out[f"{a * 1e3:g}mm end settled"] = q["settled_std_v"]
     for d, v in ((0.01, 0.005), (0.001, 0.001)):
         q = move_case(d, v, plant, options)
         out[f"move {d * 1e3:g}mm end std"] = q["std_v"]
+        out[f"move {d * 1e3:g}mm settled"] = q["settled_std_v"]
         out[f"move {d * 1e3:g}mm final err um"] = q["final_error_um"]
     return out
 
@@ -164,7 +175,9 @@ def main() -> None:
         for gm, scale in (("near_field_short", 1.0), ("near_field_short", 0.6), ("far_field_long", 0.6)):
             h = hybrid_case(scale, gm, options)
             print(f"  {gm} x{scale:g}: worst quiet-window command std {h['std_v']:.3f} V at {h['at_s']:.2f} s "
-                  f"({h['windows']} windows); {h['status']}, J2 {h['j2_pct']:.2f} %, J3 {h['j3_pct']:.2f} %, "
+                  f"({h['windows']} windows; after a still second {h['settled_std_v']:.3f} V); after the peak "
+                  f"{h['end_std_v']:.3f} V (after a still second {h['end_settled_std_v']:.3f} V); {h['status']}, "
+                  f"J2 {h['j2_pct']:.2f} %, J3 {h['j3_pct']:.2f} %, "
                   f"peak |y - r| {h['peak_error_um']:.0f} um")
     jobs = [("default", None, options)] + [(f"#{i}", drawn[i], options) for i in wanted]
     if args.processes > 1:
@@ -173,11 +186,13 @@ def main() -> None:
     else:
         rows = [rig_row(j) for j in jobs]
     keys = [k for k in rows[0] if k != "rig"]
-    print("(b) sine end held, (c) manual move's end: worst quiet-window command std, V (target <= 0.2); tracking, "
-          "% of amplitude (20 mm <= 0.1, 2 mm <= 0.5, 0.5 mm <= 1)")
-    print(f"{'rig':>8} " + " ".join(f"{k:>22}" for k in keys))
-    for r in rows:
-        print(f"{r['rig']:>8} " + " ".join(f"{r[k]:>22.3f}" for k in keys))
+    print("(b) a sine's end, held 3 s, (c) a manual move's end, held 3 s: worst quiet-window command std, V (target "
+          "<= 0.2; 'settled': windows after a still second); tracking, % of amplitude (20 mm <= 0.1, 2 mm <= 0.5, "
+          "0.5 mm <= 1); 0.5 mm: dead-zone crossings per cycle (2: one per reversal)")
+    width = max(len(k) for k in keys) + 1
+    print(f"{'rig':>{width}} " + " ".join(f"{r['rig']:>8}" for r in rows))
+    for k in keys:
+        print(f"{k:>{width}} " + " ".join(f"{r[k]:>8.3f}" for r in rows))
     print(f"options: {options or 'default'}; {time.perf_counter() - t0:.0f} s")
 
 
