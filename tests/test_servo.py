@@ -304,12 +304,18 @@ def test_a_time_history_ending_at_rest_leaves_the_valve_closed():
     assert rms < 10e-6 and std < 0.05 and crossings == 0
 
 
-def test_a_slow_small_motion_is_followed_without_chatter():
-    """A +-20 um oscillation at 2 Hz after the burst (a hybrid test's tail): the table follows it, and the valve
-    crosses its dead zone at the target's reversals only (6 in 1.5 s). Before the fix: 25 um RMS and 58 crossings
-    (the same 20 Hz limit cycle); after: 3 um and 6."""
-    rms, _std, crossings = quiet_tail(burst_history(ringing_m=20e-6))
-    assert rms < 6e-6 and crossings <= 8
+def test_a_slow_small_motion_is_held_with_a_still_valve():
+    """A +-20 um oscillation at 2 Hz after the burst (a hybrid test's tail). Issue 23 had the table follow it, the
+    valve crossing its dead zone at the target's reversals (6 in 1.5 s; 3 um RMS; before that fix a 20 Hz limit
+    cycle, 58 crossings). Issue 32 (item 4: a target that moves < 0.5 mm in a second gets a still valve) asks the
+    opposite of that following, since each crossing is a +-0.9 V swing of the command: now the valve stays inside
+    its dead zone (no crossing; its command moves to rest near the dead zone's middle at 0.5 V/s, 0.17 V std over
+    any second) and the table holds still within the oscillation (14 um RMS, 26 um at most)."""
+    history = burst_history(ringing_m=20e-6)
+    rms, _std, crossings = quiet_tail(history)
+    samples = Simulation(Scenario(load_isolator("IUT_a"), 100 * BAR_PA, [], history=history)).run().samples
+    worst, windows = worst_still_window_std(samples, from_s=3.5)
+    assert rms < 20e-6 and crossings == 0 and worst <= 0.2 and windows >= 10, (rms, crossings, worst)
 
 
 def test_the_rest_logic_is_the_time_histories_only():
@@ -336,3 +342,42 @@ def test_a_soft_column_plant_told_exactly_meets_the_tracking_targets(amplitude_m
     s = Scenario.sine("IUT_a", 100.0, amplitude_m, frequency_hz, 10, rig=rig, plant_changes=SOFT_COLUMN_PLANT)
     figure = Simulation(s).run().summary()["last_two_cycles"]["rms_y_minus_r_over_amplitude"]
     assert figure < 0.8 * target
+
+
+def worst_still_window_std(samples, from_s=0.0, window_s=1.0, still_range_m=0.5e-3):
+    """The worst standard deviation of the valve command (V) over the 1 s windows from ``from_s`` in which the target
+    moves less than 0.5 mm (its range), and how many such windows there are (scripts/still_valve.py)."""
+    n = int(round(window_s / CONTROL_PERIOD_S))
+    t, r, u = samples["time_s"], samples["target_m"], samples["voltage_v"]
+    worst, count = 0.0, 0
+    for i0 in range(int(np.searchsorted(t, from_s)), len(t) - n + 1, 50):
+        if np.ptp(r[i0:i0 + n]) < still_range_m:
+            worst, count = max(worst, float(np.std(u[i0:i0 + n]))), count + 1
+    return worst, count
+
+
+@pytest.mark.parametrize("options", [{}, {"still_share": 0.0}])
+def test_a_still_target_gets_a_still_valve(options):
+    """Issue 32, item 4: where the target barely moves the dead-zone inverse no longer switches with the sign of a
+    tiny demand (a relay: on a sine's final hold a 39 Hz limit cycle of 25 um, command std 0.88 V; under a target
+    ringing by +-0.15 mm at 2 Hz, a +-0.9 V square wave, 0.86 V). The compensated share of the dead zone then moves
+    slowly with the error's side: the command's std over any second in which the target moves < 0.5 mm (after a
+    second of it) stays <= 0.2 V, and the table holds the middle of the ringing. ``still_share`` 0: the old law."""
+    sine = Scenario.sine("IUT_a", 100.0, 0.002, 1.0, 12, controller_options=options)
+    sim = Simulation(sine)
+    sim.advance(sim.total_periods)
+    sim.loop.total_periods += 3000  # the target rests at 0 for 3 s after the sine's end
+    hold = sim.advance(3000)
+    ringing = Simulation(Scenario(load_isolator("IUT_a"), 100 * BAR_PA, [], controller_options=options,
+                                  history=burst_history(ringing_m=0.15e-3, rest_s=4.0))).run().samples
+    held_std, held_windows = worst_still_window_std(hold)
+    ring_std, ring_windows = worst_still_window_std(ringing, from_s=4.0)
+    assert held_windows > 30 and ring_windows > 30
+    quiet = ringing["time_s"] >= 4.0
+    error = (ringing["displacement_m"] - ringing["target_m"])[quiet]
+    if options:  # today's law, kept as the switch's 0: the relay
+        assert held_std > 0.5 and ring_std > 0.5, (held_std, ring_std)
+        return
+    assert held_std <= 0.2 and ring_std <= 0.2, (held_std, ring_std)
+    assert np.max(np.abs(hold["displacement_m"] - hold["target_m"])) < 10e-6  # the table stays where the sine ended
+    assert np.max(np.abs(error)) < 0.2e-3  # within the ringing's +-0.15 mm and the band, not behind it

@@ -9,7 +9,8 @@ tests the oil's compression flow fed forward). Design and stability argument: do
                                                                 compression flow (eq. 3 second line), fed forward
     u_l  = A_n (v / g) / (K_qn R(P_s - sgn(v) P_L))             inverse of the valve flow law, eq. (3) second line
     u    = u_l + DZ ramp(u_l / delta) - o + u_pf                dead-zone inverse (ramp over +-delta), null offset
-           (time histories: ramp((u_l - u_fb) / delta + u_fb / delta_fb), u_fb the command of K_p e + c_0)
+           (time histories: ramp((u_l - u_fb) / delta + u_fb / delta_fb), u_fb the command of K_p e + c_0; where
+           the target is still, the ramp's share moves at most 0.5 V/s towards the error's side: no relay)
     u_pf = -A_n k_pf HP(P_L) / (g K_qn R(P_s - sgn(v) P_L))     load-pressure feedback (soft oil columns only)
 
 R is the orifice law of the rig model: sqrt(dp), linear below the declared regularisation drop. g is the ratio of
@@ -90,7 +91,10 @@ P_JERK_LEAD, P_INTEGRAL = 27, 28
  P_OW, P_DP_REG, P_OVMIN, P_OVT) = range(29, 43)
 P_FB_RAMP, P_EDGE_TRIM = 43, 44
 (P_NH_FAST, P_FMAX_FAST, P_V_FAST, P_ZC_MAX, P_ZC_PER_V, P_COMP, P_CFMAX, P_CGAIN, P_WV, P_XV, P_CVMAX) = range(45, 56)
-N_PARAMS = 56
+# a still target (docs/controller.md, "A still target, a still valve")
+(P_STILL_SWING, P_STILL_SWING_V, P_STILL_SPEED_T, P_STILL_SPEED, P_STILL_ACC_T, P_STILL_RATE, P_STILL_BAND,
+ P_STILL_REST, P_STILL_SHARE) = range(56, 65)
+N_PARAMS = 65
 DELAY_LINE = 256  # periods of regressor and target history kept (valve estimate, position latency)
 
 # State indices; the delay line and the harmonic coefficients (real, imaginary) follow.
@@ -109,7 +113,13 @@ S_P = S_C + 2 * MAX_HARMONICS  # the load pressure's harmonics (Pa, real and ima
 S_PACC = S_P + 2 * MAX_HARMONICS  # ... their sums over the running cycle
 S_PCYC = S_PACC + 2 * MAX_HARMONICS  # 1: the running cycle has been steady throughout
 S_THETA_PREV = S_PCYC + 1  # the target's phase of the last period
-N_STATE = S_THETA_PREV + 1
+# a still target (target_stillness, still_dead_zone_share): the target's swings (where the running one began, its
+# extreme so far, its direction, the last whole swing, the one before and the largest, m), its recent peak speed
+# (m/s) and the
+# dead zone's compensated share (-1..1) of the last period
+(S_SWING_FROM, S_SWING_EXT, S_SWING_DIR, S_SWING_LAST, S_SWING_PREV, S_SWING_MAX, S_SPEED_REC, S_SIDE) = range(
+    S_THETA_PREV + 1, S_THETA_PREV + 9)
+N_STATE = S_SIDE + 1
 
 
 def _nominal_rig(rig=None) -> dict:
@@ -233,6 +243,30 @@ OPTIONS = {
     "compressibility_share": Option(0.0, 0.0, 1.0, "-", meaning="1: the valve estimate regresses the flow that "
                                     "compresses the oil, (V_0 / (2 beta)) P_L', with the table's (0, the default: the "
                                     "table's velocity alone, what the loop gain is about; measured better)"),
+    # a still target gets a still valve (issue 32; docs/controller.md, "A still target, a still valve")
+    "still_share": Option(1.0, 0.0, 1.0, "-", meaning="1: where the target is still the dead zone's compensation "
+                          "moves slowly and smoothly with the position error instead of switching with the "
+                          "demand's sign (0: off, the switch everywhere)"),
+    "still_swing_m": Option(5e-4, 0.0, 0.1, "m", meaning="a target that reverses within swings smaller than this "
+                            "(wholly; not at all from 1.5 times it) ..."),
+    "still_swing_speed_m_per_s": Option(5e-3, 0.0, 1.0, "m/s", meaning="... at a recent peak speed below this (wholly; "
+                                        "not at all from twice it) is still: a building ringing down, not a wiggle "
+                                        "in a shaking"),
+    "still_speed_window_s": Option(0.25, 1e-3, 10.0, "s", meaning="the recent peak speed forgets with this time "
+                                   "constant"),
+    "still_speed_m_per_s": Option(2e-5, 0.0, 1.0, "m/s", meaning="... and so is a target slower than this (a hold, a "
+                                  "move's last micrometres; not at all from twice it): about where the feed-forward's "
+                                  "narrow dead-zone ramp lets go of its side ..."),
+    "still_acceleration_s": Option(0.05, 0.0, 10.0, "s", meaning="... its speed taken with its acceleration times "
+                                   "this: a sine's reversal (no speed, an acceleration) is no rest"),
+    "still_command_rate_v_per_s": Option(0.5, 1e-3, 100.0, "V/s", meaning="where the target is still, the "
+                                         "compensated share of the dead zone follows the error's side, moving the "
+                                         "command by at most this (a ramp of 0.5 V/s: a std of 0.14 V over a "
+                                         "second)"),
+    "still_error_band_m": Option(3e-5, 1e-7, 0.01, "m", meaning="... towards the whole side of a position error "
+                                 "beyond this; within it the share stays where it is, at most still_rest_share"),
+    "still_rest_share": Option(0.2, 0.0, 1.0, "-", meaning="... so that the valve rests near the middle of its dead "
+                               "zone (a share of the dead zone)"),
 }
 DEFAULTS = {name: spec.default for name, spec in OPTIONS.items()}
 #: what a time history (no repeating cycle to learn) runs with: no harmonic learning; an integral on the position
@@ -324,7 +358,18 @@ def make_servo(rig=None, **options) -> Controller:
     params[P_CGAIN] = o["compression_gain"]
     params[P_WV] = o["valve_natural_frequency_rad_s"]
     params[P_XV] = o["valve_damping_ratio"]
+    params[P_STILL_SWING] = o["still_swing_m"]
+    params[P_STILL_SPEED] = o["still_speed_m_per_s"]
+    params[P_STILL_SPEED_T] = o["still_speed_window_s"]
+    params[P_STILL_RATE] = o["still_command_rate_v_per_s"]
+    params[P_STILL_BAND] = o["still_error_band_m"]
+    params[P_STILL_SHARE] = o["still_share"]
+    params[P_STILL_SWING_V] = o["still_swing_speed_m_per_s"]
+    params[P_STILL_ACC_T] = o["still_acceleration_s"]
+    params[P_STILL_REST] = o["still_rest_share"]
     state = np.zeros(N_STATE)
+    state[S_SWING_LAST] = 1.0  # no swing seen yet (1 m, more than any stroke): a target that starts moving moves
+    state[S_SWING_PREV] = -1.0  # ... and its first swing is one that grows
     state[S_GAIN] = 1.0
     state[S_DZ_HAT] = o["dead_zone_v"]
     # prior of the valve estimate: two pseudo-samples consistent with the nominal valve (g = 1, DZ = DZ_n),
@@ -566,6 +611,83 @@ def compression_feedforward(p, s, theta, omega, kp, p_meas, steady, dt):
 
 
 @njit(cache=True, error_model="numpy")
+def _smoothstep(x):
+    """0 below 0, 1 above 1, 3 x^2 - 2 x^3 between (continuous, with a continuous slope)."""
+    if x <= 0.0:
+        return 0.0
+    if x >= 1.0:
+        return 1.0
+    return x * x * (3.0 - 2.0 * x)
+
+
+@njit(cache=True, error_model="numpy")
+def target_stillness(p, s, r, rd, rdd, dt):
+    """How still the target is, 0 (it moves) to 1 (still): it reverses within swings below still_swing_m at a
+    recent peak speed below still_swing_speed_m_per_s, not growing (a building ringing down, a sine's last taper;
+    not its first, nor a ground motion's start), or it is slower than still_speed_m_per_s, its acceleration times
+    still_acceleration_s included (a hold, a move's end); smooth up to 1.5 times the swing, twice the speeds. A
+    swing is the travel between reversals (the largest of the last two and the running one counts), a reversal a
+    move back by 2 % of still_swing_m."""
+    eps = 0.02 * p[P_STILL_SWING]
+    direction = s[S_SWING_DIR]
+    if direction == 0.0:
+        if abs(r - s[S_SWING_FROM]) > eps:
+            s[S_SWING_DIR] = 1.0 if r > s[S_SWING_FROM] else -1.0
+            s[S_SWING_EXT] = r
+    elif (r - s[S_SWING_EXT]) * direction > 0.0:
+        s[S_SWING_EXT] = r
+    elif (s[S_SWING_EXT] - r) * direction > eps:
+        s[S_SWING_PREV] = s[S_SWING_LAST] if s[S_SWING_PREV] >= 0.0 else 0.0  # (the first: one that grows)
+        s[S_SWING_LAST] = abs(s[S_SWING_EXT] - s[S_SWING_FROM])
+        s[S_SWING_MAX] = max(s[S_SWING_MAX], s[S_SWING_LAST])
+        s[S_SWING_FROM] = s[S_SWING_EXT]
+        s[S_SWING_EXT] = r
+        s[S_SWING_DIR] = -direction
+    travel = abs(s[S_SWING_EXT] - s[S_SWING_FROM])
+    swing = max(s[S_SWING_LAST], s[S_SWING_PREV], travel)  # the last two and this one: one small swing is no rest
+    s[S_SPEED_REC] = max(abs(rd), s[S_SPEED_REC] * np.exp(-dt / p[P_STILL_SPEED_T]))
+    still = 0.0
+    if p[P_STILL_SWING] > 0.0 and p[P_STILL_SWING_V] > 0.0:
+        # not while swings of some size grow before any has been large (a sine's taper-in, a ground motion's start;
+        # a ringing that beats is still): from 1.2 times the one before (this one so far, or the last), from a
+        # quarter of still_swing_m, until a swing has passed 1.5 times it
+        growth = travel / s[S_SWING_LAST] if travel > s[S_SWING_LAST] else s[S_SWING_LAST] / max(s[S_SWING_PREV], 1e-12)
+        growing = (_smoothstep((growth - 1.2) / 0.3) * _smoothstep(4.0 * swing / p[P_STILL_SWING] - 1.0)
+                   * (1.0 - _smoothstep(2.0 * (s[S_SWING_MAX] / p[P_STILL_SWING] - 1.0))))
+        still = ((1.0 - _smoothstep(2.0 * (swing / p[P_STILL_SWING] - 1.0)))
+                 * (1.0 - _smoothstep(s[S_SPEED_REC] / p[P_STILL_SWING_V] - 1.0)) * (1.0 - growing))
+    if p[P_STILL_SPEED] > 0.0:
+        still = max(still, 1.0 - _smoothstep((abs(rd) + p[P_STILL_ACC_T] * abs(rdd)) / p[P_STILL_SPEED] - 1.0))
+    return p[P_STILL_SHARE] * still
+
+
+@njit(cache=True, error_model="numpy")
+def still_dead_zone_share(p, s, ramp_at, still, e, dz_c, dt):
+    """The dead zone's compensated share (-1..1): the demand's side (``ramp_at``, the switch of the dead-zone
+    inverse) where the target moves; where it is still (``still``, target_stillness) the whole side of a position
+    error beyond still_error_band_m, within it where it is (at most still_rest_share), reached moving the
+    command by at most still_command_rate_v_per_s (divided by ``still``^4; in between, the demand's side if
+    ``still`` < 1/2).
+    A relay in a loop with a lag (the valve, friction, the oil's give) has a limit cycle at any loop gain: its
+    describing function 4 DZ / (pi a) grows without bound as the amplitude a falls. Rate-limited, the share cannot
+    cross the dead zone (2 DZ) within a swing of a ringing target: the valve stays closed or on one side, the table
+    holds the middle of the swings, and at rest the valve closes, the table within the band, the command still."""
+    share = ramp_at
+    if still > 0.0:
+        # mostly still: the error's side; the rate limit falls from none (moving) to still_command_rate_v_per_s (as
+        # still^-4: 16 times it at still 1/2), so that the share is continuous and never a blend of two sides (half a
+        # dead zone compensated is a dead band)
+        goal = ramp_at
+        if still >= 0.5:  # the error's side beyond the band; within it where it is, near the dead zone's middle
+            rest = p[P_STILL_REST]
+            goal = min(max(s[S_SIDE], -rest), rest) if abs(e) <= p[P_STILL_BAND] else (1.0 if e > 0.0 else -1.0)
+        step = dt * p[P_STILL_RATE] / (still ** 4 * max(dz_c, 1e-3))
+        share = s[S_SIDE] + min(max(goal - s[S_SIDE], -step), step)
+    s[S_SIDE] = share
+    return share
+
+
+@njit(cache=True, error_model="numpy")
 def servo_step(p, s, meas, dt, report):
     """One control period of the learning servo controller (see the module docstring)."""
     r = meas[M_TARGET]
@@ -581,6 +703,8 @@ def servo_step(p, s, meas, dt, report):
             s[S_LINE_X + i] = np.nan
         for i in range(DELAY_LINE):
             s[S_LINE_R + i] = r
+        s[S_SWING_FROM] = r
+        s[S_SWING_EXT] = r
         s[S_STARTED] = 1.0
     rd1 = s[S_RD1]
     rd2 = s[S_RD2]
@@ -793,6 +917,9 @@ def servo_step(p, s, meas, dt, report):
                                         p[P_DP_REG], v_fb / gain, p[P_FB_RAMP])
     # the estimated dead zone, trimmed (time histories, slow motions: below)
     dz_c = p[P_DZ_FRAC] * max(s[S_DZ_HAT] + s[S_EDGE], p[P_DZ_LO])
+    # where the target is still, the dead zone's side moves slowly with the error instead of switching
+    still = target_stillness(p, s, r, rd, rdd, dt)
+    ramp_at = still_dead_zone_share(p, s, ramp_at, still, e, dz_c, dt)
     u = u_lin + dz_c * ramp_at - o_hat
     if v_pf != 0.0:
         # added after the dead-zone inverse, linearly: it moves the open valve, never switches the dead zone's side
