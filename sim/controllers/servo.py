@@ -244,7 +244,9 @@ OPTIONS = {
                                     "compresses the oil, (V_0 / (2 beta)) P_L', with the table's (0, the default: the "
                                     "table's velocity alone, what the loop gain is about; measured better)"),
     # a still target gets a still valve (issue 32; docs/controller.md, "A still target, a still valve")
-    "still_share": Option(1.0, 0.0, 1.0, "-", meaning="1: where the target is still the dead zone's compensation "
+    # off by default: it holds a hybrid test's small motions instead of following them (J2 0.67 -> 1.54 %, and
+    # 1.02 -> 6.10 % for far_field_long x 0.6; docs/controller.md): a lab switches it on for quiet holds
+    "still_share": Option(0.0, 0.0, 1.0, "-", meaning="1: where the target is still the dead zone's compensation "
                           "moves slowly and smoothly with the position error instead of switching with the "
                           "demand's sign (0: off, the switch everywhere)"),
     "still_swing_m": Option(5e-4, 0.0, 0.1, "m", meaning="a target that reverses within swings smaller than this "
