@@ -60,8 +60,8 @@ def main() -> int:
     if args.markdown:
         print(fc.markdown(rows))
     if args.figure:
-        fc.figure(rows, f"foreign rigs: {len(rows)} rigs, 100 bar, {fc.TEST_CYCLES} cycles").savefig(args.figure,
-                                                                                                   dpi=110)
+        title = f"foreign rigs: {len(rows)} rigs, 100 bar, {fc.TEST_CYCLES} cycles"
+        fc.figure(rows, title).savefig(args.figure, dpi=110, bbox_inches="tight")
         print(f"wrote {args.figure}", file=sys.stderr)
     return 0
 

@@ -411,7 +411,7 @@ def run_foreign(args) -> int:
             f.write(cc.csv_text([{k: ("; ".join(map(str, v)) if isinstance(v, list) else v) for k, v in r.items()}
                                  for r in rows]))
     if args.figure:
-        fc.figure(rows, title).savefig(args.figure, dpi=110)
+        fc.figure(rows, title).savefig(args.figure, dpi=110, bbox_inches="tight")
     if args.json:
         print(json.dumps(fc.summary(rows)))
     else:

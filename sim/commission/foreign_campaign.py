@@ -205,12 +205,11 @@ PROBLEM_CATEGORIES = (("force balance", "the force balance explains too little o
                       ("did not run to its end", "the excitation did not run to its end"))
 
 
-def problem_category(problem: str) -> str:
-    """The category of one refusal reason (PROBLEM_CATEGORIES), or its first words."""
-    for words, category in PROBLEM_CATEGORIES:
-        if words in problem:
-            return category
-    return problem[:80]
+def problem_categories(problem: str) -> set[str]:
+    """The categories of a refusal's text (PROBLEM_CATEGORIES; a text may hold several reasons), or its first
+    words."""
+    found = {category for words, category in PROBLEM_CATEGORIES if words in problem}
+    return found or {problem[:80]}
 
 
 def markdown(rows: list[dict], cases: tuple = CASES) -> str:
@@ -231,8 +230,8 @@ def markdown(rows: list[dict], cases: tuple = CASES) -> str:
     reasons: dict[str, int] = {}
     for r in rows:
         if not r["trusted"]:
-            problems = r["problems"] if isinstance(r["problems"], list) else r["problems"].split("; ")
-            for key in sorted({problem_category(p) for p in problems}):
+            problems = r["problems"] if isinstance(r["problems"], list) else [r["problems"]]
+            for key in sorted({c for p in problems for c in problem_categories(p)}):
                 reasons[key] = reasons.get(key, 0) + 1
     if reasons:
         lines += ["", "| refusal reason (of the refused rigs' last attempt) | rigs |", "|---|---|"]
@@ -246,8 +245,10 @@ def figure(rows: list[dict], title: str, cases: tuple = CASES):
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker  # noqa: F401  (NullFormatter below)
 
-    fig, axes = plt.subplots(1, len(cases) + 1, figsize=(5.0 * (len(cases) + 1), 4.5), squeeze=False)
+    fig, axes = plt.subplots(1, len(cases) + 2, figsize=(4.2 * (len(cases) + 2), 4.5), squeeze=False,
+                             gridspec_kw={"width_ratios": [1.0, 1.6] + [1.0] * len(cases)})
     ax0 = axes[0][0]
     n = len(rows)
     first = sum(1 for r in rows if r["first_trusted"])
@@ -257,15 +258,31 @@ def figure(rows: list[dict], title: str, cases: tuple = CASES):
             [first, trusted, wrong, n - trusted], color=["tab:green", "tab:olive", "tab:red", "tab:gray"])
     ax0.set_ylabel("rigs")
     ax0.set_title(f"commissioning, {n} foreign rigs")
-    for ax, (label, _a, _f, target) in zip(axes[0][1:], cases, strict=True):
+    ax0.tick_params(axis="x", labelsize=7)
+    reasons: dict[str, int] = {}
+    for r in rows:
+        if not r["trusted"]:
+            problems = r["problems"] if isinstance(r["problems"], list) else [r["problems"]]
+            for key in {c for p in problems for c in problem_categories(p)}:
+                reasons[key] = reasons.get(key, 0) + 1
+    ranked = sorted(reasons.items(), key=lambda kv: kv[1])[-7:]
+    ax1 = axes[0][1]
+    ax1.barh([k.replace("the ", "").replace(" of the measured forces", "")[:48] for k, _ in ranked],
+             [v for _, v in ranked], color="tab:gray")
+    ax1.tick_params(axis="y", labelsize=7)
+    ax1.set_xlabel("refused rigs giving this reason")
+    ax1.set_title("why the fit was refused")
+    for ax, (label, _a, _f, target) in zip(axes[0][2:], cases, strict=True):
         v = np.sort([100 * r[f"{label}.share"] for r in rows if r.get(f"{label}.share") is not None
                      and r.get(f"{label}.stopped_s") is None])
         stopped = sum(1 for r in rows if r.get(f"{label}.stopped_s") is not None)
         if v.size:
-            ax.step(v, np.arange(1, v.size + 1) / max(trusted, 1), where="post",
+            ax.step(v, np.arange(1, v.size + 1) / max(trusted, 1), where="post", marker="o",
                     label=f"ran to the end ({v.size}); stopped: {stopped}")
+        ax.set_ylim(0.0, 1.02)
         ax.axvline(100 * target, color="k", lw=0.8, ls=":", label=f"target {100 * target:g} %")
         ax.set_xscale("log")
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         ax.set_xlabel("RMS |y - r| of the verdict, % of the amplitude")
         ax.set_ylabel("share of the commissioned rigs")
         ax.set_title(label)
