@@ -307,6 +307,8 @@ def advance(x, p, aux, old_command_v, new_command_v, switch_step, steps, h):
     return True
 
 
+# the noise generator: the same splitmix64 and Box-Muller as sim.sensors, written again here on purpose (the
+# instrument imports nothing from sim; a rig of its own has its own noise)
 @njit(cache=True, error_model="numpy")
 def _splitmix64(z):
     z = z + np.uint64(0x9E3779B97F4A7C15)

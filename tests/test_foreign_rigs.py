@@ -194,3 +194,17 @@ def test_judging_the_values_a_fit_trusted():
     assert wrong_values({"mass_kg": (1000.0, 10.0, 1025.0)}) == []
     assert wrong_values({"mass_kg": (1000.0, 10.0, 1031.0)}) == ["mass_kg"]
     assert wrong_values({"dead_zone_v": (float("nan"), 0.01, 0.5)}) == ["dead_zone_v"]
+
+
+@pytest.mark.parametrize("flags, says", [
+    (["--foreign-rigs", "0"], "--foreign-rigs 0 must be between 1 and 100000"),
+    (["--foreign-rigs", "2", "--robust"], "--robust cannot go with --foreign-rigs"),
+    (["--foreign-rigs", "2", "--seed", str(2 ** 32)], "--seed S must be >= 0 with S + N below 2**32"),
+])
+def test_compare_foreign_rigs_refuses_what_it_cannot_do(flags, says):
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-m", "isorig", "compare", *flags], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 2 and says in proc.stderr and "Traceback" not in proc.stderr, proc.stderr

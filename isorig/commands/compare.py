@@ -336,6 +336,23 @@ def run(args) -> int:
     return 0
 
 
+def map_rigs(args, chunk_function, runs: list, what: str) -> tuple[list, float, str, float]:
+    """``chunk_function`` over ``runs`` one rig a task on the campaign engine (a local cluster or --scheduler), with
+    a progress bar: (rows, wall time s, where, the engine's start-up s)."""
+    from sim import campaign as cpg
+
+    timeout = cpg.SCHEDULER_TIMEOUT_S if args.scheduler_timeout is None else args.scheduler_timeout
+    with cpg.Engine(scheduler=args.scheduler, workers=args.processes, timeout_s=timeout) as engine:
+        print(f"{what}, on {engine.description} ...", file=sys.stderr)
+        bar = ProgressBar()
+        bar(0, len(runs))
+        try:
+            rows, wall = engine.map(chunk_function, runs, 1, progress=bar)
+        finally:
+            bar.close()
+        return rows, wall, engine.description, engine.startup_s
+
+
 def run_commissioning(args, campaign) -> int:
     """A commissioning campaign (a campaign file with a ``commissioning`` section, sim.commission.campaign): each
     drawn rig commissioned, then tested with its rig file and without it; the tables, and --csv / --figure."""
@@ -347,18 +364,9 @@ def run_commissioning(args, campaign) -> int:
                          "figures")
     runs = cc.campaign_runs(campaign)
     outputs = cpg.Outputs(args.csv, args.figure)
-    timeout = cpg.SCHEDULER_TIMEOUT_S if args.scheduler_timeout is None else args.scheduler_timeout
     tests = runs[0].tests
-    with cpg.Engine(scheduler=args.scheduler, workers=args.processes, timeout_s=timeout) as engine:
-        print(f"commissioning {len(runs)} drawn rigs, then {len(tests)} test(s) on each with and without the rig file, "
-              f"on {engine.description} ...", file=sys.stderr)
-        bar = ProgressBar()
-        bar(0, len(runs))
-        try:
-            rows, wall = engine.map(cc.run_chunk, runs, 1, progress=bar)
-        finally:
-            bar.close()
-        where, startup = engine.description, engine.startup_s
+    rows, wall, where, startup = map_rigs(args, cc.run_chunk, runs, f"commissioning {len(runs)} drawn rigs, then "
+                                          f"{len(tests)} test(s) on each with and without the rig file")
     title = (f"commissioning campaign '{campaign.name}': {len(rows)} rigs, {campaign.isolator.name}, "
              f"{campaign.supply_bar:g} bar, {campaign.cycles} cycles, seed {campaign.seed}")
     figure = cc.figure(rows, tests, title) if args.figure else None
@@ -376,7 +384,6 @@ def run_commissioning(args, campaign) -> int:
 
 def run_foreign(args) -> int:
     """``--foreign-rigs N``: the foreign rig family commissioned and tested (sim.commission.foreign_campaign)."""
-    from sim import campaign as cpg
     from sim.commission import foreign_campaign as fc
 
     given = [flag for flag, on in (("--robust", args.robust), ("--ablation", args.ablation),
@@ -393,16 +400,9 @@ def run_foreign(args) -> int:
     if not (0 <= args.seed and args.seed + args.foreign_rigs <= 2 ** 32):
         raise UsageError("isorig compare: --seed S must be >= 0 with S + N below 2**32")
     runs = [fc.ForeignRun(args.seed + i) for i in range(args.foreign_rigs)]
-    timeout = cpg.SCHEDULER_TIMEOUT_S if args.scheduler_timeout is None else args.scheduler_timeout
-    with cpg.Engine(scheduler=args.scheduler, workers=args.processes, timeout_s=timeout) as engine:
-        print(f"commissioning {len(runs)} foreign rigs (seeds {args.seed}..{args.seed + len(runs) - 1}), then 3 tests "
-              f"on each commissioned one, on {engine.description} ...", file=sys.stderr)
-        bar = ProgressBar()
-        bar(0, len(runs))
-        try:
-            rows, wall = engine.map(fc.run_chunk, runs, 1, progress=bar)
-        finally:
-            bar.close()
+    rows, wall, where, _startup = map_rigs(args, fc.run_chunk, runs, f"commissioning {len(runs)} foreign rigs (seeds "
+                                           f"{args.seed}..{args.seed + len(runs) - 1}), then 3 tests on each "
+                                           "commissioned one")
     title = f"foreign rigs {args.seed}..{args.seed + len(runs) - 1}: {len(rows)} rigs, 100 bar, {fc.TEST_CYCLES} cycles"
     if args.csv:
         from sim.commission import campaign as cc
@@ -417,7 +417,7 @@ def run_foreign(args) -> int:
     else:
         print(f"\n### {title}\n")
         print(fc.markdown(rows))
-        print(f"\n{len(rows)} rigs in {wall:.1f} s wall time on {engine.description}")
+        print(f"\n{len(rows)} rigs in {wall:.1f} s wall time on {where}")
     for path in (args.csv, args.figure):
         if path:
             print(f"wrote {path}", file=sys.stderr)
