@@ -58,7 +58,7 @@ def test_zero_and_move_from_the_console(server, open_page, artifacts):
     # the field's unit and range: the stroke and the displacement limit in force; the speed the service allows
     assert page.inner_text("[data-field='mm_target'] .unit") == "(mm)"
     assert page.inner_text("[data-field='mm_target'] .range").startswith("-150 to 150 mm")
-    assert page.inner_text("[data-field='mm_speed'] .range") == "above 0, up to 50 mm/s"
+    assert page.inner_text("[data-field='mm_speed'] .range") == "1 mm/s to 50 mm/s"
     assert page.input_value("#f-mm_speed") == "5"  # the service's default speed
     assert page.is_enabled("#warning-zero") and page.is_enabled("#mm-zero")
     assert page.is_disabled("#mm-move") and "Move needs: a position to move to" in page.inner_text("#mm-why")
@@ -171,7 +171,7 @@ def test_manual_motion_limits_refusals_units_and_offset(server, open_page, artif
     assert "outside the allowed range" in page.inner_text("[data-field='mm_target'] .msg")
     assert page.is_disabled("#mm-move") and "a valid position" in page.inner_text("#mm-why")
     page.fill("#f-mm_speed", "80")
-    assert "above 0, up to 50 mm/s" in page.inner_text("[data-field='mm_speed'] .msg")
+    assert "1 mm/s to 50 mm/s" in page.inner_text("[data-field='mm_speed'] .msg")
     assert page.is_disabled("#mm-zero") and "a valid speed" in page.inner_text("#mm-why")
     page.fill("#f-lim_displacement", "")
     page.fill("#f-mm_speed", "20")
@@ -190,7 +190,7 @@ def test_manual_motion_limits_refusals_units_and_offset(server, open_page, artif
     page.wait_for_selector("#mm-status[data-kind='error']", timeout=WAIT_MS)
     status = page.inner_text("#mm-status")
     assert status.startswith("Not moved, refused by the service: speed_m_per_s = 0.2"), status
-    assert "0.05 m/s" in status, status
+    assert "[0.001, 0.05] m/s" in status, status  # the range the service allows, said with the refusal
     assert _ids(server) == known  # nothing moved, nothing kept
     page.unroute("**/api/rig/move")
 
@@ -198,7 +198,7 @@ def test_manual_motion_limits_refusals_units_and_offset(server, open_page, artif
     page.select_option("#units", "si")
     assert page.input_value("#f-mm_target") == "0.01" and page.input_value("#f-mm_speed") == "0.02"
     assert page.inner_text("[data-field='mm_target'] .unit") == "(m)"
-    assert page.inner_text("[data-field='mm_speed'] .range") == "above 0, up to 0.05 m/s"
+    assert page.inner_text("[data-field='mm_speed'] .range") == "0.001 m/s to 0.05 m/s"
     page.select_option("#units", "lab")
     assert page.input_value("#f-mm_target") == "10"
 

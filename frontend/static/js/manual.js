@@ -20,7 +20,7 @@ const BAR = 1e5;
 // The service's manual motion (sim/motion.py, GET /api/rig's manual_motion): a peak speed up to a maximum, a
 // default speed, and a hold at the new position; these are what the console assumes until the rig is read.
 // A minimum-jerk move lasts 1.875 distance / peak speed (at least 0.2 s).
-const MANUAL_MOTION = { max_speed_m_per_s: 0.05, default_speed_m_per_s: 0.005, hold_s: 0.5 };
+const MANUAL_MOTION = { min_speed_m_per_s: 0.001, max_speed_m_per_s: 0.05, default_speed_m_per_s: 0.005, hold_s: 0.5 };
 const PEAK_VELOCITY_FACTOR = 1.875;
 const MIN_MOVE_S = 0.2;
 const SPEED_KEY = "isorig.move_speed_m_per_s";
@@ -45,14 +45,15 @@ export class ManualMotion {
   motion() {
     const served = (this.setup.rig && this.setup.rig.manual_motion) || {};
     const pick = (key) => (num(served[key]) && served[key] > 0 ? served[key] : MANUAL_MOTION[key]);
-    return { max: pick("max_speed_m_per_s"), default: pick("default_speed_m_per_s"), hold: pick("hold_s") };
+    return { min: pick("min_speed_m_per_s"), max: pick("max_speed_m_per_s"), default: pick("default_speed_m_per_s"),
+             hold: pick("hold_s") };
   }
 
   init() {
     let speed = this.motion().default;
     try {
       const stored = Number(localStorage.getItem(SPEED_KEY));
-      if (stored > 0 && stored <= this.motion().max) speed = stored;
+      if (stored >= this.motion().min && stored <= this.motion().max) speed = stored;
     } catch { /* the default */ }
     $("f-mm_speed").value = inputText("velocity", speed);
     for (const id of ["f-mm_target", "f-mm_speed"]) {
@@ -110,7 +111,7 @@ export class ManualMotion {
       si = toSI(quantity, r.value);
       if (key === "target" && Math.abs(si) > this.reach() * (1 + 1e-12)) {
         problem = `outside the allowed range: ${this.rangeText("target")}`;
-      } else if (key === "speed" && (si <= 0 || si > this.motion().max * (1 + 1e-12))) {
+      } else if (key === "speed" && (si < this.motion().min * (1 - 1e-12) || si > this.motion().max * (1 + 1e-12))) {
         problem = `outside the allowed range: ${this.rangeText("speed")}`;
       } else if (r.comma) {
         note = `read as ${fmtU(quantity, si, { sig: 8 })}`;
@@ -125,7 +126,9 @@ export class ManualMotion {
   }
 
   rangeText(key) {
-    if (key === "speed") return `above 0, up to ${fmtU("velocity", this.motion().max, { sig: 3 })}`;
+    if (key === "speed") {
+      return `${fmtU("velocity", this.motion().min, { sig: 3 })} to ${fmtU("velocity", this.motion().max, { sig: 3 })}`;
+    }
     const reach = this.reach();
     return `${fmt("length", -reach, { sig: 6 })} to ${fmtU("length", reach, { sig: 6 })} (stroke and displacement limit)`;
   }
