@@ -56,6 +56,7 @@ def run_rig(seed: int, watchdog_ms: float, folder: Path) -> dict:
         moved = subprocess.run([*ISORIG, "move", "--rig", url.group(0), "--rig-protocol", "1", "--position-m", "0",
                                 "--rig-file", rig_file], capture_output=True, text=True, timeout=120)
         row["zeroed"] = moved.returncode == 0
+        row["move_said"] = (moved.stdout + moved.stderr).strip().splitlines()[-1:]
         test = folder / f"test-{seed}"
         sim = subprocess.run([*ISORIG, "simulate", "--rig", url.group(0), "--rig-protocol", "1", "--out", str(test),
                               "--isolator", "IUT_a", "--supply-bar", "100", "--amplitude-m", "0.002",
@@ -63,7 +64,8 @@ def run_rig(seed: int, watchdog_ms: float, folder: Path) -> dict:
                              capture_output=True, text=True, timeout=120)
         summary = json.loads((test / "summary.json").read_text()) if (test / "summary.json").exists() else {}
         verdict = summary.get("tracking_verdict", {})
-        row.update(test_exit=sim.returncode, status=summary.get("status"), reason=summary.get("reason"),
+        row.update(test_exit=sim.returncode, test_said=(sim.stdout + sim.stderr).strip().splitlines()[-1:],
+                   status=summary.get("status"), reason=summary.get("reason"),
                    verdict=verdict.get("verdict"), share_pct=None if verdict.get("rms_share") is None
                    else 100 * verdict["rms_share"])
         return row
