@@ -15,6 +15,7 @@ import contextlib
 import logging
 import multiprocessing as mp
 import queue
+import signal
 import threading
 import time
 from datetime import UTC, datetime
@@ -174,9 +175,19 @@ class RigService:
         """Start the worker forkserver now (it imports and loads the engine once), not at the first test."""
         ctx = self.context()
         if ctx.get_start_method() == "forkserver":
-            from multiprocessing import forkserver
+            from multiprocessing import forkserver, resource_tracker
 
-            forkserver.ensure_running()
+            # Ctrl-C reaches the whole process group: the forkserver is the service's to stop (it ends with the
+            # service). Blocked here, SIGINT stays blocked in the forkserver (the mask outlives exec) until
+            # backend.preload has set it ignored: a Ctrl-C during its imports printed a KeyboardInterrupt
+            # traceback (issue 34). The resource tracker, which forkserver starts first, protects itself the
+            # same way but unblocks SIGINT after: started first here, it leaves the mask below alone.
+            resource_tracker.ensure_running()
+            old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+            try:
+                forkserver.ensure_running()
+            finally:
+                signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
     def running_test_id(self) -> int | None:
         run = self.active
