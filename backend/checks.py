@@ -48,10 +48,15 @@ HEAVY_ROUTES = frozenset({"/api/tests/check", "/api/ground-motions/read-at2"})
 JOB_MODULES = ("backend.api.tests", "backend.api.ground_motions", "backend.earthquake_view")
 
 
-def _warm(modules: tuple[str, ...]) -> None:
-    """A worker's initializer: import what the jobs need once (seconds), before the first job."""
+def _warm(modules: tuple[str, ...], service_pid: int | None = None) -> None:
+    """A worker's initializer: end with the service (backend.children: kill -9 of the service left the workers
+    behind, waiting on their queue), then import what the jobs need once (seconds), before the first job."""
     import importlib
 
+    if service_pid is not None:
+        from .children import exit_with
+
+        exit_with(service_pid)
     for name in modules:
         importlib.import_module(name)
 
@@ -122,7 +127,7 @@ class CheckPool:
         """The executor (made and warmed if there is none). Called with the lock held."""
         if self._executor is None:
             self._executor = ProcessPoolExecutor(max_workers=self.workers, mp_context=self.context(),
-                                                 initializer=_warm, initargs=(self.modules,))
+                                                 initializer=_warm, initargs=(self.modules, os.getpid()))
             for _ in range(self.workers):  # start the workers and their imports now, not at the next request
                 self._executor.submit(_noop)
         return self._executor
