@@ -76,6 +76,11 @@ class ForeignRig:
     def position_m(self) -> float:
         return float(self.state[ph.X_Y])
 
+    @property
+    def supply_pa(self) -> float:
+        """The supply pressure at the valve now (true, without the sensor's noise; nothing is read or recorded)."""
+        return float(ph.supply_at_valve(self.state, self.params))
+
     def read(self) -> np.ndarray:
         """The readings at the start of the current period (``physics.READING_NAMES``); a view, copied on use."""
         ph.read(self.state, self.params, self.aux, self.period, self.readings)
@@ -86,12 +91,10 @@ class ForeignRig:
         ``switch_fraction`` of the period on."""
         if not self.diverged:
             steps = self.steps_per_period
-            h = self.control_period_s / steps
             if new_command_v is None:
-                ok = ph.advance(self.state, self.params, self.aux, float(command_v), float(command_v), steps, steps, h)
+                new_command_v, switch = command_v, steps
             else:
                 switch = min(steps, max(0, int(math.ceil(switch_fraction * steps - 1e-9))))
-                ok = ph.advance(self.state, self.params, self.aux, float(command_v), float(new_command_v), switch,
-                                steps, h)
-            self.diverged = not ok
+            self.diverged = not ph.advance(self.state, self.params, self.aux, float(command_v), float(new_command_v),
+                                           switch, steps, self.control_period_s / steps)
         self.period += 1

@@ -81,10 +81,8 @@ class ForeignRigSpec:
         p = self.params
         pa = supply_pa * p[ph.P_AREA_B] / (p[ph.P_AREA_A] + p[ph.P_AREA_B])  # the chambers balanced at rest
         pb = supply_pa - pa
-        x = np.zeros(ph.N_STATES)
         c_a = ph._compliance(p[ph.P_DEAD_A], p[ph.P_HOSE_A], pa, p)
         c_b = ph._compliance(p[ph.P_DEAD_B], p[ph.P_HOSE_B], pb, p)
-        del x
         out = {
             "mass_kg": float(p[ph.P_MASS]),
             "position_latency_s": float(p[ph.P_POS_LATENCY] * CONTROL_PERIOD_S),
@@ -100,6 +98,26 @@ class ForeignRigSpec:
         return out
 
 
+#: the drawn quantities that are physics parameters as they are (the others are derived below)
+AS_DRAWN = {
+    ph.P_MASS: "table.mass_kg", ph.P_LOAD: "table.vertical_load_n", ph.P_HOSE_A: "actuator.hose_volume_m3",
+    ph.P_BETA_OIL: "actuator.oil_bulk_modulus_pa", ph.P_BETA_HOSE: "actuator.hose_bulk_modulus_pa",
+    ph.P_AIR: "actuator.air_fraction", ph.P_PISTON_LEAK: "actuator.piston_leak_m3_per_s_pa",
+    ph.P_SPOOL_ZETA: "valve.spool_damping_ratio", ph.P_PLAY: "valve.spool_play_v", ph.P_NULL: "valve.null_bias_v",
+    ph.P_LAND_LEAK: "valve.land_leak_m3_per_s_pa", ph.P_TRANSITION: "valve.transition_pa", ph.P_TANK: "valve.tank_pa",
+    ph.P_PUMP_FLOW: "supply.pump_flow_m3_per_s", ph.P_REG_BAND: "supply.regulator_band_pa",
+    ph.P_ACC_GAS: "supply.accumulator_gas_m3", ph.P_PRECHARGE: "supply.precharge_pa",
+    ph.P_LINE_VOLUME: "supply.supply_line_volume_m3", ph.P_RELIEF: "supply.relief_pa",
+    ph.P_MU: "friction.coulomb_per_load", ph.P_COULOMB: "friction.coulomb_n", ph.P_SEAL: "friction.seal_m2",
+    ph.P_STRIBECK: "friction.stribeck_ratio", ph.P_STRIBECK_V: "friction.stribeck_velocity_m_per_s",
+    ph.P_VISCOUS: "friction.viscous_n_s_per_m", ph.P_ASYM: "friction.asymmetry",
+    ph.P_COOLING: "specimen.cooling_time_s", ph.P_SOFTENING: "specimen.softening_length_m",
+    ph.P_LC_ZETA: "sensors.load_cell_damping_ratio", ph.P_POS_NOISE: "sensors.position_noise_m",
+    ph.P_POS_STEP: "sensors.position_step_m", ph.P_PRESSURE_NOISE: "sensors.pressure_noise_pa",
+    ph.P_SUPPLY_NOISE: "sensors.supply_noise_pa", ph.P_FORCE_NOISE: "sensors.force_noise_n",
+}
+
+
 def draw_rig(seed: int, distributions: dict | None = None) -> ForeignRigSpec:
     """Rig ``seed`` of the family: every quantity drawn from the declared distributions."""
     if isinstance(seed, bool) or not isinstance(seed, int) or not (0 <= seed < 2 ** 32):
@@ -108,55 +126,29 @@ def draw_rig(seed: int, distributions: dict | None = None) -> ForeignRigSpec:
     rng = np.random.default_rng([20261129, seed])
     d = {f"{section}.{name}": _draw(rng, spec) for section, entries in dist.items() for name, spec in entries.items()}
     p = np.zeros(ph.N_PARAMS)
-    p[ph.P_MASS] = d["table.mass_kg"]
-    p[ph.P_LOAD] = d["table.vertical_load_n"]
+    for index, key in AS_DRAWN.items():
+        p[index] = d[key]
     area_a = d["actuator.area_a_m2"]
     area_b = area_a if d["actuator.rod"] == "double" else area_a / d["actuator.cap_to_rod_area_ratio"]
     stroke = d["actuator.half_stroke_m"]
     p[ph.P_AREA_A], p[ph.P_AREA_B], p[ph.P_STROKE] = area_a, area_b, stroke
     p[ph.P_DEAD_A] = area_a * stroke + d["actuator.dead_volume_extra_m3"]
     p[ph.P_DEAD_B] = area_b * stroke + _draw(rng, dist["actuator"]["dead_volume_extra_m3"])
-    p[ph.P_HOSE_A] = d["actuator.hose_volume_m3"]
     p[ph.P_HOSE_B] = _draw(rng, dist["actuator"]["hose_volume_m3"])
-    p[ph.P_BETA_OIL] = d["actuator.oil_bulk_modulus_pa"]
-    p[ph.P_BETA_HOSE] = d["actuator.hose_bulk_modulus_pa"]
-    p[ph.P_AIR] = d["actuator.air_fraction"]
-    p[ph.P_PISTON_LEAK] = d["actuator.piston_leak_m3_per_s_pa"]
     p[ph.P_SPOOL_W] = 2 * math.pi * d["valve.spool_frequency_hz"]
-    p[ph.P_SPOOL_ZETA] = d["valve.spool_damping_ratio"]
-    p[ph.P_PLAY] = d["valve.spool_play_v"]
-    p[ph.P_NULL] = d["valve.null_bias_v"]
     # two lands in series at full opening share the supply: each drops half of it with no load
     p[ph.P_LAND_FLOW] = d["valve.table_speed_at_full_opening_m_per_s"] * area_a / math.sqrt(0.5 * NOMINAL_SUPPLY_PA)
     lap = {"under": -d["valve.underlap_share"], "critical": 0.0, "over": d["valve.overlap_share"]}[d["valve.lap"]]
     spread = d["valve.land_lap_spread_share"]
     for index in (ph.P_LAP_PA, ph.P_LAP_AT, ph.P_LAP_PB, ph.P_LAP_BT):
         p[index] = lap * (1.0 + spread * rng.uniform(-1.0, 1.0)) if lap != 0.0 else 0.0
-    p[ph.P_LAND_LEAK] = d["valve.land_leak_m3_per_s_pa"]
-    p[ph.P_TRANSITION] = d["valve.transition_pa"]
-    p[ph.P_TANK] = d["valve.tank_pa"]
-    p[ph.P_PUMP_FLOW] = d["supply.pump_flow_m3_per_s"]
-    p[ph.P_REG_BAND] = d["supply.regulator_band_pa"]
-    p[ph.P_ACC_GAS] = d["supply.accumulator_gas_m3"]
-    p[ph.P_PRECHARGE] = d["supply.precharge_pa"]
-    p[ph.P_LINE_VOLUME] = d["supply.supply_line_volume_m3"]
     p[ph.P_LINE_RESISTANCE] = d["supply.supply_line_drop_pa_at_5e-3_m3_per_s"] / 5e-3
-    p[ph.P_RELIEF] = d["supply.relief_pa"]
     p[ph.P_PUMP_SET] = NOMINAL_SUPPLY_PA
-    p[ph.P_MU] = d["friction.coulomb_per_load"]
-    p[ph.P_COULOMB] = d["friction.coulomb_n"]
-    p[ph.P_SEAL] = d["friction.seal_m2"]
-    p[ph.P_STRIBECK] = d["friction.stribeck_ratio"]
-    p[ph.P_STRIBECK_V] = d["friction.stribeck_velocity_m_per_s"]
-    p[ph.P_VISCOUS] = d["friction.viscous_n_s_per_m"]
     coulomb_nominal = p[ph.P_MU] * p[ph.P_LOAD] + p[ph.P_COULOMB]
     p[ph.P_BRISTLE_K] = coulomb_nominal / d["friction.presliding_m"]
     p[ph.P_BRISTLE_C] = 2.0 * d["friction.bristle_damping_ratio"] * math.sqrt(p[ph.P_BRISTLE_K] * p[ph.P_MASS])
-    p[ph.P_ASYM] = d["friction.asymmetry"]
     kind = d["specimen.kind"]
     p[ph.P_SPECIMEN] = ph.SPECIMEN_KINDS.index(kind)
-    p[ph.P_COOLING] = d["specimen.cooling_time_s"]
-    p[ph.P_SOFTENING] = d["specimen.softening_length_m"]
     if kind == "spring_sliders":
         p[ph.P_SPRING] = d["specimen.spring_n_per_m"]
         for i in range(int(d["specimen.sliders"])):
@@ -174,13 +166,7 @@ def draw_rig(seed: int, distributions: dict | None = None) -> ForeignRigSpec:
         p[ph.P_SF0] = d["specimen.rubber_hysteresis_strength_n"]
         p[ph.P_RUBBER_DAMPING] = d["specimen.rubber_damping_n_s_per_m"]
     p[ph.P_LC_W] = 2 * math.pi * d["sensors.load_cell_frequency_hz"]
-    p[ph.P_LC_ZETA] = d["sensors.load_cell_damping_ratio"]
     p[ph.P_POS_LATENCY] = d["sensors.position_latency_s"] / CONTROL_PERIOD_S
-    p[ph.P_POS_NOISE] = d["sensors.position_noise_m"]
-    p[ph.P_POS_STEP] = d["sensors.position_step_m"]
-    p[ph.P_PRESSURE_NOISE] = d["sensors.pressure_noise_pa"]
-    p[ph.P_SUPPLY_NOISE] = d["sensors.supply_noise_pa"]
-    p[ph.P_FORCE_NOISE] = d["sensors.force_noise_n"]
     p[ph.P_SEED] = float(seed)
     p[ph.P_COOLING] = max(p[ph.P_COOLING], 1.0)
     p[ph.P_SOFTENING] = max(p[ph.P_SOFTENING], 1e-3)

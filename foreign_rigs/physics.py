@@ -99,7 +99,7 @@ def _orifice(opening, drop_pa, p):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _supply_at_valve(x, p):
+def supply_at_valve(x, p):
     """The supply pressure at the valve's P port, Pa: the accumulator's less the line's drop (the valve's draw
     estimated from the accumulator's pressure)."""
     ps = x[X_ACC]
@@ -173,7 +173,7 @@ def derivatives(x, p, coil_v, dx):
     dx[X_SPOOL] = x[X_SPOOL_RATE]
     dx[X_SPOOL_RATE] = w * w * (demand - xs) - 2.0 * p[P_SPOOL_ZETA] * w * x[X_SPOOL_RATE]
     # the four metering lands
-    ps = _supply_at_valve(x, p)
+    ps = supply_at_valve(x, p)
     pt = p[P_TANK]
     leak = p[P_LAND_LEAK]
     q_pa = _orifice(max(0.0, xs - p[P_LAP_PA]), ps - pa, p) + leak * (ps - pa)
@@ -354,11 +354,12 @@ def read(x, p, aux, period, out):
     out[R_FORCE] = x[X_LC] + p[P_FORCE_NOISE] * gaussian(seed, period, 1)
     out[R_LOAD_PRESSURE] = (x[X_PA] + p[P_PRESSURE_NOISE] * gaussian(seed, period, 2)
                             - x[X_PB] - p[P_PRESSURE_NOISE] * gaussian(seed, period, 3))
-    out[R_SUPPLY] = _supply_at_valve(x, p) + p[P_SUPPLY_NOISE] * gaussian(seed, period, 4)
+    supply = supply_at_valve(x, p)
+    out[R_SUPPLY] = supply + p[P_SUPPLY_NOISE] * gaussian(seed, period, 4)
     out[R_TRUE_Y] = x[X_Y]
     out[R_TRUE_V] = x[X_V]
     xs = x[X_SPOOL]
-    out[R_FLOW] = (_orifice(max(0.0, xs - p[P_LAP_PA]), _supply_at_valve(x, p) - x[X_PA], p)
+    out[R_FLOW] = (_orifice(max(0.0, xs - p[P_LAP_PA]), supply - x[X_PA], p)
                    - _orifice(max(0.0, -xs - p[P_LAP_AT]), x[X_PA] - p[P_TANK], p))
     out[R_SPOOL_V] = xs * COMMAND_FULL_SCALE_V
     out[R_SPECIMEN] = specimen_force(x, p)

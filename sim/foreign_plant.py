@@ -75,7 +75,8 @@ class ForeignPlant:
 
     @property
     def supply_pa(self) -> float:
-        return float(self.rig.read()[fp.R_SUPPLY])
+        """The supply pressure at the valve now (as SimulatedPlant's: the true value, not a reading)."""
+        return self.rig.supply_pa
 
     def set_conditions(self, supply_pa: float, vertical_load_n: float, pump_ready: bool = True) -> None:
         self.rig.set_conditions(supply_pa, vertical_load_n, pump_ready)

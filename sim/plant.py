@@ -128,8 +128,10 @@ class SimulatedPlant:
     def position_m(self) -> float:
         return float(self.state[X_Y])
 
-    def set_conditions(self, supply_pa: float, vertical_load_n: float) -> None:
-        """What ARM asks for: the supply pressure and the vertical jack (the guides' friction mu N + F_c follows)."""
+    def set_conditions(self, supply_pa: float, vertical_load_n: float, pump_ready: bool = True) -> None:
+        """What ARM asks for: the supply pressure and the vertical jack (the guides' friction mu N + F_c follows).
+        The model's supply is its set point at once, so ``pump_ready`` (sim.foreign_plant's: whether an accumulator
+        starts charged) changes nothing here."""
         self.params[P_SUPPLY] = supply_pa
         self.params[P_FRICTION] = self.rig.with_changes(vertical_load_n=vertical_load_n).friction_force_n
 

@@ -457,13 +457,10 @@ class RigEmulator:
         self._pump(target + left)
 
     def _pump(self, supply_pa: float) -> None:
-        """The supply the pump delivers now. A foreign rig's pump and accumulator follow the rising set point at
-        the pump's own flow (``pump_ready=False``): jumping its accumulator would also reset its chambers every
-        tick, in the middle of a test's first motion."""
-        if self.config.foreign_rig is not None:
-            self.plant.set_conditions(supply_pa, self.vertical_load_n, pump_ready=False)
-        else:
-            self.plant.set_conditions(supply_pa, self.vertical_load_n)
+        """The supply the pump delivers now, as a set point the plant follows (``pump_ready=False``: a foreign
+        rig's accumulator charges at its pump's own flow; jumping it would also reset its chambers every tick, in
+        the middle of a test's first motion; sim's model takes the set point at once either way)."""
+        self.plant.set_conditions(supply_pa, self.vertical_load_n, pump_ready=False)
 
     def _reading(self, m) -> float:
         faults = self.faults
@@ -482,7 +479,7 @@ class RigEmulator:
         if addr is None or self.counters["link_dropped"]:
             return
         m = self.plant.measure()
-        supply = self.plant.supply_pa
+        supply = m.supply_pressure_pa
         status = self.latched_status | extra_status
         if self.armed:
             status |= STATUS_ARMED
