@@ -19,17 +19,14 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from foreign_rigs import draw_rig  # noqa: E402
-from sim.commission.foreign_campaign import declared_rig  # noqa: E402
+from sim.commission.foreign_campaign import start_rig_file_data  # noqa: E402
 
 ISORIG = [sys.executable, "-m", "isorig"]
-START_FIELDS = ("piston_area_m2", "half_volume_m3", "stroke_m", "pump_max_flow_m3_per_s", "max_supply_pa",
-                "command_limit_v")
 
 
 def run_rig(seed: int, watchdog_ms: float, folder: Path) -> dict:
     start = folder / f"start-{seed}.json"
-    rig = declared_rig(draw_rig(seed).lab_knows())
-    start.write_text(json.dumps({name: getattr(rig, name) for name in START_FIELDS}))
+    start.write_text(json.dumps(start_rig_file_data(draw_rig(seed).lab_knows())))
     proc = subprocess.Popen([*ISORIG, "rig-emulator", "--port", "0", "--foreign-rig", str(seed), "--rig-protocol",
                              "1", "--watchdog-ms", str(watchdog_ms)], stderr=subprocess.PIPE,
                             stdout=subprocess.DEVNULL, text=True)

@@ -47,12 +47,20 @@ class ForeignRun:
     cases: tuple = CASES
 
 
+#: what a lab writes in its start rig file (RigParameters names; ForeignRigSpec.lab_knows gives each)
+START_FIELDS = ("piston_area_m2", "half_volume_m3", "stroke_m", "pump_max_flow_m3_per_s", "max_supply_pa",
+                "command_limit_v")
+
+
+def start_rig_file_data(lab: dict) -> dict:
+    """The start rig file a lab writes from what it knows (catalogue and drawing values), as rig-file data."""
+    return {name: float(lab[name]) for name in START_FIELDS}
+
+
 def declared_rig(lab: dict) -> RigParameters:
-    """The start rig file a lab writes from what it knows (catalogue and drawing values); everything the
-    controller relies on beyond them is isorig's default until commissioning measures it."""
-    return DEFAULT_RIG.with_changes(piston_area_m2=lab["piston_area_m2"], half_volume_m3=lab["half_volume_m3"],
-                                    stroke_m=lab["stroke_m"], pump_max_flow_m3_per_s=lab["pump_max_flow_m3_per_s"],
-                                    max_supply_pa=lab["max_supply_pa"], command_limit_v=lab["command_limit_v"])
+    """The rig of that start file: everything the controller relies on beyond it is isorig's default until
+    commissioning measures it."""
+    return DEFAULT_RIG.with_changes(**start_rig_file_data(lab))
 
 
 def retry_bounds(problems: list[str], max_stroke_m: float, max_velocity_m_per_s: float) -> tuple[float, float] | None:
@@ -123,8 +131,7 @@ def tested(spec, rig: RigParameters, amplitude_m: float, frequency_hz: float,
     trip = result.trip
     kind = None if trip is None else trip.values.get("kind", trip.detector)
     return {"share": verdict.get("rms_share"), "verdict": verdict["verdict"],
-            "stopped_s": None if trip is None else trip.time_s, "stop_kind": kind,
-            "oscillation": trip is not None and "oscillation" in (result.reason or "")}
+            "stopped_s": None if trip is None else trip.time_s, "stop_kind": kind}
 
 
 def commission_and_test(run: ForeignRun) -> dict:
@@ -184,8 +191,9 @@ def summary(rows: list[dict], cases: tuple = CASES) -> dict:
             "runs": len(ran),
             "worst_pct": max(shares) if shares else None,
             "median_pct": float(np.median(shares)) if shares else None,
-            "oscillation_stops": sum(1 for r in ran if r[f"{label}.oscillation"]),
-            "other_stops": sum(1 for r in ran if r[f"{label}.stopped_s"] is not None and not r[f"{label}.oscillation"]),
+            "oscillation_stops": sum(1 for r in ran if r[f"{label}.stop_kind"] == "oscillation"),
+            "other_stops": sum(1 for r in ran if r[f"{label}.stopped_s"] is not None
+                               and r[f"{label}.stop_kind"] != "oscillation"),
             "within_target": sum(1 for r in ran if r[f"{label}.stopped_s"] is None and r[f"{label}.share"] is not None
                                  and r[f"{label}.share"] <= target),
             "target_pct": 100.0 * target,

@@ -12,7 +12,7 @@ import pytest
 from emulator import ISORIG, Emulator, simulate_on
 
 from foreign_rigs import draw_rig
-from sim.commission.foreign_campaign import declared_rig
+from sim.commission.foreign_campaign import start_rig_file_data
 
 # real time against the rig emulator in its own process: scripts/test.sh runs these alone, after the others
 pytestmark = pytest.mark.realtime
@@ -26,10 +26,7 @@ def isorig(*args: str, timeout_s: float = 240.0) -> subprocess.CompletedProcess:
 
 def start_rig_file(path, seed: int) -> None:
     """What the lab knows, as the start rig file it writes (RigParameters names, SI)."""
-    rig = declared_rig(draw_rig(seed).lab_knows())
-    names = ("piston_area_m2", "half_volume_m3", "stroke_m", "pump_max_flow_m3_per_s", "max_supply_pa",
-             "command_limit_v")
-    path.write_text(json.dumps({name: getattr(rig, name) for name in names}))
+    path.write_text(json.dumps(start_rig_file_data(draw_rig(seed).lab_knows())))
 
 
 def test_a_foreign_rig_keeps_the_protocol(tmp_path):
