@@ -3,11 +3,13 @@ says who is logged in, ``DELETE`` logs out (backend.auth, backend.accounts)."""
 
 from __future__ import annotations
 
+import math
+
 from fastapi import APIRouter, Request, Response
 from pydantic import BaseModel, Field
 
 from .. import accounts
-from ..auth import SESSION_COOKIE, actor_of
+from ..auth import SESSION_COOKIE, ThrottleFull, actor_of
 from ..errors import ApiError
 from ..schemas import ERROR_RESPONSES
 from .deps import Credentials, SessionDep
@@ -32,10 +34,16 @@ class WhoOut(BaseModel):
 def log_in(body: LoginIn, request: Request, response: Response, session: SessionDep) -> WhoOut:
     throttle = request.app.state.login_throttle
     address = request.client.host if request.client else ""
-    wait = throttle.wait_s(body.name, address)
+    try:
+        wait = throttle.admit(body.name, address)  # the guess is counted here, before its password is checked
+    except ThrottleFull as full:
+        raise ApiError(503, "too many addresses are guessing passwords right now (the login throttle's table is "
+                            f"full): try again in {math.ceil(full.wait_s)} s",
+                       headers={"Retry-After": str(math.ceil(full.wait_s))}) from None
     if wait > 0:
-        raise ApiError(429, f"too many failed logins: try again in {wait:.0f} s",
-                       headers={"Retry-After": str(int(wait) + 1)})
+        raise ApiError(429, f"too many failed logins from your address: try again in "
+                            f"{math.ceil(wait)} s (each wrong password doubles the wait, up to "
+                            f"{throttle.max_delay_s / 60:.0f} min)", headers={"Retry-After": str(math.ceil(wait))})
     done = accounts.log_in(session, body.name, body.password)
     if done is None:
         throttle.failed(body.name, address)
@@ -44,7 +52,7 @@ def log_in(body: LoginIn, request: Request, response: Response, session: Session
                             "`isorig user password NAME`)")
     user, secret = done
     session.commit()
-    throttle.succeeded(body.name)
+    throttle.succeeded(body.name, address)
     response.set_cookie(SESSION_COOKIE, secret, max_age=int(accounts.SESSION_LIFETIME.total_seconds()),
                         httponly=True, samesite="strict", secure=request.url.scheme == "https", path="/")
     return WhoOut(name=user.name, role=user.role, via="session")
