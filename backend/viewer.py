@@ -1,9 +1,11 @@
 """3D rig view: a viser scene of the rig driven by the live stream, relayed through the service under /viewer/.
 
-viser runs its own HTTP + websocket server; here it listens on 127.0.0.1 only (an ephemeral port) and the
-service relays ``GET /viewer/...`` and the websocket at ``/viewer`` to it, so the dashboard embeds the view
-under its own origin. The share button is hidden and share requests are dropped in the relay and disabled on
-the server: nothing reaches an outside host.
+viser runs its own HTTP + websocket server; here it listens on a Unix socket in a directory only the service's
+user may enter (0700), never on a TCP port, and the service relays ``GET /viewer/...`` and the websocket at
+``/viewer`` to it, so the view is reached only through the service's doors (Host allow-list, Origin) and the
+dashboard embeds it under its own origin. No browser can reach a Unix socket, whatever Host or Origin it sends.
+The share button is hidden and share requests are dropped in the relay and disabled on the server: nothing
+reaches an outside host.
 
 The scene (metres, z up, actuator axis x): base, reaction wall, cylinder and rod, sliding table on rails,
 a round isolator between the table and the fixed top beam that shears with the measured displacement (its
@@ -18,16 +20,24 @@ Switch the view off with ``ISORIG_VIEWER=0`` (or a ``viewer`` setting set to Fal
 from __future__ import annotations
 
 import asyncio
+import atexit
 import contextlib
+import glob
 import inspect
 import logging
 import math
 import os
+import shutil
+import socket
+import stat
+import tempfile
 import threading
 import time
 
 import httpx
 import websockets
+import websockets.asyncio.client
+import websockets.asyncio.server
 from fastapi import Request, WebSocket, WebSocketDisconnect
 from fastapi.responses import JSONResponse, RedirectResponse, Response
 
@@ -43,6 +53,7 @@ DRAW = {  # geometry in metres
     "rod_z": 0.45,
 }
 FORCE_FULL_SCALE_N = 5.0e4  # force bar length 1 m at this force (grows if exceeded)
+SOCKET_DIR_PREFIX = "isorig-viewer-"  # viser's Unix socket: <tmp>/isorig-viewer-XXXX/viser.sock
 
 
 def viewer_enabled(settings) -> bool:
@@ -79,18 +90,87 @@ def isolator_mesh(shift_m: float, radius_m: float, height_m: float, z0_m: float,
     return vertices, np.array(faces, dtype=np.uint32)
 
 
+class ViewerError(RuntimeError):
+    """The 3D view could not be started as it must be (on its private Unix socket)."""
+
+
+class _Shim:
+    """A module as seen by viser: its own attributes, some replaced."""
+
+    def __init__(self, real, **replaced):
+        self._real, self._replaced = real, replaced
+
+    def __getattr__(self, name):
+        return self._replaced[name] if name in self._replaced else getattr(self._real, name)
+
+
+_START_LOCK = threading.Lock()
+
+
+@contextlib.contextmanager
+def _viser_listens_on(path: str):
+    """While a viser server starts: the websockets server it creates listens on the Unix socket ``path`` instead
+    of the host and port it names (viser has no option for it; only viser's module sees the change)."""
+    import rich
+    from viser.infra import _infra
+
+    real_serve = websockets.asyncio.server.serve
+
+    def serve(handler, host=None, port=None, **kwargs):
+        return real_serve(handler, unix=True, path=path, **kwargs)
+
+    shim = _Shim(websockets, asyncio=_Shim(websockets.asyncio,
+                                           server=_Shim(websockets.asyncio.server, serve=serve)))
+    console = rich.get_console()  # viser prints its URLs, host:port, which name no socket of ours: not shown
+    with _START_LOCK:
+        saved, quiet = _infra.websockets, console.quiet
+        _infra.websockets, console.quiet = shim, True
+        try:
+            yield
+        finally:
+            _infra.websockets, console.quiet = saved, quiet
+
+
+def _remove_stale_sockets(min_age_s: float = 60.0) -> None:
+    """Remove this user's socket directories of views whose service is gone (killed: nothing listens any more)."""
+    for path in glob.glob(os.path.join(tempfile.gettempdir(), SOCKET_DIR_PREFIX + "*")):
+        try:
+            info = os.stat(path)
+            if info.st_uid != os.getuid() or time.time() - info.st_mtime < min_age_s:
+                continue
+            with socket.socket(socket.AF_UNIX) as probe:
+                probe.settimeout(0.5)
+                probe.connect(os.path.join(path, "viser.sock"))
+        except (FileNotFoundError, ConnectionRefusedError):
+            shutil.rmtree(path, ignore_errors=True)
+        except OSError:
+            continue
+
+
 class RigScene:
     """The viser server and the scene handles that move; ``show(displacement_m, force_n)`` updates them."""
 
     def __init__(self, magnification: float = 3.0):
         import viser
 
-        self.server = viser.ViserServer(host="127.0.0.1", port=0, label="isorig rig", verbose=False)
+        _remove_stale_sockets()
+        self.socket_dir = tempfile.mkdtemp(prefix=SOCKET_DIR_PREFIX)  # 0700: only the service's user enters
+        atexit.register(shutil.rmtree, self.socket_dir, ignore_errors=True)
+        self.socket_path = os.path.join(self.socket_dir, "viser.sock")
+        try:
+            with _viser_listens_on(self.socket_path):
+                self.server = viser.ViserServer(host="127.0.0.1", port=0, label="isorig rig", verbose=False)
+        except BaseException:
+            shutil.rmtree(self.socket_dir, ignore_errors=True)
+            raise
+        if not (os.path.exists(self.socket_path) and stat.S_ISSOCK(os.stat(self.socket_path).st_mode)):
+            self.stop()  # it listens somewhere else (a viser that starts its server otherwise): refuse to serve
+            raise ViewerError(f"viser {viser.__version__} did not listen on its private socket; the 3D view stays "
+                              "off (ISORIG_VIEWER=0 hides it)")
         # never open a share tunnel, whatever a client asks
         self.server.request_share_url = lambda *args, **kwargs: None
         self.server.gui.configure_theme(show_share_button=False, show_logo=False, dark_mode=True,
                                         control_width="small")
-        self.port = self.server.get_port()
         self.magnification = magnification
         self.force_scale_n = FORCE_FULL_SCALE_N
         self._lock = threading.Lock()
@@ -177,6 +257,7 @@ class RigScene:
     def stop(self) -> None:
         with contextlib.suppress(Exception):
             self.server.stop()
+        shutil.rmtree(self.socket_dir, ignore_errors=True)
 
 
 class ViewerRelay:
@@ -197,8 +278,16 @@ class ViewerRelay:
                 self.scene = await asyncio.to_thread(RigScene)
         return self.scene
 
-    def upstream(self, scheme: str) -> str:
-        return f"{scheme}://127.0.0.1:{self.scene.port}"
+    def http_client(self) -> httpx.AsyncClient:
+        """A client of viser's HTTP server, over its Unix socket."""
+        return httpx.AsyncClient(base_url="http://viewer", timeout=10.0,
+                                 transport=httpx.AsyncHTTPTransport(uds=self.scene.socket_path))
+
+    def connect_ws(self, subprotocols: list[str] | None):
+        """viser's websocket, over its Unix socket."""
+        return websockets.asyncio.client.unix_connect(self.scene.socket_path, "ws://viewer/",
+                                                      subprotocols=subprotocols, max_size=None, compression=None,
+                                                      open_timeout=10)
 
     async def feed(self) -> None:
         """Follow the live stream; show the newest sample at most every UPDATE_PERIOD_S."""
@@ -293,12 +382,16 @@ def attach(app, hub, settings) -> ViewerRelay | None:
     async def viewer_http(path: str, request: Request) -> Response:
         if ".." in path.split("/"):
             return JSONResponse({"detail": "not found"}, status_code=404)
-        await relay.ensure_scene()
+        try:
+            await relay.ensure_scene()
+        except Exception as exc:
+            log.exception("the 3D view did not start")
+            return JSONResponse({"detail": f"the 3D view could not start: {exc}"}, status_code=503)
         gzip_ok = "gzip" in request.headers.get("accept-encoding", "")
         key = f"{path}|{gzip_ok}"
         if key not in relay._page_cache:
-            async with httpx.AsyncClient(timeout=10.0) as client:
-                req = client.build_request("GET", f"{relay.upstream('http')}/{path}",
+            async with relay.http_client() as client:
+                req = client.build_request("GET", f"/{path}",
                                            headers={"Accept-Encoding": "gzip" if gzip_ok else "identity"})
                 upstream = await client.send(req, stream=True)
                 body = b"".join([chunk async for chunk in upstream.aiter_raw()])
@@ -314,12 +407,12 @@ def attach(app, hub, settings) -> ViewerRelay | None:
         return Response(body, headers=headers)
 
     async def viewer_ws(websocket: WebSocket) -> None:
-        await relay.ensure_scene()
         offered = [p.strip() for p in websocket.headers.get("sec-websocket-protocol", "").split(",") if p.strip()]
         try:
-            upstream = await websockets.connect(relay.upstream("ws"), subprotocols=offered or None,
-                                                max_size=None, compression=None, open_timeout=10)
+            await relay.ensure_scene()
+            upstream = await relay.connect_ws(offered or None)
         except Exception:
+            log.exception("the 3D view's websocket could not be relayed")
             await websocket.close(code=1011)
             return
         await websocket.accept(subprotocol=upstream.subprotocol)

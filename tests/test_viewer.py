@@ -2,10 +2,16 @@
 
 from __future__ import annotations
 
+import os
+import stat
+
+import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
+from starlette.websockets import WebSocketDisconnect
 
 from backend import viewer
+from backend.doors import ServiceDoors
 from backend.stream import Hub
 
 
@@ -64,6 +70,81 @@ def test_relay_serves_viser_and_its_websocket(monkeypatch):
             assert "+30.0 mm" in relay.scene.label.text
     finally:
         relay.close()
+
+
+def _listening_tcp_ports() -> set[tuple[str, int]]:
+    """(address, port) of every TCP socket this process listens on (Linux /proc)."""
+    inodes = set()
+    for fd in os.listdir("/proc/self/fd"):
+        try:
+            target = os.readlink(f"/proc/self/fd/{fd}")
+        except OSError:
+            continue
+        if target.startswith("socket:["):
+            inodes.add(target[8:-1])
+    found = set()
+    for table in ("/proc/self/net/tcp", "/proc/self/net/tcp6"):
+        with open(table) as f:
+            for line in f.readlines()[1:]:
+                cols = line.split()
+                if cols[3] == "0A" and cols[9] in inodes:  # LISTEN
+                    address, port = cols[1].rsplit(":", 1)
+                    found.add((address, int(port, 16)))
+    return found
+
+
+def test_the_view_is_reached_only_through_the_service_doors(monkeypatch):
+    """viser listens on no TCP port (a page re-pointed at 127.0.0.1, whatever Host or Origin it sends, finds
+    nothing; issue 33 found its loopback port serving the live scene to Host: evil.example), only on a Unix socket
+    in a 0700 directory; the relay behind the doors refuses a foreign Host and a foreign Origin."""
+    monkeypatch.setenv("ISORIG_VIEWER", "1")
+    app = FastAPI()
+    relay = viewer.attach(app, Hub(), _Settings())
+    app.add_middleware(ServiceDoors, max_body_bytes=1 << 20, allowed_hosts=["testserver"])
+    before = _listening_tcp_ports()
+    try:
+        with TestClient(app) as client:
+            assert client.get("/viewer/").status_code == 200  # starts the scene
+            assert _listening_tcp_ports() - before == set()
+            socket_dir = relay.scene.socket_dir
+            assert stat.S_IMODE(os.stat(socket_dir).st_mode) == 0o700
+            assert stat.S_ISSOCK(os.stat(relay.scene.socket_path).st_mode)
+            assert client.get("/viewer/", headers={"Host": "evil.example"}).status_code == 400
+            protocol = ["viser-v" + _viser_version()]
+            with pytest.raises(WebSocketDisconnect):
+                with client.websocket_connect("/viewer", subprotocols=protocol,
+                                              headers={"Origin": "http://evil.example"}) as ws:
+                    ws.receive_bytes()
+            with client.websocket_connect("/viewer", subprotocols=protocol,
+                                          headers={"Origin": "http://testserver"}) as ws:
+                assert len(ws.receive_bytes()) > 0  # its own page gets the scene
+    finally:
+        relay.close()
+    assert not os.path.exists(socket_dir)
+
+
+def test_a_killed_service_s_socket_directory_is_removed_by_the_next_view(monkeypatch, tmp_path):
+    import socket
+    import time
+
+    monkeypatch.setattr(viewer.tempfile, "gettempdir", lambda: str(tmp_path))
+    dirs = {}
+    for kind in ("stale", "live", "new"):
+        path = tmp_path / f"{viewer.SOCKET_DIR_PREFIX}{kind}"
+        path.mkdir(mode=0o700)
+        sock = socket.socket(socket.AF_UNIX)
+        sock.bind(str(path / "viser.sock"))
+        sock.listen()
+        dirs[kind] = (path, sock)
+    dirs["stale"][1].close()  # its service was killed: the file stays, nothing listens
+    dirs["new"][1].close()  # just made by a service still starting: too young to judge
+    old = time.time() - 120
+    for kind in ("stale", "live"):
+        os.utime(dirs[kind][0], (old, old))
+    viewer._remove_stale_sockets()
+    assert not dirs["stale"][0].exists()
+    assert dirs["live"][0].exists() and dirs["new"][0].exists()
+    dirs["live"][1].close()
 
 
 def _viser_version() -> str:
