@@ -1,7 +1,9 @@
 """``create_app(settings)``: the FastAPI application with its store, rig service, stream hub and routes.
 
-At creation the database is migrated (Alembic) and any test of this service's rig left ``running`` by a dead
-service is marked ``interrupted`` (another rig's service may share the database: its tests are left alone).
+At creation the service takes its rig's lock (backend.rig_lock: one service per rig name and database; a second
+one is refused with ``RigBusy`` before it changes anything), then the database is migrated (Alembic) and any test
+of this service's rig left ``running`` by a dead service is marked ``interrupted`` (the lock says its service is
+gone; another rig's service may share the database: its tests are left alone). The lock is let go at shutdown.
 Accounts (backend.accounts): the first start creates ``admin`` and writes its password to a file of mode 0600 in
 the data directory (``first-admin-password.txt``), saying only where on the server's terminal;
 ``ISORIG_OPERATOR_TOKEN``, where set, is the token of the service account ``automation``. Routes: ``/api/...``
@@ -21,7 +23,7 @@ from pathlib import Path
 from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
 
-from . import accounts, db, errors, store
+from . import accounts, db, errors, rig_lock, store
 from .api import commissioning, ground_motions, isolators, lab, login, meta, motion, protocols, tests, ws
 from .auth import LoginThrottle
 from .checks import CheckPool, HeavyBodyGate
@@ -81,11 +83,16 @@ def _warm_reports(sessions) -> threading.Event:
 def create_app(settings: Settings | None = None, driver: str | None = None) -> FastAPI:
     settings = settings or Settings()
     engine = db.make_engine(settings.resolved_database_url)
-    db.upgrade(engine)
-    sessions = db.session_factory(engine)
-    with sessions() as session:
-        interrupted = store.mark_running_interrupted(session, settings.rig_name)  # this rig's only
-        session.commit()
+    lock = rig_lock.take(engine, settings.rig_name, settings.host, settings.port)  # before any write: RigBusy
+    try:
+        db.upgrade(engine)
+        sessions = db.session_factory(engine)
+        with sessions() as session:
+            interrupted = store.mark_running_interrupted(session, settings.rig_name)  # this rig's, service gone
+            session.commit()
+    except BaseException:
+        lock.release()
+        raise
     if interrupted:
         log.warning("tests %s were running when the service stopped: marked interrupted", interrupted)
     service_token = settings.operator_token.get_secret_value() if settings.operator_token else ""
@@ -93,6 +100,7 @@ def create_app(settings: Settings | None = None, driver: str | None = None) -> F
     first = bootstrap_accounts(sessions, bool(service_token), password_file)
     hub = Hub(settings.stream_history_s)
     service = RigService(settings, sessions, hub, driver)
+    service.rig_lock = lock
     checks = CheckPool(service.context, settings.check_workers, settings.check_queue,  # heavy token-free work
                        settings.check_worker_max_rss_bytes)
     fitter = Fitter(service, sessions)  # a commissioning's fit, once its run has ended (backend.commissioning)
@@ -116,6 +124,7 @@ def create_app(settings: Settings | None = None, driver: str | None = None) -> F
         finally:
             checks.shutdown()
             await asyncio.get_running_loop().run_in_executor(None, service.shutdown)
+            lock.release()  # once its tests are recorded as ended
             engine.dispose()
 
     app = FastAPI(title="isorig", version="0.1.0", lifespan=lifespan,
@@ -128,6 +137,7 @@ def create_app(settings: Settings | None = None, driver: str | None = None) -> F
     app.state.rig = app.state.rig_description.parameters  # what the controller assumes; envelope, limits
     app.state.fitter = fitter
     app.state.engine = engine
+    app.state.rig_lock = lock
     app.state.sessions = sessions
     app.state.service_token = service_token
     app.state.login_throttle = LoginThrottle()

@@ -158,6 +158,7 @@ class RigService:
         #: called as hook(session, test, status, reason) in the transaction that ends a run, after its summary;
         #: a hook may change the record and return a callable, called once the end is committed and streamed
         self.end_hooks: list = []
+        self.rig_lock = None  # backend.rig_lock: while it is not held (its database connection lost) no test starts
 
     # --- state ---------------------------------------------------------------------------------------
     def context(self):
@@ -306,6 +307,9 @@ class RigService:
             running = self.running_test_id()
             if running is not None:
                 raise Conflict(f"test {running} is running; the rig runs one test at a time")
+            if self.rig_lock is not None and not self.rig_lock.held:
+                raise Conflict(f"this service has lost the lock of the rig {self.rig_name!r} with its database "
+                               "connection (another service may drive it): no test starts until it is held again")
             with self.sessions() as session:
                 test = store.get_test(session, test_id)
                 if test is None:

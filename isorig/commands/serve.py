@@ -81,9 +81,13 @@ def run(args) -> int:
             print(f"isorig serve: ISORIG_SERVICE_NICE={settings.service_nice} not applied ({exc.strerror})",
                   file=sys.stderr)
     from backend.db import DatabaseFileError
+    from backend.rig_lock import RigBusy
 
     try:
         app = create_app(settings)
+    except RigBusy as exc:  # another service drives this rig on this database: named, nothing changed
+        print(f"isorig serve: {exc}", file=sys.stderr)
+        return 3
     except DatabaseFileError as exc:  # an empty file, or one that is not a database: its path, nothing written
         print(f"isorig serve: {exc}", file=sys.stderr)
         return 2

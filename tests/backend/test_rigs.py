@@ -15,6 +15,7 @@ from pydantic import ValidationError
 from backend import rig_in_force, store
 from backend.app import create_app
 from backend.db import make_engine, session_factory, upgrade
+from backend.rig_lock import RigBusy
 from backend.settings import DEFAULT_RIG_NAME, Settings, check_rig_name
 from isorig.cli import main as isorig_main
 from sim.samples import N_FIELDS, SAMPLE_FIELDS
@@ -134,9 +135,10 @@ def test_two_services_share_one_database_each_driving_its_own_rig(tmp_path):
         assert state_b["last_event"]["rig_name"] == "rig-b"
         state_a = a.get("/api/rig/state").json()
         assert state_a["status"] == "running" and state_a["test_id"] == long_a
-        # a restart of rig B's service (a third app on the same database) leaves rig A's running test alone
-        with _service(tmp_path, db, "rig-b"):
-            pass
+        # a second service of rig B (a third app on the same database) is refused, and touches nothing of rig
+        # A's (test_one_service_per_rig.py: real processes, a restart after the first died)
+        with pytest.raises(RigBusy, match="the rig 'rig-b' is already driven by another"):
+            _service(tmp_path, db, "rig-b")
         assert a.get(f"/api/tests/{long_a}").json()["status"] == "running"
         # History: every rig's tests, with their rig's name, from either service; filtered by rig
         for client in (a, b):
