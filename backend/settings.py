@@ -45,6 +45,11 @@ class Settings(BaseSettings):
                                "Host header (DNS rebinding guard), separated by commas or spaces, beyond localhost, "
                                "127.0.0.1, [::1] and the address it binds (`--allowed-host`, repeatable); '*' "
                                "answers to any name (no guard: only behind a proxy that checks Host)")
+    forwarded_allow_ips: str = Field(default="", max_length=2000, description="the reverse proxies whose "
+                                     "X-Forwarded-For and X-Forwarded-Proto are believed (addresses or networks, "
+                                     "e.g. '127.0.0.1' or '10.0.0.0/8', separated by commas or spaces; "
+                                     "`--forwarded-allow-ips`); empty (default): none, every request's address is "
+                                     "the one it came from, as the login throttle and the audit trail see it")
     max_body_bytes: int = Field(default=16 * 1024 * 1024, ge=64 * 1024, le=1024**3, description="largest request "
                                 "body accepted, bytes (413 before it is read); the largest legitimate one, a "
                                 "200 000-sample inline history, is 6.3 MB as JSON (10 MB if every number had 17 "
@@ -110,6 +115,30 @@ class Settings(BaseSettings):
     @classmethod
     def _rig_name(cls, value: str) -> str:
         return check_rig_name(value)
+
+    @field_validator("forwarded_allow_ips")
+    @classmethod
+    def _proxy_addresses(cls, value: str) -> str:
+        """The trusted proxies as uvicorn takes them (comma-separated), each an IP address or network."""
+        import ipaddress
+
+        items = []
+        for item in value.replace(",", " ").split():
+            try:  # as uvicorn compares them: an address, or a network written with its host bits zero
+                items.append(str(ipaddress.ip_network(item, strict=False) if "/" in item
+                                 else ipaddress.ip_address(item)))
+            except ValueError:
+                raise ValueError(f"{item!r} is not an IP address or network (a trusted proxy is named by its "
+                                 "address, e.g. 127.0.0.1, ::1 or 10.0.0.0/8; '*' is not taken)") from None
+        return ",".join(items)
+
+    def proxy_options(self) -> dict:
+        """uvicorn's proxy options: forwarded headers believed only from the proxies named, none by default
+        (uvicorn's own default believes them from 127.0.0.1, so that anyone on the machine could forge an
+        address)."""
+        if not self.forwarded_allow_ips:
+            return {"proxy_headers": False, "forwarded_allow_ips": ""}
+        return {"proxy_headers": True, "forwarded_allow_ips": self.forwarded_allow_ips}
 
     @field_validator("rig")
     @classmethod

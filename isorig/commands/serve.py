@@ -30,6 +30,10 @@ def register(sub) -> None:
     p.add_argument("--allowed-host", action="append", default=[], metavar="NAME",
                    help="a name the service is reached by, beyond localhost, 127.0.0.1, [::1] and --host (the Host "
                         "header is checked against DNS rebinding; repeatable; ISORIG_ALLOWED_HOSTS)")
+    p.add_argument("--forwarded-allow-ips", default=None, metavar="IPS",
+                   help="the reverse proxies whose X-Forwarded-For / X-Forwarded-Proto are believed: addresses or "
+                        "networks, comma-separated (e.g. 127.0.0.1); default none: a request's address is the one "
+                        "it came from (ISORIG_FORWARDED_ALLOW_IPS; docs/backend.md, 'Behind a reverse proxy')")
     p.add_argument("--max-body-bytes", type=int, default=None, metavar="BYTES",
                    help="largest request body accepted, bytes (default 16 MiB; 413 beyond; ISORIG_MAX_BODY_BYTES)")
     p.add_argument("--log-level", default="info", choices=("critical", "error", "warning", "info", "debug"))
@@ -58,7 +62,8 @@ def run(args) -> int:
                                    ("data_dir", args.data_dir), ("rig_name", args.rig_name), ("rig", args.rig),
                                    ("rig_file", args.rig_file),
                                    ("rig_key_file", args.rig_key_file), ("rig_protocol", args.rig_protocol),
-                                   ("max_body_bytes", args.max_body_bytes))
+                                   ("max_body_bytes", args.max_body_bytes),
+                                   ("forwarded_allow_ips", args.forwarded_allow_ips))
                  if v is not None}
     if args.allowed_host:  # as every flag: in place of the environment's ISORIG_ALLOWED_HOSTS
         overrides["allowed_hosts"] = " ".join(args.allowed_host)
@@ -99,8 +104,10 @@ def run(args) -> int:
           f"database {app.state.engine.url.render_as_string(hide_password=True)}, rig {settings.rig_name!r}: "
           f"{settings.rig} "
           f"({app.state.rig_description.name})"
-          + (f", the simulated plant unlike it: {settings.plant_set}" if settings.plant_set.strip() else ""),
+          + (f", the simulated plant unlike it: {settings.plant_set}" if settings.plant_set.strip() else "")
+          + (f", forwarded headers believed from {settings.forwarded_allow_ips}" if settings.forwarded_allow_ips
+             else ""),
           file=sys.stderr, flush=True)
     uvicorn.run(app, host=settings.host, port=settings.port, log_level=args.log_level,
-                ws_per_message_deflate=settings.ws_per_message_deflate)
+                ws_per_message_deflate=settings.ws_per_message_deflate, **settings.proxy_options())
     return 0
