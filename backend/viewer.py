@@ -356,6 +356,21 @@ class ViewerRelay:
             self.scene = None
 
 
+def _close_at_shutdown(app, relay: ViewerRelay) -> None:
+    """Close the view when the application's lifespan ends (a shutdown handler is never run beside a lifespan)."""
+    inner = app.router.lifespan_context
+
+    @contextlib.asynccontextmanager
+    async def lifespan(application):
+        try:
+            async with inner(application) as state:
+                yield state
+        finally:
+            relay.close()
+
+    app.router.lifespan_context = lifespan
+
+
 def attach(app, hub, settings) -> ViewerRelay | None:
     """Add ``/viewer/status``, the HTTP relay ``/viewer/...`` and the websocket relay ``/viewer`` to ``app``.
 
@@ -371,8 +386,7 @@ def attach(app, hub, settings) -> ViewerRelay | None:
         return None
     relay = ViewerRelay(hub, settings)
     app.state.viewer = relay
-    with contextlib.suppress(Exception):
-        app.router.add_event_handler("shutdown", relay.close)
+    _close_at_shutdown(app, relay)
 
     @app.get("/viewer", include_in_schema=False)
     async def viewer_root() -> RedirectResponse:

@@ -118,9 +118,9 @@ def test_the_view_is_reached_only_through_the_service_doors(monkeypatch):
             with client.websocket_connect("/viewer", subprotocols=protocol,
                                           headers={"Origin": "http://testserver"}) as ws:
                 assert len(ws.receive_bytes()) > 0  # its own page gets the scene
+        assert relay.scene is None and not os.path.exists(socket_dir)  # closed with the application
     finally:
         relay.close()
-    assert not os.path.exists(socket_dir)
 
 
 def test_a_killed_service_s_socket_directory_is_removed_by_the_next_view(monkeypatch, tmp_path):
