@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import stat
+import time
 
 import pytest
 from fastapi import FastAPI
@@ -123,9 +124,30 @@ def test_the_view_is_reached_only_through_the_service_doors(monkeypatch):
         relay.close()
 
 
+def test_a_viser_that_listens_elsewhere_is_not_served(monkeypatch):
+    """Should viser start its server some other way (an upgrade), the view is refused, not served on a port."""
+    import contextlib
+
+    monkeypatch.setenv("ISORIG_VIEWER", "1")
+    monkeypatch.setattr(viewer, "_viser_listens_on", lambda path: contextlib.nullcontext())
+    app = FastAPI()
+    relay = viewer.attach(app, Hub(), _Settings())
+    before = _listening_tcp_ports()
+    try:
+        with TestClient(app) as client:
+            r = client.get("/viewer/")
+            assert r.status_code == 503 and "did not listen on its private socket" in r.json()["detail"]
+            assert relay.scene is None
+    finally:
+        relay.close()
+    deadline = time.monotonic() + 5
+    while _listening_tcp_ports() - before and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert _listening_tcp_ports() - before == set()  # the port it opened is closed again
+
+
 def test_a_killed_service_s_socket_directory_is_removed_by_the_next_view(monkeypatch, tmp_path):
     import socket
-    import time
 
     monkeypatch.setattr(viewer.tempfile, "gettempdir", lambda: str(tmp_path))
     dirs = {}
