@@ -39,6 +39,7 @@ from ..rig import RigParameters
 from ..samples import Samples
 
 CORNER_HZ = 150.0  # the zero-phase low-pass before derivatives: above the oil column and most valves' bandwidth
+NOISE_BAND_HZ = 350.0  # a reading's content above this is its sensor's noise (the rig moves far below it)
 EDGE_S = 0.05  # the filter's start and end transients are not fitted
 SLIDING_M_PER_S = 1e-3  # the force balance uses samples where |y'| is above this ...
 STICK_MARGIN_S = 0.003  # ... and has been for this long either side (a sticking table is not in the model)
@@ -76,6 +77,8 @@ class Signals:
     p_load_f: np.ndarray = field(init=False)
     p_load_rate_f: np.ndarray = field(init=False)
     force_f: np.ndarray = field(init=False)
+    #: each reading's white noise, one sigma (m, Pa, N), and what it leaves in the low-passed derivatives
+    noise: dict = field(init=False)
 
     def __post_init__(self):
         self.y_f = lowpass(self.y, self.dt_s)
@@ -84,6 +87,12 @@ class Signals:
         self.p_load_f = lowpass(self.p_load, self.dt_s)
         self.p_load_rate_f = derivative(self.p_load_f, self.dt_s)
         self.force_f = lowpass(self.force, self.dt_s)
+        gains = noise_gains(self.dt_s)
+        y, p, f = (noise_std(x, self.dt_s, self.valid) for x in (self.y, self.p_load, self.force))
+        self.noise = {"position_m": y, "load_pressure_pa": p, "force_n": f,
+                      "velocity_m_per_s": y * gains[1], "acceleration_m_per_s2": y * gains[2],
+                      "load_pressure_f_pa": p * gains[0], "load_pressure_rate_pa_per_s": p * gains[1],
+                      "force_f_n": f * gains[0]}
 
     def __len__(self) -> int:
         return self.u.size
@@ -118,6 +127,42 @@ def derivative(x: np.ndarray, dt_s: float) -> np.ndarray:
     d = np.gradient(x, dt_s)
     d[2:-2] = (x[:-4] - 8.0 * x[1:-3] + 8.0 * x[3:-1] - x[4:]) / (12.0 * dt_s)
     return d
+
+
+def noise_std(x: np.ndarray, dt_s: float, where: np.ndarray | None = None) -> float:
+    """A reading's white-noise sigma, from its content above ``NOISE_BAND_HZ`` (zero-phase high-pass; scaled by
+    the share of white noise's variance that passes it). The rig's motion, oil column and valve lie far below that
+    band; a sensor's noise and quantisation spread over the whole of it. ``where``: the samples to judge it on
+    (the high-pass runs over the whole record, so that a gap between them is not read as noise)."""
+    if 2.0 * NOISE_BAND_HZ * dt_s >= 0.9 or x.size < 200:
+        return 0.0
+    sos = signal.butter(4, NOISE_BAND_HZ, "high", fs=1.0 / dt_s, output="sos")
+    passed = signal.sosfiltfilt(sos, x)
+    use = np.ones(x.size, dtype=bool) if where is None else where.copy()
+    use[:50] = use[-50:] = False
+    if np.count_nonzero(use) < 100:
+        return 0.0
+    return float(math.sqrt(np.mean(passed[use] ** 2) / _white_share_above(dt_s)))
+
+
+def _impulse(dt_s: float, n: int = 401) -> np.ndarray:
+    x = np.zeros(n)
+    x[n // 2] = 1.0
+    return x
+
+
+def _white_share_above(dt_s: float) -> float:
+    sos = signal.butter(4, NOISE_BAND_HZ, "high", fs=1.0 / dt_s, output="sos")
+    return float(np.sum(signal.sosfiltfilt(sos, _impulse(dt_s)) ** 2))
+
+
+def noise_gains(dt_s: float) -> tuple[float, float, float]:
+    """How much of a unit white noise's sigma the fits' low-pass leaves in a reading, its derivative (1/s) and
+    its second derivative (1/s^2): the square root of the summed squares of their impulse responses."""
+    h = lowpass(_impulse(dt_s), dt_s)
+    h1 = derivative(h, dt_s)
+    h2 = derivative(h1, dt_s)
+    return tuple(float(math.sqrt(np.sum(g ** 2))) for g in (h, h1, h2))
 
 
 def signals_from_samples(samples: Samples, dt_s: float) -> Signals:
@@ -226,8 +271,20 @@ def _flow_regression(sig: Signals, mask: np.ndarray, area: float, dp_reg: float,
     opening = np.maximum(v_e - dz, 0.0) + np.minimum(v_e + dz, 0.0)
     x = np.column_stack([lowpass(opening * r, sig.dt_s), -sig.p_load_rate_f])[mask]
     target = area * sig.at_latency(sig.v_f, latency_ms * 1e-3)[mask]
-    coef = np.linalg.lstsq(x.T @ x, x.T @ target, rcond=None)[0]  # normal equations: 2 unknowns
+    # normal equations (2 unknowns), with the P_L' noise's own share taken out of its column's sum of squares:
+    # a regressor with noise in it pulls its coefficient, C, towards zero by var(signal) / var(signal + noise)
+    # (bias-compensated least squares; the noise from the reading's content above NOISE_BAND_HZ)
+    normal = x.T @ x
+    normal[1, 1] -= x.shape[0] * sig.noise["load_pressure_rate_pa_per_s"] ** 2
+    coef = np.linalg.lstsq(normal, x.T @ target, rcond=None)[0]
     return coef, target - x @ coef, target
+
+
+def explained(residual: np.ndarray, target: np.ndarray, residual_noise_var: float, target_noise_var: float) -> float:
+    """R^2 of a balance judged against what its readings' noise leaves to explain: the share of the target's
+    variance beyond its noise that the fit explains, counting the residual's expected noise as explained."""
+    unexplained = max(float(np.var(residual)) - residual_noise_var, 0.0)
+    return 1.0 - unexplained / max(float(np.var(target)) - target_noise_var, 1e-300)
 
 
 def fit_flow(sig: Signals, area: float, dp_reg: float, mask: np.ndarray | None = None,
@@ -254,7 +311,8 @@ def fit_flow(sig: Signals, area: float, dp_reg: float, mask: np.ndarray | None =
         if best is None or sol.cost < best.cost:
             best = sol
     coef, res, target = _flow_regression(sig, mask, area, dp_reg, best.x)
-    r2 = 1.0 - float(np.var(res) / max(np.var(target), 1e-300))
+    target_noise = (area * sig.noise["velocity_m_per_s"]) ** 2
+    r2 = explained(res, target, target_noise + (coef[1] * sig.noise["load_pressure_rate_pa_per_s"]) ** 2, target_noise)
     dz, null_v, valve_hz, damping, latency_ms, negative_gain = best.x
     return FlowFit(float(dz), float(null_v), float(valve_hz), float(damping), float(latency_ms * 1e-3),
                    float(negative_gain), float(coef[0]), float(coef[1]), r2)
