@@ -331,8 +331,8 @@ def gaussian(seed, period, channel):
 @njit(cache=True, error_model="numpy")
 def read(x, p, aux, period, out):
     """The rig's readings at the start of ``period`` into ``out`` (READING_NAMES): the position late, noisy and
-    quantised; P_A - P_B from two noisy transducers; the supply at the valve; the load cell's reading. The true
-    position is recorded once per period for the latency."""
+    quantised; the load pressure P_A - (A_B/A_A) P_B from two noisy transducers; the supply at the valve; the
+    load cell's reading. The true position is recorded once per period for the latency."""
     last = int(aux[AUX_LAST_PERIOD])
     if period > last:
         aux[2 + period % HISTORY] = x[X_Y]
@@ -352,8 +352,11 @@ def read(x, p, aux, period, out):
         y = math.floor(y / p[P_POS_STEP] + 0.5) * p[P_POS_STEP]
     out[R_POSITION] = y
     out[R_FORCE] = x[X_LC] + p[P_FORCE_NOISE] * gaussian(seed, period, 1)
+    # the load pressure as docs/rig-protocol.md 4.2 defines it: the actuator's force over the +y side's area,
+    # P_A - (A_B / A_A) P_B, from the two transducers' readings (P_A - P_B on a double-rod actuator)
+    area_ratio = p[P_AREA_B] / p[P_AREA_A]
     out[R_LOAD_PRESSURE] = (x[X_PA] + p[P_PRESSURE_NOISE] * gaussian(seed, period, 2)
-                            - x[X_PB] - p[P_PRESSURE_NOISE] * gaussian(seed, period, 3))
+                            - area_ratio * (x[X_PB] + p[P_PRESSURE_NOISE] * gaussian(seed, period, 3)))
     supply = supply_at_valve(x, p)
     out[R_SUPPLY] = supply + p[P_SUPPLY_NOISE] * gaussian(seed, period, 4)
     out[R_TRUE_Y] = x[X_Y]

@@ -88,6 +88,30 @@ def test_a_positive_command_drives_the_table_towards_plus_y_and_the_pressure_pus
     assert back[-1, ph.R_TRUE_Y] < push[-1, ph.R_TRUE_Y] - 1e-3
 
 
+def single_rod_rig(seed_from: int = 0):
+    for seed in range(seed_from, seed_from + 50):
+        spec = draw_rig(seed)
+        if spec.drawn["actuator.rod"] == "single":
+            return spec
+    raise AssertionError("no single-rod rig in 50 seeds")
+
+
+def test_the_load_pressure_read_times_the_plus_y_area_is_the_actuators_force_on_a_single_rod_rig():
+    """docs/rig-protocol.md 4.2: load_pressure_pa is the actuator's force over the area that pushes +y, P_A - (A_B /
+    A_A) P_B; on a single-rod actuator P_A - P_B is not (it reads a load at rest, where the chambers balance)."""
+    spec = single_rod_rig()
+    spec.params[ph.P_PRESSURE_NOISE] = 0.0
+    rig = ForeignRig(spec)
+    p = rig.params
+    assert p[ph.P_AREA_A] > 1.2 * p[ph.P_AREA_B]
+    for command_v in (0.0, 3.0, -3.0):
+        moved(rig, command_v, 200)
+        reading = rig.read()
+        force = p[ph.P_AREA_A] * rig.state[ph.X_PA] - p[ph.P_AREA_B] * rig.state[ph.X_PB]
+        assert p[ph.P_AREA_A] * reading[ph.R_LOAD_PRESSURE] == pytest.approx(force, rel=1e-3, abs=50.0)
+        assert abs(reading[ph.R_LOAD_PRESSURE] - (rig.state[ph.X_PA] - rig.state[ph.X_PB])) > 1e5
+
+
 def test_the_supply_sags_with_the_flow_and_recovers():
     rig = ForeignRig(draw_rig(2))
     before = moved(rig, 0.0, 20)[-1, ph.R_SUPPLY]
