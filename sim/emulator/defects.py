@@ -9,6 +9,7 @@ DEFECTS = {
     "accept-stale": "applies stale commands (duplicates, older than the one held, more than 10 periods old)",
     "reply-from-other-port": "sends from another port than the one the host sent to",
     "no-hello-rate": "(protocol 2) answers every HELLO, however many",
+    "shared-hello-rate": "(protocol 2) one HELLO bucket for every sender: a flood from anyone starves the host's HELLO",
     "any-address": "(protocol 2) applies commands from any address, not only the ARM's",
     "reuse-challenge": "(protocol 2) keeps its challenge after an ARM, so a finished session's ARM arms it again",
 }

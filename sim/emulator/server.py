@@ -50,6 +50,7 @@ from ..rig import DEFAULT_RIG, RigParameters
 from . import auth
 from . import protocol as proto
 from .defects import check_defects
+from .hello_rate import HelloBuckets
 
 SENSOR_FAULTS = ("stuck", "nan", "out-of-range")
 # the network tap (``EmulatorConfig.tap_port``): each copy is b">" (to the rig) or b"<" (from the rig), the peer's
@@ -65,8 +66,6 @@ SPIN_S = 2e-4  # the loop sleeps until this long before a tick, then polls
 #: the tick loop, woken by a command, waited for it, and the command was timed that much late (set by the CLI)
 GIL_SWITCH_INTERVAL_S = 2e-4
 STATUS_EVERY_S = 0.5
-HELLO_BURST = 10  # version 2: HELLOs answered at once at most ...
-HELLO_RATE_PER_S = 100.0  # ... and on average; the rest are dropped as `rate` before their tag is checked
 
 
 @dataclass
@@ -189,8 +188,7 @@ class RigEmulator:
         self.codec = proto.Codec(config.security.protocol_version)
         self.lab_key = config.security.key
         self.challenge = auth.new_nonce()  # version 2: what the next ARM must carry (a new one after each ARM)
-        self.hello_tokens = float(HELLO_BURST)
-        self.hello_refill_t = time.perf_counter()
+        self.hello_buckets = HelloBuckets()  # version 2: HELLO's rate, per source (section 9.6)
         self.send_sock = self.sock
         if "reply-from-other-port" in self.defects:
             self.send_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -266,8 +264,9 @@ class RigEmulator:
             self._reject(exc.reason)
             return
         kind, v2 = header.kind, self.codec.version == 2
-        if kind == proto.HELLO and v2 and not self._hello_token(arrival) and "no-hello-rate" not in self.defects:
-            self._reject("rate")  # a flood of HELLOs costs the rig no tag to check and no answer
+        if kind == proto.HELLO and v2 and "no-hello-rate" not in self.defects and \
+                not self.hello_buckets.take("everyone" if "shared-hello-rate" in self.defects else addr, arrival):
+            self._reject("rate")  # a flood from this source costs the rig no tag to check and no answer
             return
         key = self.lab_key
         if kind in (proto.DISARM, proto.COMMAND) and v2:
@@ -302,15 +301,6 @@ class RigEmulator:
                 self._reject("session")
         else:
             self._command(packet, arrival)
-
-    def _hello_token(self, now: float) -> bool:
-        """A token bucket: HELLO_BURST HELLOs at once, HELLO_RATE_PER_S on average."""
-        self.hello_tokens = min(HELLO_BURST, self.hello_tokens + (now - self.hello_refill_t) * HELLO_RATE_PER_S)
-        self.hello_refill_t = now
-        if self.hello_tokens < 1.0:
-            return False
-        self.hello_tokens -= 1.0
-        return True
 
     def _arm(self, packet: proto.Packet, addr, arrival: float) -> None:
         supply, load = packet.fields["supply_pressure_pa"], packet.fields["vertical_load_n"]
@@ -635,6 +625,7 @@ class RigEmulator:
                 "vertical_load_n": self.vertical_load_n,
                 "command_v": self.command_v, "position_m": self.plant.position_m,
                 "counters": dict(self.counters), "rejected": dict(self.rejected),
+                "hello_sources": self.hello_buckets.status(),
                 "command_latency": self.latency.summary(above_ms=self.period_s * 1e3),
                 "tick_lateness": self.tick_lateness.summary(above_ms=1.0),
                 "watchdog_trips": list(self.watchdog_trips)}

@@ -28,7 +28,7 @@ from emulator import ISORIG, Emulator, read_record, simulate_on
 from backend.drivers.udp import UdpRig, probe
 from sim.emulator import auth
 from sim.emulator import protocol as proto
-from sim.emulator.server import HELLO_BURST, HELLO_RATE_PER_S
+from sim.emulator.hello_rate import HELLO_BURST, HELLO_RATE_PER_S
 from sim.measurement import STATUS_ARMED, STATUS_INTERLOCK
 
 # real time against the rig emulator in its own process: scripts/test.sh runs these alone, after the others
