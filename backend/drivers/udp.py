@@ -36,6 +36,9 @@ from .base import ArmConditions, RigDescription, RigDriver, RigFault, check_comm
 ARM_RESEND_S = 0.05  # ARM is repeated this often until the rig answers
 DISARM_REPEATS = 3  # DISARM travels on UDP too: sent three times
 ARM_TRIES_PER_CHALLENGE = 4  # version 2: ARMs sent with one challenge before a HELLO fetches a fresh one
+#: a probe's HELLO unanswered this long is sent again (a fresh nonce), until the probe's deadline: a HELLO lost on
+#: the network, or dropped by a rig's rate limit (section 9.6), does not make a rig that is there look absent
+PROBE_RESEND_S = 0.04
 
 
 def parse_udp_url(url: str) -> tuple[str, int]:
@@ -312,60 +315,80 @@ class UdpRig(RigDriver):
 
 def probe(url: str, timeout_s: float = 0.2, key_file: str | None = None, protocol_version: int | None = None,
           security: auth.LinkSecurity | None = None) -> dict:
-    """One HELLO to the rig at ``url``: is it there, what does it say, how long did it take. Version 2 (a key):
-    the HELLO carries a fresh nonce and only the rig's ANSWER to it, with a right tag, counts."""
+    """HELLO to the rig at ``url``, sent again every PROBE_RESEND_S until an answer or ``timeout_s``: is it there,
+    what does it say, how long did it take. Version 2 (a key): each HELLO carries a fresh nonce and only the rig's
+    ANSWER to one of them, with a right tag, counts."""
     host, port = parse_udp_url(url)
     try:
         security = security or auth.resolve_security(host, key_file, protocol_version)
     except ValueError as exc:
         return {"rig": url, "connected": False, "detail": str(exc)}
     codec = proto.Codec(security.protocol_version)
-    nonce = auth.new_nonce()
-    hello = (codec.encode(proto.HELLO, 0, 0, time.perf_counter_ns()) if codec.version == 1 else
-             codec.encode(proto.HELLO, 0, 0, time.perf_counter_ns(), nonce, key=security.key))
-    want = proto.MEASUREMENT if codec.version == 1 else proto.ANSWER
     dropped: dict[str, int] = {}
+    sent: dict[bytes, float] = {}  # nonce -> when its HELLO left (version 1 sends none: any answer counts)
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        sock.settimeout(timeout_s)
         t0 = time.perf_counter()
         try:
             sock.connect((host, port))
-            sock.send(hello)
-            while True:
-                data = sock.recv(codec.max_packet + 64)
-                try:
-                    header = codec.peek(data)
-                    if header.kind != want:
-                        continue
-                    packet = codec.open(data, header, security.key)
-                except proto.PacketError as exc:
-                    dropped[exc.reason] = dropped.get(exc.reason, 0) + 1
-                    continue
-                if codec.version == 1 or packet.fields["nonce"] == nonce:
-                    break
+            packet = _hello_answer(sock, codec, security, t0 + timeout_s, sent, dropped)
         except ConnectionRefusedError:
             return {"rig": url, "connected": False,
                     "detail": f"nothing listens at {host}:{port} (the rig or its emulator is not running there)"}
-        except TimeoutError:
+        except OSError as exc:
+            return {"rig": url, "connected": False, "detail": f"cannot reach {host}:{port}: {exc.strerror or exc}"}
+        if packet is None:
             if dropped:
                 what = ", ".join(f"{n} {reason}" for reason, n in dropped.items())
                 hint = (" (the rig holds another key than this host's key file)" if "auth" in dropped else
                         " (another protocol version: --rig-protocol, ISORIG_RIG_PROTOCOL)" if "version" in dropped
                         else "")
-                return {"rig": url, "connected": False, "detail": f"{host}:{port} answers, but not in the isorig rig "
-                        f"protocol v{codec.version} this host speaks (dropped: {what}){hint}"}
-            return {"rig": url, "connected": False, "detail": f"no answer from {host}:{port} within {timeout_s:g} s "
-                    f"(is it running, with rig protocol v{codec.version}"
+                return {"rig": url, "connected": False, "hellos_sent": len(sent), "detail": f"{host}:{port} answers, "
+                        f"but not in the isorig rig protocol v{codec.version} this host speaks (dropped: {what}){hint}"}
+            return {"rig": url, "connected": False, "hellos_sent": len(sent),
+                    "detail": f"no answer from {host}:{port} to {len(sent)} HELLO(s) "
+                    f"within {timeout_s:g} s (is it running, with rig protocol v{codec.version}"
                     + (" and the same key file?)" if security.authenticated else "?)")}
-        except OSError as exc:
-            return {"rig": url, "connected": False, "detail": f"cannot reach {host}:{port}: {exc.strerror or exc}"}
         status = int(packet.fields["status"])
-        return {"rig": url, "connected": True, "round_trip_ms": (time.perf_counter() - t0) * 1e3,
-                "armed": bool(status & STATUS_ARMED), "status": describe_status(status),
+        asked = sent.get(packet.fields.get("nonce"), t0)  # version 1: from the first HELLO
+        return {"rig": url, "connected": True, "round_trip_ms": (time.perf_counter() - asked) * 1e3,
+                "hellos_sent": len(sent), "armed": bool(status & STATUS_ARMED), "status": describe_status(status),
                 "fault": bool(status & RIG_FAULT_BITS), "position_m": packet.fields["position_m"],
                 "force_n": packet.fields["force_n"], "supply_pressure_pa": packet.fields["supply_pressure_pa"],
                 "period_s": packet.fields["period_ns"] * 1e-9, "packets_rejected": packet.fields["packets_rejected"],
                 **security.describe()}
+
+
+def _hello_answer(sock: socket.socket, codec: proto.Codec, security: auth.LinkSecurity, deadline: float,
+                  sent: dict, dropped: dict) -> proto.Packet | None:
+    """The rig's answer to one of the HELLOs sent on the connected ``sock`` (a new one every PROBE_RESEND_S, each
+    recorded in ``sent``), or None at ``deadline``; what was dropped is counted in ``dropped`` by reason."""
+    want = proto.MEASUREMENT if codec.version == 1 else proto.ANSWER
+    resend = time.perf_counter()
+    while True:
+        now = time.perf_counter()
+        if now >= deadline:
+            return None
+        if now >= resend:
+            nonce = auth.new_nonce()
+            sock.send(codec.encode(proto.HELLO, 0, 0, time.perf_counter_ns()) if codec.version == 1 else
+                      codec.encode(proto.HELLO, 0, 0, time.perf_counter_ns(), nonce, key=security.key))
+            sent[nonce] = now
+            resend = now + PROBE_RESEND_S
+        sock.settimeout(max(1e-4, min(resend, deadline) - now))
+        try:
+            data = sock.recv(codec.max_packet + 64)
+        except TimeoutError:
+            continue
+        try:
+            header = codec.peek(data)
+            if header.kind != want:
+                continue
+            packet = codec.open(data, header, security.key)
+        except proto.PacketError as exc:
+            dropped[exc.reason] = dropped.get(exc.reason, 0) + 1
+            continue
+        if codec.version == 1 or packet.fields["nonce"] in sent:
+            return packet
 
 
 START_TOLERANCE_M = 0.002  # a test starts only with the table this close to zero, where every target begins
