@@ -13,6 +13,8 @@ protocol document, one row per rule naming its section (``isorig check-rig``, do
   the rig's ``packets_rejected`` and in the command not being applied (``command_sequence`` not reaching it);
 - DISARM (the stream stops), the rig unarmed (silent, commands dropped), the watchdog (its time from the last
   command and from ARM, its last measurement, stale commands not feeding it);
+- version 2 (section 9): a HELLO without the key unanswered, HELLO's rate, a HELLO answered while a keyless flood
+  from another socket runs (the rate is per source), tags, the ARM's address and challenge;
 - with ``motion``: the direction of the table, the signs of ``load_pressure_pa`` (its change from the rest
   before each push, ``pressure_change``: whatever specimen is mounted) and ``force_n``, the position a HELLO
   reports after the table moved.
@@ -69,6 +71,7 @@ MOTION_PRESSURE_SIGMAS = 4.0  # ... and by this many standard errors of the read
 HELLO_FOLLOW_M = 0.05e-3  # a HELLO after the motion: where the last measurement left the table
 HELLO_BURST_SENT = 40  # version 2: HELLOs sent at once to see the rate limit (section 9.6) ...
 HELLO_BURST, HELLO_RATE_PER_S = 10, 100.0  # ... which answers about this many at once and per second
+HELLO_FLOOD_SENT = 30  # version 2: keyless HELLOs from a third socket before the host's HELLO, and as many after
 
 
 def pressure_change(rest_pa: list[float], pushed_pa: list[float]) -> tuple[float, float]:
@@ -534,6 +537,7 @@ class RigCheck:
                 if self.link.codec.version == 2:
                     self._hello_without_key()
                     self._hello_rate()
+                    self._hello_under_flood()
                 self._refused_arms()
                 self._main_session()
                 self._finished_session()
@@ -624,6 +628,26 @@ class RigCheck:
             problems.append(f"packets_rejected rose by {rose}, not the {HELLO_BURST_SENT - answers} unanswered (rate)")
         self.add("§9.6", f"HELLO's rate: a burst of {HELLO_BURST_SENT} answered in part, the rest counted (rate)",
                  not problems, f"{answers} answered, packets_rejected +{rose}", "; ".join(problems))
+
+    def _hello_under_flood(self) -> None:
+        """A flood of keyless HELLOs from another socket around the host's HELLO: answered all the same (9.6)."""
+        before = self.hello()["packets_rejected"]
+        junk = self.link.codec.encode(proto.HELLO, 0, 0, 0, auth.new_nonce(), key=auth.new_nonce() * 2)
+        nonce = auth.new_nonce()
+        with Link._socket() as flood:
+            for i in range(2 * HELLO_FLOOD_SENT):
+                if i == HELLO_FLOOD_SENT:
+                    self.link.send(self.link.hello_packet(nonce), aux=True)
+                flood.sendto(junk, self.link.addr)
+            rec = self.link.receive(time.perf_counter() + SILENT_S, aux=True)
+            answered = rec is not None and rec.packet.fields["nonce"] == nonce
+            rose = self.hello()["packets_rejected"] - before
+            junk_answered = len(select.select([flood], [], [], 0.0)[0])
+        ok = answered and rose == 2 * HELLO_FLOOD_SENT and not junk_answered
+        self.add("§9.6", f"HELLO under a flood: answered after {HELLO_FLOOD_SENT} keyless HELLOs from another socket, "
+                 "the flood counted", ok, f"{'answered' if answered else 'no answer'}, packets_rejected +{rose}",
+                 "" if ok else "a HELLO must be rated per source (address and port): a flood from others must not "
+                 f"use up the host's HELLOs; every keyless one dropped and counted ({2 * HELLO_FLOOD_SENT})")
 
     def _replayed_arm(self, data: bytes) -> None:
         answers, rose = self._unanswered([data], aux=False)
