@@ -183,8 +183,8 @@ class LoginThrottle:
                 entry.failures += 1
                 self._touch(key, entry, now)
                 if entry.failures == self.limits[key[0]]:
-                    log.warning("login throttle: %d failed guesses %s; each further one waits from %.0f s, "
-                                "doubling", entry.failures, _describe(key), self.first_delay_s)
+                    log.warning("login throttle: %d guesses %s without a right password; each further wrong one "
+                                "waits from %.0f s, doubling", entry.failures, _describe(key), self.first_delay_s)
             return 0.0
 
     def failed(self, name: str, address: str) -> None:
