@@ -7,6 +7,8 @@ first, the next service starts and marks the test it left `interrupted`."""
 
 from __future__ import annotations
 
+import json
+import os
 import signal
 import socket
 import subprocess
@@ -116,3 +118,67 @@ def test_services_of_other_rigs_share_the_database(database):
     finally:
         for server in servers:
             stop(server)
+
+
+def test_the_sqlite_lock_file_names_its_holder_and_is_let_go(tmp_path):
+    from backend import rig_lock
+    from backend.db import make_engine
+
+    engine = make_engine(f"sqlite:///{tmp_path / 'isorig.db'}")
+    held = rig_lock.take(engine, "rig-1", "127.0.0.1", 8000)
+    path = tmp_path / "isorig.db.rig-1.lock"
+    assert json.loads(path.read_text())["pid"] == os.getpid() and oct(path.stat().st_mode & 0o777) == "0o600"
+    with pytest.raises(rig_lock.RigBusy, match=rf"pid {os.getpid()}, on host .*, serving 127.0.0.1:8000, since"):
+        rig_lock.take(engine, "rig-1", "127.0.0.1", 8001)
+    rig_lock.take(engine, "rig-2", "127.0.0.1", 8001).release()  # another rig's lock is its own
+    held.release()
+    rig_lock.take(engine, "rig-1", "127.0.0.1", 8001).release()
+    engine.dispose()
+
+
+def test_a_lost_postgresql_lock_is_taken_again(postgres, monkeypatch):
+    """The lock's connection ended by the server (a restart, an administrator): the watch thread finds it, takes
+    the lock again on a new connection; while another session holds it, ``held`` is False."""
+    from sqlalchemy import create_engine, text
+
+    from backend import rig_lock
+
+    monkeypatch.setattr(rig_lock, "CHECK_INTERVAL_S", 0.1)
+    engine = create_engine(postgres.database())
+    lock = rig_lock.take(engine, "rig-1", "127.0.0.1", 8000)
+
+    def holder_pids(c) -> list[int]:
+        return c.execute(text("SELECT pid FROM pg_locks WHERE locktype = 'advisory' AND objsubid = 2 AND granted")
+                         ).scalars().all()
+
+    def until(condition, timeout_s: float = 10.0) -> None:
+        deadline = time.monotonic() + timeout_s
+        while not condition():
+            assert time.monotonic() < deadline, "not in time"
+            time.sleep(0.05)
+
+    try:
+        with engine.connect().execution_options(isolation_level="AUTOCOMMIT") as c:
+            first = holder_pids(c)
+            assert len(first) == 1 and lock.held
+            c.execute(text("SELECT pg_terminate_backend(:p)"), {"p": first[0]})
+            until(lambda: holder_pids(c) not in ([], first))  # held again, by a new session
+            assert lock.held
+            # another session takes it while this one's connection is gone: not held, said, tried again
+            c.execute(text("SELECT pg_terminate_backend(:p), pg_advisory_lock(:c, :k)"),  # waits in the lock's
+                      {"p": holder_pids(c)[0], **lock.keys})  # queue: first once the ended session lets go
+            until(lambda: not lock.held)
+            c.execute(text("SELECT pg_advisory_unlock(:c, :k)"), lock.keys)
+            until(lambda: lock.held)
+    finally:
+        lock.release()
+        engine.dispose()
+
+
+def test_no_test_starts_while_the_lock_is_not_held(client):
+    client.app.state.rig_lock.held = False  # as while a lost PostgreSQL lock is taken again
+    r = client.post("/api/tests?start=true", json=sine_test(), headers=AUTH)
+    assert r.status_code == 409 and "lost the lock of the rig 'rig-1'" in r.json()["detail"], r.text
+    client.app.state.rig_lock.held = True
+    r = client.post("/api/tests?start=true", json=sine_test(), headers=AUTH)
+    assert r.status_code == 201, r.text
