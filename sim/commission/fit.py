@@ -17,8 +17,16 @@ that only enter as C or at the force limit); everything else is fitted:
 1. the flow balance is linear in (K_q, C) once the dead zone, the null offset v_e0, the valve's w_v and xi_v,
    the position latency L and k_en are fixed: those six are found by non-linear least squares over the linear
    solution (variable projection), started from a grid over the dead zone;
-2. the force balance is linear in (m, F_f, sigma) at that latency, over the samples where the table slides
-   (a stuck table is held by whatever the static friction takes).
+2. the force balance is linear in (m, F_c, sigma, sigma_1 delta) at that latency, with the guides' friction a
+   Dahl law (pre-sliding: a table that a dither moves by tens of um is held by its bearings' bristles, a spring
+   of F_c / delta with a damper, not by F_f sgn(y')), its pre-sliding distance delta on a grid:
+
+       A_p P_L - F = m y'' + F_c z + sigma_1 delta z' + sigma y',   z' = y' (1 - z sgn(y')) / delta,  |z| <= 1
+
+   fitted with every coefficient >= 0 (a negative mass or friction is not a rig) over the whole record; or the
+   Coulomb law of eq. (1), A_p P_L - F = m y'' + F_f sgn(y') + sigma y', over the samples where the table
+   slides (a table that sticks rigidly is held by whatever the static friction takes), whichever explains
+   more (``ForceFit.presliding_m`` is 0 for Coulomb's).
 
 Uncertainties are delete-a-group jackknife estimates: the record is cut into ``CHUNK_S`` stretches dealt
 round to ``BLOCKS`` groups (each group has some of every phase of the excitation), the fit is made again
@@ -41,8 +49,10 @@ from ..samples import Samples
 CORNER_HZ = 150.0  # the zero-phase low-pass before derivatives: above the oil column and most valves' bandwidth
 NOISE_BAND_HZ = 350.0  # a reading's content above this is its sensor's noise (the rig moves far below it)
 EDGE_S = 0.05  # the filter's start and end transients are not fitted
-SLIDING_M_PER_S = 1e-3  # the force balance uses samples where |y'| is above this ...
-STICK_MARGIN_S = 0.003  # ... and has been for this long either side (a sticking table is not in the model)
+#: the pre-sliding distances the Dahl friction law is tried at, m (a factor sqrt 2 apart); 0: Coulomb's law
+PRESLIDING_GRID_M = tuple(5e-6 * 2 ** (k / 2) for k in range(13))
+SLIDING_M_PER_S = 1e-3  # Coulomb's law is fitted where |y'| is above this ...
+STICK_MARGIN_S = 0.003  # ... and has been for this long either side (a rigidly sticking table is not in it)
 BLOCKS = 5
 ANOMALY_MARGIN_S = 0.015  # left out either side of a lost measurement or a late command
 MAX_ANOMALY_SHARE = 0.1  # more than this share of lost or late periods: the record is not fitted
@@ -259,6 +269,8 @@ class ForceFit:
     mass_kg: float
     friction_n: float
     viscous_n_s_per_m: float
+    presliding_m: float
+    bristle_damping_n_s_per_m: float
     r2: float
     samples: int
 
@@ -318,6 +330,31 @@ def fit_flow(sig: Signals, area: float, dp_reg: float, mask: np.ndarray | None =
                    float(negative_gain), float(coef[0]), float(coef[1]), r2)
 
 
+def dahl_state(y: np.ndarray, presliding_m: float) -> np.ndarray:
+    """z of the Dahl law z' = y' (1 - z sgn(y')) / delta for the displacement y (|z| <= 1; F_c z is the friction).
+    Rate-independent, so solved exactly per step of y: z -> s - (s - z) exp(-|dy| / delta), s = sgn(dy)."""
+    z = np.empty_like(y)
+    state, last = 0.0, float(y[0])
+    for k, yk in enumerate(y.tolist()):
+        step = yk - last
+        last = yk
+        if step > 0.0:
+            state = 1.0 - (1.0 - state) * math.exp(-step / presliding_m)
+        elif step < 0.0:
+            state = -1.0 + (1.0 + state) * math.exp(step / presliding_m)
+        z[k] = state
+    return z
+
+
+def _friction_columns(sig: Signals, presliding_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """(z, z') of the Dahl law on the low-passed position, kept with the record (they do not depend on the mask)."""
+    cache = sig.__dict__.setdefault("_dahl", {})
+    if presliding_m not in cache:
+        z = dahl_state(sig.y_f, presliding_m)
+        cache[presliding_m] = (z, derivative(lowpass(z, sig.dt_s), sig.dt_s))
+    return cache[presliding_m]
+
+
 def sliding_mask(sig: Signals, latency_s: float) -> np.ndarray:
     """Samples where the table has been sliding (|y'| > SLIDING_M_PER_S) for STICK_MARGIN_S either side."""
     v = sig.at_latency(sig.v_f, latency_s)
@@ -327,31 +364,51 @@ def sliding_mask(sig: Signals, latency_s: float) -> np.ndarray:
     return sig.valid & ~near_stuck
 
 
-def fit_force(sig: Signals, area: float, latency_s: float, mask: np.ndarray | None = None) -> ForceFit:
-    """The force balance (eq. 3, first line), linear in (m, F_f, sigma), where the table slides."""
-    sliding = sliding_mask(sig, latency_s)
-    if mask is not None:
-        sliding &= mask
-    if np.count_nonzero(sliding) < 200:
-        raise FitError("the table slid for less than 0.2 s in the record: the force balance cannot be fitted")
-    v = sig.at_latency(sig.v_f, latency_s)
-    a = sig.at_latency(sig.a_f, latency_s)
-    x = np.column_stack([a, lowpass(np.sign(v), sig.dt_s), v])[sliding]
-    target = (area * sig.p_load_f - sig.force_f)[sliding]
-    coef, *_ = np.linalg.lstsq(x, target, rcond=None)
+def _force_law(sig: Signals, area: float, latency_s: float, use: np.ndarray, delta: float) -> ForceFit | None:
+    """The force balance with one friction law (delta > 0: Dahl's at that pre-sliding distance; 0: Coulomb's,
+    where the table slides), every coefficient >= 0; None when too little of the record is left."""
+    if delta == 0.0:
+        use = use & sliding_mask(sig, latency_s)
+    if np.count_nonzero(use) < 200:
+        return None
+    v = sig.at_latency(sig.v_f, latency_s)[use]
+    a = sig.at_latency(sig.a_f, latency_s)[use]
+    target = (area * sig.p_load_f - sig.force_f)[use]
+    if delta == 0.0:
+        x = np.column_stack([a, lowpass(np.sign(sig.at_latency(sig.v_f, latency_s)), sig.dt_s)[use], v])
+    else:
+        z, z_rate = (sig.at_latency(c, latency_s)[use] for c in _friction_columns(sig, delta))
+        x = np.column_stack([a, z, v, z_rate])
+    coef = optimize.lsq_linear(x, target, bounds=(0.0, np.inf), method="bvls").x
     res = target - x @ coef
-    r2 = 1.0 - float(np.var(res) / max(np.var(target), 1e-300))
-    return ForceFit(float(coef[0]), float(coef[1]), float(coef[2]), r2, int(np.count_nonzero(sliding)))
+    noise = sig.noise
+    target_noise = (area * noise["load_pressure_f_pa"]) ** 2 + noise["force_f_n"] ** 2
+    r2 = explained(res, target, target_noise + (coef[0] * noise["acceleration_m_per_s2"]) ** 2, target_noise)
+    damping = float(coef[3] / delta) if delta > 0.0 else 0.0
+    return ForceFit(float(coef[0]), float(coef[1]), float(coef[2]), float(delta), damping, r2, int(target.size))
+
+
+def fit_force(sig: Signals, area: float, latency_s: float, mask: np.ndarray | None = None,
+              presliding_m: float | None = None) -> ForceFit:
+    """The force balance (eq. 3, first line; module docstring): Coulomb's law and Dahl's at each pre-sliding
+    distance of the grid (or the one law given: 0 is Coulomb's), the one that explains most kept."""
+    use = sig.valid if mask is None else sig.valid & mask
+    if np.ptp(sig.y_f[use]) < 1e-5:
+        raise FitError("the table moved less than 0.01 mm: the force balance cannot be fitted")
+    laws = (0.0, *PRESLIDING_GRID_M) if presliding_m is None else (presliding_m,)
+    fits = [f for f in (_force_law(sig, area, latency_s, use, delta) for delta in laws) if f is not None]
+    if not fits:
+        raise FitError("the table slid for less than 0.2 s in the record: the force balance cannot be fitted")
+    return max(fits, key=lambda f: f.r2)
 
 
 def latency_from_force(sig: Signals, area: float, max_latency_s: float = 0.01) -> float:
-    """A first guess of the position latency: the shift that fits the force balance best (a scan)."""
+    """A first guess of the position latency: the shift that fits the force balance best (a scan, at the
+    pre-sliding distance fitted unshifted)."""
+    delta = fit_force(sig, area, 0.0).presliding_m
     best = (math.inf, 0.0)
     for latency in np.arange(0.0, max_latency_s + 1e-12, 2.5e-4):
-        try:
-            fit = fit_force(sig, area, float(latency))
-        except FitError:
-            continue
+        fit = fit_force(sig, area, float(latency), presliding_m=delta)
         if 1.0 - fit.r2 < best[0]:
             best = (1.0 - fit.r2, float(latency))
     return best[1]
@@ -381,7 +438,7 @@ class RigFit:
     estimates: dict[str, Estimate]
     flow_r2: float
     force_r2: float
-    sliding_s: float
+    force_balance_s: float  # the record's length the force balance was fitted over
     declared: RigParameters
 
     def value(self, name: str) -> float:
@@ -389,7 +446,7 @@ class RigFit:
 
     def to_dict(self) -> dict:
         return {"estimates": {k: e.to_dict() for k, e in self.estimates.items()}, "flow_r2": self.flow_r2,
-                "force_r2": self.force_r2, "sliding_s": self.sliding_s}
+                "force_r2": self.force_r2, "force_balance_s": self.force_balance_s}
 
 
 def _named(flow: FlowFit, force: ForceFit, declared: RigParameters) -> dict[str, float]:
@@ -406,6 +463,8 @@ def _named(flow: FlowFit, force: ForceFit, declared: RigParameters) -> dict[str,
         "mass_kg": force.mass_kg,
         "friction_force_n": force.friction_n,
         "viscous_n_s_per_m": force.viscous_n_s_per_m,
+        "presliding_m": force.presliding_m,
+        "bristle_damping_n_s_per_m": force.bristle_damping_n_s_per_m,
     }
 
 
@@ -418,8 +477,10 @@ UNITS = {"flow_gain_m3_per_s_v_sqrt_pa": ("m3/(s V sqrt(Pa))", "valve flow gain 
          "bulk_modulus_pa": ("Pa", "effective bulk modulus beta (the oil column's stiffness, with the declared V_0)"),
          "position_latency_s": ("s", "delay of the position reading"),
          "mass_kg": ("kg", "moving mass m"),
-         "friction_force_n": ("N", "Coulomb friction mu N + F_c at the run's vertical load"),
-         "viscous_n_s_per_m": ("N s/m", "viscous friction sigma (the oil column's damping)")}
+         "friction_force_n": ("N", "Coulomb friction mu N + F_c at the run's vertical load (the Dahl law's level)"),
+         "viscous_n_s_per_m": ("N s/m", "viscous friction sigma (the oil column's damping)"),
+         "presliding_m": ("m", "the guides' pre-sliding distance delta (Dahl law): F_c / delta is their stiffness"),
+         "bristle_damping_n_s_per_m": ("N s/m", "the pre-sliding's damping sigma_1 (Dahl law)")}
 
 
 def fit_rig(sig: Signals, declared: RigParameters, blocks: int = BLOCKS) -> RigFit:
@@ -439,7 +500,7 @@ def fit_rig(sig: Signals, declared: RigParameters, blocks: int = BLOCKS) -> RigF
         keep = sig.valid & (group != b)
         f = fit_flow(sig, area, dp_reg, keep, start)
         try:
-            g = fit_force(sig, area, f.latency_s, keep)
+            g = fit_force(sig, area, f.latency_s, keep, presliding_m=force.presliding_m)
         except FitError:
             g = force
         leave_one_out.append(_named(f, g, declared))

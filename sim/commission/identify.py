@@ -45,7 +45,8 @@ MAX_ABSOLUTE_STD = {"dead_zone_v": 0.03, "driver_offset_v": 0.03, "position_late
 #: simulated plants by scripts/commissioning_targets.py): relative share of the value, or absolute
 SYSTEMATIC_RELATIVE = {"flow_gain_m3_per_s_v_sqrt_pa": 0.005, "driver_gain_negative": 0.005, "mass_kg": 0.02,
                        "bulk_modulus_pa": 0.02, "valve_natural_frequency_rad_s": 0.01, "valve_damping_ratio": 0.02,
-                       "friction_force_n": 0.02, "viscous_n_s_per_m": 0.3}
+                       "friction_force_n": 0.02, "viscous_n_s_per_m": 0.3, "presliding_m": 0.2,
+                       "bristle_damping_n_s_per_m": 0.3}
 SYSTEMATIC_ABSOLUTE = {"dead_zone_v": 0.002, "driver_offset_v": 0.002, "position_latency_s": 5e-5}
 
 

@@ -1,0 +1,113 @@
+"""The commissioning fit alone on foreign rigs: how well each balance explains a foreign rig's record, how close
+each value the controller relies on comes to the rig's physics, and why each fit was refused.
+
+    .venv/bin/python scripts/foreign_fits.py --rigs 40 [--seed 0] [--workers 2] [--json rows.json]
+
+For each rig (foreign_rigs.draw_rig): the excitation at the default bounds from what its lab knows, then
+sim.commission.identify. No test is run (that is `isorig compare --foreign-rigs`): this is the fit's own
+edit-measure loop, about 5 s a rig. Prints the medians of the balances' R^2 and of the replay's error, the count
+of each refusal reason, and each value's error in sigmas of its stated uncertainty.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from collections import Counter
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+#: the first words of each refusal, by kind
+REASONS = (("the flow balance", "flow balance < 98 %"), ("the force balance", "force balance < 90 %"),
+           ("the fitted rig, given", "replay > 20 %"), ("is uncertain", "a value too uncertain"),
+           ("not a positive", "a value not positive"), ("ended on the fit", "a value on the fit's bound"),
+           ("are not a rig", "not a rig"), ("did not run", "excitation stopped"))
+
+
+def fit_row(seed: int) -> dict:
+    """One rig: the excitation, the fit, the values against the truth."""
+    import numpy as np
+
+    from foreign_rigs import draw_rig
+    from sim.commission import foreign_campaign as fc
+    from sim.commission.identify import Conditions, excitation_scenario, identify
+    from sim.engine import Simulation
+    from sim.isolator import load_isolator
+
+    np.seterr(all="ignore")
+    started = time.perf_counter()
+    spec = draw_rig(seed)
+    declared = fc.declared_rig(spec.lab_knows())
+    load = float(spec.drawn["table.vertical_load_n"])
+    conditions = Conditions("simulated", fc.SUPPLY_PA, load, "foreign", 0.0)
+    scenario = excitation_scenario(load_isolator(fc.CONTROLLER_ISOLATOR), conditions, declared)
+    scenario.foreign_rig = spec
+    ident = identify(Simulation(scenario, validate=False).run().samples, declared, conditions)
+    row = {"seed": seed, "rig": spec.name, "trusted": ident.trusted, "problems": ident.problems,
+           "seconds": round(time.perf_counter() - started, 1)}
+    if ident.fit is not None:
+        values = fc.judged_values(ident, spec, declared)
+        row.update(flow_r2=ident.fit.flow_r2, force_r2=ident.fit.force_r2,
+                   values={k: list(v) for k, v in values.items()}, wrong=fc.wrong_values(values),
+                   presliding_m=ident.fit.value("presliding_m"))
+    if ident.response is not None:
+        row["replay_error"] = ident.response.velocity_nrmse
+    return row
+
+
+def reason_counts(rows: list[dict]) -> Counter:
+    counts = Counter()
+    for row in rows:
+        kinds = {label for p in row["problems"] for words, label in REASONS if words in p}
+        counts.update(kinds)
+    return counts
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--rigs", type=int, default=40)
+    parser.add_argument("--seed", type=int, default=0, help="the first rig's seed")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--json", help="write every row to this file")
+    args = parser.parse_args(argv)
+    import numpy as np
+
+    seeds = range(args.seed, args.seed + args.rigs)
+    started = time.perf_counter()
+    with ProcessPoolExecutor(args.workers) as pool:
+        rows = list(pool.map(fit_row, seeds))
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+    fitted = [r for r in rows if "flow_r2" in r]
+    trusted = [r for r in rows if r["trusted"]]
+    print(f"{len(rows)} foreign rigs (seeds {seeds.start}-{seeds.stop - 1}), {time.perf_counter() - started:.0f} s")
+    print(f"trusted: {len(trusted)}; trusted with a value outside 3 sigma of its truth: "
+          f"{sum(1 for r in trusted if r['wrong'])}")
+    for key, label in (("flow_r2", "flow balance R^2"), ("force_r2", "force balance R^2"),
+                       ("replay_error", "replay's velocity error")):
+        values = [r[key] for r in fitted if key in r and math.isfinite(r[key])]
+        if values:
+            print(f"{label}: median {np.median(values):.4g}, 10 % {np.percentile(values, 10):.4g}, "
+                  f"90 % {np.percentile(values, 90):.4g}")
+    print("refusals:", ", ".join(f"{label} {n}" for label, n in reason_counts(rows).most_common()))
+    names = sorted({k for r in fitted for k in r["values"]})
+    for name in names:
+        sigmas = [abs(v[0] - v[2]) / v[1] for r in fitted if name in r["values"]
+                  for v in [r["values"][name]] if v[1] > 0 and math.isfinite(v[0])]
+        within = sum(1 for s in sigmas if s <= 3)
+        line = f"  {name}: within 3 sigma of its truth {within}/{len(sigmas)}"
+        if not name.endswith("_v"):  # a dead zone or a null's error is in volts, not a share
+            errors = [abs(v[0] / v[2] - 1) for r in fitted if name in r["values"]
+                      for v in [r["values"][name]] if v[2] and math.isfinite(v[0])]
+            line += f", error median {100 * np.median(errors):.1f} %"
+        print(line)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
