@@ -31,16 +31,18 @@ def _last_finite(column: np.ndarray):
     return float(column[finite[-1]]) if finite.size else None
 
 
-def protocol_acceptance(record: dict, cycles: list[dict]) -> dict | None:
-    """A protocol test's acceptance (``acceptance``) and each level's figures (``levels``, from ``headline``) from
-    its record and stored cycles alone (no samples needed), or None for a test that did not run a protocol."""
+def protocol_acceptance(record: dict, cycles: list[dict], lab=None) -> dict | None:
+    """A protocol test's acceptance (``acceptance``, with the check against the design values under the lab's
+    tolerances: ``lab.tolerances``) and each level's figures (``levels``, from ``headline``) from its record and
+    stored cycles alone (no samples needed), or None for a test that did not run a protocol."""
     from .data import ReportBundle
+    from .design import tolerances_for
 
     protocol, _note = protocol_of(record)
     if protocol is None:
         return None
     bundle = ReportBundle(record=record, samples=np.empty((0, 0)), cycles=cycles)
-    out = acceptance(bundle, run_of(bundle))
+    out = acceptance(bundle, run_of(bundle), tolerances_for(lab, protocol.name))
     out["levels"] = headline(bundle, protocol)["levels"]
     return out
 
@@ -111,10 +113,12 @@ def headline(bundle, protocol=None) -> dict:
     return out
 
 
-def acceptance(bundle, run: dict | None = None) -> dict:
+def acceptance(bundle, run: dict | None = None, tolerances: dict | None = None) -> dict:
     """Verdicts of the test's protocol (sim.protocols.evaluate_acceptance) on the steady cycles only (a taper or
-    the ramp-out of a stop is never judged as a test cycle), their summary, and the verdict in one word:
-    PASSED, FAILED, INCOMPLETE (the test ended before its end: checks without a measured cycle) or NO VERDICT."""
+    the ramp-out of a stop is never judged as a test cycle), their summary, the check against the specimen's
+    design values with a verdict per level (``design``: design.design_acceptance under ``tolerances``, default
+    EN 15129's), and the verdict in one word over both: PASSED, FAILED, INCOMPLETE (the test ended before its
+    end: checks without a measured cycle) or NO VERDICT."""
     protocol, note = protocol_of(bundle.record)
     if protocol is None:
         kind = earthquake_kind(bundle.record)
@@ -125,6 +129,8 @@ def acceptance(bundle, run: dict | None = None) -> dict:
                 "summary": {"passed": None, "verdicts": 0, "failed": 0, "failed_rules": []}, "verdicts": [],
                 "verdict": "NO VERDICT"}
     from sim.protocols import acceptance_summary, evaluate_acceptance
+
+    from .design import design_acceptance, tolerances_for
 
     metrics = [{k: v for k, v in c.items() if k not in ("displacement_m", "force_n")}
                for c in steady_cycles(bundle.cycles)]
@@ -141,12 +147,18 @@ def acceptance(bundle, run: dict | None = None) -> dict:
             v["reference_cycle"] = None
     summary = acceptance_summary(verdicts)
     missing = sum(1 for v in verdicts if v["status"] == "missing")
+    design = design_acceptance(protocol, metrics, isolator_of(bundle.record),
+                               tolerances or tolerances_for(None, protocol.name))
+    design_missing = sum(lv["missing"] for lv in design["levels"])
+    passed = summary["passed"]
+    if design["passed"] is not None:
+        passed = design["passed"] if passed is None else (passed and design["passed"])
     ended_early = bool(run and run.get("ended_early"))
-    if summary["passed"] is None:
+    if passed is None:
         word = "NO VERDICT"
-    elif summary["passed"]:
+    elif passed:
         word = "PASSED"
-    elif ended_early and missing:
+    elif ended_early and (missing or design_missing):
         word = "INCOMPLETE"
     else:
         word = "FAILED"
@@ -159,7 +171,7 @@ def acceptance(bundle, run: dict | None = None) -> dict:
                               "levels": list(r.levels) if r.levels else None,
                               "passed": sum(1 for v in verdicts if v["rule"] == r.name and v["passed"]),
                               "checks": sum(1 for v in verdicts if v["rule"] == r.name)} for r in protocol.rules],
-            "summary": summary, "verdicts": verdicts, "verdict": word,
+            "summary": summary, "verdicts": verdicts, "verdict": word, "design": design,
             "checks_missing": missing, "judged_on": "steady cycles only"}
 
 
@@ -230,6 +242,7 @@ def report_json(bundle, identify: bool = True, meta: dict | None = None, identif
     made (identified_bouc_wen's answer). ``meta`` (rig, operator, source) fills in what the record does not
     hold; ``lab`` (lab.LabHeader) is the issuing lab (default: lab_header from ``meta`` and the settings).
     """
+    from .design import tolerances_for
     from .lab import lab_header
 
     meta = meta or {}
@@ -262,7 +275,7 @@ def report_json(bundle, identify: bool = True, meta: dict | None = None, identif
         "earthquake": earthquake(bundle),
         "headline": headline(bundle, protocol),
         "cycles": cycles,
-        "acceptance": acceptance(bundle, run),
+        "acceptance": acceptance(bundle, run, tolerances_for(lab, protocol.name if protocol else None)),
         "identification": identification if identification is not None else identified_bouc_wen(bundle)
         if identify else {"available": False, "nominal": iso.to_dict() if iso else None,
                           "note": "identification not requested"},

@@ -126,8 +126,9 @@ def write_bundle_zip(out, bundle, report: dict, pdf: bytes, protocol=None) -> li
     return [f"{folder}/{name}" for name in files]
 
 
-def bundle_zip_bytes(bundle, lab=None, identify: bool = True) -> bytes:
-    """The zip of a test, everything made here (report.json, the PDF, the CSVs)."""
+def bundle_zip_bytes(bundle, lab=None, identify: bool = True, pdf: bytes | None = None) -> bytes:
+    """The zip of a test, everything made here (report.json, the PDF, the CSVs); ``pdf``: the report kept at an
+    approval, zipped as it is instead of one made now."""
     import logging
 
     from .content import report_json
@@ -140,8 +141,10 @@ def bundle_zip_bytes(bundle, lab=None, identify: bool = True) -> bytes:
     if lab.warning:
         logging.getLogger("isorig.reports").warning(lab.warning)
     report = report_json(bundle, identify=identify, lab=lab)
-    pdf = io.BytesIO()
-    render_report_pdf(bundle, pdf, report=report, lab=lab)
+    if pdf is None:
+        buf = io.BytesIO()
+        render_report_pdf(bundle, buf, report=report, lab=lab)
+        pdf = buf.getvalue()
     out = io.BytesIO()
-    write_bundle_zip(out, bundle, report, pdf.getvalue(), protocol_of(bundle.record)[0])
+    write_bundle_zip(out, bundle, report, pdf, protocol_of(bundle.record)[0])
     return out.getvalue()

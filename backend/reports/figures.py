@@ -117,9 +117,27 @@ def _per_cycle(ax, cycles, key, scale, colour, label, mean):
             off = int(above.sum() + below.sum())
     if limits is not None:
         ax.set_ylim(*limits)
-    if mean is not None:
+    if isinstance(mean, list):  # a protocol: each level's mean over its own cycles
+        for x0, x1, value in mean:
+            if value is not None:
+                ax.hlines(value * scale, x0 - 0.5, x1 + 0.5, color=colour, lw=0.7, ls="--", alpha=0.8)
+    elif mean is not None:
         ax.axhline(mean * scale, color=colour, lw=0.7, ls="--", alpha=0.8)
     return off
+
+
+def _level_means(protocol, head: dict, key: str) -> list | None:
+    """A protocol's per-level means as (first cycle, last cycle, value), or None for another test."""
+    levels = (head or {}).get("levels") or []
+    if protocol is None or not levels:
+        return None
+    plan = protocol.cycle_plan()
+    out = []
+    for lv in levels:
+        numbers = [p["cycle"] for p in plan if p["level"] == lv["level"]]
+        if numbers:
+            out.append((min(numbers), max(numbers), (lv.get("means") or {}).get(key)))
+    return out
 
 
 def page_loops(plt, bundle, protocol, report=None, u=LAB):
@@ -175,9 +193,13 @@ def page_loops(plt, bundle, protocol, report=None, u=LAB):
         ax3 = ax2.twinx()
         ax3.set_ylabel("EDC [J]", color="C3")
         ax3.grid(False)
+        head = (report or {}).get("headline") or {}
+        per_level = {k: _level_means(protocol, head, k) for k in ("k_eff_n_per_m", "edc_j")}
         off = _per_cycle(ax2, bundle.cycles, "k_eff_n_per_m", u.factor("stiffness"), "C0", "K_eff",
-                         means.get("k_eff_n_per_m"))
-        off += _per_cycle(ax3, bundle.cycles, "edc_j", u.factor("energy"), "C3", "EDC", means.get("edc_j"))
+                         per_level["k_eff_n_per_m"] if per_level["k_eff_n_per_m"] is not None
+                         else means.get("k_eff_n_per_m"))
+        off += _per_cycle(ax3, bundle.cycles, "edc_j", u.factor("energy"), "C3", "EDC",
+                          per_level["edc_j"] if per_level["edc_j"] is not None else means.get("edc_j"))
         title = "Effective stiffness and energy dissipated per cycle"
         if protocol is not None:
             for p in protocol.cycle_plan():
@@ -186,7 +208,8 @@ def page_loops(plt, bundle, protocol, report=None, u=LAB):
             title += " (shaded: judged test cycles)"
         ax2.set_title(title)
         handles = [Line2D([], [], color="C0", label="K_eff"), Line2D([], [], color="C3", label="EDC"),
-                   Line2D([], [], color="0.3", ls="--", lw=0.7, label="mean of the steady cycles")]
+                   Line2D([], [], color="0.3", ls="--", lw=0.7, label="mean of each level's steady cycles"
+                          if per_level["k_eff_n_per_m"] is not None else "mean of the steady cycles")]
         if any(not _is_steady(c) for c in bundle.cycles):
             handles.append(Line2D([], [], ls="none", marker="o", ms=3.5, mfc="white", mec="0.3",
                                   label="open: taper cycle (excluded)" + (f"; {off} off scale (triangles)" if off

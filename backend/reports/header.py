@@ -24,7 +24,8 @@ VALUE_WIDTH_PT = (RIGHT_X - VALUE_X) * 595.0  # A4 width in points: 595
 BODY = 8.5  # pt: body text
 PITCH = 11.0  # pt: body line pitch
 RED, GREEN, GREY = "#c62828", "#1a7f37", "0.35"
-VERDICT_COLOURS = {"PASSED": GREEN, "FAILED": RED, "INCOMPLETE": "#b45309", "NO VERDICT": GREY}
+VERDICT_COLOURS = {"PASSED": GREEN, "FAILED": RED, "INCOMPLETE": "#b45309", "NO VERDICT": GREY,
+                   "NOT REACHED": GREY}
 IDENTIFICATION_PT = 16 + 7 * 10.5 + 12  # the Bouc-Wen block's height: heading, 6 rows, note
 
 
@@ -318,8 +319,10 @@ HEADLINE_COLUMNS = (("k_eff_n_per_m", "K_eff", "stiffness"), ("edc_j", "EDC", "e
                     ("xi_eff", "xi_eff", "percent"), ("qd_n", "Q_d", "force"), ("kd_n_per_m", "K_d", "stiffness"))
 
 
-def headline_rows(head: dict, u=LAB) -> list[tuple[str, str]]:
-    """The headline table as monospace lines (and their colour), in the lab's units ``u``."""
+def headline_rows(head: dict, u=LAB, design: dict | None = None) -> list[tuple[str, str]]:
+    """The headline table as monospace lines (and their colour), in the lab's units ``u``. A protocol's figures
+    are per level only (a mean over levels of different amplitudes means little), each level followed by its
+    design values and verdict when ``design`` (acceptance's ``design``) has them."""
     def line(label, cells, tail):
         return f"{label:<27}" + "".join(f"{c:>9}" for c in cells) + f"   {tail}"
 
@@ -327,15 +330,22 @@ def headline_rows(head: dict, u=LAB) -> list[tuple[str, str]]:
             (line("", [u.unit(c[2]) for c in HEADLINE_COLUMNS], ""), "0.4")]
 
     def values(means):
-        return [u.fmt(q, means.get(k), trailing_zeros=True) for k, _n, q in HEADLINE_COLUMNS]
+        return [u.fmt(q, (means or {}).get(k), trailing_zeros=True) for k, _n, q in HEADLINE_COLUMNS]
 
     levels = head.get("levels") or []
-    rows.append((line("mean, all steady cycles" if levels else "mean of the steady cycles", values(head["means"]),
-                      f"{head['steady_cycles']} of {head['cycles']}"), "black"))
+    if not levels:
+        rows.append((line("mean of the steady cycles", values(head["means"]),
+                          f"{head['steady_cycles']} of {head['cycles']}"), "black"))
+    by_level = {lv["level"]: lv for lv in (design or {}).get("levels") or []}
     for lv in levels:
         label = f"level {lv['level']}: {u.text('length', lv['amplitude_m'])} {lv['frequency_hz']:g} Hz"
         tail = f"{lv['steady_cycles']} of {lv['cycles']}" if lv["cycles"] else "not reached"
         rows.append((line(label[:27], values(lv["means"]), tail), "black" if lv["cycles"] else "0.45"))
+        d = by_level.get(lv["level"])
+        if d is not None:
+            cells = [u.fmt(q, d["design"].get(k), trailing_zeros=True) if k in d["design"] else "-"
+                     for k, _n, q in HEADLINE_COLUMNS]
+            rows.append((line("  design value", cells, d["verdict"]), VERDICT_COLOURS.get(d["verdict"], GREY)))
     return rows
 
 
@@ -448,19 +458,26 @@ def _results(flow: Flow, report: dict, protocol, u=LAB) -> None:
     if report.get("earthquake"):
         _earthquake_results(flow, report)
     else:
-        _headline_results(flow, report["headline"], u)
+        _headline_results(flow, report["headline"], u, report["acceptance"].get("design"))
     _acceptance_and_tracking(flow, report, u)
 
 
-def _headline_results(flow: Flow, head: dict, u=LAB) -> None:
+def _headline_results(flow: Flow, head: dict, u=LAB, design: dict | None = None) -> None:
     _section(flow, "Results (from the steady cycles)")
     if head["steady_cycles"]:
-        for text, colour in headline_rows(head, u):
+        for text, colour in headline_rows(head, u, design):
             flow.text(VALUE_X - 0.19 + 0.02, text, pitch=10.5, fontsize=8.3, family="monospace", color=colour)
         left_out = ", ".join(f"{n} {PHASE_WORDS.get(p, p)}" for p, n in head["excluded_cycles"].items())
-        note = ("Means over the steady cycles (sim.metrics.headline_figures)"
+        note = ("Means over the steady cycles" + (" of each level" if head.get("levels") else "")
+                + " (sim.metrics.headline_figures)"
                 + (f"; left out: {left_out} (lower amplitude)" if left_out else "")
                 + ". Every cycle is in the table and the plots; the tapers are marked.")
+        if design and design.get("levels"):
+            t = design["tolerances"]
+            note += (f" Design value: the declared isolator model through the level's target; each test cycle "
+                     f"within +-{100 * t['k_eff']:g} % (K_eff), +-{100 * t['edc']:g} % (EDC), "
+                     f"+-{100 * t['xi_eff']:g} % (xi_eff) of it and the level's mean within +-{100 * t['mean']:g} "
+                     f"% ({design.get('source')}).")
         for line in wrap_pt(note, (RIGHT_X - KEY_X) * 595.0, 7.8):
             flow.text(KEY_X + 0.02, line, pitch=10, fontsize=7.8, color="0.35")
     else:
@@ -487,11 +504,18 @@ def _acceptance_and_tracking(flow: Flow, report: dict, u=LAB) -> None:
                            f"{made - (summary['failed'] - acc['checks_missing'])} passed and "
                            f"{summary['failed'] - acc['checks_missing']} failed. Not a complete test.", "black"))
         elif word == "PASSED":
-            detail.append((f"protocol {acc['protocol']}: all {summary['verdicts']} checks passed (steady cycles "
-                           "only)", "black"))
+            detail.append((f"protocol {acc['protocol']}: all {summary['verdicts']} checks of its rules passed "
+                           "(steady cycles only)", "black"))
         else:
             detail.append((f"protocol {acc['protocol']}: {summary['failed']} of {summary['verdicts']} checks "
-                           "failed (steady cycles only)", "black"))
+                           "of its rules failed (steady cycles only)", "black"))
+        design = acc.get("design") or {}
+        if design.get("levels"):
+            words = ", ".join(f"level {lv['level']} {lv['verdict']}" for lv in design["levels"])
+            bad = any(lv["verdict"] in ("FAILED", "INCOMPLETE") for lv in design["levels"])
+            detail.append((f"against the design values (K_eff, EDC, xi_eff): {words}", RED if bad else "black"))
+        elif design.get("note"):
+            detail.append((design["note"], "0.35"))
         for r in acc.get("rule_details", []):
             ok = r["passed"] == r["checks"]
             detail.append((f"rule {r['name']}: {r['text']} - {r['passed']} of {r['checks']} passed",

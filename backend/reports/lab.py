@@ -24,6 +24,8 @@ class LabHeader:
     logo: np.ndarray | None = None  # RGBA pixels, at most LOGO_MAX_PX on the long side
     warning: str | None = None  # why a logo file was given but is not shown
     units: str = "lab"  # the lab's units, what the PDF prints in: "lab" (mm, kN, kN/mm, bar) or "si" (backend.units)
+    # the lab's tolerances against design values, by protocol name (backend.reports.design; absent: EN 15129's)
+    tolerances: dict | None = None
 
     def to_json(self) -> dict:
         return {"name": self.name or None, "address": self.address or None, "logo_file": self.logo_file or None,

@@ -29,7 +29,8 @@ TABLE_NOTE = ("F+ and F- are the forces at d+ and d-.  K_eff = (F+ - F-) / (d+ -
               "xi_eff = 2 EDC / (pi K_eff (d+ - d-)^2).  Q_d = force intercept at the loop centre (mean of both "
               "branches).\nK_d = slope on both loading legs beyond half the amplitude.  Details: docs/metrics.md.\n"
               "Grey rows: taper cycles (lower amplitude; ramp out: the taper of an operator's stop), left out of the\n"
-              "headline figures and of the verdicts.  Last row: the mean of the steady cycles (the headline figures).")
+              "headline figures and of the verdicts.  Last rows: the mean of the steady cycles (the headline figures;\n"
+              "for a protocol one per level: mean L1 ...).")
 TAPER_GREY = "0.5"
 RED = "#c62828"
 WIDTHS = (5, 8, 8, 8, 8, 8, 8, 8, 7, 8, 8, 1)
@@ -46,6 +47,11 @@ def _table_rows(bundle, acc, protocol=None, u=LAB) -> list[tuple]:
         judged.add(v["cycle"])
         if not v["passed"] and v["status"] != "missing":
             failed.setdefault(v["cycle"], []).append(v["rule"])
+    for lv in (acc.get("design") or {}).get("levels") or []:  # the check against the design values
+        for c in lv["checks"]:
+            judged.add(c["cycle"])
+            if c["status"] == "fail":
+                failed.setdefault(c["cycle"], []).append("design " + c["name"])
     plan = {p["cycle"]: p for p in protocol.cycle_plan()} if protocol is not None else {}
     rows = []
     for c in bundle.cycles:
@@ -79,15 +85,21 @@ def pages_table(plt, bundle, acc, protocol=None, head: dict | None = None, u=LAB
     colours = [_row_colour(c, r) for c, r in zip(bundle.cycles, rows, strict=True)]
     lines = [(_table_line(r), col) for r, col in zip(rows, colours, strict=True)]
     if head and rows:
-        means = head.get("means") or {}
         lines.append("-" * (sum(WIDTHS) + len(WIDTHS)))
-        lines.append(_table_line(("mean", "", "", "", "", "",
-                                  *(u.fmt(q, num(means.get(k)), trailing_zeros=True) for k, q in MEAN_COLUMNS),
-                                  f"{head.get('steady_cycles', 0)} steady")))
+        # a protocol: one mean per level (levels differ in amplitude); else the mean of the steady cycles
+        groups = [(f"mean L{lv['level']}", lv.get("means") or {}, lv.get("steady_cycles", 0))
+                  for lv in head.get("levels") or []] or [("mean", head.get("means") or {},
+                                                           head.get("steady_cycles", 0))]
+        for label, means, n in groups:
+            lines.append(_table_line((label, "", "", "", "", "",
+                                      *(u.fmt(q, num(means.get(k)), trailing_zeros=True) for k, q in MEAN_COLUMNS),
+                                      f"{n} steady")))
     figs = []
     chunks = [lines[i:i + TABLE_ROWS] for i in range(0, len(lines), TABLE_ROWS)] or [[]]
-    if len(chunks) > 1 and len(chunks[-1]) <= 2 and head and rows:  # the means never alone on a page
-        chunks[-2:] = [chunks[-2][:-2], chunks[-2][-2:] + chunks[-1]]
+    tail = 1 + len(head.get("levels") or [None]) if head and rows else 0  # the rule and the means
+    if len(chunks) > 1 and len(chunks[-1]) <= tail:  # the means never alone on a page
+        k = tail + 1 - len(chunks[-1])
+        chunks[-2:] = [chunks[-2][:-k], chunks[-2][-k:] + chunks[-1]]
     for k, chunk in enumerate(chunks):
         fig = plt.figure(figsize=A4_PORTRAIT_IN)
         fig.text(0.06, 0.955, "Per-cycle metrics" + (f" ({k + 1}/{len(chunks)})" if len(chunks) > 1 else ""),
@@ -137,6 +149,7 @@ def verdict_lines(acc: dict, protocol, u=LAB) -> list:
         if r.get("description"):
             lines.extend(("      " + w, "0.35") for w in wrap_text(r["description"], 94))
     lines.append("")
+    lines += design_lines(acc.get("design") or {}, u)
     head = (f"  {'rule':<20}{'L.n':>6}{'cycle':>6}{'value':>11}  {'reference':>10}{'(cycle)':>8}"
             f"{'deviation':>10}{'tol.':>8}  {'unit':<7}{'result':<8}")
     lines.extend(wrap_text(f"Checks ({len(acc['verdicts'])}; {acc['summary']['failed']} failed). L.n: level L, its "
@@ -160,6 +173,43 @@ def verdict_lines(acc: dict, protocol, u=LAB) -> list:
         lines.append((f"  {v['rule'][:19]:<20}{check:>6}{v['cycle']:>6}{_value(v['quantity'], v.get('value'), u):>11}  "
                       f"{_value(v['quantity'], v.get('reference_value'), u):>10}{ref_text:>8}{dev_text:>10}"
                       f"{tol_text:>8}  {unit:<7}{result:<8}", "black" if v["passed"] else RED))
+    return lines
+
+
+def design_lines(design: dict, u=LAB) -> list:
+    """The check against the specimen's design values: the tolerances and their source, then per level its
+    verdict, the design value, the mean and each test cycle of K_eff, EDC and xi_eff with its deviation."""
+    if not design:
+        return []
+    if not design.get("levels"):
+        return [(design.get("note") or "no design values", "0.35"), ""]
+    t = design["tolerances"]
+    lines: list = wrap_text(f"Against the specimen's design values ({design['basis']}). Tolerances: each test cycle "
+                            f"+-{100 * t['k_eff']:g} % K_eff, +-{100 * t['edc']:g} % EDC, +-{100 * t['xi_eff']:g} % "
+                            f"xi_eff; each level's mean +-{100 * t['mean']:g} %; {design.get('source')}.", 100)
+    for lv in design["levels"]:
+        colour = VERDICT_COLOURS.get(lv["verdict"], "black")
+        lines.append((f"  level {lv['level']}{' (' + lv['label'] + ')' if lv.get('label') else ''}, "
+                      f"{u.text('length', lv['amplitude_m'])} at {lv['frequency_hz']:g} Hz: {lv['verdict']} "
+                      f"({lv['measured_cycles']} of {lv['test_cycles']} test cycles measured)", colour))
+        for mc in lv["mean_checks"]:
+            q = mc["quantity"]
+            per = [c for c in lv["checks"] if c["quantity"] == q]
+            cycles = "  ".join(f"L{lv['level']}.{c['level_cycle']} " + (f"{100 * c['deviation_fraction']:+.1f} %"
+                               if c["deviation_fraction"] is not None else "no cycle")
+                               + ("" if c["status"] == "pass" else " FAIL" if c["status"] == "fail" else "")
+                               for c in per)
+            dev = mc["deviation_fraction"]
+            ok = mc["status"] == "pass" and all(c["status"] == "pass" for c in per)
+            text = (f"    {mc['name']:<7} design {_value(q, mc['design'], u):>9} {_unit(q, u):<6} mean "
+                    f"{_value(q, mc['value'], u):>9} " + (f"{100 * dev:+6.1f} %" if dev is not None else "      -")
+                    + f"{' FAIL' if mc['status'] == 'fail' else ''}; {cycles}")
+            indent = " " * 12
+            wrapped = wrap_text(text, 100)
+            lines.append((wrapped[0], "black" if ok else RED))
+            lines.extend((indent + w, "black" if ok else RED) for w in wrap_text(" ".join(wrapped[1:]), 88)
+                         if len(wrapped) > 1)
+    lines.append("")
     return lines
 
 
@@ -217,8 +267,11 @@ def pages_verdicts_events(plt, bundle, report, protocol=None, u=LAB):
 
 def approval_block(flow: Flow, record: dict, report: dict) -> None:
     """Tested by, reviewed by, approved by: name, date and signature lines (the operator's name filled in)."""
+    names = report.get("approval") or {}
+    note = (wrap_text(f"Note of the approver ({names['approved_by']}): {names['note']}", 120)
+            if names.get("approved_by") and names.get("note") else [])
     flow.skip(14)
-    flow.room(APPROVAL_PT)
+    flow.room(APPROVAL_PT + 11 * len(note) + 4)  # the block with its note on one page
     fig = flow.fig
     flow.text(0.06, "Approval", pitch=18, fontsize=11, weight="bold")
     tid = record.get("id")
@@ -231,7 +284,6 @@ def approval_block(flow: Flow, record: dict, report: dict) -> None:
     flow.text(0.20, "name", pitch=14, fontsize=7.5, color="0.45")
     fig.text(0.52, flow.y, "date", fontsize=7.5, color="0.45")
     fig.text(0.68, flow.y, "signature", fontsize=7.5, color="0.45")
-    names = report.get("approval") or {}
     for role, key in (("Tested by", "tested"), ("Reviewed by", "reviewed"), ("Approved by", "approved")):
         flow.skip(36)
         y = flow.y
@@ -243,6 +295,10 @@ def approval_block(flow: Flow, record: dict, report: dict) -> None:
         for x0, x1 in ((0.20, 0.49), (0.52, 0.65), (0.68, 0.94)):
             rule(fig, y, x0, x1, color="0.2", lw=0.6)
     flow.skip(16)
+    for line in note:
+        flow.text(0.06, line, pitch=11, fontsize=8)
+    if note:
+        flow.skip(4)
     if names.get("record_sha256"):
         flow.text(0.06, f"Approved record, SHA-256 {names['record_sha256']}", pitch=11, fontsize=7.5,
                   family="monospace")
