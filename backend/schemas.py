@@ -154,9 +154,6 @@ ProfileIn = Annotated[SineProfileIn | ProtocolProfileIn | HistoryProfileIn | Hyb
 EARTHQUAKE_PROFILES = (HistoryProfileIn, HybridProfileIn)
 
 
-LimitAction = Literal["indicate", "controlled_stop", "valve_close"]
-
-
 class LimitsIn(StrictModel):
     """Safety limits of one test (absolute values); each defaults to the rig's, none may exceed the rig's."""
 
@@ -165,10 +162,14 @@ class LimitsIn(StrictModel):
     velocity_m_per_s: float | None = Field(None, description="limit on the measured table velocity |dy/dt| in m/s")
     load_pressure_pa: float | None = Field(None, description="limit on |P_L| in Pa")
     tracking_error_m: float | None = Field(None, description="limit on |y - r| in m (error detector)")
-    actions: dict[str, LimitAction | None] | None = Field(
+    # names and values checked by sim.safety.make_limits (a 422 naming the allowed ones: the follow detector's
+    # differ from a value limit's)
+    actions: dict[str, str | None] | None = Field(
         None, description="the action of each limit (key: a limit above): indicate (an event, the test goes on), "
                           "controlled_stop (the target brakes to rest within every displacement limit), "
-                          "valve_close (the command ramps to 0 V in 0.1 s, open loop; the default)")
+                          "valve_close (the command ramps to 0 V in 0.1 s, open loop; the default); and of the "
+                          "detector of a table that does not follow its target (key: follow): controlled_stop "
+                          "(the default) or indicate (an event, the test goes on; the paper's mrac runs to its end)")
 
 
 class TestCreate(StrictModel):
@@ -203,7 +204,18 @@ class TestCreate(StrictModel):
 class ApproveIn(StrictModel):
     """``POST /api/tests/{id}/approve``: an approver's note (optional)."""
 
-    note: str = Field("", max_length=400, description="a note printed with the approval")
+    note: str = Field("", max_length=400, description="a note printed with the approval (in the report's approval "
+                      "block)")
+
+
+class ToleranceIn(StrictModel):
+    """``PUT /api/acceptance/tolerances/{protocol}``: the lab's tolerances against the specimen's design values,
+    as fractions (0.15 is +-15 %)."""
+
+    k_eff: float = Field(gt=0, le=1, description="each test cycle's K_eff from the level's design value")
+    edc: float = Field(gt=0, le=1, description="each test cycle's EDC from the level's design value")
+    xi_eff: float = Field(gt=0, le=1, description="each test cycle's xi_eff from the level's design value")
+    mean: float = Field(gt=0, le=1, description="the mean of a level's test cycles from its design values")
 
 
 class RejectIn(StrictModel):

@@ -59,7 +59,7 @@ from sim.tracking import cycle_phase, cycle_windows
 
 from .drivers import SIMULATED, ArmConditions, RigDriver, RigFault, SimulatedRig
 from .drivers.udp import START_TOLERANCE_M
-from .safety import SafetyLimits, SafetyMonitor, Trip
+from .safety import FOLLOW_KEY, SafetyLimits, SafetyMonitor, Trip, follow_trip
 
 CHUNK_S = 0.02  # wall time per chunk: samples reach clients at most this much after they are due
 WORKER_RR_PRIORITY = 10  # below the rig emulator's 20 when both run on one machine
@@ -265,6 +265,7 @@ class Run:
         # judged against the test's planned target: a hybrid test's table is written as it runs (zeros now), its
         # prediction is the reference's motion (an amplitude of 0 made the oscillation bound its 40 um floor)
         self.follow = follow_monitor(scenario, scenario.target_table())
+        self.follow_action = limits.action(FOLLOW_KEY)  # controlled_stop, or indicate: an event, the test goes on
         self.start_target_m = self.loop.start_target_m  # now, not in the first period (its first call compiles)
         self.realtime_section = "not entered"
         # a hybrid test computes each target from the last measurement: one period at a time on every rig
@@ -647,7 +648,14 @@ class Run:
         if self.follow is not None and self.trip is None and not loop.stopping:
             lost = self.follow.check(block)
             if lost is not None:
-                trip = Trip("not_following", lost.index, lost.time_s, lost.message, lost.values)
+                trip = follow_trip(lost, self.follow_action)
+            if trip is not None and trip.action == "indicate":  # an event; the monitor goes on
+                self.monitor.indicate_follow(trip)
+                for indication in self.monitor.take_indications():
+                    self.event("limit_indicate", indication.message, {"detector": indication.detector,
+                                                                      **indication.values}, time_s=indication.time_s)
+                self.follow.resume()
+                trip = None
         if trip is None and self.hybrid is not None and self.hybrid.tripped:
             trip = Trip("rths_stability", len(block) - 1, loop.time_s,
                         f"hybrid simulation unstable at t = {loop.time_s:.3f} s: {self.hybrid.monitor.reason}",

@@ -23,7 +23,7 @@ import numpy as np
 
 from .loop import CONTROL_PERIOD_S
 from .measurement import FLAG_GUARD
-from .safety import SafetyLimits, SafetyMonitor, Trip
+from .safety import DEFAULT_FOLLOW_ACTION, FOLLOW_KEY, SafetyLimits, SafetyMonitor, Trip, follow_trip
 
 CHECK_PERIODS = 10  # as the worker's detectors (backend.worker.CHECK_PERIODS)
 #: the first cycle's prediction simulates at most this much test time (a taper cycle and a steady cycle at
@@ -37,10 +37,11 @@ class RunDetectors:
     (``trip``); later trips are kept in ``escalations``, indications of ``indicate`` limits in ``indications``.
     ``limits`` None: the follow detector alone (``follow``: with it). ``reference``: the follow detector on its
     per-block numpy path and each detector fed as many times as before the compiled judge (a test compares
-    the two)."""
+    the two). The follow detector acts as ``limits.actions.follow`` says (``follow_action`` when there are no
+    limits): ``indicate`` keeps its findings in ``follow_indications`` and the run goes on."""
 
     def __init__(self, scenario, loop, limits: SafetyLimits | None, follow: bool = True, table=None,
-                 act: bool = True, reference: bool = False):
+                 act: bool = True, reference: bool = False, follow_action: str | None = None):
         self.loop = loop
         self.act = act  # False: judge only (the trip is kept, the loop runs on)
         self.reference = reference
@@ -59,6 +60,9 @@ class RunDetectors:
                 self.guard_m = limits.displacement_m
                 self.brake_m_per_s2 = loop.guard_displacement(limits.displacement_m)
         self.follow = follow_monitor(scenario, table) if follow else None
+        self.follow_action = follow_action or (limits.action(FOLLOW_KEY) if limits is not None
+                                               else DEFAULT_FOLLOW_ACTION)
+        self.follow_indications: list[Trip] = []
         self.trip: Trip | None = None
         self.escalations: list[Trip] = []
         self.indications: list[Trip] = []
@@ -75,8 +79,10 @@ class RunDetectors:
             self.indications += self.monitor.take_indications()
         if trip is None and self.follow is not None and self.trip is None and not loop.stopping:
             lost = self.follow.check(block, reference=self.reference)
-            if lost is not None:
-                trip = Trip("not_following", lost.index, lost.time_s, lost.message, lost.values)
+            if lost is not None and self.follow_action == "indicate":
+                self._indicate_follow(lost)
+            elif lost is not None:
+                trip = follow_trip(lost, self.follow_action)
         if trip is not None and self.trip is None:
             self.trip = trip
             if not self.act:
@@ -103,9 +109,37 @@ class RunDetectors:
         if self.monitor is not None:
             self.indications += self.monitor.take_indications()
         if self.follow is not None and len(rows) > self.follow_fed:
-            if self.follow.feed(self._rest(rows, self.follow_fed), CHECK_PERIODS, self.reference) is not None:
+            self._rest(rows, self.follow_fed)
+            if self._feed_follow(rows, self.follow_fed, len(rows)) is not None:
                 raise ValueError("prime: these rows trip the follow detector")
             self.follow_fed = len(rows)
+
+    @property
+    def all_indications(self) -> list[Trip]:
+        """The indications of ``indicate`` limits and of the follow detector, in time order."""
+        return sorted(self.indications + self.follow_indications, key=lambda t: t.time_s)
+
+    def _indicate_follow(self, lost) -> None:
+        """The follow detector's finding (sim.follow.FollowTrip) as an indication; the monitor goes on."""
+        trip = follow_trip(lost, "indicate")
+        trip.values["indication"] = len(self.follow_indications) + 1
+        self.follow_indications.append(trip)
+        self.follow.resume()
+
+    def _feed_follow(self, rows, start: int, stop: int):
+        """Feed rows[start:stop] (whole blocks) to the follow monitor: its first finding (index in ``rows``), or
+        None; set to indicate, each finding is an indication and the monitor goes on to ``stop``."""
+        i = start
+        while i < stop:
+            lost = self.follow.feed(rows[i:stop], CHECK_PERIODS, self.reference)
+            if lost is None:
+                return None
+            lost.index += i
+            if self.follow_action != "indicate":
+                return lost
+            self._indicate_follow(lost)
+            i = (lost.index // CHECK_PERIODS + 1) * CHECK_PERIODS
+        return None
 
     @staticmethod
     def _rest(rows, fed: int):
@@ -134,7 +168,12 @@ class RunDetectors:
                 hits = np.flatnonzero(np.nan_to_num(rows["flags"]).astype(np.int64) & FLAG_GUARD)
                 if hits.size:
                     candidates.append(int(hits[0]))
-        if self.follow is not None and self.reference:  # as before the compiled judge: a fresh monitor
+        if self.follow is not None and self.follow_action == "indicate":
+            # its findings stop nothing: indications up to the limit detectors' first trip's block
+            stop = min(candidates) // CHECK_PERIODS * CHECK_PERIODS if candidates else len(rows)
+            self._feed_follow(rows, 0, stop)
+            self.follow_fed = stop
+        elif self.follow is not None and self.reference:  # as before the compiled judge: a fresh monitor
             end = (min(candidates) // CHECK_PERIODS + 1) * CHECK_PERIODS if candidates else len(rows)
             lost = follow_monitor_like(self.follow).feed(rows[:end], CHECK_PERIODS, reference=True)
             if lost is not None:
@@ -156,6 +195,7 @@ class RunDetectors:
         of the same run: a run made again to that block has the same rows (nothing acted before it)."""
         if not self.reference and self.follow is not None and other.follow is not None and not self.follow_fed:
             self.follow, self.follow_fed = other.follow, other.follow_fed
+            self.follow_indications = list(other.follow_indications)
 
     def first_trip(self, rows) -> Trip | None:
         """Judge a whole run made without acting (``first_trip_period``): its first trip, in the worker's words,

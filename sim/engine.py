@@ -246,7 +246,7 @@ class Simulation:
         return Samples(out[:filled])
 
     def run(self, chunk_periods: int = 5000, progress=None, follow: bool = False, limits=None,
-            act: bool = True, reference_detectors: bool = False) -> Result:
+            act: bool = True, reference_detectors: bool = False, follow_action: str | None = None) -> Result:
         """Run to the end; ``progress(fraction)`` is called after each chunk. ``limits`` (sim.safety.SafetyLimits)
         and ``follow``: with the service's detectors (the limits and sensor detectors; ``follow``: the detector
         of a rig the controller cannot follow, sim.follow), judged every 10 periods and acted on as the worker
@@ -260,7 +260,8 @@ class Simulation:
         ``act`` False: the detectors judge only; the run goes on past a trip (``Result.ran_past_trip``), its
         status and reason still the service's (a study, isorig compare). ``reference_detectors``: the detectors
         on their per-block path, each fed as before the compiled follow judge (tests/test_detectors.py compares
-        the two)."""
+        the two). ``follow_action``: the follow detector's action without ``limits`` (with them:
+        ``limits.actions.follow``); ``indicate`` records its findings (``Result.indications``) and goes on."""
         from .detectors import CHECK_PERIODS, RunDetectors
 
         if not (follow or limits is not None):
@@ -268,22 +269,23 @@ class Simulation:
         start = self.period
         table = self.scenario.target_table()
         detectors = RunDetectors(self.scenario, self.loop, limits, follow=follow, table=table,
-                                 reference=reference_detectors)
+                                 reference=reference_detectors, follow_action=follow_action)
         rows = self._run_rows(chunk_periods, progress)
         if not act:
             trip = detectors.first_trip(rows)
-            return Result(self.scenario, rows, self.diverged, trip, detectors.indications,
-                          ran_past_trip=trip is not None)
+            return Result(self.scenario, rows, self.diverged, trip, detectors.all_indications,
+                          ran_past_trip=trip is not None, follow_action=detectors.follow_action)
         first = detectors.first_trip_period(rows)
         if first is None:
             detectors.prime(rows)  # the indications of indicate limits
-            return Result(self.scenario, rows, self.diverged, None, detectors.indications)
+            return Result(self.scenario, rows, self.diverged, None, detectors.all_indications,
+                          follow_action=detectors.follow_action)
         if start != 0:
             raise ValueError("a run with detectors that trips is run again from its start: begin it at period 0")
         self._restart()
         judged = detectors
         detectors = RunDetectors(self.scenario, self.loop, limits, follow=follow, table=table,
-                                 reference=reference_detectors)
+                                 reference=reference_detectors, follow_action=follow_action)
         detectors.take_follow(judged)  # fed up to the first trip's block by first_trip_period: the same rows
         before = self.advance(first)
         detectors.prime(before)
@@ -293,7 +295,7 @@ class Simulation:
             detectors.check(block)
             parts.append(block)
         return Result(self.scenario, Samples.concatenate(parts), self.diverged, detectors.trip,
-                      detectors.indications)
+                      detectors.all_indications, follow_action=detectors.follow_action)
 
     def _restart(self) -> None:
         """Back to period 0: a new loop (the same controller, a fresh state) and plant."""
@@ -334,6 +336,8 @@ class Result:
     indications: list = field(default_factory=list)
     #: the detectors judged only: the run went on past ``trip`` (a study; the service would have stopped there)
     ran_past_trip: bool = False
+    #: the follow detector's action (sim.safety.FOLLOW_ACTIONS) when it ran, else None
+    follow_action: str | None = None
 
     @property
     def status(self) -> str:
@@ -370,6 +374,8 @@ class Result:
             out["stopped"] = {"time_s": self.trip.time_s, "detector": getattr(self.trip, "detector", "not_following"),
                               "action": getattr(self.trip, "action", "valve_close"), "reason": self.trip.message,
                               "values": self.trip.values}
+        if self.follow_action is not None:
+            out["follow_action"] = self.follow_action
         if self.indications:
             out["limit_indications"] = [{"detector": i.detector, "time_s": i.time_s, "message": i.message}
                                         for i in self.indications]
@@ -381,7 +387,7 @@ class Result:
             if len(s) > 10:
                 out["criteria"] = tracking_criteria(s["target_m"], s["displacement_m"], CONTROL_PERIOD_S,
                                                     measured=measured_rows(s["flags"]))
-            out["tracking_verdict"] = self.verdict(out.get("criteria", {}))
+            out["tracking_verdict"] = self._said_indicate(self.verdict(out.get("criteria", {})))
             return out
         loops = {c["cycle"]: c for c in scenario_cycle_metrics(self.samples, self.scenario)} \
             if len(self.samples) else {}
@@ -389,8 +395,17 @@ class Result:
             loop = loops.get(c["cycle"], {})
             c.update({k: v for k, v in loop.items() if k not in ("i_start", "i_end")})
         out["headline"] = headline_figures(list(loops.values()))
-        out["tracking_verdict"] = self.verdict()
+        out["tracking_verdict"] = self._said_indicate(self.verdict())
         return out
+
+    def _said_indicate(self, verdict: dict) -> dict:
+        """The verdict, saying when the follow detector was set to indicate (it stopped nothing)."""
+        if self.follow_action != "indicate":
+            return verdict
+        seen = sum(1 for i in self.indications if i.detector == "not_following")
+        return {**verdict, "follow_action": "indicate",
+                "words": f"{verdict['words']} (follow detector set to indicate: {seen} indication"
+                         f"{'' if seen == 1 else 's'}, the test was not stopped)"}
 
     def verdict(self, criteria: dict | None = None) -> dict:
         """How well the table followed (sim.follow.tracking_verdict), with the advice for this controller."""

@@ -34,6 +34,7 @@ reference tests/test_follow.py compares with): the same sums in the same order (
 from __future__ import annotations
 
 import copy
+import dataclasses
 import functools
 import math
 from dataclasses import dataclass, field
@@ -127,6 +128,11 @@ class FollowLimits:
                 "oscillation_share": self.oscillation_share,
                 "floor_m": self.floor_m, "oscillation_window_s": self.oscillation_window_s,
                 "corner_hz": self.corner_hz, "corner_harmonic": self.corner_harmonic}
+
+
+def follow_thresholds() -> dict:
+    """The detector's thresholds as the limits list shows them (``FollowLimits``; shares of the amplitude, SI)."""
+    return FollowLimits().to_dict()
 
 
 def limits_for(controller: str) -> FollowLimits:
@@ -239,6 +245,16 @@ class FollowMonitor:
         self.lost_recent = np.zeros(LOST_WINDOW_PERIODS, dtype=bool)  # which of the last periods were lost
         self.cycle_steady = False  # the cycle being summed is a steady one
         warm_up()  # before the first check: a real-time worker builds its monitor before the rig is armed
+
+    def resume(self) -> None:
+        """Go on after a trip the operator set to indicate (sim.safety.follow_trip), judging the other kind only
+        (a kind is indicated once; the tracking verdict gives the tracking at the end)."""
+        if self.tripped is None:
+            return
+        off = {"rms_share": math.inf} if self.tripped.kind == "tracking" else {"oscillation_share": math.inf,
+                                                                                "floor_m": math.inf}
+        self.limits = dataclasses.replace(self.limits, **off)
+        self.tripped = None
 
     def _late_target(self, r: np.ndarray) -> np.ndarray:
         """r(t - L) for each row of this block, from the targets kept."""

@@ -20,6 +20,12 @@ last command was computed from a reading that cannot be trusted: the valve close
 The first sample that trips (an action other than ``indicate``) ends the test ``aborted``, the trip recorded
 with its values and its action. During a controlled stop a ``valve_close`` trip still closes the valve.
 
+The detector of a rig the controller cannot follow (sim.follow: an oscillation, or tracking the learning does not
+bring within 1 %) is an operator's limit too, ``limits.actions.follow`` (``FOLLOW_ACTIONS``): ``controlled_stop``
+(the default; a tracking stop brakes the target to rest under control, an oscillation closes the valve at once,
+since the loop itself is what oscillates) or ``indicate`` (an event, the test goes on: the paper's MRAC runs to
+its end; ``follow_trip``).
+
 Plain numerics, in sim so that the engine (sim.detectors: ``isorig simulate``, ``hybrid``, ``compare`` and the
 check of a test) judges a test with the very detectors the service's worker runs; backend.safety re-exports it.
 """
@@ -69,6 +75,15 @@ READABLE = {"displacement_m": ("mm", 1e3), "force_n": ("kN", 1e-3), "velocity_m_
             "load_pressure_pa": ("bar", 1e-5), "tracking_error_m": ("mm", 1e3)}
 DETECTORS = {"displacement": "displacement_m", "force": "force_n", "velocity": "velocity_m_per_s",
              "load_pressure": "load_pressure_pa", "tracking_error": "tracking_error_m"}
+#: the follow detector's action (``limits.actions.follow``): not a value limit, its thresholds are sim.follow's
+FOLLOW_KEY = "follow"
+FOLLOW_ACTIONS = {
+    "controlled_stop": ("the table did not follow: a tracking stop brakes the target to rest under control, an "
+                        "oscillation closes the valve at once (the loop itself oscillates); the test ends aborted"),
+    "indicate": ("an event says what the detector saw and when, the test goes on (the tracking verdict still says "
+                 "how well the table followed)"),
+}
+DEFAULT_FOLLOW_ACTION = "controlled_stop"
 
 
 class LimitError(FieldError):
@@ -87,13 +102,22 @@ class SafetyLimits:
     actions: dict = field(default_factory=dict)  # every limit's action (those not given: DEFAULT_ACTION)
 
     def __post_init__(self):
-        object.__setattr__(self, "actions", {key: self.actions.get(key) or DEFAULT_ACTION for key in LIMIT_KEYS})
+        actions = {key: self.actions.get(key) or DEFAULT_ACTION for key in LIMIT_KEYS}
+        follow = self.actions.get(FOLLOW_KEY) or DEFAULT_FOLLOW_ACTION
+        if follow != DEFAULT_FOLLOW_ACTION:  # kept only when set otherwise: a record without it is a default one
+            actions[FOLLOW_KEY] = follow
+        object.__setattr__(self, "actions", actions)
 
     def action(self, key: str) -> str:
+        if key == FOLLOW_KEY:
+            return self.actions.get(FOLLOW_KEY, DEFAULT_FOLLOW_ACTION)
         return self.actions[key]
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        """The limits as stored with a test, with the follow detector's action and thresholds (``follow``)."""
+        from .follow import follow_thresholds
+
+        return {**asdict(self), FOLLOW_KEY: {"action": self.action(FOLLOW_KEY), **follow_thresholds()}}
 
     @classmethod
     def from_dict(cls, values: dict) -> SafetyLimits:
@@ -124,12 +148,17 @@ def _actions(requested) -> dict:
         raise LimitError("limits.actions", requested, "an object: limit -> action",
                          "limits.actions must map a limit to an action, e.g. {\"force_n\": \"indicate\"}")
     actions = {}
+    keys = (*LIMIT_KEYS, FOLLOW_KEY)
     for key, action in requested.items():
-        if key not in LIMIT_KEYS:
-            raise LimitError(f"limits.actions.{key}", action, ", ".join(LIMIT_KEYS),
-                             f"limits.actions.{key}: {key} is not a limit; allowed: {', '.join(LIMIT_KEYS)}")
+        if key not in keys:
+            raise LimitError(f"limits.actions.{key}", action, ", ".join(keys),
+                             f"limits.actions.{key}: {key} is not a limit; allowed: {', '.join(keys)}")
         if action is None:
             continue
+        if key == FOLLOW_KEY and action not in FOLLOW_ACTIONS:
+            raise LimitError(f"limits.actions.{key}", action, ", ".join(FOLLOW_ACTIONS),
+                             f"limits.actions.follow = {action!r} is not an action of the follow detector; allowed: "
+                             f"{', '.join(FOLLOW_ACTIONS)}")
         if action not in ACTIONS:
             raise LimitError(f"limits.actions.{key}", action, ", ".join(ACTIONS),
                              f"limits.actions.{key} = {action!r} is not an action; allowed: {', '.join(ACTIONS)}")
@@ -142,6 +171,7 @@ def make_limits(rig: RigParameters, requested: dict | None) -> SafetyLimits:
     positive and within the hard limit."""
     values = default_limits(rig).to_dict()
     values.pop("actions")
+    values.pop(FOLLOW_KEY)
     hard = hard_limits(rig).to_dict()
     requested = dict(requested or {})
     actions = _actions(requested.pop("actions", None))
@@ -179,6 +209,25 @@ class Trip:
         """A sensor fault (the last command came from a reading that cannot be trusted) or a controller that
         does not follow the rig: no ramp from the last command."""
         return self.detector in CLOSE_AT_ONCE
+
+
+def follow_trip(lost, action: str = DEFAULT_FOLLOW_ACTION) -> Trip:
+    """The follow detector's finding (sim.follow.FollowTrip) as a trip with the operator's ``action``
+    (``FOLLOW_ACTIONS``): ``indicate``, an indication; ``controlled_stop``, a braking stop for tracking and a valve
+    closed at once for an oscillation (the loop itself oscillates: a braking target would not be followed)."""
+    values = {**lost.values, "follow_action": action}
+    at = f"at t = {lost.time_s:.3f} s"
+
+    def said(words: str) -> str:  # what was done, after when: the advice stays last
+        return lost.message.replace(at, f"{at} ({words})", 1)
+
+    if action == "indicate":
+        message = said("indicated: the follow detector is set to indicate, the test goes on")
+        return Trip("not_following", lost.index, lost.time_s, message, values, "indicate")
+    if lost.kind == "tracking":
+        message = said("controlled stop: the target brakes to rest under control")
+        return Trip("not_following", lost.index, lost.time_s, message, values, "controlled_stop")
+    return Trip("not_following", lost.index, lost.time_s, lost.message, values, "valve_close")
 
 
 def velocity_readings(rows: Samples) -> np.ndarray:
@@ -318,6 +367,14 @@ class SafetyMonitor:
         if frozen is not None and (trip is None or frozen.index < trip.index):
             return frozen
         return trip
+
+    def indicate_follow(self, trip: Trip) -> None:
+        """An indication of the follow detector (``follow_trip`` with ``indicate``): counted, kept for events."""
+        count = self.indication_counts.get(FOLLOW_KEY, 0) + 1
+        self.indication_counts[FOLLOW_KEY] = count
+        trip.values["indication"] = count
+        if count <= INDICATIONS_RECORDED:
+            self._indications.append(trip)
 
     def take_indications(self) -> list[Trip]:
         out, self._indications = self._indications, []

@@ -43,6 +43,9 @@ def register(sub) -> None:
                    help="'simulated' (default: virtual RTHS, as fast as it runs) or udp://HOST:PORT (a real-time "
                         "I/O target or `isorig rig-emulator`, in real time)")
     p.add_argument("--out", required=True, help="output directory for timeseries.csv and summary.json")
+    from .simulate import add_follow_flag
+
+    add_follow_flag(p)
     p.add_argument("--no-limit-detectors", action="store_true",
                    help="simulated rig: run the bare hybrid loop, past the rig's default limits and the sensor and "
                         "follow detectors that the service applies to every test and this command applies by "
@@ -58,6 +61,7 @@ def _on_rig(args, building, ag, scenario):
     from backend.drivers import rig_kind
 
     from .rig_run import check_start_position, rig_job, run_job
+    from .simulate import limits_with_follow
 
     try:
         rig_kind(args.rig)
@@ -71,6 +75,7 @@ def _on_rig(args, building, ag, scenario):
     # the virtual RTHS; the targets themselves come from the building, period by period
     job = rig_job(args.rig, scenario, security=link_options(security, args),
                   hybrid={"building": building.to_dict(), "ground_acc_m_per_s2": ag})
+    job["limits"] = limits_with_follow(scenario.rig, args.follow).to_dict()
     print(f"running {ag.size / 1000:g} s of hybrid simulation in real time on {args.rig} (Ctrl-C aborts)"
           + ("" if security.authenticated else f"; rig link NOT AUTHENTICATED (protocol 1: {security.why})"))
     run, sent, status, reason, _wall_s = run_job(job)
@@ -93,12 +98,15 @@ def _check_vertical_load(args, building) -> None:
         raise UsageError(f"isorig hybrid: {why}")
 
 
-def _simulated(building, ag, scenario):
+def _simulated(building, ag, scenario, follow: str = "stop"):
     """The hybrid test on the simulated rig through the service's worker (backend.worker.run_here), as fast as
-    it runs: its detectors with the rig's default limits, its stop paths, its status and reason."""
+    it runs: its detectors with the rig's default limits (the follow detector's action of ``--follow``), its stop
+    paths, its status and reason."""
     from .rig_run import rig_job, run_job
+    from .simulate import limits_with_follow
 
     job = rig_job("simulated", scenario, hybrid={"building": building.to_dict(), "ground_acc_m_per_s2": ag})
+    job["limits"] = limits_with_follow(scenario.rig, follow).to_dict()
     job.update(speed=1e6, realtime=False)  # not paced: the simulated rig runs as fast as it goes
     run, sent, status, reason, _wall_s = run_job(job)
     return run.hybrid, sent.samples(), (None if status == "completed" else f"{status}: {reason}"), status
@@ -124,6 +132,8 @@ def run(args) -> int:
     from sim.records import samples_to_csv
     from sim.structure import load_structure
 
+    from .simulate import FOLLOW_CHOICES
+
     building = load_structure(args.structure)
     _check_vertical_load(args, building)
     if args.ground_motion in GROUND_MOTIONS:
@@ -148,7 +158,7 @@ def run(args) -> int:
 
     t0 = time.perf_counter()
     if args.rig == "simulated" and not args.no_limit_detectors:
-        sub, samples, stopped, status = _simulated(building, ag, scenario)
+        sub, samples, stopped, status = _simulated(building, ag, scenario, args.follow)
     elif args.rig == "simulated":
         sub = HybridSubstructure(building, isolator, ag)
         controller = make_controller(scenario.controller, rig=scenario.rig,
@@ -176,7 +186,7 @@ def run(args) -> int:
     (out / "timeseries.csv").write_text("\n".join([header, *rows]).replace("nan", "") + "\n")
     summary = {"structure": building.to_dict(), "ground_motion": args.ground_motion, "scale": args.scale,
                "scenario": scenario.describe(), "status": status,
-               "limit_detectors": not args.no_limit_detectors,
+               "limit_detectors": not args.no_limit_detectors, "follow_action": FOLLOW_CHOICES[args.follow],
                "reason": stopped, "criteria": {**res["criteria"], **j45}, "lost_periods": res["lost_periods"],
                "stability": res["stability"],
                "reference_peaks": {k: float(np.max(np.abs(v))) for k, v in ref.items()

@@ -60,6 +60,7 @@ def register(sub) -> None:
                         "(repeatable)")
     p.add_argument("--out", required=True, help="output directory for timeseries.csv and summary.json")
     add_detector_flag(p)
+    add_follow_flag(p)
     p.add_argument("--rig", default="simulated",
                    help="'simulated' (default: the compiled engine, faster than real time) or udp://HOST:PORT "
                         "(a real-time I/O target or `isorig rig-emulator`, in real time)")
@@ -78,6 +79,32 @@ def add_detector_flag(p) -> None:
                         "can feed, load pressure, tracking error) and the sensor detectors, which the service "
                         "applies to every test and which this command applies by default; the run then gets a "
                         "verdict the service would not give it (the follow detector stays)")
+
+
+FOLLOW_CHOICES = {"stop": "controlled_stop", "indicate": "indicate"}  # --follow -> limits.actions.follow
+
+
+def add_follow_flag(p) -> None:
+    """--follow stop|indicate: the action of the detector of a table that does not follow (sim.follow)."""
+    p.add_argument("--follow", choices=tuple(FOLLOW_CHOICES), default="stop",
+                   help="when the table does not follow its target (an oscillation, or tracking the learning does "
+                        "not bring within 1 %% of the amplitude): stop the test (default: a controlled stop, the "
+                        "valve closed at once on an oscillation) or indicate (an event, the test runs to its end "
+                        "and the tracking verdict says how well it followed; e.g. the paper's --controller mrac)")
+
+
+def limits_with_follow(rig, follow: str):
+    """The rig's default limits with the follow detector's action of ``--follow`` (sim.safety.SafetyLimits)."""
+    from sim.safety import make_limits
+
+    return make_limits(rig, {"actions": {"follow": FOLLOW_CHOICES[follow]}})
+
+
+def print_follow_indications(summary: dict) -> None:
+    """The follow detector's indications of a run set to indicate (``--follow indicate``)."""
+    seen = [i for i in summary.get("limit_indications", []) if i["detector"] == "not_following"]
+    for i in seen:
+        print(f"follow detector (set to indicate): {i['message']}")
 
 
 def history_target(args, scenario):
@@ -169,10 +196,9 @@ def run(args) -> int:
         return run_on_rig(args, scenario, out)
     progress = Progress(f"simulating {scenario.duration_s:g} s")
     t0 = time.perf_counter()
-    from sim.safety import default_limits
-
-    limits = None if args.no_limit_detectors else default_limits(scenario.rig)
-    result = Simulation(scenario, validate=False).run(progress=progress, follow=True, limits=limits)
+    limits = None if args.no_limit_detectors else limits_with_follow(scenario.rig, args.follow)
+    result = Simulation(scenario, validate=False).run(progress=progress, follow=True, limits=limits,
+                                                      follow_action=FOLLOW_CHOICES[args.follow])
     progress.close()
     elapsed = time.perf_counter() - t0
     write_csv(out / "timeseries.csv", result.samples)
@@ -199,6 +225,7 @@ def outcome(result, summary: dict) -> int:
     """Print how the test ended (the service's status and reason) and its tracking verdict; the exit code: 0
     only for a test that ran to its end and whose table followed (within the 1 % the service allows,
     sim.follow)."""
+    print_follow_indications(summary)
     print(f"test {result.status}" + (f": {result.reason}" if result.reason else "")
           + ("" if summary.get("limit_detectors", True) else " (without the limit detectors: --no-limit-detectors)"))
     verdict = summary.get("tracking_verdict", {})
@@ -227,6 +254,7 @@ def run_on_rig(args, scenario, out: Path) -> int:
         options = link_options(security, args)
         check_start_position("simulate", args.rig, security=options)
     job = rig_job(args.rig, scenario, args.link_timeout_s, security=options)
+    job["limits"] = limits_with_follow(scenario.rig, args.follow).to_dict()
     print(f"running {scenario.duration_s:g} s in real time on {args.rig} (Ctrl-C aborts)"
           + ("" if security is None or security.authenticated else
              f"; rig link NOT AUTHENTICATED (protocol 1: {security.why})"))
