@@ -9,17 +9,24 @@ Only a missing file is created (whole: a new, empty SQLite database from its fir
 database (which would have started a second lab record beside the one the user meant, with a new admin).
 
 SQLite gets WAL mode (readers never block the writer), ``synchronous=NORMAL`` (a committed transaction
-survives a killed process) and foreign keys. Any other SQLAlchemy URL (PostgreSQL) is used as given; there,
-several services (one per rig) may share the database and start together: migrations run under an advisory lock.
+survives a killed process) and foreign keys. Any other SQLAlchemy URL (PostgreSQL) is used as given.
+
+Several services (one per rig) may share the database and start together on a new one: migrations run one at a
+time. PostgreSQL: under an advisory lock (``MIGRATION_LOCK``). SQLite: under an ``fcntl.flock`` on a file beside
+the database (``isorig.db-migrations.lock``, 0600; never a rig's lock file, ``isorig.db.<rig>.lock``), since SQLite
+runs Alembic's CREATE TABLEs outside any write lock: without it two services both migrated a new database and one
+exited on "table tests already exists". The lock ends with the process (kill -9 included); the file stays.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import secrets
 import sqlite3
 import stat
+from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -150,8 +157,46 @@ def alembic_config(url: str) -> Config:
     return cfg
 
 
+def migration_lock_path(database: Path) -> Path:
+    """The file whose flock serialises the migrations of the SQLite database file ``database``."""
+    path = Path(database).expanduser().resolve()
+    return path.with_name(f"{path.name}-migrations.lock")
+
+
+@contextlib.contextmanager
+def _sqlite_migration_lock(engine: Engine) -> Iterator[None]:
+    """Held while ``engine``'s SQLite file is migrated: an exclusive flock on its own open file (so threads of one
+    process wait for each other too); nothing for an in-memory database or a ``file:`` URI."""
+    database = engine.url.database
+    if not database or database == ":memory:" or database.startswith("file:"):
+        yield
+        return
+    import fcntl
+
+    path = migration_lock_path(Path(database))
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o600)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            log.info("waiting for another process migrating %s (lock %s)", database, path)
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # the only descriptor of this open file: its flock ends
+
+
 def upgrade(engine: Engine, revision: str = "head") -> None:
-    """Bring the schema to the newest migration (or to ``revision``, a step the migration tests take)."""
+    """Bring the schema to the newest migration (or to ``revision``, a step the migration tests take), one
+    process (or thread) at a time on one database (module docstring)."""
+    if engine.dialect.name == "sqlite":
+        with _sqlite_migration_lock(engine):
+            _upgrade(engine, revision)
+    else:
+        _upgrade(engine, revision)  # PostgreSQL: under an advisory lock, taken in the migration's transaction
+
+
+def _upgrade(engine: Engine, revision: str) -> None:
     from alembic import command
 
     cfg = alembic_config(engine.url.render_as_string(hide_password=False))
