@@ -70,6 +70,8 @@ class TestRecord(Base):
     review_note: Mapped[str | None] = mapped_column(Text)  # the reason of a rejection, a note on an approval
     record_sha256: Mapped[str | None] = mapped_column(String(64))  # of the approved record (backend.review)
     review_events_upto: Mapped[int | None] = mapped_column(Integer)  # the last event the hash covers
+    # the PDF rendered at the approval (ApprovedReport) and served from then on: its SHA-256
+    report_sha256: Mapped[str | None] = mapped_column(String(64))
 
     chunks: Mapped[list[SampleChunk]] = relationship(back_populates="test", cascade="all, delete-orphan",
                                                      passive_deletes=True)
@@ -173,5 +175,34 @@ class LabSettings(Base):
     units: Mapped[str] = mapped_column(String(8), default="lab")  # lab (mm, kN) | si
     logo: Mapped[bytes | None] = mapped_column(LargeBinary)  # PNG or JPEG as uploaded
     logo_type: Mapped[str | None] = mapped_column(String(32))  # image/png | image/jpeg
+    updated_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    updated_by: Mapped[str | None] = mapped_column(String(64))
+
+
+class ApprovedReport(Base):
+    """The report of an approved record as it was rendered at the approval (backend.review): served from then on,
+    so a later change of the lab's name, address, logo or units never changes what was approved."""
+
+    __tablename__ = "approved_reports"
+
+    test_id: Mapped[int] = mapped_column(ForeignKey("tests.id", ondelete="CASCADE"), primary_key=True)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+    pdf: Mapped[bytes] = mapped_column(LargeBinary)
+    sha256: Mapped[str] = mapped_column(String(64))
+    lab_name: Mapped[str] = mapped_column(String(200), default="")  # the lab and units it was rendered with
+    units: Mapped[str] = mapped_column(String(8), default="lab")
+
+
+class AcceptanceTolerance(Base):
+    """The lab's tolerances for a protocol's check against the specimen's design values (backend.reports.design):
+    each test cycle and each level's mean, as fractions; no row: EN 15129's type-test tolerances."""
+
+    __tablename__ = "acceptance_tolerances"
+
+    protocol: Mapped[str] = mapped_column(String(64), primary_key=True)
+    k_eff_fraction: Mapped[float] = mapped_column(Float)
+    edc_fraction: Mapped[float] = mapped_column(Float)
+    xi_eff_fraction: Mapped[float] = mapped_column(Float)
+    mean_fraction: Mapped[float] = mapped_column(Float)
     updated_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
     updated_by: Mapped[str | None] = mapped_column(String(64))

@@ -5,6 +5,10 @@ archive, restore or deletion, and nothing of it may change. It keeps the record'
 test's fields as stored, every sample chunk and cycle (their bytes' SHA-256) and every event up to the approval.
 Anyone can later recompute it (``GET /api/tests/{id}/approval``) and compare it with the one printed in the
 report: a record changed after its approval no longer matches.
+
+The report is fixed at the approval: its PDF is rendered then (``render_report``, given by the API: the lab's
+header and units as they are at that moment) and stored with its SHA-256 (``ApprovedReport``); the report route
+serves those bytes from then on. An approval whose report cannot be made approves nothing.
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ import json
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from .models import FINAL_STATUSES, CycleRecord, EventRecord, SampleChunk, TestRecord, utcnow
+from .models import FINAL_STATUSES, ApprovedReport, CycleRecord, EventRecord, SampleChunk, TestRecord, utcnow
 from .store import _iso, add_event, review_fields
 
 STATES = ("unreviewed", "approved", "rejected")
@@ -34,8 +38,12 @@ class ReviewError(Exception):
         self.detail = detail
 
 
-def _digest(data: bytes) -> str:
+def sha256_of(data: bytes) -> str:
+    """The SHA-256 of bytes, in hex."""
     return hashlib.sha256(data).hexdigest()
+
+
+_digest = sha256_of
 
 
 def _value(value):
@@ -87,8 +95,12 @@ def _reviewable(session: Session, test: TestRecord, reviewer: str) -> None:
                                "run it")
 
 
-def approve(session: Session, test: TestRecord, reviewer: str, note: str = "") -> str:
-    """Approve and lock the record; returns its SHA-256. The approval's own event follows the hashed ones."""
+def approve(session: Session, test: TestRecord, reviewer: str, note: str = "", render_report=None) -> str:
+    """Approve and lock the record; returns its SHA-256. The approval's own event follows the hashed ones.
+
+    ``render_report(test)`` (None: no report is kept) returns ``(pdf_bytes, lab_name, units)`` or None for a
+    record that has no report (a manual move); it runs once the approval is in the session, so the PDF prints the
+    approver, the note and the hash. If it fails, ReviewError 422 and the caller rolls the session back."""
     _reviewable(session, test, reviewer)
     upto = session.scalar(select(func.max(EventRecord.id)).where(EventRecord.test_id == test.id))
     test.review_state, test.reviewed_by, test.reviewed_at = "approved", reviewer, utcnow()
@@ -97,7 +109,32 @@ def approve(session: Session, test: TestRecord, reviewer: str, note: str = "") -
     test.record_sha256 = record_sha256(session, test, upto)
     add_event(session, test.id, "review", f"test {test.id} approved by {reviewer}",
               {"action": "approve", "record_sha256": test.record_sha256, "note": note}, actor=reviewer)
+    if render_report is not None:
+        session.flush()
+        try:
+            made = render_report(test)
+        except Exception as exc:  # any failure of the renderer: the approval must not go through without it
+            raise ReviewError(422, f"test {test.id} was not approved: its report could not be made "
+                                   f"({type(exc).__name__}: {exc}); the record is unchanged") from exc
+        if made is not None:
+            keep_report(session, test, *made)
     return test.record_sha256
+
+
+def keep_report(session: Session, test: TestRecord, pdf: bytes, lab_name: str = "", units: str = "lab") -> str:
+    """Store the approved report's PDF with its SHA-256 (also on the record: ``report_sha256``)."""
+    if not pdf.startswith(b"%PDF"):
+        raise ReviewError(422, f"test {test.id} was not approved: the report made is not a PDF")
+    digest = _digest(pdf)
+    session.merge(ApprovedReport(test_id=test.id, created_at=utcnow(), pdf=pdf, sha256=digest,
+                                 lab_name=lab_name or "", units=units or "lab"))
+    test.report_sha256 = digest
+    return digest
+
+
+def stored_report(session: Session, test: TestRecord) -> ApprovedReport | None:
+    """The PDF kept at the approval, or None (not approved, or approved before reports were kept)."""
+    return session.get(ApprovedReport, test.id) if test.report_sha256 else None
 
 
 def reject(session: Session, test: TestRecord, reviewer: str, reason: str) -> None:
@@ -123,6 +160,14 @@ def verify(session: Session, test: TestRecord) -> dict:
                 "words": f"test {test.id} is {test.review_state}: only an approved record has a hash to check"}
     now = record_sha256(session, test, test.review_events_upto)
     intact = now == test.record_sha256
-    return {**out, "sha256_now": now, "intact": intact,
-            "words": ("the record is as it was approved" if intact else
-                      "the record has changed since its approval: it no longer matches the approved hash")}
+    kept = stored_report(session, test)
+    report_now = _digest(kept.pdf) if kept is not None else None
+    report_intact = None if not test.report_sha256 else report_now == test.report_sha256
+    words = ("the record is as it was approved" if intact else
+             "the record has changed since its approval: it no longer matches the approved hash")
+    if report_intact is False:
+        words += "; the stored report has changed since its approval: it no longer matches its hash"
+    elif report_intact is None:
+        words += "; no report was kept with this approval (approved before reports were kept)"
+    return {**out, "sha256_now": now, "intact": intact, "report_sha256_now": report_now,
+            "report_intact": report_intact, "words": words}

@@ -120,9 +120,11 @@ def test_record(session: Session, test: TestRecord, with_events: bool = True) ->
 
 
 def review_fields(test: TestRecord) -> dict:
-    """The record's review (backend.review): state, who, when, the note or reason, the approved SHA-256."""
+    """The record's review (backend.review): state, who, when, the note or reason, the approved SHA-256 and the
+    SHA-256 of the report PDF kept at the approval."""
     return {"state": test.review_state or "unreviewed", "by": test.reviewed_by, "at": _iso(test.reviewed_at),
-            "note": test.review_note, "record_sha256": test.record_sha256}
+            "note": test.review_note, "record_sha256": test.record_sha256,
+            "report_sha256": test.report_sha256}
 
 
 def list_tests(session: Session, status: str | None = None, isolator: str | None = None,

@@ -8,7 +8,7 @@ from datetime import datetime
 from typing import Annotated, Literal
 
 import numpy as np
-from fastapi import APIRouter, Body, Query, Request
+from fastapi import APIRouter, Body, Path, Query, Request
 from fastapi.responses import Response, StreamingResponse
 
 from sim.controllers import CONTROLLER_NAMES, make_controller
@@ -36,10 +36,11 @@ from ..schemas import (
     SineProfileIn,
     TestCreate,
     TestOut,
+    ToleranceIn,
 )
 from ..settings import MIN_SPEED
 from ..store import clean_json
-from .deps import AnyoneDep, ApproverDep, OperatorDep, SessionDep, TestId, acting_name, not_found
+from .deps import AdminDep, AnyoneDep, ApproverDep, OperatorDep, SessionDep, TestId, acting_name, not_found
 from .isolators import resolve_isolator
 
 router = APIRouter(tags=["tests"])
@@ -454,22 +455,47 @@ def restore_test(test_id: TestId, body: ArchiveIn, session: SessionDep, actor: O
 
 
 def _reviewed(session, test_id: int, decide) -> TestOut:
-    """Approve or reject (``decide(test)``, backend.review) and answer with the record as it is then."""
+    """Approve or reject (``decide(test)``, backend.review) and answer with the record as it is then; a refusal
+    (or a report that cannot be made) leaves nothing changed."""
     test = _test_or_404(session, test_id)
     try:
         decide(test)
     except review.ReviewError as exc:
+        session.rollback()
         raise ApiError(exc.status, exc.detail) from None
     session.commit()
     return store.test_record(session, test)
 
 
+def _approval_renderer(session, request: Request):
+    """``render_report`` for backend.review.approve: the PDF as it is served, with the lab's header, units and
+    tolerances as they are now; None for a record that has no report (a manual move, a commissioning)."""
+    reports = _reports()
+    from ..reports.design import with_tolerances
+
+    lab = with_tolerances(session, lab_settings.header(session, request.app.state.settings))
+
+    def render(test):
+        kind = (test.request.get("profile") or {}).get("kind")
+        if kind in ("move", "commissioning"):
+            return None
+        pdf = reports.report_pdf_bytes(store.load_test_bundle(session, test.id), lab=lab)
+        return pdf, lab.name or "", lab.units
+
+    return render
+
+
 @router.post("/api/tests/{test_id}/approve", summary="Approve a record that has ended (role approver, not who ran "
-             "it): it is locked and its SHA-256 kept", responses=ERROR_RESPONSES)
-def approve_test(test_id: TestId, session: SessionDep, actor: ApproverDep,
+             "it): it is locked, its SHA-256 kept, and its report rendered and kept as served from then on",
+             responses=ERROR_RESPONSES)
+def approve_test(test_id: TestId, request: Request, session: SessionDep, actor: ApproverDep,
                  body: Annotated[ApproveIn | None, Body()] = None) -> TestOut:
+    """The report PDF is made now (the lab's header and units as they are) and stored with its SHA-256
+    (``review.report_sha256``); ``GET /api/tests/{id}/report.pdf`` serves those bytes from then on. A report that
+    cannot be made refuses the approval (422) and changes nothing."""
     note = body.note if body else ""
-    return _reviewed(session, test_id, lambda test: review.approve(session, test, actor.name, note))
+    render = _approval_renderer(session, request)
+    return _reviewed(session, test_id, lambda test: review.approve(session, test, actor.name, note, render))
 
 
 @router.post("/api/tests/{test_id}/reject", summary="Reject a record, with the reason (role approver, not who ran "
@@ -545,13 +571,51 @@ def get_acceptance(test_id: TestId, session: SessionDep) -> dict:
     test = _test_or_404(session, test_id)
     _reports()
     from ..reports.content import protocol_acceptance
+    from ..reports.design import stored_tolerances
+    from ..reports.lab import LabHeader
 
     out = protocol_acceptance(store.test_record(session, test, with_events=False),
-                              store.load_cycles(session, test_id, arrays=False))
+                              store.load_cycles(session, test_id, arrays=False),
+                              LabHeader(tolerances=stored_tolerances(session)))
     if out is None:
         raise ApiError(422, f"test {test_id} did not run a protocol: it has no acceptance rules", "test_id",
                        test_id, "a test with a protocol profile")
     return clean_json(out)
+
+
+@router.get("/api/acceptance/tolerances", summary="The lab's tolerances against the specimen's design values, per "
+            "protocol (EN 15129's type-test tolerances where the lab set none)", responses=ERROR_RESPONSES)
+def get_tolerances(session: SessionDep) -> dict:
+    """``default``: EN 15129's type-test tolerances (fractions: each test cycle's K_eff, EDC, xi_eff and each
+    level's mean); ``protocols``: what the lab set, by protocol name."""
+    from ..reports.design import DEFAULT_SOURCE, EN15129_TYPE_TEST, stored_tolerances
+
+    return {"default": {**EN15129_TYPE_TEST, "source": DEFAULT_SOURCE}, "protocols": stored_tolerances(session)}
+
+
+@router.put("/api/acceptance/tolerances/{protocol}", summary="Set a protocol's tolerances against design values "
+            "(role admin); fractions: 0.15 is +-15 %", responses=ERROR_RESPONSES)
+def put_tolerances(protocol: Annotated[str, Path(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$")],
+                   body: ToleranceIn, session: SessionDep, actor: AdminDep) -> dict:
+    from ..reports.design import ToleranceError, set_tolerances
+
+    try:
+        set_tolerances(session, protocol, body.model_dump(), actor.name)
+    except ToleranceError as exc:
+        raise ApiError(422, str(exc), exc.field) from None
+    session.commit()
+    return get_tolerances(session)
+
+
+@router.delete("/api/acceptance/tolerances/{protocol}", summary="Back to EN 15129's tolerances for a protocol "
+               "(role admin)", responses=ERROR_RESPONSES)
+def delete_tolerances(protocol: Annotated[str, Path(min_length=1, max_length=64)], session: SessionDep,
+                      actor: AdminDep) -> dict:
+    from ..reports.design import set_tolerances
+
+    set_tolerances(session, protocol, None, actor.name)
+    session.commit()
+    return get_tolerances(session)
 
 
 def _reportable(session, test_id: int):
@@ -575,16 +639,29 @@ def _reports():
     return reports
 
 
-@router.get("/api/tests/{test_id}/report.pdf", summary="The test report as PDF", response_class=Response,
+@router.get("/api/tests/{test_id}/report.pdf", summary="The test report as PDF (an approved record: the PDF kept at "
+            "its approval)", response_class=Response,
             responses={**ERROR_RESPONSES, 503: {"description": "reports not available"}})
 def report_pdf(test_id: TestId, request: Request, session: SessionDep) -> Response:
-    _reportable(session, test_id)
+    """An approved record's report is the PDF rendered at its approval, byte for byte (its SHA-256 in the
+    ``X-Report-SHA256`` header and the record's ``review.report_sha256``); any other record's is made now."""
+    test = _reportable(session, test_id)
+    headers = {"Content-Disposition": f'inline; filename="test-{test_id}-report.pdf"'}
+    kept = review.stored_report(session, test)
+    if kept is not None:
+        if review.sha256_of(kept.pdf) != test.report_sha256:
+            raise ApiError(409, f"the report kept with test {test_id}'s approval no longer matches its SHA-256 "
+                                f"{test.report_sha256}: it was changed in the database; it is not served",
+                           "test_id", test_id)
+        return Response(kept.pdf, media_type="application/pdf",
+                        headers={**headers, "X-Report-SHA256": kept.sha256, "X-Report-Kept": "approval"})
     reports = _reports()
+    from ..reports.design import with_tolerances
+
     buf = io.BytesIO()
-    lab = lab_settings.header(session, request.app.state.settings)
+    lab = with_tolerances(session, lab_settings.header(session, request.app.state.settings))
     reports.render_report_pdf(store.load_test_bundle(session, test_id), buf, lab=lab)
-    return Response(buf.getvalue(), media_type="application/pdf",
-                    headers={"Content-Disposition": f'inline; filename="test-{test_id}-report.pdf"'})
+    return Response(buf.getvalue(), media_type="application/pdf", headers=headers)
 
 
 @router.get("/api/tests/{test_id}/report.json", summary="The test report as JSON",
@@ -592,7 +669,9 @@ def report_pdf(test_id: TestId, request: Request, session: SessionDep) -> Respon
 def report_json(test_id: TestId, request: Request, session: SessionDep) -> dict:
     _reportable(session, test_id)
     reports = _reports()
-    lab = lab_settings.header(session, request.app.state.settings)
+    from ..reports.design import with_tolerances
+
+    lab = with_tolerances(session, lab_settings.header(session, request.app.state.settings))
     return clean_json(reports.report_json(store.load_test_bundle(session, test_id), lab=lab))
 
 
@@ -601,11 +680,16 @@ def report_json(test_id: TestId, request: Request, session: SessionDep) -> dict:
             responses={**ERROR_RESPONSES, 503: {"description": "reports not available"}})
 def bundle_zip(test_id: TestId, request: Request, session: SessionDep) -> Response:
     """The record as GET /api/tests/{id}, the report (JSON and PDF, with the lab's header: backend.lab), every
-    sample (the columns of data.csv) and every cycle with its phase (CSV, SI units), and a README."""
-    _reportable(session, test_id)
+    sample (the columns of data.csv) and every cycle with its phase (CSV, SI units), and a README. An approved
+    record's report.pdf is the one kept at its approval."""
+    test = _reportable(session, test_id)
     reports = _reports()
-    lab = lab_settings.header(session, request.app.state.settings)
-    data = reports.bundle_zip_bytes(store.load_test_bundle(session, test_id), lab=lab)
+    from ..reports.design import with_tolerances
+
+    lab = with_tolerances(session, lab_settings.header(session, request.app.state.settings))
+    kept = review.stored_report(session, test)
+    data = reports.bundle_zip_bytes(store.load_test_bundle(session, test_id), lab=lab,
+                                    pdf=kept.pdf if kept is not None else None)
     return Response(data, media_type="application/zip",
                     headers={"Content-Disposition": f'attachment; filename="test-{test_id}-bundle.zip"'})
 

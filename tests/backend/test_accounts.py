@@ -184,6 +184,8 @@ ROLE_OF = {
     ("POST", "/api/tests/{test_id}/reject"): "approver",
     ("PUT", "/api/lab"): "admin",
     ("PUT", "/api/lab/logo"): "admin",
+    ("PUT", "/api/acceptance/tolerances/{protocol}"): "admin",
+    ("DELETE", "/api/acceptance/tolerances/{protocol}"): "admin",
     ("POST", "/api/tests/{test_id}/stop"): None,  # ending a test: anyone (an emergency stop)
     ("POST", "/api/tests/{test_id}/abort"): None,
     ("POST", "/api/tests/check"): None,
@@ -207,7 +209,7 @@ def test_every_endpoint_has_a_role_rule(client):
 
 
 def _call(client, method: str, path: str, headers: dict):
-    concrete = path.replace("{test_id}", "1").replace("{name}", "x_iso")
+    concrete = path.replace("{test_id}", "1").replace("{name}", "x_iso").replace("{protocol}", "quick_check")
     body = {"POST": ISOLATOR if path == "/api/isolators" else {}, "PUT": {"data_base64": None}}.get(method)
     return client.request(method, concrete, json=body, headers=headers)
 

@@ -74,7 +74,8 @@ def test_a_rejection_needs_a_reason_and_a_later_approval_may_follow(lab):
     r = c.post(f"/api/tests/{test_id}/reject", json={"reason": "wrong specimen id"}, headers=who["anna"])
     assert r.status_code == 200 and r.json()["review"] == {"state": "rejected", "by": "anna",
                                                             "at": r.json()["review"]["at"],
-                                                            "note": "wrong specimen id", "record_sha256": None}
+                                                            "note": "wrong specimen id", "record_sha256": None,
+                                                            "report_sha256": None}
     assert c.get(f"/api/tests/{test_id}/approval").json()["intact"] is None
     assert c.post(f"/api/tests/{test_id}/approve", json={}, headers=who["alma"]).status_code == 200
 

@@ -73,7 +73,10 @@ export class ReviewPanel {
       words.textContent = ENDED.includes(t.status) ? "An approver who did not run the test reviews it: approving locks the record."
         : "Reviewed once the test has ended.";
     }
-    $("t-review-hash").textContent = r.state === "approved" ? `record SHA-256 ${r.record_sha256}` : "";
+    // the record's hash, and the hash of the report PDF kept at the approval (served as it was from then on)
+    $("t-review-hash").textContent = r.state !== "approved" ? ""
+      : `record SHA-256 ${r.record_sha256}` + (r.report_sha256 ? ` · report PDF SHA-256 ${r.report_sha256} (kept at the approval)`
+        : " · no report PDF kept (approved before reports were kept)");
     $("t-verify").classList.toggle("hidden", r.state !== "approved");
     $("t-verify-result").textContent = "";
     const open = r.state !== "approved" && ENDED.includes(t.status);
@@ -98,7 +101,7 @@ export class ReviewPanel {
     }
     const answer = action === "approve"
       ? await confirmDialog({ title: `Approve test #${t.id}?`, ok: "Approve and lock",
-        body: `Approved by ${account.name}. The record is then locked (no archive, no change) and its SHA-256 printed in the report.`,
+        body: `Approved by ${account.name}. The record is then locked (no archive, no change), its SHA-256 printed in the report, and the report PDF made now is kept as it is (the lab's header and units of today).`,
         fields: [{ name: "note", label: "note (optional)", minLength: 0, maxLength: 400, multiline: true }] })
       : await confirmDialog({ title: `Reject test #${t.id}?`, ok: "Reject", danger: true,
         body: `Rejected by ${account.name}. The record stays as it is; it may be approved after another review.`,
@@ -124,8 +127,10 @@ export class ReviewPanel {
     try {
       const v = await api.get(`/api/tests/${t.id}/approval`);
       if (!this.t || this.t.id !== t.id) return; // the page shows another test by now
-      out.textContent = v.intact ? "intact: the record is as it was approved" : `CHANGED: ${v.words}`;
-      out.className = v.intact ? "ok" : "field-error";
+      const ok = v.intact && v.report_intact !== false;
+      out.textContent = ok ? `intact: the record is as it was approved${v.report_intact ? ", and so is its report PDF" : ""}`
+        : `CHANGED: ${v.words}`;
+      out.className = ok ? "ok" : "field-error";
     } catch (e) {
       if (!this.t || this.t.id !== t.id) return;
       out.textContent = `could not check: ${e.message}`;
