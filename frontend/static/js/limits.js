@@ -18,6 +18,38 @@ export const LIMITS = [
 
 export const BY_KEY = Object.fromEntries(LIMITS.map((l) => [l.key, l]));
 
+/**
+ * The detector of a table that does not follow its target (sim.follow): an operator's limit with its own actions
+ * (`limits.actions.follow`); its thresholds are shares of the amplitude (the record's `limits.follow`).
+ */
+export const FOLLOW = { key: "follow", name: "follow detector", short: "follow", actions: ["controlled_stop", "indicate"],
+  default: "controlled_stop" };
+const FOLLOW_THRESHOLDS = { rms_share: 0.01, oscillation_share: 0.02, floor_m: 4e-5, oscillation_window_s: 0.5, corner_hz: 10 };
+const FOLLOW_HELP = {
+  controlled_stop: "the table did not follow: a tracking stop brakes the target to rest under control, an oscillation closes the valve at once (the loop itself oscillates); the test ends aborted",
+  indicate: "an event says what the detector saw and when, the test goes on (the tracking verdict still says how well the table followed)",
+};
+
+/** The follow detector's action in a limit set (controlled stop where the set names none). */
+export function followAction(lim) {
+  const a = lim && lim.actions && lim.actions.follow;
+  return FOLLOW.actions.includes(a) ? a : FOLLOW.default;
+}
+
+/** What the follow detector's action does, in one line. */
+export function followHelp(action) {
+  return FOLLOW_HELP[action] || "";
+}
+
+/** The follow detector's thresholds in words (the record's, else the service's defaults). */
+export function followThresholdsText(lim) {
+  const f = { ...FOLLOW_THRESHOLDS, ...((lim && lim.follow) || {}) };
+  const pc = (x) => `${+(100 * x).toPrecision(3)} %`;
+  return `oscillation: RMS above ${f.corner_hz} Hz over ${f.oscillation_window_s} s > ${pc(f.oscillation_share)} of the ` +
+    `amplitude (at least ${fmtU("length", f.floor_m, { sig: 2 })}); tracking: RMS |y - r| of a steady cycle > ` +
+    `${pc(f.rms_share)} of the amplitude once the learning stalls`;
+}
+
 /** Built-in detectors the service trips on by itself (always valve close). */
 const BUILT_IN = { supply_pressure_pa: { name: "supply pressure", quantity: "pressure" } };
 
@@ -75,6 +107,7 @@ export function limitsText(lim) {
     const a = actionOf(lim, l.key);
     (groups[a] = groups[a] || []).push(limitValue(l, lim[l.key]));
   }
+  if (followAction(lim) === "indicate") (groups.indicate = groups.indicate || []).push(FOLLOW.name); // said when set so
   const parts = ACTION_ORDER.filter((a) => groups[a]).map((a) => `${actionName(a)}: ${groups[a].join(", ")}`);
   return parts.length ? parts.join(" \u00b7 ") : "-";
 }
@@ -82,13 +115,14 @@ export function limitsText(lim) {
 /** One line per limit: "|d| 150 mm: valve close" (tooltips). */
 export function limitsLines(lim) {
   if (!lim) return "";
-  return LIMITS.filter((l) => num(lim[l.key]))
-    .map((l) => `${limitValue(l, lim[l.key])}: ${actionName(actionOf(lim, l.key))}`).join("\n");
+  return [...LIMITS.filter((l) => num(lim[l.key]))
+    .map((l) => `${limitValue(l, lim[l.key])}: ${actionName(actionOf(lim, l.key))}`),
+  `${FOLLOW.name}: ${actionName(followAction(lim))}`].join("\n");
 }
 
 /** "|v| 12 times, |y-r| 1 time" from a record's summary.limit_indications ({key: count}); "" when none. */
 export function indicationsText(counts) {
   if (!counts || typeof counts !== "object") return "";
-  return LIMITS.filter((l) => num(counts[l.key]) && counts[l.key] > 0)
+  return [...LIMITS, FOLLOW].filter((l) => num(counts[l.key]) && counts[l.key] > 0)
     .map((l) => `${l.short} ${counts[l.key]} time${counts[l.key] === 1 ? "" : "s"}`).join(", ");
 }

@@ -2,7 +2,7 @@
 // runs, that test's set-up (locked), also after a reload or in a second browser.
 
 import { account } from "./api.js";
-import { actionOf, LIMITS } from "./limits.js";
+import { actionOf, FOLLOW, followAction, LIMITS } from "./limits.js";
 import { BAR } from "./setupfields.js";
 import { isCommissioning, isMove } from "./state.js";
 import { el } from "./ui.js";
@@ -65,6 +65,7 @@ export class FollowPart {
       this.setField(key, num(v) && v !== def[spec.limit] ? v : null);
     }
     for (const l of LIMITS) this.actionSelect(l.key).value = actionOf(lim, l.key);
+    this.actionSelect(FOLLOW.key).value = followAction(lim);
     this.showActionHelp();
     this.showIsolator();
     this.showProfile();
@@ -128,9 +129,9 @@ export class FollowPart {
     for (const [key, v] of Object.entries(draft.values || {})) {
       if (this.fields[key] && !(key === "speed" && this.realTimeOnly)) this.setField(key, v);
     }
-    for (const l of LIMITS) {
-      const a = draft.actions && draft.actions[l.key];
-      const sel = this.actionSelect(l.key);
+    for (const key of [...LIMITS.map((l) => l.key), FOLLOW.key]) {
+      const a = draft.actions && draft.actions[key];
+      const sel = this.actionSelect(key);
       if (a && [...sel.options].some((o) => o.value === a)) sel.value = a;
     }
     this.showActionHelp();

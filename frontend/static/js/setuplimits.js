@@ -1,7 +1,10 @@
 // The set-up's limits: each limit's action (js/limits.js), the limits the next test gets, and the table of the
 // limits in force with what each action does (the confirmation and a manual move show it).
 
-import { ACTION_ORDER, actionHelp, actionName, actionOf, DEFAULT_ACTION, LIMITS, setActionHelp } from "./limits.js";
+import {
+  ACTION_ORDER, actionHelp, actionName, actionOf, DEFAULT_ACTION, FOLLOW, followAction, followHelp, followThresholdsText,
+  LIMITS, setActionHelp,
+} from "./limits.js";
 import { el } from "./ui.js";
 import { fmtU } from "./units.js";
 
@@ -25,6 +28,17 @@ export class LimitsPart {
       sel.dataset.default = def;
       sel.title = `default: ${actionName(def)}\n${actions.map((a) => `${actionName(a)}: ${actionHelp(a)}`).join("\n")}`;
     }
+    // the follow detector: its own actions (controlled stop by default, or indicate) and its thresholds
+    const follow = this.actionSelect(FOLLOW.key);
+    const keepFollow = follow.value;
+    follow.innerHTML = "";
+    for (const a of FOLLOW.actions) follow.append(el("option", { value: a, text: actionName(a) }));
+    follow.value = FOLLOW.actions.includes(keepFollow) ? keepFollow : FOLLOW.default;
+    follow.dataset.default = FOLLOW.default;
+    follow.title = `default: ${actionName(FOLLOW.default)}\n${FOLLOW.actions.map((a) => `${actionName(a)}: ${followHelp(a)}`).join("\n")}`;
+    const thresholds = followThresholdsText(rig.limits_default);
+    $("follow-thresholds").textContent = thresholds;
+    $("follow-thresholds").title = thresholds;
     // what each action does, in the service's words, once under the limits
     const help = $("limit-actions-help");
     help.innerHTML = "";
@@ -32,6 +46,8 @@ export class LimitsPart {
       const def = a === DEFAULT_ACTION ? " (the default)" : "";
       help.append(el("div", { "data-action": a }, el("b", { text: `${actionName(a)}${def}` }), ` ${actionHelp(a)}`));
     }
+    help.append(el("div", { "data-action": "follow" }, el("b", { text: `${FOLLOW.name}:` }),
+      ` ${FOLLOW.actions.map((a) => `${actionName(a)}${a === FOLLOW.default ? " (the default)" : ""}: ${followHelp(a)}`).join("; ")}`));
   }
 
   actionSelect(key) {
@@ -40,13 +56,14 @@ export class LimitsPart {
 
   /** Each limit's action: {key: action} (SI keys of the service). */
   actions() {
-    return Object.fromEntries(LIMITS.map((l) => [l.key, this.actionSelect(l.key).value || DEFAULT_ACTION]));
+    return { ...Object.fromEntries(LIMITS.map((l) => [l.key, this.actionSelect(l.key).value || DEFAULT_ACTION])),
+      [FOLLOW.key]: this.actionSelect(FOLLOW.key).value || FOLLOW.default };
   }
 
   /** Each limit row says its action (an action other than the default is marked). */
   showActionHelp() {
-    for (const l of LIMITS) {
-      const sel = this.actionSelect(l.key);
+    for (const key of [...LIMITS.map((l) => l.key), FOLLOW.key]) {
+      const sel = this.actionSelect(key);
       const row = sel.closest(".limit-row");
       row.dataset.action = sel.value;
       row.dataset.changed = sel.value !== (sel.dataset.default || DEFAULT_ACTION) ? "1" : "0";
@@ -80,9 +97,17 @@ export class LimitsPart {
         el("td", { text: `${l.name} ${l.short}` }), el("td", {}, el("b", { text: fmtU(l.quantity, lim[l.key], { sig: 4 }) })),
         el("td", {}, el("b", { text: actionName(a) }))));
     }
+    if (what === "test") { // a move follows no test target: the follow detector is a test's
+      const fa = followAction(lim);
+      table.append(el("tr", { "data-limit": FOLLOW.key, "data-action": fa },
+        el("td", { text: FOLLOW.name }), el("td", { class: "follow-thresholds", text: followThresholdsText(lim) }),
+        el("td", {}, el("b", { text: actionName(fa) }))));
+    }
     box.append(table);
     box.append(el("p", { class: "actions-help" }, ...ACTION_ORDER.filter((a) => used.has(a))
-      .map((a) => el("span", {}, el("b", { text: actionName(a) }), `: ${actionHelp(a).replace("the test ends", `the ${what} ends`)}. `))));
+      .map((a) => el("span", {}, el("b", { text: actionName(a) }), `: ${actionHelp(a).replace("the test ends", `the ${what} ends`)}. `)),
+    ...(what === "test" ? [el("span", {}, el("b", { text: `${FOLLOW.name}, ${actionName(followAction(lim))}` }),
+      `: ${followHelp(followAction(lim))}.`)] : [])));
     return box;
   }
 }

@@ -95,6 +95,9 @@ function capital(text) {
 function limitWords(e) {
   const v = e.values || {};
   if (v.detector === "not_following" && e.kind === "limit_trip") return notFollowingWords(e);
+  if (v.detector === "not_following") { // the follow detector set to indicate (limits.actions.follow)
+    return `FOLLOW DETECTOR INDICATED: ${e.message || "the table does not follow its target"}`;
+  }
   const info = limitInfo(v.limit_name);
   const reading = info && typeof v[v.limit_name] === "number" && typeof v.limit === "number"
     ? `${info.name} ${fmtU(info.quantity, Math.abs(v[v.limit_name]), { sig: 4 })} beyond the limit of ` +
@@ -131,8 +134,10 @@ function notFollowingWords(e) {
   }
   const what = cut > 0 ? msg.slice(0, cut) : msg;
   const advice = cut > 0 ? msg.slice(cut + 2) : "";
-  return `LIMIT TRIP: ${what}; the valve closes at once (the controller is no longer trusted), the test ends aborted` +
-    `${advice ? `. Advice: ${advice}` : ""}`;
+  const done = (e.values || {}).action === "controlled_stop"
+    ? "controlled stop: the target brakes to rest under control, the test ends aborted"
+    : "the valve closes at once (the controller is no longer trusted), the test ends aborted";
+  return `LIMIT TRIP: ${what}; ${done}${advice ? `. Advice: ${advice}` : ""}`;
 }
 
 /** "stop requested by operator" -> "operator" (the actor of a request streamed live, which has no actor field). */
