@@ -41,10 +41,14 @@ def test_an_approver_logs_in_and_approves_a_record(server, open_page, artifacts)
     rec = server.call("GET", f"/api/tests/{test_id}")[1]
     assert rec["review"]["by"] == APPROVER[0] and rec["review"]["note"] == "loops as expected"
     assert rec["review"]["record_sha256"] in page.inner_text("#t-review-hash")
+    # the report PDF kept at the approval: its SHA-256 beside the record's, and checked with it
+    assert len(rec["review"]["report_sha256"]) == 64
+    assert f"report PDF SHA-256 {rec['review']['report_sha256']}" in page.inner_text("#t-review-hash")
     assert "locked" in page.inner_text("#t-review-words")
     assert not page.is_visible("#t-action")  # no archive of an approved record
     page.click("#t-verify")
     page.wait_for_selector("#t-verify-result:has-text('intact')", timeout=WAIT_MS)
+    assert "and so is its report PDF" in page.inner_text("#t-verify-result")
     shots(page, artifacts, "accounts_approved_record")
 
     # History filtered by review state. The unfiltered list that opening History asks for is made to answer
