@@ -1,13 +1,26 @@
 #!/usr/bin/env bash
 # Set up (venv, Python packages) and run the whole test suite: lint, then pytest.
+#   scripts/test.sh                 everything (what CI runs)
+#   scripts/test.sh --quick [ARGS]  the edit-test loop: lint, then the tests that need neither real time, nor a
+#                                   browser, nor seconds of whole processes each (QUICK_* below), in parallel
+#   scripts/test.sh FILE ...        the tests named, in one process
 set -euo pipefail
 cd "$(dirname "$0")/.."
+# the quick tier leaves out the real-time tests (marker realtime), the browser tests (tests/e2e) and the slow ones
+# (marker slow: whole services started, signalled and killed, long fits); the full run keeps every test
+QUICK_MARKERS="not realtime and not slow"
+QUICK_IGNORE="tests/e2e"
+quick=0
+if [ "${1:-}" = "--quick" ]; then
+  quick=1
+  shift
+fi
 bash scripts/setup.sh
 # Debian packages the tests need: chromium for the dashboard's browser tests (tests/e2e; Playwright drives it,
 # its own browser download is not used), poppler-utils for pdftoppm, which renders report pages to PNG, and
 # postgresql: the PostgreSQL tests start a server of their own from its binaries (tests/backend/pg_server.py).
 missing=""
-[ -x /usr/bin/chromium ] || missing="$missing chromium"
+[ "$quick" -eq 1 ] || [ -x /usr/bin/chromium ] || missing="$missing chromium"  # the quick tier has no browser
 command -v pdftoppm >/dev/null 2>&1 || missing="$missing poppler-utils"
 ls /usr/lib/postgresql/*/bin/initdb >/dev/null 2>&1 || command -v initdb >/dev/null 2>&1 || missing="$missing postgresql"
 if [ -n "$missing" ]; then
@@ -22,12 +35,17 @@ fi
 # the slowest tests named at the end: what to trim when the suite grows (CI has 90 minutes; we keep it well under 15);
 # every test's time in artifacts/pytest*.xml (JUnit XML)
 mkdir -p artifacts
+workers=${ISORIG_TEST_WORKERS:-$(cores=$(nproc 2>/dev/null || echo 2); echo $(( cores > 4 ? 4 : cores )))}
+if [ "$quick" -eq 1 ]; then  # extra arguments go to pytest: scripts/test.sh --quick -k store, --quick -x
+  echo "isorig tests (quick): not the real-time, browser or slow tests, in $workers workers" >&2
+  exec .venv/bin/python -m pytest -q --durations=10 --junitxml=artifacts/pytest-quick.xml -m "$QUICK_MARKERS" \
+    --ignore="$QUICK_IGNORE" -n "$workers" --dist loadfile "$@"
+fi
 if [ "$#" -gt 0 ]; then  # the tests named, in one process: scripts/test.sh tests/test_loop.py -k controller
   exec .venv/bin/python -m pytest -q --durations=20 --junitxml=artifacts/pytest.xml "$@"
 fi
 # 1. the tests that do not need real time, in parallel workers (one per core, at most 4; ISORIG_TEST_WORKERS sets it);
 #    a test file stays on one worker, so its module fixtures (a service, an emulator) start once
-workers=${ISORIG_TEST_WORKERS:-$(cores=$(nproc 2>/dev/null || echo 2); echo $(( cores > 4 ? 4 : cores )))}
 echo "isorig tests: the tests that do not need real time, in $workers workers" >&2
 parallel=0
 .venv/bin/python -m pytest -q --durations=20 --junitxml=artifacts/pytest.xml -m "not realtime" \

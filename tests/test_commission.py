@@ -130,6 +130,7 @@ def isorig(*args, cwd):
                           timeout=300)
 
 
+@pytest.mark.slow  # the CLI's commissioning and fit: scripts/test.sh --quick leaves it out
 def test_identify_rig_writes_a_rig_file_that_the_controller_then_follows(tmp_path):
     plant = ["--plant-set", "mass_kg=3000", "--plant-set", "bulk_modulus_pa=4.5e8"]
     out = isorig("identify", "rig", "--supply-bar", "100", *plant, "--out", "rig.json", cwd=tmp_path)
@@ -143,6 +144,7 @@ def test_identify_rig_writes_a_rig_file_that_the_controller_then_follows(tmp_pat
     assert set(c["estimates"]) >= {"mass_kg", "dead_zone_v", "position_latency_s", "valve_natural_frequency_rad_s"}
 
 
+@pytest.mark.slow  # the CLI's commissioning, several times: scripts/test.sh --quick leaves it out
 def test_identify_rig_refuses_bad_bounds_and_writes_nothing(tmp_path):
     out = isorig("identify", "rig", "--supply-bar", "100", "--max-stroke-m", "0.5", "--out", "rig.json",
                  cwd=tmp_path)
@@ -160,6 +162,7 @@ def test_identify_rig_refuses_bad_bounds_and_writes_nothing(tmp_path):
 REAL_TRANSDUCERS = {"position_noise_rms_m": 3e-7, "position_resolution_m": 1e-6, "pressure_noise_rms_pa": 2.8e4}
 
 
+@pytest.mark.slow  # a whole commissioning: scripts/test.sh --quick leaves it out
 def test_a_rig_read_by_real_transducers_is_commissioned_with_its_values_and_its_noise_measured():
     """The load pressure's noise is a regressor's noise in the flow balance: least squares pulled the oil column's
     compliance towards zero and the record was refused (flow balance 94 %, replay 26 %). The fit measures each

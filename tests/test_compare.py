@@ -102,6 +102,7 @@ def test_the_twice_gain_valve_is_a_plant_change_the_controllers_are_not_told():
     assert point.amplitude_m == compare.grid_amplitude_m("IUT_a", 100.0, 1.0, lab)  # the lab rig's envelope
 
 
+@pytest.mark.slow  # the CLI's runs: scripts/test.sh --quick leaves it out
 def test_a_rig_file_reaches_the_runs_and_a_bad_one_is_one_line(tmp_path, capsys):
     rig = tmp_path / "lab.toml"
     rig.write_text('name = "Lab B"\nmass_kg = 4000.0\n')

@@ -41,6 +41,7 @@ def wait_result(client, cid: int, timeout_s: float = 120.0) -> dict:
     raise AssertionError(f"commissioning {cid} still {res['state']} after {timeout_s} s")
 
 
+@pytest.mark.slow  # a whole commissioning and its fit: scripts/test.sh --quick leaves it out
 def test_a_rig_unlike_its_file_is_commissioned_trusted_and_becomes_the_services_rig(tmp_path):
     settings = make_settings(tmp_path, plant_set=PLANT_SET)
     with TestClient(create_app(settings)) as client:

@@ -17,6 +17,8 @@ from fastapi.testclient import TestClient
 
 from backend.app import create_app
 
+pytestmark = pytest.mark.slow  # services signalled and killed, seconds each: scripts/test.sh --quick leaves it out
+
 LONG = {"speed": 1.0, "profile": {"frequency_hz": 2.0, "cycles": 40, "taper_cycles": 1}}  # 20 s
 
 

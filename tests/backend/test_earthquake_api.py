@@ -232,6 +232,7 @@ def _pdf_text(pdf: bytes, tmp_path: Path) -> str:
                           check=True).stdout
 
 
+@pytest.mark.slow  # a hybrid test run to its trip: scripts/test.sh --quick leaves it out
 def test_the_stability_monitor_stops_a_hybrid_test_and_a_stop_brakes_it_to_rest(client):
     # a monitor set far below what this loop adds (4.9 J over the burst, measured) trips: the valve closes
     body = hybrid_body(stability={"limit_j": 0.5, "relative_limit": 0.001})

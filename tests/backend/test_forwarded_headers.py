@@ -39,6 +39,7 @@ def throttled_from(http: httpx.Client, forged: str) -> int:
     raise AssertionError(f"no wait of 4 s or more after 20 guesses (last {wait} s)")
 
 
+@pytest.mark.slow  # a real service: scripts/test.sh --quick leaves it out
 @pytest.mark.parametrize("trusted", [None, "127.0.0.1"], ids=["no-proxy-named", "proxy-127.0.0.1"])
 def test_forwarded_for_is_believed_only_from_a_named_proxy(tmp_path, trusted):
     port = free_port()
@@ -72,6 +73,7 @@ def test_the_setting_takes_addresses_and_networks_only():
             Settings(forwarded_allow_ips=bad)
 
 
+@pytest.mark.slow  # a real `isorig serve`: scripts/test.sh --quick leaves it out
 def test_serve_refuses_a_proxy_that_is_not_an_address(tmp_path):
     done = subprocess.run([sys.executable, "-m", "isorig", "serve", "--data-dir", str(tmp_path),
                            "--forwarded-allow-ips", "*"], capture_output=True, text=True, timeout=60,

@@ -33,6 +33,7 @@ def records(client) -> int:
 # --- a move's speed ------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow  # 10 s of moves: scripts/test.sh --quick leaves it out
 def test_a_move_at_a_tiny_speed_is_refused_at_the_door_not_a_500(client):
     """The issue's `POST /api/rig/zero` with 1.45e-178 m/s from a table off zero answered 500 (numpy's 'Maximum
     allowed size exceeded' sizing the move's target by distance / speed)."""

@@ -43,6 +43,7 @@ def launch(go: str, ready: str, port: int, *args: str) -> subprocess.Popen:
                             text=True, start_new_session=True)
 
 
+@pytest.mark.slow  # real services, two rounds: scripts/test.sh --quick leaves it out
 def test_two_rigs_services_started_together_on_a_new_sqlite_database_both_start(tmp_path):
     for n in range(ROUNDS):
         data = tmp_path / f"round-{n}"

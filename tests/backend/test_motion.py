@@ -134,6 +134,7 @@ def test_a_move_has_a_velocity_limit_of_its_own_a_few_times_its_speed(client):
     assert wait_for(client, r.json()["id"])["limits"]["velocity_m_per_s"] == pytest.approx(0.012)
 
 
+@pytest.mark.slow  # moves run to a trip: scripts/test.sh --quick leaves it out
 def test_a_controlled_stop_trip_during_a_move_holds_the_table_where_it_is(client):
     """A limit whose action is a controlled stop ends a move as the operator's stop does: where the table is,
     never by driving it back to where the move began."""
@@ -155,6 +156,7 @@ def test_a_controlled_stop_trip_during_a_move_holds_the_table_where_it_is(client
     zero_table(client)
 
 
+@pytest.mark.slow  # a move and a whole test: scripts/test.sh --quick leaves it out
 def test_a_sine_can_run_about_where_the_table_rests(client):
     """The console's offset from the table position: start_m = offset_m = where the table is. The test starts
     there (not from zero), runs about it and ends there; the start check compares with start_m."""

@@ -14,6 +14,8 @@ import pytest
 from conftest import AUTH, sine_test
 from test_crash import LONG, serve, wait_samples, wait_up
 
+pytestmark = pytest.mark.slow  # a real service killed, its processes counted: scripts/test.sh --quick leaves it out
+
 
 def gone(process: psutil.Process) -> bool:
     try:

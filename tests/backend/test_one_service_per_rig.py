@@ -60,6 +60,7 @@ def refused(port: int, args: list[str]) -> tuple[int, str]:
     return second.returncode, err
 
 
+@pytest.mark.slow  # real services started and killed: scripts/test.sh --quick leaves it out
 def test_a_second_service_of_a_rig_is_refused_and_a_dead_ones_test_is_interrupted(database):
     port = free_port()
     first = serve(port, *database)
@@ -104,6 +105,7 @@ def test_a_second_service_of_a_rig_is_refused_and_a_dead_ones_test_is_interrupte
             stop(later)
 
 
+@pytest.mark.slow  # real services: scripts/test.sh --quick leaves it out
 def test_services_of_other_rigs_share_the_database(database):
     """The lock is per rig name: a second rig's service on the same database starts beside the first (one after
     the other: two services creating one new SQLite database at the same moment can both migrate it)."""

@@ -105,6 +105,7 @@ def _service(tmp_path, db, rig_name: str, **overrides):
                                                **overrides)))
 
 
+@pytest.mark.slow  # two services, a test on each: scripts/test.sh --quick leaves it out
 def test_two_services_share_one_database_each_driving_its_own_rig(tmp_path):
     db = f"sqlite:///{tmp_path / 'shared.db'}"
     with _service(tmp_path, db, "rig-a") as a, _service(tmp_path, db, "rig-b") as b:

@@ -229,6 +229,7 @@ def test_user_isolators_can_be_deleted_presets_not(client):
     assert r.status_code == 409 and "preset" in r.json()["detail"]
 
 
+@pytest.mark.slow  # a test run to its stop's end: scripts/test.sh --quick leaves it out
 def test_time_left_counts_to_the_end_of_a_stops_ramp_out(client):
     """After Stop the test ends where the ramp-out ends, not at its planned duration: the status's time_left_s
     says so, live and to a client that joins while it ramps out."""

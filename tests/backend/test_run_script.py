@@ -170,6 +170,7 @@ def start_and_ctrl_c(cmd: list[str], port: int) -> tuple[float, int, str, list[s
             server.wait(10)
 
 
+@pytest.mark.slow  # run.sh and a real service: scripts/test.sh --quick leaves it out
 def test_ctrl_c_ends_the_service_without_a_traceback_and_leaves_no_process(tmp_path):
     """Ctrl-C right after the service answers: the forkserver is still importing the engine then (what printed
     the traceback). The service stops cleanly, says nothing of KeyboardInterrupt, and its children end with it."""

@@ -103,6 +103,7 @@ def test_the_service_answers_413_with_what_is_allowed(tmp_path):
 
 
 # --- the bounded pool of token-free heavy work ---------------------------------------------------------------
+@pytest.mark.slow  # check workers kept busy and retired: scripts/test.sh --quick leaves it out
 def test_the_check_pool_refuses_when_busy_and_retires_a_big_worker():
     import multiprocessing as mp
 
@@ -130,6 +131,7 @@ def test_the_check_pool_refuses_when_busy_and_retires_a_big_worker():
         pool.shutdown()
 
 
+@pytest.mark.slow  # check workers kept busy: scripts/test.sh --quick leaves it out
 def test_a_history_check_is_refused_503_while_the_checks_are_busy(tmp_path):
     with TestClient(create_app(make_settings(tmp_path, check_workers=1, check_queue=0))) as client:
         history = {**sine_test(speed=1.0), "profile": {"kind": "history", "ground_motion": "near_field_short",
