@@ -258,7 +258,21 @@ def _condition_lines(r: dict, protocol, u=LAB) -> list[tuple[str, str]]:
                 parts.append(f"{words} <= {u.text(quantity, limits[key], sig=4)}{note}")
         lines.append(("Limits", ", ".join(parts) + "; supply pressure >= 50 % of its setting; rig faults; a frozen "
                       "position reading"))
+        if follow_action(limits) == "indicate":  # said always: the detector may have fired or not, nothing stopped
+            lines.append(("", FOLLOW_INDICATE_WORDS))
     return lines
+
+
+FOLLOW_INDICATE_WORDS = "follow detector: indicate (a table that does not follow is an event, the test goes on)"
+
+
+def follow_action(limits: dict) -> str | None:
+    """The follow detector's action as the record's limits give it (``actions.follow``, else ``follow.action``:
+    sim.safety.SafetyLimits.to_dict), or None when they do not say."""
+    action = (limits.get("actions") or {}).get("follow")
+    if action is None and isinstance(limits.get("follow"), dict):
+        action = limits["follow"].get("action")
+    return action
 
 
 def _profile_text(record: dict, protocol, u=LAB) -> list[str]:
