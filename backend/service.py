@@ -23,10 +23,11 @@ from datetime import UTC, datetime
 import numpy as np
 from sqlalchemy.orm import Session, sessionmaker
 
-from sim.engine import Scenario
+from sim.engine import Scenario, said_indicate
 from sim.follow import advice_for, tracking_verdict
 from sim.loop import CONTROL_PERIOD_S
 from sim.metrics import headline_figures
+from sim.safety import FOLLOW_KEY, SafetyLimits
 from sim.samples import CSV_FIELDS, SAMPLE_FIELDS, Samples
 from sim.tracking import tracking_summary
 
@@ -736,11 +737,14 @@ class RigService:
         summary["loop_metrics_mean"] = headline["means"]  # over the steady cycles only (sim.metrics)
         if job["scenario"].get("earthquake") is not None:
             summary.update(self._earthquake_summary(session, test, job, samples, stability))
-        summary["tracking_verdict"] = tracking_verdict(samples, scenario.profile, summary.get("criteria")
-                                                       if not scenario.profile else None,
-                                                       advice=advice_for(scenario.controller),
-                                                       latency_s=scenario.rig.position_latency_s,
-                                                       commissioning=scenario.rig_commissioning)
+        verdict = tracking_verdict(samples, scenario.profile, summary.get("criteria") if not scenario.profile
+                                   else None, advice=advice_for(scenario.controller),
+                                   latency_s=scenario.rig.position_latency_s,
+                                   commissioning=scenario.rig_commissioning)
+        # the CLI's words (sim.engine.said_indicate): set to indicate, the detector stopped nothing
+        follow_action = SafetyLimits.from_dict(job["limits"]).action(FOLLOW_KEY) if job.get("limits") else None
+        summary["tracking_verdict"] = said_indicate(verdict, follow_action,
+                                                    (indications or {}).get(FOLLOW_KEY, 0))
         return store.clean_json(summary)
 
     @staticmethod

@@ -400,12 +400,8 @@ class Result:
 
     def _said_indicate(self, verdict: dict) -> dict:
         """The verdict, saying when the follow detector was set to indicate (it stopped nothing)."""
-        if self.follow_action != "indicate":
-            return verdict
-        seen = sum(1 for i in self.indications if i.detector == "not_following")
-        return {**verdict, "follow_action": "indicate",
-                "words": f"{verdict['words']} (follow detector set to indicate: {seen} indication"
-                         f"{'' if seen == 1 else 's'}, the test was not stopped)"}
+        return said_indicate(verdict, self.follow_action,
+                             sum(1 for i in self.indications if i.detector == "not_following"))
 
     def verdict(self, criteria: dict | None = None) -> dict:
         """How well the table followed (sim.follow.tracking_verdict), with the advice for this controller."""
@@ -419,6 +415,17 @@ class Result:
 
 FOLLOW_CHECK_PERIODS = 10  # as the worker's detectors (backend.worker.CHECK_PERIODS; sim.detectors.CHECK_PERIODS)
 ISOLATOR_PARAMETERS = ("rho_bw_per_m", "sigma_bw", "n", "kd_n_per_m", "kw_n")
+
+
+def said_indicate(verdict: dict, follow_action: str | None, seen: int) -> dict:
+    """The tracking verdict (sim.follow.tracking_verdict), saying when the follow detector was set to indicate
+    (``follow_action``; it stopped nothing) and how often it indicated (``seen``): the words of the CLI's summary
+    and of the service's."""
+    if follow_action != "indicate":
+        return verdict
+    return {**verdict, "follow_action": "indicate",
+            "words": f"{verdict['words']} (follow detector set to indicate: {seen} indication"
+                     f"{'' if seen == 1 else 's'}, the test was not stopped)"}
 
 
 def plant_at(scenario: Scenario, timed: dict) -> tuple[RigParameters, Isolator]:
