@@ -7,7 +7,8 @@ packed parameters of ``physics`` and two views of the rig that the instrument, n
   volumes, stroke, pump flow, ranges), nothing measured;
 - ``equivalents(supply_pa)``: the rig's physics expressed as the quantities a lumped single-valve model relies on
   (moving mass, position latency, spool frequency, the oil column's stiffness at mid-stroke, and, where the
-  valve has a dead band, its width and centre in volts): the truth a commissioning's values are judged against.
+  valve has a dead band, the commands at its edges each way, V): the truth a commissioning's values are judged
+  against.
 """
 
 from __future__ import annotations
@@ -91,10 +92,12 @@ class ForeignRigSpec:
         }
         laps = [p[ph.P_LAP_PA], p[ph.P_LAP_AT], p[ph.P_LAP_PB], p[ph.P_LAP_BT]]
         if min(laps) > 0.0 and p[ph.P_PLAY] == 0.0:
-            # the valve opens towards +y when (u + bias) / 10 > lap_pa, towards -y when < -lap_pb
-            out["dead_zone_v"] = float(0.5 * ph.COMMAND_FULL_SCALE_V * (p[ph.P_LAP_PA] + p[ph.P_LAP_PB]))
-            out["driver_offset_v"] = float(p[ph.P_NULL] - 0.5 * ph.COMMAND_FULL_SCALE_V
-                                           * (p[ph.P_LAP_PA] - p[ph.P_LAP_PB]))
+            # the valve opens towards +y when (u + bias) / 10 > lap_pa, towards -y when < -lap_pb: the commands
+            # at its edges, what a dead-zone inverse must know (however a model splits them into a width, a null
+            # and each way's gain)
+            full = ph.COMMAND_FULL_SCALE_V
+            out["valve_edge_positive_v"] = float(full * p[ph.P_LAP_PA] - p[ph.P_NULL])
+            out["valve_edge_negative_v"] = float(-full * p[ph.P_LAP_PB] - p[ph.P_NULL])
         return out
 
 

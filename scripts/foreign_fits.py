@@ -54,7 +54,7 @@ def fit_row(seed: int) -> dict:
         values = fc.judged_values(ident, spec, declared)
         row.update(flow_r2=ident.fit.flow_r2, force_r2=ident.fit.force_r2,
                    values={k: list(v) for k, v in values.items()}, wrong=fc.wrong_values(values),
-                   presliding_m=ident.fit.value("presliding_m"))
+                   presliding_m=getattr(ident.fit.estimates.get("presliding_m"), "value", None))
     if ident.response is not None:
         row["replay_error"] = ident.response.velocity_nrmse
     return row

@@ -220,6 +220,24 @@ def test_judging_the_values_a_fit_trusted():
     assert wrong_values({"dead_zone_v": (float("nan"), 0.01, 0.5)}) == ["dead_zone_v"]
 
 
+def test_a_fitted_valve_is_judged_by_the_commands_at_its_edges():
+    """eq. (2) splits a valve's edges into a dead zone, a null and a negative command's gain k_en: a valve that
+    opens at +0.821 V and -0.918 V is that with dz 0.764, v_e0 -0.057 and k_en 0.885, which a width-and-centre
+    comparison called 40 sigma off (foreign rig 20)."""
+    from sim.commission.fit import Estimate
+    from sim.commission.foreign_campaign import valve_edges
+
+    est = {"dead_zone_v": Estimate(0.764, 0.003, "V", ""), "driver_offset_v": Estimate(-0.057, 0.003, "V", ""),
+           "driver_gain_negative": Estimate(0.7705, 0.01, "V/V", "")}
+    edges = valve_edges(est)
+    assert edges["valve_edge_positive_v"][0] == pytest.approx(0.821)
+    assert edges["valve_edge_negative_v"][0] == pytest.approx(-0.707 / 0.7705)
+    assert 0.003 < edges["valve_edge_negative_v"][1] < 0.02
+    spec = draw_rig(20)
+    truth = spec.equivalents(1e7)
+    assert truth["valve_edge_positive_v"] == pytest.approx(10 * spec.params[ph.P_LAP_PA] - spec.params[ph.P_NULL])
+
+
 @pytest.mark.parametrize("flags, says", [
     (["--foreign-rigs", "0"], "--foreign-rigs 0 must be between 1 and 100000"),
     (["--foreign-rigs", "2", "--robust"], "--robust cannot go with --foreign-rigs"),

@@ -355,6 +355,43 @@ def _friction_columns(sig: Signals, presliding_m: float) -> tuple[np.ndarray, np
     return cache[presliding_m]
 
 
+#: the valve law's values whose model error shows as a disagreement between the parts of the record
+VALVE_LAW_NAMES = ("dead_zone_v", "driver_offset_v", "driver_gain_negative", "flow_gain_m3_per_s_v_sqrt_pa")
+
+
+def part_disagreement(sig: Signals, area: float, dp_reg: float, flow: FlowFit,
+                      parts: list[np.ndarray]) -> dict[str, float]:
+    """What the flow balance's model leaves out, as the valve law fitted on each part of the record alone (the
+    valve sweeps, the dither: one experiment each) disagrees: |a - b| / sqrt(2) for each of VALVE_LAW_NAMES,
+    the valve's dynamics and the latency held at the whole record's. A rig the model describes gives the same
+    valve law from both (within their noise); one it does not (a valve whose lands meter unequally, an actuator
+    whose sides differ) gives each experiment its own, and the jackknife, which deals every part to every
+    group, cannot see that."""
+    fixed = [flow.valve_hz, flow.valve_damping, flow.latency_s * 1e3]
+    free = np.array([0, 1, 5])
+    laws = []
+    for part in parts:
+        mask = sig.valid & part
+        if np.count_nonzero(mask) < int(1.0 / sig.dt_s):
+            continue
+        scale = 1.0 / max(np.std(area * sig.v_f[mask]), 1e-12)
+
+        def theta(x, fixed=fixed):
+            return np.array([x[0], x[1], *fixed, x[2]])
+
+        def residual(x, mask=mask, scale=scale):
+            return _flow_regression(sig, mask, area, dp_reg, theta(x))[1] * scale
+
+        start = np.clip([flow.dead_zone_v, flow.null_offset_v, flow.negative_gain], LOWER[free], UPPER[free])
+        sol = optimize.least_squares(residual, start, bounds=(LOWER[free], UPPER[free]), x_scale=SCALE[free],
+                                     diff_step=1e-3, max_nfev=MAX_EVALUATIONS, ftol=TOLERANCE, xtol=TOLERANCE)
+        coef = _flow_regression(sig, mask, area, dp_reg, theta(sol.x))[0]
+        laws.append(dict(zip(VALVE_LAW_NAMES, (sol.x[0], sol.x[1], sol.x[2], coef[0]), strict=True)))
+    if len(laws) < 2:
+        return {}
+    return {name: float(abs(laws[0][name] - laws[1][name]) / math.sqrt(2.0)) for name in VALVE_LAW_NAMES}
+
+
 def sliding_mask(sig: Signals, latency_s: float) -> np.ndarray:
     """Samples where the table has been sliding (|y'| > SLIDING_M_PER_S) for STICK_MARGIN_S either side."""
     v = sig.at_latency(sig.v_f, latency_s)
@@ -440,13 +477,16 @@ class RigFit:
     force_r2: float
     force_balance_s: float  # the record's length the force balance was fitted over
     declared: RigParameters
+    #: the valve law's disagreement between the record's parts, one sigma by name (part_disagreement)
+    disagreement: dict = field(default_factory=dict)
 
     def value(self, name: str) -> float:
         return self.estimates[name].value
 
     def to_dict(self) -> dict:
         return {"estimates": {k: e.to_dict() for k, e in self.estimates.items()}, "flow_r2": self.flow_r2,
-                "force_r2": self.force_r2, "force_balance_s": self.force_balance_s}
+                "force_r2": self.force_r2, "force_balance_s": self.force_balance_s,
+                "disagreement": dict(self.disagreement)}
 
 
 def _named(flow: FlowFit, force: ForceFit, declared: RigParameters) -> dict[str, float]:
@@ -483,8 +523,10 @@ UNITS = {"flow_gain_m3_per_s_v_sqrt_pa": ("m3/(s V sqrt(Pa))", "valve flow gain 
          "bristle_damping_n_s_per_m": ("N s/m", "the pre-sliding's damping sigma_1 (Dahl law)")}
 
 
-def fit_rig(sig: Signals, declared: RigParameters, blocks: int = BLOCKS) -> RigFit:
-    """Every parameter of ``UNITS`` with its jackknife uncertainty over ``blocks`` groups of the record."""
+def fit_rig(sig: Signals, declared: RigParameters, blocks: int = BLOCKS,
+            parts: list[np.ndarray] | None = None) -> RigFit:
+    """Every parameter of ``UNITS`` with its jackknife uncertainty over ``blocks`` groups of the record, and the
+    valve law's disagreement between ``parts`` of it (boolean masks: the excitation's phases)."""
     if np.ptp(sig.y[sig.valid]) < 1e-5:
         raise FitError("the table moved less than 0.01 mm in the record: nothing to fit")
     area, dp_reg = declared.piston_area_m2, declared.orifice_regularisation_pa
@@ -510,4 +552,5 @@ def fit_rig(sig: Signals, declared: RigParameters, blocks: int = BLOCKS) -> RigF
         std = float(math.sqrt((blocks - 1) / blocks * np.sum((others - others.mean()) ** 2)))
         unit, meaning = UNITS[name]
         estimates[name] = Estimate(float(value), std, unit, meaning)
-    return RigFit(estimates, flow.r2, force.r2, force.samples * sig.dt_s, declared)
+    disagreement = part_disagreement(sig, area, dp_reg, flow, parts) if parts else {}
+    return RigFit(estimates, flow.r2, force.r2, force.samples * sig.dt_s, declared, disagreement)

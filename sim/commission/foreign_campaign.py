@@ -78,18 +78,35 @@ def retry_bounds(problems: list[str], max_stroke_m: float, max_velocity_m_per_s:
 
 def judged_values(ident, spec, declared: RigParameters) -> dict:
     """Each value the controller relies on, fitted and true (the rig's physics), with its one-sigma uncertainty;
-    the oil column judged as its stiffness 2 beta A_p^2 / V_0 with the declared A_p and V_0."""
+    the oil column judged as its stiffness 2 beta A_p^2 / V_0 with the declared A_p and V_0, the valve's dead
+    zone as the commands at its edges (``valve_edges``)."""
     truth = spec.equivalents(SUPPLY_PA)
     est = ident.fit.estimates
     out = {}
-    for name in ("mass_kg", "position_latency_s", "valve_natural_frequency_rad_s", "dead_zone_v", "driver_offset_v"):
+    for name in ("mass_kg", "position_latency_s", "valve_natural_frequency_rad_s"):
         if name in truth and name in est:
             out[name] = (est[name].value, est[name].std, truth[name])
+    for name, edge in valve_edges(est).items():
+        if name in truth:
+            out[name] = (*edge, truth[name])
     if "bulk_modulus_pa" in est:
         scale = 2.0 * declared.piston_area_m2 ** 2 / declared.half_volume_m3
         e = est["bulk_modulus_pa"]
         out["oil_column_stiffness_n_per_m"] = (e.value * scale, e.std * scale, truth["oil_column_stiffness_n_per_m"])
     return out
+
+
+def valve_edges(est: dict) -> dict:
+    """The commands at which the fitted valve opens each way, (value, one sigma) in V: eq. (2) and the dead zone
+    give u = dz - v_e0 towards +y and u = -(dz + v_e0) / k_en towards -y (the dead-zone inverse's edges; the
+    sigmas from those of dz, v_e0 and k_en, taken as independent)."""
+    if not all(n in est for n in ("dead_zone_v", "driver_offset_v", "driver_gain_negative")):
+        return {}
+    dz, v0, k = (est[n] for n in ("dead_zone_v", "driver_offset_v", "driver_gain_negative"))
+    negative = -(dz.value + v0.value) / k.value
+    return {"valve_edge_positive_v": (dz.value - v0.value, math.hypot(dz.std, v0.std)),
+            "valve_edge_negative_v": (negative, math.hypot(dz.std / k.value, v0.std / k.value,
+                                                           negative * k.std / k.value))}
 
 
 def wrong_values(values: dict) -> list[str]:

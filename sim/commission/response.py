@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..rig import RigParameters
-from .fit import Signals, derivative, lowpass, valve_voltage
+from .fit import Signals, dahl_state, derivative, lowpass, valve_voltage
 from .model import replay
 
 SETTLE_S = 1.0  # the first second of the dither (its fade-in) is not read
@@ -70,11 +70,12 @@ def _line_response(u: np.ndarray, x: np.ndarray, n_period: int, bins: np.ndarray
     return cx.mean(axis=0) / cu.mean(axis=0)
 
 
-def replay_segments(sig: Signals, window: slice, rig: RigParameters) -> tuple[np.ndarray, np.ndarray]:
+def replay_segments(sig: Signals, window: slice, rig: RigParameters,
+                    dahl: tuple[float, float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(velocity as read, load pressure) of the fitted rig's replay of the commands of ``window``, started
-    from the measured state (position and
-    velocity moved back by the latency, load pressure, the valve as the fitted valve had it) every
-    ``SEGMENT_S``."""
+    from the measured state (position and velocity moved back by the latency, load pressure, the valve as the
+    fitted valve had it, the Dahl law's state from the measured motion) every ``SEGMENT_S``. ``dahl``: (F_c,
+    delta, sigma_1) when the fit chose the Dahl friction law."""
     dt = sig.dt_s
     lag = rig.position_latency_s
     y0 = sig.at_latency(sig.y_f, lag)
@@ -82,6 +83,7 @@ def replay_segments(sig: Signals, window: slice, rig: RigParameters) -> tuple[np
     v_e = valve_voltage(sig.u, dt, rig.valve_natural_frequency_rad_s / (2 * np.pi), rig.valve_damping_ratio,
                         rig.driver_offset_v, rig.driver_gain_negative)
     v_e_rate = derivative(v_e, dt)
+    z0 = dahl_state(y0, dahl[1]) if dahl is not None else np.zeros_like(y0)
     v_model = np.empty(window.stop - window.start)
     p_model = np.empty_like(v_model)
     step = int(round(SEGMENT_S / dt))
@@ -89,14 +91,14 @@ def replay_segments(sig: Signals, window: slice, rig: RigParameters) -> tuple[np
         b = min(a + step, window.stop)
         _y, v_model[a - window.start: b - window.start], p_model[a - window.start: b - window.start] = replay(
             rig, sig.u[a:b], sig.force[a:b], sig.p_supply[a:b], float(y0[a]), float(v0[a]), float(sig.p_load_f[a]),
-            dt, float(v_e[a]), float(v_e_rate[a]))
+            dt, float(v_e[a]), float(v_e_rate[a]), dahl, float(z0[a]))
     return v_model, p_model
 
 
 def dither_response(sig: Signals, dither: slice, rig: RigParameters, lines_hz: np.ndarray,
-                    period_s: float) -> FrequencyResponse:
+                    period_s: float, dahl: tuple[float, float, float] | None = None) -> FrequencyResponse:
     """The responses over whole dither periods of ``dither`` (a slice of the record), the fitted ``rig``'s
-    replay from the state measured at its start."""
+    replay (with the Dahl friction law ``dahl`` where the fit chose it) from the state measured at its start."""
     dt = sig.dt_s
     start = dither.start + int(round(SETTLE_S / dt))
     n_period = int(round(period_s / dt))
@@ -106,7 +108,7 @@ def dither_response(sig: Signals, dither: slice, rig: RigParameters, lines_hz: n
                          "needed for a frequency response")
     window = slice(start, start + periods * n_period)
     u = valve_opening(sig.u[window], rig)
-    v_model, p_model = replay_segments(sig, window, rig)
+    v_model, p_model = replay_segments(sig, window, rig, dahl)
     diverged = not np.all(np.isfinite(v_model))
     v_model = lowpass(np.nan_to_num(v_model, posinf=0.0, neginf=0.0), dt)
     v_meas = sig.v_f[window]
