@@ -1,8 +1,11 @@
-"""`isorig report`: the PDF test report (and optionally report.json) of a stored test or of a CSV record."""
+"""`isorig report`: the PDF test report (and optionally report.json) of a stored test or of a CSV record. An
+approved record's report is the PDF kept at its approval (backend.review), written byte for byte with its SHA-256,
+as the service serves it; it is never drawn again."""
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import gc
 import json
 import math
@@ -17,8 +20,11 @@ PROG = "isorig report"
 
 def register(sub) -> None:
     p = sub.add_parser("report", help="PDF report (loops, per-cycle metrics, verdicts) of a stored test or a CSV",
-                       description="Render the A4 PDF report of a stored test (TEST_ID) or of a CSV record (--csv).")
-    p.add_argument("test_id", nargs="?", type=int, help="id of a stored test (see GET /api/tests)")
+                       description="Render the A4 PDF report of a stored test (TEST_ID) or of a CSV record (--csv). "
+                                   "An approved record's report is the PDF kept at its approval: written as it was "
+                                   "approved, with its SHA-256 (the lab and units options do not change it).")
+    p.add_argument("test_id", nargs="?", type=int, help="id of a stored test (see GET /api/tests); approved: the "
+                                                        "PDF kept at its approval")
     p.add_argument("--out", required=True, help="output PDF file")
     p.add_argument("--json", dest="json_out", help="also write report.json (all metrics) to this file")
     p.add_argument("--csv-out", help="also write the samples as CSV (the columns of isorig simulate) to this file")
@@ -90,6 +96,81 @@ def _load_stored(test_id: int, database_url: str | None):
         engine.dispose()
 
 
+@dataclasses.dataclass(frozen=True)
+class KeptReport:
+    """The PDF kept with an approved record (backend.review.keep_report) and who approved it when."""
+
+    pdf: bytes
+    sha256: str
+    approved_by: str | None
+    approved_at: str | None
+    lab_name: str
+    units: str
+
+
+def _kept_report(test_id: int, database_url: str | None) -> KeptReport | None:
+    """The report kept at the record's approval (an approved record's report is fixed then: docs/reports.md), or
+    None: not approved, approved before reports were kept, no such test, or a store this cannot read (then
+    _load_stored says what is wrong). UsageError when the kept PDF no longer matches the SHA-256 of its approval
+    (it was changed in the database; the service does not serve it either)."""
+    from sqlalchemy.exc import SQLAlchemyError
+
+    from backend import review, store
+    from backend.db import make_engine, session_factory
+
+    try:
+        database_url, _ = _store_url(database_url)
+    except UsageError:
+        return None
+    engine = make_engine(database_url)
+    try:
+        with session_factory(engine)() as session:
+            test = store.get_test(session, test_id)
+            kept = review.stored_report(session, test) if test is not None else None
+            if kept is None:
+                return None
+            if review.sha256_of(kept.pdf) != test.report_sha256:
+                raise UsageError(f"{PROG}: the report kept with test {test_id}'s approval no longer matches its "
+                                 f"SHA-256 {test.report_sha256}: it was changed in the database; not written")
+            at = test.reviewed_at.isoformat() if test.reviewed_at is not None else None
+            return KeptReport(bytes(kept.pdf), test.report_sha256, test.reviewed_by, at, kept.lab_name or "",
+                              kept.units or "lab")
+    except SQLAlchemyError:  # an older store (no approved_reports table): the report is drawn as before
+        return None
+    finally:
+        engine.dispose()
+
+
+def _write_kept(args, kept: KeptReport, out: Path, meta: dict, lab) -> int:
+    """Write the approved record's kept PDF to ``out``, byte for byte, and say so with its SHA-256; --json,
+    --csv-out and --bundle are made from the record as before (the bundle's report.pdf is the kept one)."""
+    import sys
+
+    changed = [flag for flag, value in (("--lab-name", args.lab_name), ("--lab-address", args.lab_address),
+                                        ("--lab-logo", args.lab_logo), ("--units", args.units),
+                                        ("--rig", args.rig), ("--operator", args.operator)) if value is not None]
+    if changed:
+        print(f"{PROG}: warning: test {args.test_id} is approved: its report is the PDF kept at the approval; "
+              f"{', '.join(changed)} do not change it", file=sys.stderr)
+    try:
+        out.write_bytes(kept.pdf)
+    except OSError as exc:
+        raise UsageError(f"{PROG}: cannot write {out}: {exc.strerror}") from None
+    if args.json_out or args.csv_out or args.bundle:
+        from backend.reports import report_json
+
+        bundle = _load_stored(args.test_id, args.database_url)
+        report = report_json(bundle, identify=not args.no_identify, meta=meta, lab=lab) \
+            if args.json_out or args.bundle else {}
+        _extras(args, bundle, report, meta, kept.pdf)
+    when = f" on {kept.approved_at[:19].replace('T', ' ')} UTC" if kept.approved_at else ""
+    print(f"wrote {out}" + "".join(f", {f}" for f in (args.json_out, args.csv_out, args.bundle) if f)
+          + f": test {args.test_id} is approved (by {kept.approved_by or 'unknown'}{when}): the report kept at its "
+          f"approval, not drawn again ({kept.lab_name or 'no lab name'}, {kept.units} units, {len(kept.pdf)} bytes)")
+    print(f"SHA-256 {kept.sha256}")
+    return 0
+
+
 def _stored_lab(database_url: str | None):
     """The lab header the service's reports use (backend.lab: the database's settings over the environment's)."""
     from backend import lab
@@ -144,6 +225,7 @@ def run(args) -> int:
 
     source = args.csv if args.csv is not None else f"test {args.test_id}"
     meta = {"rig": args.rig, "operator": args.operator}
+    kept = _kept_report(args.test_id, args.database_url) if args.test_id is not None else None
     from backend.reports.lab import lab_header
 
     if args.test_id is not None and (args.lab_name, args.lab_address, args.lab_logo) == (None, None, None):
@@ -151,13 +233,13 @@ def run(args) -> int:
     else:
         lab = lab_header(args.lab_name, args.lab_address, args.lab_logo)
     if args.units is not None:
-        import dataclasses
-
         lab = dataclasses.replace(lab, units=args.units)
     if lab.warning:  # one line, and the report is made without the logo
         import sys
 
         print(f"{PROG}: warning: {lab.warning}", file=sys.stderr)
+    if kept is not None:  # an approved record's report is the one kept at its approval, never drawn again
+        return _write_kept(args, kept, out, meta, lab)
     t0, cpu0 = time.perf_counter(), _cpu_s()
     # A one-off command: reference counting frees nearly everything, and the cycle collector's passes over
     # matplotlib's many objects cost 0.2-0.3 s of drawing. Back on afterwards (tests call this in-process).
@@ -175,6 +257,22 @@ def run(args) -> int:
         if collecting:
             gc.enable()
     wall = time.perf_counter() - t0
+    _extras(args, bundle, report, meta, out.read_bytes() if args.bundle else b"")
+    ident = report["identification"]
+    verdict = report["acceptance"]["verdict"]
+    status = report["run"]["status"]
+    print(f"wrote {out}" + "".join(f", {f}" for f in (args.json_out, args.csv_out, args.bundle) if f)
+          + f": {source} ({status}), {bundle.samples.shape[0]} samples, {len(bundle.cycles)} cycles, acceptance "
+          + ("none (no protocol)" if verdict == "NO VERDICT" else verdict))
+    t_ident = ident.get("time_s") or 0.0
+    print(f"time {wall:.2f} s (CPU {_cpu_s() - cpu0:.2f} s in {how}): load {times['load_s']:.2f} s, metrics and "
+          f"verdicts {times['metrics_s']:.2f} s, Bouc-Wen identification {t_ident:.2f} s, PDF {times['pdf_s']:.2f} s"
+          + ("; they overlap" if how != "1 process" else ""))
+    return 0
+
+
+def _extras(args, bundle, report: dict, meta: dict, pdf: bytes) -> None:
+    """--json (report.json), --csv-out (the samples) and --bundle (the zip, with ``pdf`` as its report.pdf)."""
     if args.json_out:
         try:
             Path(args.json_out).write_text(json.dumps(report, indent=1))
@@ -192,21 +290,9 @@ def run(args) -> int:
         from backend.reports.data import protocol_of
 
         try:
-            write_bundle_zip(args.bundle, _with_meta(bundle, meta), report, out.read_bytes(),
-                             protocol_of(bundle.record)[0])
+            write_bundle_zip(args.bundle, _with_meta(bundle, meta), report, pdf, protocol_of(bundle.record)[0])
         except OSError as exc:
             raise UsageError(f"{PROG}: cannot write {args.bundle}: {exc.strerror}") from None
-    ident = report["identification"]
-    verdict = report["acceptance"]["verdict"]
-    status = report["run"]["status"]
-    print(f"wrote {out}" + "".join(f", {f}" for f in (args.json_out, args.csv_out, args.bundle) if f)
-          + f": {source} ({status}), {bundle.samples.shape[0]} samples, {len(bundle.cycles)} cycles, acceptance "
-          + ("none (no protocol)" if verdict == "NO VERDICT" else verdict))
-    t_ident = ident.get("time_s") or 0.0
-    print(f"time {wall:.2f} s (CPU {_cpu_s() - cpu0:.2f} s in {how}): load {times['load_s']:.2f} s, metrics and "
-          f"verdicts {times['metrics_s']:.2f} s, Bouc-Wen identification {t_ident:.2f} s, PDF {times['pdf_s']:.2f} s"
-          + ("; they overlap" if how != "1 process" else ""))
-    return 0
 
 
 def _cpu_s() -> float:
