@@ -78,6 +78,7 @@ def test_the_fit_finds_a_rig_it_was_not_told_of():
     assert np.all((ratio > 0.7) & (ratio < 1.4))
 
 
+@pytest.mark.slow  # two whole commissionings: scripts/test.sh --quick leaves it out
 def test_a_bare_rig_and_a_rig_without_dead_zone():
     c = Conditions("simulated", 100e5, 0.0, "none", 0.0)
     s = Simulation(excitation_scenario(NO_SPECIMEN, c, DEFAULT_RIG, LIGHT_FAST), validate=False).run().samples

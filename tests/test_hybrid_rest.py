@@ -50,6 +50,7 @@ def last_second(samples) -> dict:
 
 @pytest.mark.parametrize("isolator,ground_motion", [("IUT_a", "near_field_short"), ("IUT_a", "far_field_long"),
                                                     ("IUT_b", "near_field_short")])
+@pytest.mark.slow  # three hybrid tests to their end: scripts/test.sh --quick leaves it out
 def test_the_valve_is_quiet_after_a_hybrid_tests_shaking(isolator, ground_motion):
     profile, run, s = hybrid_run(isolator, ground_motion)
     figures = last_second(s)

@@ -357,6 +357,7 @@ def test_identify_steps_vertical_load_flag_reaches_the_json(capsys, tmp_path):
     assert json.loads(capsys.readouterr().out)[0]["vertical_load_n"] == DEFAULT_RIG.vertical_load_n
 
 
+@pytest.mark.slow  # the CLI's fit of a table: scripts/test.sh --quick leaves it out
 def test_identify_steps_iut_b_json_reproduces_table_iv_with_the_proposed_rig(capsys):
     """`isorig identify steps --isolator IUT_b --json` under the fitted load, with the proposed rig passed by
     --rig-set (sim/rig.py takes it over later): Table IV within the targets."""

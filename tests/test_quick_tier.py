@@ -5,7 +5,8 @@ The script runs in a copy of itself whose `.venv/bin/python` only writes down th
 whose setup, ruff and apt-get do nothing), so the pytest commands checked are the script's own, word for word.
 Their selection (`-m`, `--ignore`) is then applied to one real collection of the whole suite, with each test's
 markers, by pytest's own marker-expression evaluator; an argument that selects in a way this test does not know
-fails it, so that a change of the script's selection is checked, never passed over."""
+fails it, so that a change of the script's selection is checked, never passed over. The collection takes
+seconds, so these two checks are themselves slow: the full run (CI) makes them, the quick tier does not."""
 
 from __future__ import annotations
 
@@ -105,6 +106,7 @@ def every_test(tmp_path_factory) -> dict[str, list[str]]:
     return json.loads(dump.read_text())
 
 
+@pytest.mark.slow  # a collection of the whole suite: scripts/test.sh --quick leaves it out
 def test_the_quick_tier_runs_every_test_but_the_real_time_browser_and_slow_ones(tmp_path, every_test):
     runs = commands(tmp_path, "--quick")
     assert len(runs) == 1, runs
@@ -126,6 +128,7 @@ def test_the_quick_tier_passes_extra_arguments_to_pytest(tmp_path):
     assert runs[0][-3:] == ["-k", "store", "-x"]
 
 
+@pytest.mark.slow  # a collection of the whole suite: scripts/test.sh --quick leaves it out
 def test_the_full_run_runs_every_test_once_slow_ones_included(tmp_path, every_test):
     runs = commands(tmp_path)
     assert len(runs) == 2, runs  # in parallel, then the real-time ones alone

@@ -121,6 +121,7 @@ def test_cli_refuses_bad_robustness_arguments_with_one_line(args, words, capsys)
     assert len(err) == 1 and words in err[0], err
 
 
+@pytest.mark.slow  # the CLI's robustness runs: scripts/test.sh --quick leaves it out
 def test_cli_runs_one_group_and_prints_its_figures(capsys):
     assert main(["compare", "--robustness", "--groups", "stiffness change", "--processes", "1", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
