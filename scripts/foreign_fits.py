@@ -35,19 +35,12 @@ def fit_row(seed: int) -> dict:
 
     from foreign_rigs import draw_rig
     from sim.commission import foreign_campaign as fc
-    from sim.commission.identify import Conditions, excitation_scenario, identify
-    from sim.engine import Simulation
-    from sim.isolator import load_isolator
 
     np.seterr(all="ignore")
     started = time.perf_counter()
     spec = draw_rig(seed)
     declared = fc.declared_rig(spec.lab_knows())
-    load = float(spec.drawn["table.vertical_load_n"])
-    conditions = Conditions("simulated", fc.SUPPLY_PA, load, "foreign", 0.0)
-    scenario = excitation_scenario(load_isolator(fc.CONTROLLER_ISOLATOR), conditions, declared)
-    scenario.foreign_rig = spec
-    ident = identify(Simulation(scenario, validate=False).run().samples, declared, conditions)
+    ident = fc.commission(spec, declared, fc.DEFAULT_MAX_STROKE_M, fc.DEFAULT_MAX_VELOCITY_M_PER_S)
     row = {"seed": seed, "rig": spec.name, "trusted": ident.trusted, "problems": ident.problems,
            "seconds": round(time.perf_counter() - started, 1)}
     if ident.fit is not None:

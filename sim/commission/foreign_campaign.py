@@ -27,7 +27,15 @@ import numpy as np
 from ..engine import Scenario, Simulation
 from ..isolator import load_isolator
 from ..rig import DEFAULT_RIG, RigParameters
-from .identify import DEFAULT_MAX_STROKE_M, DEFAULT_MAX_VELOCITY_M_PER_S, Conditions, excitation_scenario, identify
+from ..safety import make_limits
+from .identify import (
+    DEFAULT_MAX_STROKE_M,
+    DEFAULT_MAX_VELOCITY_M_PER_S,
+    Conditions,
+    excitation_limits,
+    excitation_scenario,
+    identify,
+)
 
 SUPPLY_PA = 1.0e7
 TEST_CYCLES = 12
@@ -124,7 +132,8 @@ def commission(spec, declared: RigParameters, max_stroke_m: float, max_velocity_
     conditions = Conditions("simulated", SUPPLY_PA, load, "foreign", 0.0, max_stroke_m, max_velocity_m_per_s)
     scenario = excitation_scenario(load_isolator(CONTROLLER_ISOLATOR), conditions, declared)
     scenario.foreign_rig = spec
-    samples = Simulation(scenario, validate=False).run().samples
+    limits = make_limits(declared, excitation_limits(conditions))  # the run's bounds close the valve, as on a rig
+    samples = Simulation(scenario, validate=False).run(limits=limits).samples
     return identify(samples, declared, conditions)
 
 

@@ -161,6 +161,7 @@ def with_systematic(fit: RigFit) -> None:
         e.std = math.hypot(e.std, floor, fit.disagreement.get(name, 0.0))
 
 
+
 def response_problems(response: FrequencyResponse | None) -> list[str]:
     """Why the dither or the fitted rig's replay of it says the fit is not the rig (empty: it may be)."""
     if response is None:
@@ -275,6 +276,11 @@ def identify(samples: Samples, declared: RigParameters, conditions: Conditions,
     if not out.record["completed"]:
         out.problems.append("the excitation did not run to its end (stopped, tripped, or the valve did not open "
                             "both ways within the command it may use): nothing is fitted from part of it")
+        return out
+    if out.record["dither_s"] <= 0.0:
+        out.problems.append("the valve sweeps did not find the valve's edges both ways, so the dither never ran: "
+                            "nothing showed the valve's dynamics, the oil column or the latency (raise the command "
+                            "the sweeps may use, or check that the valve opens both ways)")
         return out
     try:
         sig = signals_from_samples(samples, CONTROL_PERIOD_S)
