@@ -1,6 +1,8 @@
 """The learning servo controller: valve inverse, frequency estimate, convergence, high loop gain, noise,
 steady state of the compensation and a sudden change of the isolator's stiffness."""
 
+import hashlib
+
 import numpy as np
 import pytest
 
@@ -394,3 +396,38 @@ def test_a_still_target_gets_a_still_valve(options):
     assert held_std <= 0.2 and ring_std <= 0.2, (held_std, ring_std)
     assert np.max(np.abs(hold["displacement_m"] - hold["target_m"])) < 10e-6  # the table stays where the sine ended
     assert np.max(np.abs(error)) < 0.2e-3  # within the ringing's +-0.15 mm and the band, not behind it
+
+
+#: sha-256 (first 16 hex digits) of two short runs' columns, and their last values, recorded on the single 326-line
+#: servo_step before it was split into its stages (issue 32, item 7): a soft column at 2 mm 1 Hz (the fast band, the
+#: compression feed-forward, the pressure feedback, the learning) and a time history ringing at rest with the still
+#: valve (the integral, the edge trim, the feedback's ramp, the still share)
+PINNED_RUNS = {
+    "soft_sine": {"command_raw_v": ("62f63cad80c09c37", -1.030374993353445),
+                  "ar_hat": ("bbacc179e3bbaade", 1.0291694113740637),
+                  "ay_hat": ("e1d9f6479933f2a5", 1.01961235213744),
+                  "as_hat": ("0b71722925644e58", 1.005781538877336)},
+    "still_history": {"command_raw_v": ("929d630259901fad", 0.11790162410993724),
+                      "ar_hat": ("379c6c6ecaf7d80d", 0.9934333006408046),
+                      "ay_hat": ("5fb8f9ddaef95ffa", 0.8643229187966589),
+                      "as_hat": ("8cf968c8be029574", 1.997157478476424)},
+}
+
+
+@pytest.mark.parametrize("run", sorted(PINNED_RUNS))
+def test_the_servo_law_is_pinned_bit_for_bit(run):
+    """A restructuring of servo_step (its stages, docs/controller.md) changes no bit of the command or of the
+    estimates. A deliberate change of the law, or another numba/LLVM/libm, re-records PINNED_RUNS (the last
+    values tell a change in the last bits from a change of the law)."""
+    if run == "soft_sine":
+        rig = DEFAULT_RIG.with_changes(**SOFT_COLUMN_PLANT)
+        scenario = Scenario.sine("IUT_a", 100.0, 0.002, 1.0, 3, rig=rig, plant_changes=SOFT_COLUMN_PLANT)
+    else:
+        scenario = Scenario(load_isolator("IUT_a"), 100 * BAR_PA, [], controller_options=STILL_VALVE,
+                            history=burst_history(ringing_m=0.15e-3, rest_s=2.0))
+    samples = Simulation(scenario).run().samples
+    got = {}
+    for column in PINNED_RUNS[run]:
+        values = np.ascontiguousarray(samples[column], dtype="<f8")
+        got[column] = (hashlib.sha256(values.tobytes()).hexdigest()[:16], float(values[-1]))
+    assert got == PINNED_RUNS[run]

@@ -689,13 +689,14 @@ def still_dead_zone_share(p, s, ramp_at, still, e, dz_c, dt):
     return share
 
 
-@njit(cache=True, error_model="numpy")
-def servo_step(p, s, meas, dt, report):
-    """One control period of the learning servo controller (see the module docstring)."""
-    r = meas[M_TARGET]
-    rd = meas[M_TARGET_RATE]
-    y = meas[M_POSITION]
-    p_meas = meas[M_LOAD_PRESSURE]
+# servo_step's stages, in the order it calls them. Each is inlined into servo_step by numba (inline="always": the
+# compiled loop is the one the single function gave, bit for bit); s is the state, p the parameters.
+stage = njit(cache=True, error_model="numpy", inline="always")
+
+
+@stage
+def _start(s, r, rd, y, p_meas):
+    """First period: the differences, the delay lines (regressors NaN: no sample yet) and the swings start here."""
     if s[S_STARTED] < 0.5:
         s[S_RD1] = rd
         s[S_RD2] = rd
@@ -708,24 +709,38 @@ def servo_step(p, s, meas, dt, report):
         s[S_SWING_FROM] = r
         s[S_SWING_EXT] = r
         s[S_STARTED] = 1.0
+
+
+@stage
+def _target_differences(s, rd, dt):
+    """Target acceleration and jerk from r': (r'_n-1, (r'_n - r'_n-1) / dt, (r'_n - 2 r'_n-1 + r'_n-2) / dt^2)."""
     rd1 = s[S_RD1]
     rd2 = s[S_RD2]
-    # target acceleration at t - dt/2 and jerk at t - dt, from the exact target rate
     rdd = (rd - rd1) / dt
     rddd = (rd - 2.0 * rd1 + rd2) / (dt * dt)
     s[S_RD2] = rd1
     s[S_RD1] = rd
-    # target frequency: w^2 = -r''' r' / r'^2 for a sine, averaged with forgetting
+    return rd1, rdd, rddd
+
+
+@stage
+def _frequency_estimate(p, s, rd1, rddd, dt):
+    """The target's frequency: w^2 = -r''' r' / r'^2 for a sine, numerator and denominator averaged with forgetting."""
     forget = dt / p[P_TW]
     s[S_NUM] += forget * (-rddd * rd1 - s[S_NUM])
     s[S_DEN] += forget * (rd1 * rd1 - s[S_DEN])
     omega_est = 0.0
     if s[S_DEN] > 1e-30 and s[S_NUM] > 0.0:
         omega_est = np.sqrt(s[S_NUM] / s[S_DEN])
-    # steady envelope (not in a taper, not at a block change): the learning runs only then
-    rd_mid = 0.5 * (rd + rd1)
+    return omega_est
+
+
+@stage
+def _steady_envelope(p, s, rd_mid, rdd, omega_est, dt):
+    """V_est = sqrt(r'^2 + (r'' / w_est)^2), steady (relative rate below steady_envelope_rate per radian) for a quarter
+    of a period: (steady, V_est). The learning runs only then (not in a taper, not at a block change)."""
     # the velocity amplitude seen with the current frequency estimate (constant on a steady sine; with the
-    # frequency learned before, a new block's sine would never look steady), steady for a quarter of a period
+    # frequency learned before, a new block's sine would never look steady)
     v_est = 0.0
     if omega_est > 0.0:
         v_est = np.sqrt(rd_mid * rd_mid + (rdd / omega_est) ** 2)
@@ -736,7 +751,13 @@ def servo_step(p, s, meas, dt, report):
         s[S_STEADY_S] = 0.0
     steady = omega_est > 0.0 and s[S_STEADY_S] > 0.5 * np.pi / omega_est
     s[S_VENV] = v_est
-    nh = int(p[P_NH])
+    return steady, v_est
+
+
+@stage
+def _learned_frequency(s, steady, omega_est, dt):
+    """The frequency w the learning is locked to: locks on to w_est, refines over a quarter period, and a steady sine
+    more than 5 % away for a whole period clears what was learned: (steady, w)."""
     w_l = s[S_OMEGA_LEARNED]
     if steady and w_l > 0.0 and abs(omega_est - w_l) > 0.05 * w_l:
         # a new frequency only once it has been seen on a steady sine for a whole period: the start of a
@@ -757,7 +778,15 @@ def servo_step(p, s, meas, dt, report):
             s[S_OMEGA_LEARNED] = omega_est
         else:  # refine, over a quarter period: a short bend of the estimate (a taper's start) barely moves it
             s[S_OMEGA_LEARNED] = w_l + min(1.0, dt * omega_est / (0.5 * np.pi)) * (omega_est - w_l)
-    omega = s[S_OMEGA_LEARNED]
+    return steady, s[S_OMEGA_LEARNED]
+
+
+@stage
+def _harmonic_band(p, omega, rd_mid, rdd, p_supply):
+    """V_env = sqrt(r'^2 + (r'' / w)^2), the harmonics H learned (up to learning_max_hz), and how fast the test is
+    (0..1: V_env from fast_velocity_m_per_s, valve-slope damping V_env / (4 P_s sqrt(C / m)) below
+    fast_max_valve_damping) with its band H_fast: (V_env, H, fast, H_fast)."""
+    nh = int(p[P_NH])
     v_env = 0.0
     if omega > 0.0:
         v_env = np.sqrt(rd_mid * rd_mid + (rdd / omega) ** 2)
@@ -774,112 +803,145 @@ def servo_step(p, s, meas, dt, report):
         if p[P_V_FAST] > 0.0:
             fast = min(max(2.0 * v_env / p[P_V_FAST] - 1.0, 0.0), 1.0)
         if p[P_ZC_MAX] > 0.0:
-            zeta_c = v_env * p[P_ZC_PER_V] / max(meas[M_SUPPLY_PRESSURE], 1.0)
+            zeta_c = v_env * p[P_ZC_PER_V] / max(p_supply, 1.0)
             fast *= min(max(2.0 - zeta_c / p[P_ZC_MAX], 0.0), 1.0)
         else:
             fast = 0.0
         if fast > 0.0:
             nh_fast = max(min(int(p[P_NH_FAST]), int(p[P_FMAX_FAST] * 2.0 * np.pi / omega)), nh)
+    return v_env, nh, fast, nh_fast
+
+
+@stage
+def _delayed_regressors(p, s, dt):
+    """The valve estimate's regressors (x, w, z) of the command sent tau_l + L earlier (L: the reading's latency)."""
     # the position reading is late by the declared latency L: the table's velocity and the error it shows are
-    # those of L ago, so the valve estimate and the learning look L further back, and the reading is compared
-    # with the target of L ago (the table, not the late reading, follows the target)
-    latency = p[P_LAT] / dt  # periods
-    head = int(s[S_HEAD])
+    # those of L ago, so the valve estimate and the learning look L further back
     lag = int(round((p[P_TAU_L] + p[P_LAT]) / dt))
     if lag > DELAY_LINE - 1:
         lag = DELAY_LINE - 1
     if lag < 1:
         lag = 1
-    old = (head - lag) % DELAY_LINE
-    xd = s[S_LINE_X + old]
-    wd = s[S_LINE_W + old]
-    zd = s[S_LINE_Z + old]
-    # the flow the valve passed, as a velocity: the table's plus the oil's compression (V_0 / (2 beta A)) P_L'
+    old = (int(s[S_HEAD]) - lag) % DELAY_LINE
+    return s[S_LINE_X + old], s[S_LINE_W + old], s[S_LINE_Z + old]
+
+
+@stage
+def _valve_flow_velocity(p, s, y, p_meas, dt):
+    """The flow the valve passed, as a velocity: y' + (V_0 / (2 beta A_n)) P_L' (eq. 3 second line;
+    compressibility_share, 0 by default: the table's velocity alone)."""
     vel = (y - s[S_YPREV]) / dt + p[P_COMPLIANCE] * (p_meas - s[S_PL_PREV]) / dt
     s[S_YPREV] = y
-    # valve estimate: table velocity = g (x - DZ w + o z) with x = the velocity the nominal valve without dead
-    # zone gives at the command sent then, w = its velocity per volt times the sign of the opening, z = its
-    # velocity per volt; least squares of g, g DZ and g o (o: the valve's null offset, V) with forgetting,
-    # projected onto their bounds; each parameter moves only when the samples tell it apart from the others
+    return vel
+
+
+@stage
+def _regression_sums(p, s, xd, wd, zd, vel, dt):
+    """The normal equations of y' = g (x - DZ w + o z): exponentially forgotten sums of the products of x, w, z, y'
+    (gain_window_s; the offset's over null_offset_window_s)."""
+    gf = dt / p[P_GW]
+    s[S_GXX] += gf * (xd * xd - s[S_GXX])
+    s[S_GXY] += gf * (vel * xd - s[S_GXY])
+    s[S_GXW] += gf * (xd * wd - s[S_GXW])
+    s[S_GWW] += gf * (wd * wd - s[S_GWW])
+    s[S_GWY] += gf * (vel * wd - s[S_GWY])
+    s[S_GZZ] += gf * (zd * zd - s[S_GZZ])
+    s[S_GXZ] += gf * (xd * zd - s[S_GXZ])
+    s[S_GWZ] += gf * (wd * zd - s[S_GWZ])
+    s[S_GZY] += gf * (vel * zd - s[S_GZY])
+    if p[P_OFFSET_ADAPT] > 0.5:
+        lf = dt / p[P_OW]
+        for i, v_i in enumerate((xd * xd, xd * wd, wd * wd, xd * zd, wd * zd, zd * zd, vel * xd, vel * wd,
+                                 vel * zd)):
+            s[S_LONG + i] += lf * (v_i - s[S_LONG + i])
+
+
+@stage
+def _null_offset_fit(p, s, omega, v_env, o_hat):
+    """The null offset o (v_e0 of eq. 2) = (g o) / g of the 3x3 least squares of y' = g x - (g DZ) w + (g o) z over
+    the long window, when z is not (nearly) a combination of x and w; projected onto +-null_offset_max_v."""
+    # the Schur complement of z in the normal matrix of (x, -w, z) tells it (both directions of motion in the
+    # window). On a steady sine a lower excitation floor than the gain's: at small amplitudes the offset is what
+    # the motion depends on most
+    dzn = p[P_DZ]  # the declared dead zone
+    lxx, lxw, lww, lxz, lwz, lzz, lxy, lwy, lzy = s[S_LONG:S_LONG + 9]
+    ldet = lxx * lww - lxw * lxw
+    lqq = lxx - 2.0 * dzn * lxw + dzn * dzn * lww
+    excited = lqq > p[P_GVMIN] ** 2 or (omega > 0.0 and v_env >= p[P_OVT] and lqq > p[P_OVMIN] ** 2)
+    if excited and ldet > 0.02 * lqq * lww:
+        res = lzz - (lww * lxz * lxz - 2.0 * lxw * lxz * lwz + lxx * lwz * lwz) / ldet
+        if res > 0.02 * lzz:
+            g_l, _eta, zeta, det3 = _solve3(lxx, -lxw, lxz, lww, -lwz, lzz, lxy, -lwy, lzy)
+            if det3 != 0.0 and g_l > 0.0:
+                s[S_OFFSET] = min(max(zeta / g_l, -p[P_OFFSET_MAX]), p[P_OFFSET_MAX])
+                o_hat = s[S_OFFSET]
+    return o_hat
+
+
+@stage
+def _gain_dead_zone_fit(p, s, dz_hat, o_hat):
+    """g and DZ = (g DZ) / g of y' - g o z = g x - (g DZ) w (the offset held), or g alone with DZ and o held;
+    projected onto [gain_min, gain_max] and the dead zone's bounds."""
+    sxx, sxw, sww, sxy, swy = s[S_GXX], s[S_GXW], s[S_GWW], s[S_GXY], s[S_GWY]
+    szz, sxz, swz, szy = s[S_GZZ], s[S_GXZ], s[S_GWZ], s[S_GZY]
+    dzn = p[P_DZ]
+    det = sxx * sww - sxw * sxw
+    # excitation test in the coordinates (x - DZ_n w, w): x alone is nearly collinear with w when the
+    # dead zone dominates the command (slow tests); the shear leaves det and the solution unchanged
+    sqq = sxx - 2.0 * dzn * sxw + dzn * dzn * sww
+    if p[P_DZ_ADAPT] > 0.5 and det > 0.02 * sqq * sww:
+        # g and g DZ with the offset held: the velocity less its share g o z, g o = (g at its last value) o
+        zeta = s[S_GAIN] * o_hat
+        bxy = sxy - zeta * sxz
+        bwy = swy - zeta * swz
+        g_new = (bxy * sww - sxw * bwy) / det
+        eta = (bxy * sxw - sxx * bwy) / det  # g DZ
+        if g_new > 0.0:
+            s[S_GAIN] = min(max(g_new, p[P_GMIN]), p[P_GMAX])
+            s[S_DZ_HAT] = min(max(eta / g_new, p[P_DZ_LO]), p[P_DZ_HI])
+    else:  # g alone, with the dead zone and the offset held
+        qq = (sxx + dz_hat * dz_hat * sww + o_hat * o_hat * szz - 2.0 * dz_hat * sxw + 2.0 * o_hat * sxz
+              - 2.0 * dz_hat * o_hat * swz)
+        if qq > 0.0:
+            s[S_GAIN] = min(max((sxy - dz_hat * swy + o_hat * szy) / qq, p[P_GMIN]), p[P_GMAX])
+
+
+@stage
+def _valve_estimate(p, s, xd, wd, zd, vel, omega, v_env, dt):
+    """The valve's flow gain ratio g, dead zone DZ and null offset o from y' = g (x - DZ w + o z) (x, w, z: the
+    nominal valve's velocity, velocity per volt times the opening's sign, velocity per volt, at the command sent
+    then), least squares with forgetting; each moves only when the samples tell it apart from the others."""
     if np.isfinite(xd):
-        gf = dt / p[P_GW]
-        s[S_GXX] += gf * (xd * xd - s[S_GXX])
-        s[S_GXY] += gf * (vel * xd - s[S_GXY])
-        s[S_GXW] += gf * (xd * wd - s[S_GXW])
-        s[S_GWW] += gf * (wd * wd - s[S_GWW])
-        s[S_GWY] += gf * (vel * wd - s[S_GWY])
-        s[S_GZZ] += gf * (zd * zd - s[S_GZZ])
-        s[S_GXZ] += gf * (xd * zd - s[S_GXZ])
-        s[S_GWZ] += gf * (wd * zd - s[S_GWZ])
-        s[S_GZY] += gf * (vel * zd - s[S_GZY])
-        if p[P_OFFSET_ADAPT] > 0.5:
-            lf = dt / p[P_OW]
-            for i, v_i in enumerate((xd * xd, xd * wd, wd * wd, xd * zd, wd * zd, zd * zd, vel * xd, vel * wd,
-                                     vel * zd)):
-                s[S_LONG + i] += lf * (v_i - s[S_LONG + i])
-        sxx, sxw, sww, sxy, swy = s[S_GXX], s[S_GXW], s[S_GWW], s[S_GXY], s[S_GWY]
-        szz, sxz, swz, szy = s[S_GZZ], s[S_GXZ], s[S_GWZ], s[S_GZY]
+        _regression_sums(p, s, xd, wd, zd, vel, dt)
         dz_hat = s[S_DZ_HAT]
         # the mean square of the velocity the valve model predicts, q = x - DZ w + o z: only a valve that opens
         # well past its dead zone tells its gain, dead zone and offset apart from friction and the oil's give
         o_hat = s[S_OFFSET]
-        qq = (sxx + dz_hat * dz_hat * sww + o_hat * o_hat * szz - 2.0 * dz_hat * sxw + 2.0 * o_hat * sxz
-              - 2.0 * dz_hat * o_hat * swz)
-        dzn = p[P_DZ]  # the declared dead zone
+        qq = (s[S_GXX] + dz_hat * dz_hat * s[S_GWW] + o_hat * o_hat * s[S_GZZ] - 2.0 * dz_hat * s[S_GXW]
+              + 2.0 * o_hat * s[S_GXZ] - 2.0 * dz_hat * o_hat * s[S_GWZ])
         if p[P_OFFSET_ADAPT] > 0.5 and p[P_DZ_ADAPT] > 0.5:
-            # the offset, over its long window, when z is not (nearly) a combination of x and w (both directions
-            # of motion in the window): the Schur complement of z in the normal matrix of (x, -w, z). On a steady
-            # sine a lower excitation floor than the gain's: at small amplitudes the offset is what the motion
-            # depends on most
-            lxx, lxw, lww, lxz, lwz, lzz, lxy, lwy, lzy = s[S_LONG:S_LONG + 9]
-            ldet = lxx * lww - lxw * lxw
-            lqq = lxx - 2.0 * dzn * lxw + dzn * dzn * lww
-            excited = lqq > p[P_GVMIN] ** 2 or (omega > 0.0 and v_env >= p[P_OVT] and lqq > p[P_OVMIN] ** 2)
-            if excited and ldet > 0.02 * lqq * lww:
-                res = lzz - (lww * lxz * lxz - 2.0 * lxw * lxz * lwz + lxx * lwz * lwz) / ldet
-                if res > 0.02 * lzz:
-                    g_l, _eta, zeta, det3 = _solve3(lxx, -lxw, lxz, lww, -lwz, lzz, lxy, -lwy, lzy)
-                    if det3 != 0.0 and g_l > 0.0:
-                        s[S_OFFSET] = min(max(zeta / g_l, -p[P_OFFSET_MAX]), p[P_OFFSET_MAX])
-                        o_hat = s[S_OFFSET]
+            o_hat = _null_offset_fit(p, s, omega, v_env, o_hat)
         if qq > p[P_GVMIN] ** 2:
-            det = sxx * sww - sxw * sxw
-            # excitation test in the coordinates (x - DZ_n w, w): x alone is nearly collinear with w when the
-            # dead zone dominates the command (slow tests); the shear leaves det and the solution unchanged
-            sqq = sxx - 2.0 * dzn * sxw + dzn * dzn * sww
-            if p[P_DZ_ADAPT] > 0.5 and det > 0.02 * sqq * sww:
-                # g and g DZ with the offset held: the velocity less its share g o z, g o = (g at its last value) o
-                zeta = s[S_GAIN] * o_hat
-                bxy = sxy - zeta * sxz
-                bwy = swy - zeta * swz
-                g_new = (bxy * sww - sxw * bwy) / det
-                eta = (bxy * sxw - sxx * bwy) / det  # g DZ
-                if g_new > 0.0:
-                    s[S_GAIN] = min(max(g_new, p[P_GMIN]), p[P_GMAX])
-                    s[S_DZ_HAT] = min(max(eta / g_new, p[P_DZ_LO]), p[P_DZ_HI])
-            else:  # g alone, with the dead zone and the offset held
-                qq = (sxx + dz_hat * dz_hat * sww + o_hat * o_hat * szz - 2.0 * dz_hat * sxw + 2.0 * o_hat * sxz
-                      - 2.0 * dz_hat * o_hat * swz)
-                if qq > 0.0:
-                    s[S_GAIN] = min(max((sxy - dz_hat * swy + o_hat * szy) / qq, p[P_GMIN]), p[P_GMAX])
-    gain = s[S_GAIN]
-    # the target of L ago, to compare with the late reading
-    head_new = (head + 1) % DELAY_LINE
+            _gain_dead_zone_fit(p, s, dz_hat, o_hat)
+    return s[S_GAIN]
+
+
+@stage
+def _target_seen(p, s, r, dt):
+    """r(t - L): the target of the reading's latency L ago, from the delay line (the table, not the late reading,
+    follows the target); also pushes r and returns the delay lines' new head."""
+    head_new = (int(s[S_HEAD]) + 1) % DELAY_LINE
     s[S_LINE_R + head_new] = r
     r_seen = r
+    latency = p[P_LAT] / dt  # periods
     if latency > 0.0:
         r_seen = _delayed(s, S_LINE_R, head_new, latency)
-    # velocity demand: feed-forward with lead (and, for arbitrary commands, the jerk through the second-order
-    # lag of the valve and the oil column), position feedback, learned periodic feed-forward
-    e = r_seen - y
-    kp = p[P_KP]
-    v = rd + p[P_TAU_V] * rdd + kp * e + s[S_C0]
-    v_fb = kp * e + s[S_C0]  # the part of v that corrects the position error
-    if p[P_JERK_LEAD] > 0.0:
-        v += p[P_JERK_LEAD] * rddd
-    theta = 0.0
-    if omega > 0.0:
-        theta = np.arctan2(-rdd / omega, rd_mid) + 0.5 * omega * dt
+    return r_seen, head_new
+
+
+@stage
+def _learned_feedforward(s, v, theta, omega, v_env, nh, fast, nh_fast):
+    """v + dv's harmonics: V_env Re sum_k c_k exp(j k theta), harmonics above H weighted by how fast the test is."""
     if omega > 0.0 and nh_fast >= 1:
         c1 = np.cos(theta)
         s1 = np.sin(theta)
@@ -891,43 +953,63 @@ def servo_step(p, s, meas, dt, report):
             acc += (1.0 if k < nh else fast) * (a * ck - b * sk)
             ck, sk = ck * c1 - sk * s1, sk * c1 + ck * s1
         v += v_env * acc
+    return v
+
+
+@stage
+def _velocity_demand(p, s, rd, rdd, rddd, e, theta, omega, v_env, nh, fast, nh_fast, p_meas, steady, dt):
+    """v = r' + tau_v r'' (+ tau_j r''') + K_p (r(t - L) - y_L) + dv + v_c (docs/controller.md, "The law"), and its
+    feedback part v_fb = K_p e + c_0: (v, v_fb)."""
+    kp = p[P_KP]
+    v = rd + p[P_TAU_V] * rdd + kp * e + s[S_C0]
+    v_fb = kp * e + s[S_C0]  # the part of v that corrects the position error
+    if p[P_JERK_LEAD] > 0.0:  # arbitrary commands: the jerk through the valve's and the column's second-order lag
+        v += p[P_JERK_LEAD] * rddd
+    v = _learned_feedforward(s, v, theta, omega, v_env, nh, fast, nh_fast)
     if omega > 0.0 and p[P_COMP] > 0.0:
         small = min(max(2.0 - v_env / p[P_CVMAX], 0.0), 1.0) if p[P_CVMAX] > 0.0 else 0.0
         v += fast * small * compression_feedforward(p, s, theta, omega, kp, p_meas, steady, dt)
-    # load-pressure feedback, high-passed: a leak that damps the oil column and leaves the test's frequencies alone
+    return v, v_fb
+
+
+@stage
+def _pressure_feedback_velocity(p, s, p_meas, dt):
+    """-k_pf HP(P_L), the load-pressure feedback as a velocity (first-order high-pass at w_c): a leak that damps
+    the oil column and leaves the test's frequencies alone."""
     v_pf = 0.0
     if p[P_KPF] > 0.0:
         a_hp = 1.0 / (1.0 + p[P_PF_WC] * dt)
         s[S_PL_HP] = a_hp * (s[S_PL_HP] + p_meas - s[S_PL_PREV])
         v_pf = -p[P_KPF] * s[S_PL_HP]
     s[S_PL_PREV] = p_meas
-    p_load = p[P_PL_SHARE] * p_meas
-    p_supply = meas[M_SUPPLY_PRESSURE]
-    # the dead-zone ramp: narrow enough that the test's own velocities pass it (small amplitudes), never wider
-    # than dead_zone_ramp_v (the step of the inverse at a reversal rings the oil column)
+    return v_pf
+
+
+@stage
+def _dead_zone_ramp(p, v_est, gain, p_supply):
+    """delta = min(dead_zone_ramp_v, max(share A_n V_est / (g K_qn sqrt(P_s)), dead_zone_ramp_min_v)): narrow enough
+    that the test's own velocities pass it, never wider than dead_zone_ramp_v (its step rings the oil column)."""
     ramp = p[P_DZ_RAMP]
     if p[P_RAMP_SHARE] > 0.0:
         ramp_fit = p[P_RAMP_SHARE] * p[P_AREA] * v_est / (gain * p[P_KQ] * np.sqrt(max(p_supply, 1.0)))
         ramp = min(max(ramp_fit, p[P_RAMP_MIN]), ramp)
-    o_hat = s[S_OFFSET]
-    # with the integral on (time histories) the position feedback's correction v_fb ramps in over at least
-    # dead_zone_feedback_ramp_v: where the target is slow (the ramp above narrower than that), the side of the dead
-    # zone follows the target's own motion, and an error of a few micrometres with the target (nearly) at rest no
-    # longer throws the spool across the whole dead zone (a relay that, with friction and the oil's give, made a
-    # limit cycle of about 20 Hz and tens of micrometres)
-    u_lin, ramp_at = valve_inverse_ramp(v / gain, p_load, p_supply, p[P_AREA], p[P_KQ], ramp, p[P_DP_MIN],
-                                        p[P_DP_REG], v_fb / gain, p[P_FB_RAMP])
-    # the estimated dead zone, trimmed (time histories, slow motions: below)
-    dz_c = p[P_DZ_FRAC] * max(s[S_DZ_HAT] + s[S_EDGE], p[P_DZ_LO])
-    # where the target is still, the dead zone's side moves slowly with the error instead of switching
-    still = target_stillness(p, s, r, rd, rdd, dt)
-    ramp_at = still_dead_zone_share(p, s, ramp_at, still, e, dz_c, dt)
-    u = u_lin + dz_c * ramp_at - o_hat
+    return ramp
+
+
+@stage
+def _pressure_feedback_command(p, u, v, v_pf, gain, p_load, p_supply):
+    """u + u_pf, u_pf = A_n v_pf / (g K_qn R(P_s - sgn(v) P_L)): added after the dead-zone inverse, linearly (it
+    moves the open valve, never switches the dead zone's side)."""
     if v_pf != 0.0:
-        # added after the dead-zone inverse, linearly: it moves the open valve, never switches the dead zone's side
         sgn_v = 1.0 if v >= 0.0 else -1.0
         dp_v = max(p_supply - sgn_v * p_load, p[P_DP_MIN] * p_supply)
         u += p[P_AREA] * v_pf / (gain * p[P_KQ] * orifice_root(dp_v, p[P_DP_REG]))
+    return u
+
+
+@stage
+def _saturate(p, s, u):
+    """u clipped to +-command_limit_v: (u, saturated now, saturated the period before)."""
     ulim = p[P_ULIM]
     was_saturated = s[S_SAT] > 0.5
     saturated = abs(u) >= ulim
@@ -936,9 +1018,18 @@ def servo_step(p, s, meas, dt, report):
     elif u < -ulim:
         u = -ulim
     s[S_SAT] = 1.0 if saturated else 0.0
+    return u, saturated, was_saturated
+
+
+@stage
+def _integral(p, s, e, ramp, ramp_at, gain, p_supply, was_saturated, dt):
+    """c_0 += k_i K_p e dt (time histories), projected onto +-c0_max; on slow motions the dead zone's edge trim
+    DZ_edge += k_i K_p e ramp dt A_n / (g K_qn sqrt(P_s)), never above 0 (docs/controller.md, "Time histories at
+    rest")."""
     # the constant velocity a null offset asks, integrated: not while the command saturates, nor, on slow motions
     # (the feedback's own dead-zone ramp), while the valve is held inside its dead zone: the table at rest, where
     # the error says nothing about a velocity offset and integrating it would walk the command across the ramp
+    kp = p[P_KP]
     slow = p[P_FB_RAMP] > ramp
     valve_open = abs(ramp_at) >= 1.0
     if p[P_INTEGRAL] > 0.0 and not was_saturated and (valve_open or not slow):
@@ -953,7 +1044,12 @@ def servo_step(p, s, meas, dt, report):
             per_v = p[P_AREA] / (gain * p[P_KQ] * np.sqrt(max(p_supply, 1.0)))
             trim = s[S_EDGE] + p[P_INTEGRAL] * kp * e * ramp_at * dt * per_v
             s[S_EDGE] = min(max(trim, p[P_DZ_LO] - s[S_DZ_HAT]), 0.0)
-    # regressors of the valve estimate for the command actually applied (NaN inside the dead zone: no flow)
+
+
+@stage
+def _record_regressors(p, s, u, o_hat, p_load, p_supply, head_new):
+    """x = u K_qn R(dp) / A_n, w = sgn(u + o) K_qn R(dp) / A_n, z = K_qn R(dp) / A_n for the command applied, into
+    the delay lines (NaN inside the dead zone: no flow, no sample)."""
     xs = np.nan
     ws = np.nan
     zs = np.nan
@@ -971,50 +1067,106 @@ def servo_step(p, s, meas, dt, report):
     s[S_LINE_W + head_new] = ws
     s[S_LINE_Z + head_new] = zs
     s[S_HEAD] = head_new
-    # learning update (only on a steady sine and unsaturated), with projection of each coefficient
+
+
+@stage
+def _learning_update(p, s, e, theta, omega, v_env, nh, dt):
+    """c_k += gamma_k dt / (pi A_eff) e exp(-j k theta) L_k, |c_k| projected (docs/controller.md, "Learning law"),
+    and c_0 += gamma K_p e w dt / (2 pi) (the error's mean through the loop's DC gain 1/K_p)."""
+    kp = p[P_KP]
+    gamma = p[P_GAMMA]
+    a_eff = max(v_env / omega, p[P_AFLOOR])
+    g = gamma * dt / (np.pi * a_eff)
+    c0 = s[S_C0] + gamma * kp * e * omega * dt / (2.0 * np.pi)
+    c0max = p[P_C0MAX]
+    s[S_C0] = min(max(c0, -c0max), c0max)
+    tau = p[P_TAU_L] + p[P_LAT]
+    c1 = np.cos(theta)
+    s1 = np.sin(theta)
+    cl = np.cos(omega * tau)
+    sl = np.sin(omega * tau)
+    ck, sk = c1, s1
+    cd, sd = cl, sl
+    for k in range(nh):
+        kw = (k + 1) * omega
+        # L_k = (K_p + j k w) exp(j k w tau) (1 - (k w / w_h)^2 + 2 j zeta_h k w / w_h): inverse of the nominal
+        # loop from dv to y, the oil column (w_h, damped by the pressure feedback's zeta_h) included
+        lr = kp * cd - kw * sd
+        li = kp * sd + kw * cd
+        xh = kw / p[P_WH]
+        hr = 1.0 - xh * xh
+        hi = 2.0 * p[P_ZH] * xh
+        lr, li = lr * hr - li * hi, lr * hi + li * hr
+        # z = e exp(-j k theta) L_k
+        zr = e * (ck * lr + sk * li)
+        zi = e * (ck * li - sk * lr)
+        # harmonics above the loop's bandwidth learn more slowly: their model is the least sure
+        gk = g * min(1.0, kp / kw)
+        a = s[S_C + 2 * k] + gk * zr
+        b = s[S_C + 2 * k + 1] + gk * zi
+        bound = p[P_C1MAX] if k == 0 else p[P_CKMAX]
+        mag = np.sqrt(a * a + b * b)
+        if mag > bound:
+            a *= bound / mag
+            b *= bound / mag
+        s[S_C + 2 * k] = a
+        s[S_C + 2 * k + 1] = b
+        ck, sk = ck * c1 - sk * s1, sk * c1 + ck * s1
+        cd, sd = cd * cl - sd * sl, sd * cl + cd * sl
+
+
+@njit(cache=True, error_model="numpy")
+def servo_step(p, s, meas, dt, report):
+    """One control period of the learning servo controller (the module docstring, docs/controller.md): the stages
+    above in order; each reads and writes the state s, and the order is the law's."""
+    r = meas[M_TARGET]
+    rd = meas[M_TARGET_RATE]
+    y = meas[M_POSITION]
+    p_meas = meas[M_LOAD_PRESSURE]
+    p_supply = meas[M_SUPPLY_PRESSURE]
+    _start(s, r, rd, y, p_meas)
+    # reading the target: its frequency, phase theta and velocity amplitude V_env from r' alone
+    rd1, rdd, rddd = _target_differences(s, rd, dt)
+    omega_est = _frequency_estimate(p, s, rd1, rddd, dt)
+    rd_mid = 0.5 * (rd + rd1)
+    steady, v_est = _steady_envelope(p, s, rd_mid, rdd, omega_est, dt)
+    steady, omega = _learned_frequency(s, steady, omega_est, dt)
+    v_env, nh, fast, nh_fast = _harmonic_band(p, omega, rd_mid, rdd, p_supply)
+    # the valve estimate (g, DZ, o) from the flow the valve passed for the command sent tau_l + L ago
+    xd, wd, zd = _delayed_regressors(p, s, dt)
+    vel = _valve_flow_velocity(p, s, y, p_meas, dt)
+    gain = _valve_estimate(p, s, xd, wd, zd, vel, omega, v_env, dt)
+    # the velocity demand v: feed-forward, position feedback on r(t - L), learned and compression feed-forward
+    r_seen, head_new = _target_seen(p, s, r, dt)
+    e = r_seen - y
+    theta = 0.0
+    if omega > 0.0:
+        theta = np.arctan2(-rdd / omega, rd_mid) + 0.5 * omega * dt
+    v, v_fb = _velocity_demand(p, s, rd, rdd, rddd, e, theta, omega, v_env, nh, fast, nh_fast, p_meas, steady, dt)
+    v_pf = _pressure_feedback_velocity(p, s, p_meas, dt)
+    # the command: valve-law inverse u_l, dead-zone inverse and null offset, pressure feedback, limit
+    p_load = p[P_PL_SHARE] * p_meas
+    ramp = _dead_zone_ramp(p, v_est, gain, p_supply)
+    o_hat = s[S_OFFSET]
+    # with the integral on (time histories) v_fb ramps in over at least dead_zone_feedback_ramp_v: where the target
+    # is slow the dead zone's side follows the target's own motion, and a few micrometres of error at rest no
+    # longer throw the spool across the whole dead zone (a relay: a limit cycle of about 20 Hz)
+    u_lin, ramp_at = valve_inverse_ramp(v / gain, p_load, p_supply, p[P_AREA], p[P_KQ], ramp, p[P_DP_MIN],
+                                        p[P_DP_REG], v_fb / gain, p[P_FB_RAMP])
+    dz_c = p[P_DZ_FRAC] * max(s[S_DZ_HAT] + s[S_EDGE], p[P_DZ_LO])  # the estimated dead zone, trimmed
+    # where the target is still, the dead zone's side moves slowly with the error instead of switching
+    still = target_stillness(p, s, r, rd, rdd, dt)
+    ramp_at = still_dead_zone_share(p, s, ramp_at, still, e, dz_c, dt)
+    u = u_lin + dz_c * ramp_at - o_hat
+    u = _pressure_feedback_command(p, u, v, v_pf, gain, p_load, p_supply)
+    u, saturated, was_saturated = _saturate(p, s, u)
+    # what the command teaches: the integral (time histories), the valve estimate's samples, the learning
+    _integral(p, s, e, ramp, ramp_at, gain, p_supply, was_saturated, dt)
+    _record_regressors(p, s, u, o_hat, p_load, p_supply, head_new)
     if fast >= 1.0:
         nh = nh_fast  # the harmonics of a fast test learn only once it is fully so
-    if steady and nh >= 1 and not saturated:
-        gamma = p[P_GAMMA]
-        a_eff = max(v_env / omega, p[P_AFLOOR])
-        g = gamma * dt / (np.pi * a_eff)
-        # constant term: the error's mean through the loop's DC gain 1/K_p
-        c0 = s[S_C0] + gamma * kp * e * omega * dt / (2.0 * np.pi)
-        c0max = p[P_C0MAX]
-        s[S_C0] = min(max(c0, -c0max), c0max)
-        tau = p[P_TAU_L] + p[P_LAT]
-        c1 = np.cos(theta)
-        s1 = np.sin(theta)
-        cl = np.cos(omega * tau)
-        sl = np.sin(omega * tau)
-        ck, sk = c1, s1
-        cd, sd = cl, sl
-        for k in range(nh):
-            kw = (k + 1) * omega
-            # L_k = (K_p + j k w) exp(j k w tau) (1 - (k w / w_h)^2 + 2 j zeta_h k w / w_h): inverse of the nominal
-            # loop from dv to y, the oil column (w_h, damped by the pressure feedback's zeta_h) included
-            lr = kp * cd - kw * sd
-            li = kp * sd + kw * cd
-            xh = kw / p[P_WH]
-            hr = 1.0 - xh * xh
-            hi = 2.0 * p[P_ZH] * xh
-            lr, li = lr * hr - li * hi, lr * hi + li * hr
-            # z = e exp(-j k theta) L_k
-            zr = e * (ck * lr + sk * li)
-            zi = e * (ck * li - sk * lr)
-            # harmonics above the loop's bandwidth learn more slowly: their model is the least sure
-            gk = g * min(1.0, kp / kw)
-            a = s[S_C + 2 * k] + gk * zr
-            b = s[S_C + 2 * k + 1] + gk * zi
-            bound = p[P_C1MAX] if k == 0 else p[P_CKMAX]
-            mag = np.sqrt(a * a + b * b)
-            if mag > bound:
-                a *= bound / mag
-                b *= bound / mag
-            s[S_C + 2 * k] = a
-            s[S_C + 2 * k + 1] = b
-            ck, sk = ck * c1 - sk * s1, sk * c1 + ck * s1
-            cd, sd = cd * cl - sd * sl, sd * cl + cd * sl
+    if steady and nh >= 1 and not saturated:  # only on a steady sine and unsaturated
+        _learning_update(p, s, e, theta, omega, v_env, nh, dt)
     report[R_MODEL] = r
     report[R_AR] = gain
     report[R_AY] = s[S_DZ_HAT]
