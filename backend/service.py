@@ -33,7 +33,7 @@ from sim.tracking import tracking_summary
 
 from . import store
 from .settings import Settings
-from .stream import Hub
+from .stream import Hub, sample_labels
 from .worker import scenario_from_job
 
 log = logging.getLogger("isorig.service")
@@ -500,6 +500,7 @@ class RigService:
                                   name=f"isorig-writer-{test_id}")
         writer.start()
         last_status = 0.0
+        labels = sample_labels(record.get("controller"))  # what the columns hold for this test's controller
         self.hub.publish_threadsafe(self._status_message(run, record, "running"))
         try:
             while True:
@@ -519,7 +520,8 @@ class RigService:
                     run.time_s = float(rows[-1, 0])
                     run.last_row = rows[-1].copy()
                     frame = {"type": "samples", "test_id": test_id, "seq": self.hub_seq(test_id),
-                             "columns": list(CSV_FIELDS), "rows": rows[:, : len(CSV_FIELDS)].tolist()}
+                             "columns": list(CSV_FIELDS), "labels": labels,
+                             "rows": rows[:, : len(CSV_FIELDS)].tolist()}
                     if run.stability is not None:  # the worker sent it just before these samples
                         frame["stability"] = live_stability(run.stability)
                     if run.structure is not None and len(run.structure["rows"]) == len(rows):

@@ -20,6 +20,17 @@ SCHEMA_VERSION = 1
 QUEUE_FRAMES = 400  # ~8 s of samples batches at 50 per second
 
 
+def sample_labels(controller: str | None) -> list[str]:
+    """What a ``samples`` message's columns hold for a test of ``controller``, one label per column of
+    ``columns`` (the stable keys, sim.samples.CSV_FIELDS): the key, or ``KEY: NAME (UNIT)`` where the controller
+    reports another quantity than the MRAC's the key is named after (the servo's ``as_hat: learned frequency
+    (Hz)``); the header cells of the test's data.csv (sim.records.column_labels)."""
+    from sim.records import column_labels
+    from sim.samples import CSV_FIELDS
+
+    return column_labels(controller, CSV_FIELDS)
+
+
 class Frame(dict):
     """A message dict that serialises itself once for all clients (NaN and infinities become null)."""
 

@@ -349,8 +349,11 @@ def _first_bad_cell(path, names: list[str], wanted: dict[str, int], allow_empty:
 
 
 def csv_header_names(line: str) -> list[str]:
-    """The column names of a CSV header line (cells stripped of spaces, quotes and a byte-order mark)."""
-    return [h.strip().strip('"').lstrip("\ufeff") for h in line.rstrip("\r\n").split(",")]
+    """The column names of a CSV header line (cells stripped of spaces, quotes and a byte-order mark; a cell
+    labelled for its controller, ``as_hat: learned frequency (Hz)``, by its key: sim.records.column_key)."""
+    from .records import column_key
+
+    return [column_key(h.strip().strip('"').lstrip("\ufeff")) for h in line.rstrip("\r\n").split(",")]
 
 
 def loadtxt_columns(path, usecols: Sequence[int], converters=None, comments: str | None = "#",

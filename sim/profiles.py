@@ -293,3 +293,50 @@ def max_frequency_hz(amplitude_m: float, rig: RigParameters, isolator: Isolator,
         lambda f: envelope_problem(SineProfile(amplitude_m, max(f, 1e-9), 1, 0), rig, isolator, supply_pa,
                                    advise=False) is None,
         MAX_FREQUENCY_HZ)
+
+
+def start_velocity_m_per_s(block: SineProfile) -> float:
+    """The target's velocity at t = 0 of a test beginning with ``block``: 2 pi f A without a taper (the sine starts
+    at its full velocity while the table rests), 0 with one (the raised cosine starts the sine from rest)."""
+    return 0.0 if block.taper_cycles > 0 else 2 * math.pi * block.frequency_hz * block.amplitude_m
+
+
+def start_problem(scenario, limits, override: str = "set limits.actions.{key} to indicate"):
+    """A test whose untapered start is expected to trip a limit, as a ProfileError on ``taper_cycles``; else None.
+
+    A sine with ``taper_cycles = 0`` asks the table, at rest, for 2 pi f A at once: the target runs ahead and the
+    loop's catch-up overshoots that velocity (IUT_b at 100 bar, 20 mm at 1.25 Hz: 157 mm/s asked, 410 mm/s
+    reached in 20 ms, beyond the 391 mm/s the pump feeds). The test's first cycle is simulated on the rig model
+    the controller is told of (sim.detectors.predict_first_trip, with ``limits``: an ``indicate`` limit trips
+    nothing, and ``limits`` None, a run without the limit detectors, is never refused); the start is refused when
+    it trips a limit and the same test with ``taper_cycles = 1`` does not (a trip that a taper does not cure is
+    the first-cycle warning's to tell). ``override`` (``{key}``: the limit's name) ends the message with how
+    to run it anyway. The loop does not blend the target in: a test without a taper (the
+    paper's, which start at rest) runs as asked whenever it stays within the limits."""
+    if limits is None or scenario.history is not None or not scenario.profile:
+        return None
+    first = scenario.profile[0]
+    v0 = start_velocity_m_per_s(first)
+    if v0 <= 0.0:
+        return None
+    from .detectors import first_cycle_s, predict_first_trip  # the engine: imported only for an untapered start
+    from .safety import DETECTORS
+
+    on_model = replace(scenario, plant_changes={}, timed_changes=[], foreign_rig=None)
+    predicted = predict_first_trip(on_model, limits)
+    if predicted is None or predicted.trip.detector not in DETECTORS:
+        return None  # nothing trips, or not a limit (a sensor detector, a diverged model): the warning says it
+    tapered = replace(first, taper_cycles=1, cycles=max(first.cycles, 2))
+    with_taper = replace(on_model, profile=[tapered, *on_model.profile[1:]])
+    if predict_first_trip(with_taper, limits) is not None:
+        return None
+    more = "" if first.cycles >= 2 else " (and cycles >= 2: a taper ramps in and out)"
+    trip = predicted.trip
+    return ProfileError(
+        "taper_cycles", first.taper_cycles, "taper_cycles >= 1 (the target then starts from rest)",
+        f"taper_cycles >= 1 needed{more}: a sine of {first.amplitude_m * 1e3:g} mm at {first.frequency_hz:g} Hz "
+        f"without a taper starts at {v0 * 1e3:.0f} mm/s from rest, and the table's catch-up is expected to trip a "
+        f"limit ({predicted.controller} controller on the rig model): {trip.message}; with taper_cycles = 1 the "
+        f"target starts from rest and its first {first_cycle_s(with_taper):.3g} s are expected to trip nothing"
+        + (f" (or {override.format(key=DETECTORS[trip.detector])})" if override else ""))
+

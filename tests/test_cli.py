@@ -7,6 +7,7 @@ import sys
 import pytest
 
 from isorig.cli import main
+from sim.records import column_key
 from sim.samples import RECORD_FIELDS
 
 
@@ -16,7 +17,7 @@ def test_simulate_writes_csv_and_summary(tmp_path):
     assert rc == 0
     with open(tmp_path / "timeseries.csv") as fh:
         rows = list(csv.reader(fh))
-    assert tuple(rows[0]) == RECORD_FIELDS
+    assert tuple(column_key(c) for c in rows[0]) == RECORD_FIELDS  # labelled for the servo: the keys first
     assert len(rows) == 1 + 3000
     assert float(rows[2][0]) == pytest.approx(0.001)
     summary = json.loads((tmp_path / "summary.json").read_text())

@@ -17,6 +17,7 @@ from sim.errors import FieldError
 from sim.follow import commissioning_facts
 from sim.isolator import IsolatorError
 from sim.profiles import ProfileError, SineProfile, max_amplitude_m, max_frequency_hz, motion_summary
+from sim.records import column_labels
 from sim.rig import BAR_PA, RigParameters
 from sim.samples import RECORD_FIELDS, Samples
 from sim.tracking import cycle_windows
@@ -218,17 +219,56 @@ def first_cycle_prediction(body: TestCreate, isolator, env: TestEnv) -> dict:
     worker process, backend.checks, whose engine is loaded)."""
     from sim.detectors import first_cycle_s, predict_first_trip
 
-    scenario = Scenario(isolator, body.supply_bar * BAR_PA, profile_blocks(body.profile), body.controller,
-                        dict(body.controller_options or {}), rig=env.rig, vertical_load_n=body.vertical_load_n)
-    limits = make_limits(env.rig, body.limits.model_dump() if body.limits else None)
+    scenario, limits = _scenario_and_limits(body, isolator, env)
     predicted = predict_first_trip(scenario, limits)
     window_s = first_cycle_s(scenario)
     simulated = (f"the first {window_s:.3g} s (the taper-in and the first steady cycle) simulated with the "
                  f"{body.controller} controller on the rig model, with the test's limits")
     if predicted is None:
         return {"prediction": f"{simulated}: no limit trips", "predicted_trip": None, "warnings": []}
-    return {"prediction": f"{simulated}: {predicted.trip.message}", "predicted_trip": clean_json(predicted.to_dict()),
-            "warnings": [predicted.warning()]}
+    out = {"prediction": f"{simulated}: {predicted.trip.message}", "predicted_trip": clean_json(predicted.to_dict()),
+           "warnings": [predicted.warning()]}
+    refusal = start_refusal(body, isolator, env)
+    if refusal is not None:  # a start a taper would cure: refused, as POST /api/tests refuses it
+        field, value, limit, detail = refusal
+        out.update(ok=False, detail=detail, field=field, value=value, limit=limit, warnings=[])
+    return out
+
+
+def _scenario_and_limits(body: TestCreate, isolator, env: TestEnv):
+    scenario = Scenario(isolator, body.supply_bar * BAR_PA, profile_blocks(body.profile), body.controller,
+                        dict(body.controller_options or {}), rig=env.rig, vertical_load_n=body.vertical_load_n)
+    return scenario, make_limits(env.rig, body.limits.model_dump() if body.limits else None)
+
+
+def untapered_start(body: TestCreate) -> bool:
+    """A sine or protocol test whose first block has no taper: its target starts at full velocity from rest."""
+    if isinstance(body.profile, EARTHQUAKE_PROFILES):
+        return False
+    blocks = profile_blocks(body.profile)
+    return bool(blocks) and blocks[0].taper_cycles == 0
+
+
+def start_refusal(body: TestCreate, isolator, env: TestEnv) -> tuple | None:
+    """(field, value, limit, message) of a start refused by sim.profiles.start_problem (an untapered sine whose
+    catch-up is expected to trip a limit that a taper would not), else None; plain values, so that a check
+    worker hands them back (a FieldError does not survive pickling). A plain function: run in a check worker."""
+    from sim.profiles import start_problem
+
+    if not untapered_start(body):
+        return None
+    problem = start_problem(*_scenario_and_limits(body, isolator, env))
+    return None if problem is None else (problem.field, problem.value, problem.limit, str(problem))
+
+
+def check_start(body: TestCreate, isolator, env: TestEnv, checks) -> None:
+    """POST /api/tests: refuse (422, ``profile.taper_cycles``) a start the set-up check refuses; simulated in the
+    check pool (a busy pool: 503 with Retry-After), only for an untapered start."""
+    if not untapered_start(body):
+        return
+    refusal = checks.run("check a test's start", start_refusal, body, isolator, env, small=True)
+    if refusal is not None:
+        raise ProfileError(*refusal[:3], refusal[3])
 
 
 def with_first_cycle_prediction(out: dict, body: TestCreate, isolator, env: TestEnv, checks) -> dict:
@@ -272,7 +312,9 @@ def check_test(body: TestCreate, request: Request, session: SessionDep) -> Envel
 def create_test(body: TestCreate, request: Request, session: SessionDep, actor: OperatorDep,
                 start: Annotated[bool, Query(description="start it at once; if the start is refused, nothing "
                                                          "is kept")] = False) -> TestOut:
-    fields = build_test(resolve_isolator(session, body.isolator), body, test_env(request))
+    isolator, env = resolve_isolator(session, body.isolator), test_env(request)
+    fields = build_test(isolator, body, env)
+    check_start(body, isolator, env, request.app.state.checks)  # after the envelope: a start that would trip
     fields.pop("_earthquake")
     fields["operator_name"] = acting_name(actor, body.operator_name, "operator_name")
     rig_name = request.app.state.service.rig_name  # a test of this service's rig
@@ -320,11 +362,12 @@ def list_tests(session: SessionDep,
 CSV_FORMATS = ["%.9g"] + ["%.7g"] * (len(RECORD_FIELDS) - 1)  # stored samples keep 7 significant digits
 
 
-def samples_csv(block: Samples, header: bool) -> str:
-    """CSV text of the record fields (as ``isorig simulate`` writes them; NaN -> empty cell)."""
+def samples_csv(block: Samples, header: bool, controller: str | None = None) -> str:
+    """CSV text of the record fields (as ``isorig simulate`` writes them, the header labelled for the test's
+    ``controller``: sim.records.column_labels; NaN -> empty cell)."""
     buf = io.StringIO()
     if header:
-        buf.write(",".join(RECORD_FIELDS) + "\n")
+        buf.write(",".join(column_labels(controller)) + "\n")
     if len(block):
         np.savetxt(buf, block.select(RECORD_FIELDS), fmt=CSV_FORMATS, delimiter=",")
     return buf.getvalue().replace("nan", "")
@@ -522,15 +565,17 @@ def get_cycles(test_id: TestId, session: SessionDep, arrays: bool = False) -> li
     return clean_json(cycles)
 
 
-@router.get("/api/tests/{test_id}/data.csv", summary="All samples as CSV (the columns of isorig simulate)",
+@router.get("/api/tests/{test_id}/data.csv", summary="All samples as CSV (the columns of isorig simulate; model_m, "
+            "ar_hat, ay_hat, as_hat labelled 'KEY: NAME (UNIT)' where the test's controller puts another quantity "
+            "there than the MRAC's)",
             response_class=StreamingResponse, responses=ERROR_RESPONSES)
 def get_csv(test_id: TestId, request: Request, session: SessionDep) -> StreamingResponse:
-    _test_or_404(session, test_id)
+    controller = _test_or_404(session, test_id).controller
     sessions = request.app.state.sessions
 
     def generate():
         with sessions() as s:
-            yield samples_csv(Samples.empty(), header=True)
+            yield samples_csv(Samples.empty(), header=True, controller=controller)
             for block in store.iter_sample_blocks(s, test_id):
                 yield samples_csv(block, header=False)
 

@@ -29,10 +29,13 @@ PROTOCOL_COLUMNS = ("level", "level_cycle", "judged")
 SAMPLE_CHUNK_ROWS = 50_000
 
 
-def samples_csv(samples) -> bytes:
-    """The samples' record fields as CSV, the columns and number formats of data.csv (NaN: an empty cell)."""
+def samples_csv(samples, controller: str | None = None) -> bytes:
+    """The samples' record fields as CSV, the columns, header and number formats of data.csv (the header labelled
+    for the test's ``controller``: sim.records.column_labels; NaN: an empty cell)."""
+    from sim.records import column_labels
+
     buf = io.StringIO()
-    buf.write(",".join(RECORD_FIELDS) + "\n")
+    buf.write(",".join(column_labels(controller)) + "\n")
     n = len(samples)
     for i in range(0, n, SAMPLE_CHUNK_ROWS):
         block = samples[i:i + SAMPLE_CHUNK_ROWS].select(RECORD_FIELDS)
@@ -112,7 +115,7 @@ def write_bundle_zip(out, bundle, report: dict, pdf: bytes, protocol=None) -> li
     files = {
         "record.json": json.dumps(clean_json(record), indent=1, allow_nan=False).encode(),
         "report.json": json.dumps(report, indent=1, allow_nan=False).encode(),
-        "samples.csv": samples_csv(bundle.samples),
+        "samples.csv": samples_csv(bundle.samples, record.get("controller")),
         "cycles.csv": cycles_csv(report.get("cycles") or [], protocol),
         "report.pdf": pdf,
     }

@@ -191,17 +191,18 @@ def run(args) -> int:
         raise UsageError("isorig simulate: --no-limit-detectors applies to the simulated rig only: a test on a rig "
                          "always runs with its limits")
     scenario.validate()
+    limits = None if args.no_limit_detectors else limits_with_follow(scenario.rig, args.follow)
+    check_start(scenario, limits)
     out = output_folder(args.out, "isorig simulate")
     if args.rig != "simulated":
         return run_on_rig(args, scenario, out)
     progress = Progress(f"simulating {scenario.duration_s:g} s")
     t0 = time.perf_counter()
-    limits = None if args.no_limit_detectors else limits_with_follow(scenario.rig, args.follow)
     result = Simulation(scenario, validate=False).run(progress=progress, follow=True, limits=limits,
                                                       follow_action=FOLLOW_CHOICES[args.follow])
     progress.close()
     elapsed = time.perf_counter() - t0
-    write_csv(out / "timeseries.csv", result.samples)
+    write_csv(out / "timeseries.csv", result.samples, controller=scenario.controller)
     summary = result.summary()
     summary["wall_time_s"] = elapsed
     summary["limit_detectors"] = limits is not None
@@ -219,6 +220,17 @@ def run(args) -> int:
              f"({100 * last['rms_y_minus_r_over_amplitude']:.2f} % of amplitude); " if last else "")
           + f"saturated samples {100 * summary['saturated_share']:.2f} %")
     return outcome(result, summary)
+
+
+def check_start(scenario, limits) -> None:
+    """Refuse, before anything runs, a sine whose untapered start is expected to trip a limit (sim.profiles.
+    start_problem: the service's set-up check refuses it the same way); ``limits`` None (--no-limit-detectors):
+    nothing to trip."""
+    from sim.profiles import start_problem
+
+    problem = start_problem(scenario, limits, override="--no-limit-detectors to run it past the rig's limits")
+    if problem is not None:
+        raise UsageError(f"isorig simulate: --taper-cycles {problem.value}: {problem}")
 
 
 def outcome(result, summary: dict) -> int:
@@ -260,7 +272,7 @@ def run_on_rig(args, scenario, out: Path) -> int:
              f"; rig link NOT AUTHENTICATED (protocol 1: {security.why})"))
     run, sent, status, reason, wall_s = run_job(job)  # Ctrl-C: abort the test, valve closed, files written
     samples = sent.samples()
-    write_csv(out / "timeseries.csv", samples)
+    write_csv(out / "timeseries.csv", samples, controller=scenario.controller)
     summary = Result(scenario, samples, diverged=False).summary()  # the worker's detectors stopped it, if at all
     summary.update(rig=args.rig, status=status, reason=reason, wall_time_s=wall_s,
                    lost_periods=run.lost_periods, link=run.driver.link_stats(), pacing=run.pacing(),

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from conftest import AUTH, create_and_start, sine_test, wait_for, zero_table
 
+from sim.records import column_key
 from sim.samples import CSV_FIELDS, RECORD_FIELDS
 
 
@@ -27,7 +28,7 @@ def test_completed_test_stores_every_sample_and_cycle(client):
     assert kinds.count("operator") >= 2 and kinds[-1] == "status"
     text = client.get(f"/api/tests/{test_id}/data.csv").text
     rows = list(csv.reader(io.StringIO(text)))
-    assert tuple(rows[0]) == RECORD_FIELDS
+    assert tuple(column_key(c) for c in rows[0]) == RECORD_FIELDS  # labelled for the servo: the keys first
     assert len(rows) == 1 + 1500
     t = np.array([float(r[0]) for r in rows[1:]])
     assert np.allclose(np.diff(t), 1e-3)
