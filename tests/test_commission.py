@@ -186,7 +186,7 @@ def test_a_rig_read_by_real_transducers_is_commissioned_with_its_values_and_its_
     compliance towards zero and the record was refused (flow balance 94 %, replay 26 %). The fit measures each
     reading's noise above 350 Hz, takes its share out of the normal equations and judges the balance against
     what the noise leaves to explain."""
-    from sim.commission.fit import signals_from_samples
+    from sim.commission.signals import signals_from_samples
 
     c, s = run_excitation(REAL_TRANSDUCERS)
     noise = signals_from_samples(s, 1e-3).noise
@@ -203,7 +203,7 @@ def test_a_link_that_loses_measurements_and_commands_is_fitted_on_what_the_rig_d
     """On a loaded host 2 % of the periods lose their measurement (the reading is held) or their command (the
     rig holds the one before): the held readings are interpolated, the command is the one the rig applied,
     and the fit leaves their neighbourhood out (an emulator record on a loaded machine: mass 20 % off before)."""
-    from sim.commission.fit import signals_from_samples
+    from sim.commission.signals import signals_from_samples
     from sim.measurement import FLAG_LOST, STATUS_COMMAND_MISSED
 
     c, s = run_excitation(SOFT_SLOW)

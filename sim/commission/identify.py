@@ -22,8 +22,10 @@ from ..isolator import Isolator
 from ..loop import CONTROL_PERIOD_S
 from ..rig import RigError, RigParameters
 from ..samples import Samples
-from .fit import LOWER, UPPER, FitError, RigFit, fit_rig, signals_from_samples
+from .fit import RigFit, fit_rig
+from .flow import LOWER, UPPER
 from .response import FrequencyResponse, dither_response
+from .signals import FitError, signals_from_samples
 
 DEFAULT_MAX_STROKE_M = 0.002
 DEFAULT_MAX_VELOCITY_M_PER_S = 0.02
@@ -146,7 +148,7 @@ def commissioned_rig(fit: RigFit, declared: RigParameters, vertical_load_n: floa
 
 
 def friction_law(fit: RigFit) -> tuple[float, float, float] | None:
-    """(F_c, delta, sigma_1) of the Dahl law when the fit chose it over Coulomb's (sim.commission.fit), else None."""
+    """(F_c, delta, sigma_1) of the Dahl law when the fit chose it over Coulomb's (sim.commission.force), else None."""
     delta = fit.value("presliding_m")
     if not delta > 0.0:
         return None
@@ -154,8 +156,9 @@ def friction_law(fit: RigFit) -> tuple[float, float, float] | None:
 
 
 def with_systematic(fit: RigFit) -> None:
-    """Add the fit model's systematic allowance and the valve law's disagreement between the record's parts
-    (sim.commission.fit.part_disagreement) to each estimate's spread (in place)."""
+    """Add the fit model's systematic allowance, the valve law's disagreement between the record's parts
+    (sim.commission.flow.part_disagreement) and the latency's between the two balances to each estimate's spread
+    (in place)."""
     for name, e in fit.estimates.items():
         floor = SYSTEMATIC_RELATIVE.get(name, 0.0) * abs(e.value) + SYSTEMATIC_ABSOLUTE.get(name, 0.0)
         e.std = math.hypot(e.std, floor, fit.disagreement.get(name, 0.0))

@@ -40,7 +40,7 @@ D_LEVEL, D_DELTA, D_DAMPING = range(3)
 @njit(cache=True)
 def _derivatives(x, v_c, force, p, dahl, dx):
     """Eq. (3) with the specimen's force given: y, y', P_L, v_e, v_e', z. The friction is the rig's Coulomb law
-    with its stick band, or the Dahl law the fit chose (sim.commission.fit): F_c z + sigma_1 delta z'."""
+    with its stick band, or the Dahl law the fit chose (sim.commission.force): F_c z + sigma_1 delta z'."""
     v = x[1]
     net = p[P_AREA] * x[2] - force - p[P_VISCOUS] * v
     dx[0] = v

@@ -21,8 +21,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..rig import RigParameters
-from .fit import Signals, dahl_state, derivative, lowpass, valve_voltage
+from .flow import valve_voltage
+from .force import dahl_state
 from .model import replay
+from .signals import Signals, derivative, lowpass
 
 SETTLE_S = 1.0  # the first second of the dither (its fade-in) is not read
 SEGMENT_S = 0.5

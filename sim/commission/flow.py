@@ -1,0 +1,162 @@
+"""The flow balance, eq. (3) second line, with the valve of eq. (3) third line and eq. (2):
+
+    A_p y' + C P_L' = K_q DZ(v_e) R(P_s - sgn(v_e) P_L),  C = V_0 / (2 beta)
+    v_e'' = -w_v^2 v_e - 2 xi_v w_v v_e' + w_v^2 v_c,     v_c = u + v_e0 (u >= 0), k_en u + v_e0 (u < 0)
+
+with R the orifice law of sim.rig (sqrt, linear below the declared regularisation drop); k_ep is 1 (it is
+K_q's share), so K_q is the flow gain of a positive command and k_en K_q that of a negative one. It is linear
+in (K_q, C) once the dead zone, the null offset v_e0, the valve's w_v and xi_v, the position latency L and k_en
+are fixed: those six are found by non-linear least squares over the linear solution (variable projection),
+started from a grid over the dead zone. ``part_disagreement`` fits the valve law on each experiment of the
+record alone: what the model leaves out shows as their disagreement.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import optimize, signal
+
+from .signals import Signals, explained, lowpass
+
+MAX_EVALUATIONS = 40  # per start of the non-linear fit (it converges in 10-30 on a rich record)
+TOLERANCE = 1e-5  # relative change of the cost and of the parameters at which it has converged
+DEAD_ZONE_GRID_STEP_V = 0.1
+
+#: bounds of the non-linear parameters: dead zone V, null offset V, valve Hz, valve damping, latency ms, k_en
+LOWER = np.array([0.0, -1.0, 5.0, 0.1, 0.0, 0.3])
+UPPER = np.array([5.0, 1.0, 400.0, 3.0, 20.0, 3.0])
+SCALE = np.array([0.1, 0.01, 10.0, 0.1, 0.1, 0.01])
+
+
+def orifice(dp: np.ndarray, dp_reg: float) -> np.ndarray:
+    """R(dp) of sim.rig.regularised_sqrt, vectorised."""
+    if dp_reg <= 0.0:
+        return np.sqrt(np.maximum(dp, 0.0))
+    return np.where(dp >= dp_reg, np.sqrt(np.maximum(dp, dp_reg)), dp / math.sqrt(dp_reg))
+
+
+def valve_filter(w: float, damping: float, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """The exact zero-order-hold discretisation of v_e'' = -w^2 v_e - 2 xi w v_e' + w^2 v_c, as the numerator and
+    denominator of a digital filter from v_c to v_e (e^{A T} in closed form from its eigenvalues)."""
+    a = np.array([[0.0, 1.0], [-w * w, -2.0 * damping * w]])
+    root = np.sqrt(complex(damping * damping - 1.0)) * w
+    l1, l2 = -damping * w + root, -damping * w - root
+    if abs(l1 - l2) < 1e-9 * w:  # critically damped: separate the two eigenvalues a little
+        l1, l2 = l1 * (1 + 1e-7), l2 * (1 - 1e-7)
+    e1, e2 = np.exp(l1 * dt_s), np.exp(l2 * dt_s)
+    alpha1 = ((e1 - e2) / (l1 - l2)).real
+    alpha0 = ((l1 * e2 - l2 * e1) / (l1 - l2)).real
+    ad = alpha0 * np.eye(2) + alpha1 * a
+    bd = np.linalg.solve(a, (ad - np.eye(2)) @ np.array([0.0, w * w]))
+    num = np.array([0.0, bd[0], ad[0, 1] * bd[1] - ad[1, 1] * bd[0]])
+    den = np.array([1.0, -np.trace(ad), np.linalg.det(ad)])
+    return num, den
+
+
+def valve_voltage(u: np.ndarray, dt_s: float, natural_hz: float, damping: float, null_v: float,
+                  negative_gain: float = 1.0) -> np.ndarray:
+    """v_e at the start of each period for the command u held over it: the second-order valve of eq. (3)
+    driven by v_c of eq. (2) (k_ep = 1, k_en = ``negative_gain``), discretised exactly for a zero-order hold."""
+    num, den = valve_filter(2.0 * math.pi * natural_hz, damping, dt_s)
+    return signal.lfilter(num, den, np.where(u < 0.0, negative_gain * u, u) + null_v)
+
+
+@dataclass
+class FlowFit:
+    dead_zone_v: float
+    null_offset_v: float
+    valve_hz: float
+    valve_damping: float
+    latency_s: float
+    negative_gain: float
+    flow_gain: float
+    compliance_m3_per_pa: float
+    r2: float
+
+
+def _flow_regression(sig: Signals, mask: np.ndarray, area: float, dp_reg: float, theta: np.ndarray):
+    """(K_q, C), the residual (m3/s) and the regressand for the non-linear parameters theta."""
+    dz, null_v, valve_hz, damping, latency_ms, negative_gain = theta
+    v_e = valve_voltage(sig.u, sig.dt_s, valve_hz, damping, null_v, negative_gain)
+    r = orifice(sig.p_supply - np.sign(v_e) * sig.p_load, dp_reg)
+    opening = np.maximum(v_e - dz, 0.0) + np.minimum(v_e + dz, 0.0)
+    x = np.column_stack([lowpass(opening * r, sig.dt_s), -sig.p_load_rate_f])[mask]
+    target = area * sig.at_latency(sig.v_f, latency_ms * 1e-3)[mask]
+    # normal equations (2 unknowns), with the P_L' noise's own share taken out of its column's sum of squares:
+    # a regressor with noise in it pulls its coefficient, C, towards zero by var(signal) / var(signal + noise)
+    # (bias-compensated least squares; the noise from the reading's content above NOISE_BAND_HZ)
+    normal = x.T @ x
+    normal[1, 1] -= x.shape[0] * sig.noise["load_pressure_rate_pa_per_s"] ** 2
+    coef = np.linalg.lstsq(normal, x.T @ target, rcond=None)[0]
+    return coef, target - x @ coef, target
+
+
+def fit_flow(sig: Signals, area: float, dp_reg: float, mask: np.ndarray | None = None,
+             start: np.ndarray | None = None, latency_guess_s: float = 0.0) -> FlowFit:
+    """The flow balance (eq. 3, second line) with the valve (eq. 3, third line; eq. 2): see the module."""
+    mask = sig.valid if mask is None else mask
+    scale = 1.0 / max(np.std(area * sig.v_f[mask]), 1e-12)
+
+    def residual(theta):
+        return _flow_regression(sig, mask, area, dp_reg, theta)[1] * scale
+
+    if start is None:
+        grid = np.arange(0.0, min(UPPER[0], np.max(np.abs(sig.u)) + DEAD_ZONE_GRID_STEP_V), DEAD_ZONE_GRID_STEP_V)
+        costs = [float(np.sum(residual(np.array([dz, 0.0, 80.0, 0.7, latency_guess_s * 1e3, 1.0])) ** 2))
+                 for dz in grid]
+        best_dz = grid[int(np.argmin(costs))]
+        starts = [np.array([best_dz, 0.0, hz, 0.7, latency_guess_s * 1e3, 1.0]) for hz in (50.0, 120.0)]
+    else:
+        starts = [np.asarray(start, dtype=float)]
+    best = None
+    for theta0 in starts:
+        sol = optimize.least_squares(residual, np.clip(theta0, LOWER, UPPER), bounds=(LOWER, UPPER), x_scale=SCALE,
+                                     diff_step=1e-3, max_nfev=MAX_EVALUATIONS, ftol=TOLERANCE, xtol=TOLERANCE)
+        if best is None or sol.cost < best.cost:
+            best = sol
+    coef, res, target = _flow_regression(sig, mask, area, dp_reg, best.x)
+    target_noise = (area * sig.noise["velocity_m_per_s"]) ** 2
+    r2 = explained(res, target, target_noise + (coef[1] * sig.noise["load_pressure_rate_pa_per_s"]) ** 2, target_noise)
+    dz, null_v, valve_hz, damping, latency_ms, negative_gain = best.x
+    return FlowFit(float(dz), float(null_v), float(valve_hz), float(damping), float(latency_ms * 1e-3),
+                   float(negative_gain), float(coef[0]), float(coef[1]), r2)
+
+
+#: the valve law's values whose model error shows as a disagreement between the parts of the record
+VALVE_LAW_NAMES = ("dead_zone_v", "driver_offset_v", "driver_gain_negative", "flow_gain_m3_per_s_v_sqrt_pa")
+
+
+def part_disagreement(sig: Signals, area: float, dp_reg: float, flow: FlowFit,
+                      parts: list[np.ndarray]) -> dict[str, float]:
+    """What the flow balance's model leaves out, as the valve law fitted on each part of the record alone (the
+    valve sweeps, the dither: one experiment each) disagrees: |a - b| / sqrt(2) for each of VALVE_LAW_NAMES,
+    the valve's dynamics and the latency held at the whole record's. A rig the model describes gives the same
+    valve law from both (within their noise); one it does not (a valve whose lands meter unequally, an actuator
+    whose sides differ) gives each experiment its own, and the jackknife, which deals every part to every
+    group, cannot see that."""
+    fixed = [flow.valve_hz, flow.valve_damping, flow.latency_s * 1e3]
+    free = np.array([0, 1, 5])
+    laws = []
+    for part in parts:
+        mask = sig.valid & part
+        if np.count_nonzero(mask) < int(1.0 / sig.dt_s):
+            continue
+        scale = 1.0 / max(np.std(area * sig.v_f[mask]), 1e-12)
+
+        def theta(x, fixed=fixed):
+            return np.array([x[0], x[1], *fixed, x[2]])
+
+        def residual(x, mask=mask, scale=scale):
+            return _flow_regression(sig, mask, area, dp_reg, theta(x))[1] * scale
+
+        start = np.clip([flow.dead_zone_v, flow.null_offset_v, flow.negative_gain], LOWER[free], UPPER[free])
+        sol = optimize.least_squares(residual, start, bounds=(LOWER[free], UPPER[free]), x_scale=SCALE[free],
+                                     diff_step=1e-3, max_nfev=MAX_EVALUATIONS, ftol=TOLERANCE, xtol=TOLERANCE)
+        coef = _flow_regression(sig, mask, area, dp_reg, theta(sol.x))[0]
+        laws.append(dict(zip(VALVE_LAW_NAMES, (sol.x[0], sol.x[1], sol.x[2], coef[0]), strict=True)))
+    if len(laws) < 2:
+        return {}
+    return {name: float(abs(laws[0][name] - laws[1][name]) / math.sqrt(2.0)) for name in VALVE_LAW_NAMES}
