@@ -99,9 +99,9 @@ def test_simulate_says_the_table_did_not_follow_and_exits_1(tmp_path, capsys):
     code = main(["simulate", "--cycles", "10", "--frequency-hz", "0.5", "--plant-set", "mass_kg=3000",
                  "--plant-set", "bulk_modulus_pa=4.5e8", "--out", str(tmp_path)])
     out = capsys.readouterr().out
-    assert code == 1 and "test aborted: the table does not follow" in out and "tracking: did not follow" in out
+    assert code == 1 and "test aborted: the table does not follow" in out and "tracking error: did not follow" in out
     assert main(["simulate", "--cycles", "4", "--out", str(tmp_path / "ok")]) == 0
-    assert "tracking: followed" in capsys.readouterr().out
+    assert "tracking error: followed" in capsys.readouterr().out
 
 
 def test_a_hosts_lost_periods_are_not_taken_for_a_rig_that_does_not_follow():

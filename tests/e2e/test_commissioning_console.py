@@ -180,7 +180,8 @@ def test_a_tests_page_history_and_live_view_show_its_tracking_verdict(plant_serv
     assert page.inner_text("#l-verdict") == verdict["words"]
     assert page.get_attribute("#l-verdict-kv", "data-verdict") == verdict["verdict"]
     if rec["status"] == "completed":
-        poll(lambda: f"tracking: {verdict['words']}" in page.inner_text("#alert-text"), 10, "the end banner's verdict")
+        poll(lambda: f"tracking error: {verdict['words']}" in page.inner_text("#alert-text"), 10,
+             "the end banner's verdict")
     # the test page
     page.goto(f"{srv.url}/?viewer=off#/tests/{test_id}")
     page.wait_for_selector(".tracking-verdict", timeout=WAIT_MS)

@@ -330,7 +330,8 @@ export class History {
     for (const [key, label, quantity, opts] of [
       ...(protocol ? [] : [["k_eff_n_per_m", `mean K_eff${steadyOf(t)}`, "stiffness"], ["edc_j", "mean EDC", "energy"],
         ["xi_eff", "mean xi_eff", "percent"], ["qd_n", "mean Q_d", "force", { sig: 4 }]]),
-      ["rms_y_minus_r_m", "RMS y - r (test)", "length"], ["last_rms_y_minus_r_m", "RMS y - r (last 2 cycles)", "length"],
+      ["rms_y_minus_r_m", "raw RMS |y - r| (whole test, same-instant target: incl. latency and taper)", "length"],
+      ["last_rms_y_minus_r_m", "raw RMS |y - r| (last 2 cycles, same-instant target: incl. latency and taper)", "length"],
       ["amplitude_error", "amplitude error", "percent"], ["phase_error_deg", "phase error", "angle"],
       ["saturated_share", "command saturated", "percent"], ["peak_flow_l_per_min", "peak flow", null],
     ]) {

@@ -9,6 +9,17 @@ const $ = (id) => document.getElementById(id);
 const PILL = { followed: "followed", outside_target: "outside target", did_not_follow: "DID NOT FOLLOW", not_judged: "not judged" };
 const ENDED = new Set(["completed", "stopped", "aborted", "interrupted", "failed"]);
 
+// The one tracking figure's definition, word for word as the CLI and the report give it (sim/tracking_figure.py,
+// docs/metrics.md "The tracking figure"); a time history's verdict rests on J2.
+export const TRACKING_DEFINITION = "RMS of reading - target one latency earlier, last two steady cycles, % of amplitude";
+export const HISTORY_DEFINITION = "J2: RMS of reading - target over the test, % of the target's RMS";
+
+/** The few words that say what test `t`'s tracking figure is. */
+export function trackingDefinition(t) {
+  const basis = String((t && t.summary && t.summary.tracking_verdict && t.summary.tracking_verdict.basis) || "");
+  return basis.startsWith("J2") ? HISTORY_DEFINITION : TRACKING_DEFINITION;
+}
+
 /** The record's verdict split into {verdict, words, short, advice}, or null (a move or a commissioning has none). */
 export function trackingVerdict(t) {
   const kind = t && t.profile && !Array.isArray(t.profile) ? t.profile.kind : null;
@@ -43,7 +54,7 @@ export function verdictBlock(t) {
   const v = notFollowingTrip(t) || trackingVerdict(t);
   if (!v) return null;
   const box = el("div", { class: `kv wide tracking-verdict`, "data-verdict": v.verdict },
-    el("span", { text: "tracking verdict (RMS |y - r| over the last steady cycles)" }),
+    el("span", { text: `tracking error (${trackingDefinition(t)})` }),
     el("b", {}, el("span", { class: `pill tv-${v.verdict}`, text: PILL[v.verdict] || v.verdict }), ` ${v.short}`));
   if (v.advice) {
     box.append(el("small", { class: "tv-advice" }, `${v.advice[0].toUpperCase()}${v.advice.slice(1)}: `,
@@ -71,7 +82,7 @@ export function watchLiveVerdict() {
     const text = $("alert-text");
     const ours = !alert.classList.contains("hidden") && new RegExp(`^Test ${state.testId} (completed|stopped)$`).test(text.textContent);
     if (!ours) return;
-    text.textContent = `${text.textContent}; tracking: ${v.words}`;
+    text.textContent = `${text.textContent}; tracking error: ${v.words}`;
     if (v.verdict === "did_not_follow") {
       alert.className = "alert warn";
       alert.dataset.kind = "warn";
