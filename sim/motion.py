@@ -30,19 +30,6 @@ SPEED_RANGE = (f"[{MIN_SPEED_M_PER_S:g}, {MAX_SPEED_M_PER_S:g}] m/s "
 PEAK_VELOCITY_FACTOR = 1.875  # max of d/ds (10 s^3 - 15 s^4 + 6 s^5), at s = 1/2
 
 
-#: a move's own velocity limit: this many times its speed, at least MOVE_GUARD_FLOOR_M_PER_S (a table that runs
-#: away from a 5 mm/s move is stopped at 20 mm/s, not at the pump's 140 mm/s; issue 32: an uncommissioned foreign
-#: rig reached 146.7 mm/s before the rig's limit of 139 mm/s closed the valve)
-MOVE_GUARD_FACTOR = 4.0
-MOVE_GUARD_FLOOR_M_PER_S = 0.01
-
-
-def move_velocity_limit_m_per_s(speed_m_per_s: float, rig_limit_m_per_s: float) -> float:
-    """The velocity limit of a move at ``speed_m_per_s``: MOVE_GUARD_FACTOR times the speed (at least the floor),
-    never above the rig's own."""
-    return min(rig_limit_m_per_s, max(MOVE_GUARD_FACTOR * speed_m_per_s, MOVE_GUARD_FLOOR_M_PER_S))
-
-
 class MotionError(FieldError):
     """A requested motion is outside what manual motion allows; names field, value and limit."""
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Request
 
 from sim.engine import Scenario
-from sim.motion import check_move, move_target, move_velocity_limit_m_per_s
+from sim.motion import check_move, move_target
 from sim.rig import BAR_PA
 
 from .. import store
@@ -38,10 +38,7 @@ def build_move(session, body: MoveIn, request: Request) -> dict:
     start_m = start_m or 0.0
     rig = request.app.state.rig
     check_move(start_m, body.position_m, body.speed_m_per_s, rig.stroke_m)  # MotionError -> 422
-    requested = body.limits.model_dump() if body.limits else {}
-    rig_limit = make_limits(rig, requested or None).velocity_m_per_s
-    requested["velocity_m_per_s"] = move_velocity_limit_m_per_s(body.speed_m_per_s, rig_limit)
-    limits = make_limits(rig, requested)
+    limits = make_limits(rig, body.limits.model_dump() if body.limits else None)
     if abs(body.position_m) > limits.displacement_m:
         raise ApiError(422, f"position_m = {body.position_m:g} m is beyond the displacement limit of "
                             f"{limits.displacement_m:g} m", "position_m", body.position_m,

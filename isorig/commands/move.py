@@ -47,7 +47,7 @@ def run(args) -> int:
     from backend.drivers import rig_kind
     from sim.engine import Scenario
     from sim.isolator import PRESETS
-    from sim.motion import MotionError, check_move, check_speed, move_target, move_velocity_limit_m_per_s
+    from sim.motion import MotionError, check_move, check_speed, move_target
     from sim.profiles import ProfileError
     from sim.rig import BAR_PA
 
@@ -78,8 +78,6 @@ def run(args) -> int:
         raise UsageError(f"isorig move: {exc}") from None
     motion = {"start_m": start_m, "end_m": args.position_m, "speed_m_per_s": args.speed_m_per_s}
     job = rig_job(args.rig, scenario, security=options, motion=motion, history_target=None)
-    job["limits"]["velocity_m_per_s"] = move_velocity_limit_m_per_s(args.speed_m_per_s,
-                                                                    job["limits"]["velocity_m_per_s"])
     print(f"moving the table on {args.rig} from {start_m * 1e3:.2f} mm to {args.position_m * 1e3:.2f} mm at "
           f"{args.speed_m_per_s * 1e3:g} mm/s ({scenario.duration_s:.1f} s; Ctrl-C stops it where it is); rig: "
           f"{described.name} ({described.source})")

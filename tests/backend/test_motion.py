@@ -117,23 +117,6 @@ def test_moves_are_refused_while_a_test_runs_and_beyond_the_limits(client):
     assert r.status_code == 401  # the operator token moves the table, nobody else
 
 
-def test_a_move_has_a_velocity_limit_of_its_own_a_few_times_its_speed(client):
-    """A table that runs away from a 5 mm/s move (an uncommissioned rig's loop unstable) is stopped at 20 mm/s,
-    not at the rig's 140 mm/s (issue 32: 146.7 mm/s was reached before the rig's limit closed the valve)."""
-    from sim.motion import move_velocity_limit_m_per_s
-
-    assert move_velocity_limit_m_per_s(0.005, 0.139) == pytest.approx(0.02)
-    assert move_velocity_limit_m_per_s(0.001, 0.139) == pytest.approx(0.01)  # the floor
-    assert move_velocity_limit_m_per_s(0.05, 0.139) == pytest.approx(0.139)  # never above the rig's
-    r = move(client, 0.002, speed=0.005)
-    assert r.status_code == 201, r.text
-    rec = wait_for(client, r.json()["id"])
-    assert rec["status"] == "completed", rec["reason"]
-    assert rec["limits"]["velocity_m_per_s"] == pytest.approx(0.02)
-    r = move(client, 0.0, speed=0.005, limits={"velocity_m_per_s": 0.012})  # an operator's tighter one holds
-    assert wait_for(client, r.json()["id"])["limits"]["velocity_m_per_s"] == pytest.approx(0.012)
-
-
 @pytest.mark.slow  # moves run to a trip: scripts/test.sh --quick leaves it out
 def test_a_controlled_stop_trip_during_a_move_holds_the_table_where_it_is(client):
     """A limit whose action is a controlled stop ends a move as the operator's stop does: where the table is,
