@@ -22,13 +22,6 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-#: the first words of each refusal, by kind
-REASONS = (("the flow balance", "flow balance < 98 %"), ("the force balance", "force balance < 90 %"),
-           ("the fitted rig, given", "replay > 20 %"), ("is uncertain", "a value too uncertain"),
-           ("not a positive", "a value not positive"), ("ended on the fit", "a value on the fit's bound"),
-           ("are not a rig", "not a rig"), ("did not run", "excitation stopped"))
-
-
 def fit_row(seed: int) -> dict:
     """One rig: the excitation, the fit, the values against the truth."""
     import numpy as np
@@ -54,10 +47,12 @@ def fit_row(seed: int) -> dict:
 
 
 def reason_counts(rows: list[dict]) -> Counter:
+    """How many rigs gave each refusal reason, by the campaign's categories (foreign_campaign.problem_categories)."""
+    from sim.commission.foreign_campaign import problem_categories
+
     counts = Counter()
     for row in rows:
-        kinds = {label for p in row["problems"] for words, label in REASONS if words in p}
-        counts.update(kinds)
+        counts.update(set().union(*(problem_categories(p) for p in row["problems"])) if row["problems"] else set())
     return counts
 
 

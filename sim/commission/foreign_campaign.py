@@ -236,7 +236,8 @@ PROBLEM_CATEGORIES = (("force balance", "the force balance explains too little o
                       ("not a positive value", "a fitted value is not positive"),
                       ("not a rig", "the fitted values are not a rig"),
                       ("bound", "a fitted value ended on the fit's bound"),
-                      ("did not run to its end", "the excitation did not run to its end"))
+                      ("did not run to its end", "the excitation did not run to its end"),
+                      ("the dither never ran", "the sweeps did not find the valve's edges both ways (no dither)"))
 
 
 def problem_categories(problem: str) -> set[str]:
