@@ -24,6 +24,7 @@ from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
 
 from . import accounts, db, errors, rig_lock, store
+from .api import accounts as accounts_api
 from .api import commissioning, ground_motions, isolators, lab, login, meta, motion, protocols, tests, ws
 from .auth import LoginThrottle
 from .checks import CheckPool, HeavyBodyGate
@@ -153,6 +154,7 @@ def create_app(settings: Settings | None = None, driver: str | None = None) -> F
                        allowed_hosts=settings.host_allow_list())
     app.include_router(meta.router)
     app.include_router(login.router)
+    app.include_router(accounts_api.router)
     app.include_router(lab.router)
     app.include_router(isolators.router)
     app.include_router(tests.router)
