@@ -6,7 +6,7 @@ const $ = (id) => document.getElementById(id);
 /**
  * confirmDialog({title, body, ok, danger, warnings, fields}) -> Promise of null (cancelled) or {values}.
  * body: a Node or text; warnings: texts, each must be ticked before OK; fields: [{name, label, value,
- * minLength, maxLength, placeholder, multiline}].
+ * minLength, maxLength, placeholder, multiline, type}] (type "password": hidden as typed, not trimmed).
  */
 export function confirmDialog({ title, body, ok = "OK", danger = false, warnings = [], fields = [] }) {
   const dialog = $("confirm-dialog");
@@ -42,6 +42,8 @@ export function confirmDialog({ title, body, ok = "OK", danger = false, warnings
     input.name = f.name;
     input.id = `confirm-${f.name}`;
     input.value = f.value || "";
+    if (f.type && !f.multiline) input.type = f.type;
+    if (f.type === "password") input.autocomplete = "new-password";
     if (f.placeholder) input.placeholder = f.placeholder;
     if (f.maxLength) input.maxLength = f.maxLength;
     label.append(input);
@@ -77,7 +79,9 @@ export function confirmDialog({ title, body, ok = "OK", danger = false, warnings
       refresh();
       if (okButton.disabled) return;
       const values = {};
-      for (const [name, { input }] of Object.entries(inputs)) values[name] = input.value.trim();
+      for (const [name, { input }] of Object.entries(inputs)) {
+        values[name] = input.type === "password" ? input.value : input.value.trim();
+      }
       done({ values });
     };
     const onCancel = (ev) => {

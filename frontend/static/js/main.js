@@ -1,6 +1,7 @@
 // Dashboard entry point: views (live, history, one test, commissioning), the status strip, the always-visible
 // Abort, the login, the unit choice, the 3D view.
 
+import { AccountsPage } from "./accounts.js";
 import { account, api, askLogin, logOut, onAccount, refreshAccount } from "./api.js";
 import { CommissionPage } from "./commission.js";
 import { History } from "./history.js";
@@ -32,6 +33,7 @@ const live = new LiveView({
 const setup = new SetupPanel({ live });
 const historyView = new History();
 const labPage = new LabPage();
+const accountsPage = new AccountsPage();
 const strip = new StatusStrip();
 strip.nextLimits = () => setup.nextLimits();
 const commission = new CommissionPage({ onApplied: () => reloadRig() });
@@ -42,9 +44,9 @@ function route() {
   const m = hash.match(/^#\/tests\/(\d+)/);
   const c = hash.match(/^#\/commission(?:\/(\d+))?/);
   const view = m ? "test" : c ? "commission" : hash.startsWith("#/history") ? "history"
-    : hash.startsWith("#/lab") ? "lab" : "live";
+    : hash.startsWith("#/lab") ? "lab" : hash.startsWith("#/accounts") ? "accounts" : "live";
   currentView = view;
-  for (const v of ["live", "history", "test", "commission", "lab"]) $(`view-${v}`).classList.toggle("hidden", v !== view);
+  for (const v of ["live", "history", "test", "commission", "lab", "accounts"]) $(`view-${v}`).classList.toggle("hidden", v !== view);
   document.querySelectorAll("nav a").forEach((a) => {
     a.classList.toggle("active", a.dataset.view === (view === "test" ? "history" : view));
   });
@@ -52,6 +54,8 @@ function route() {
   live.dirty = true;
   if (view === "history") historyView.showList();
   if (view === "lab") labPage.load();
+  if (view === "accounts") accountsPage.show();
+  else accountsPage.hide();
   if (view === "test") historyView.showTest(Number(m[1]));
   if (view === "commission" && commissionReady) commission.show(c[1] ? Number(c[1]) : null);
   else commission.hide();
