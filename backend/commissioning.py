@@ -223,6 +223,10 @@ class Fitter:
                                if r else "") + f"); the rig file '{name}' can be made the service's rig")
         else:
             out["words"] = "NOT trusted, no rig file: " + "; ".join(ident.problems)
+            retry = ident.second_attempt()
+            if retry is not None:
+                out["words"] += (f". A second attempt may help: the same at max_velocity_m_per_s "
+                                 f"{retry['max_velocity_m_per_s']:g}")
         return clean_json(out)
 
     def _store(self, test_id: int, result: dict) -> None:

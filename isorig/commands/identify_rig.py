@@ -18,7 +18,7 @@ SIMULATED_SPEED = 1000.0  # the simulated rig's run is paced at this many times 
 
 
 def register(isub, parser_class) -> None:
-    from sim.commission.identify import DEFAULT_MAX_STROKE_M, DEFAULT_MAX_VELOCITY_M_PER_S
+    from sim.commission.bounds import DEFAULT_MAX_STROKE_M, DEFAULT_MAX_VELOCITY_M_PER_S
     from sim.isolator import PRESETS
 
     r = isub.add_parser("rig", help="commission a rig: a bounded excitation, a fit of the rig's parameters with "
@@ -140,6 +140,10 @@ def report(args, ident, described, started, out_path: Path) -> int:
         print(format_identification(ident))
     if not ident.trusted:
         print(f"no rig file written: the fit cannot be trusted ({len(ident.problems)} reason(s) above)")
+        retry = ident.second_attempt()
+        if retry is not None and not args.json:
+            print(f"a second attempt may help: run it again with --max-velocity-m-per-s "
+                  f"{retry['max_velocity_m_per_s']:g} (the other options as before): {retry['why']}")
         return 1
     name = args.name or f"{described.name}, commissioned"
     data = rig_file_data(ident.rig, name[:100], f"commissioned by isorig identify rig on {args.rig} at "

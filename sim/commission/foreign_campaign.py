@@ -6,7 +6,7 @@ beyond Bouc-Wen, a load cell, late and noisy sensors) are the test instrument. F
 
 1. **commission it** from what its lab knows (``ForeignRigSpec.lab_knows``: piston area, oil volume, stroke, pump
    flow) at the default bounds; a refused fit is tried once more with the bounds the refusal suggests
-   (``retry_bounds``), as an operator would;
+   (``Identification.second_attempt``), as an operator would;
 2. **judge the values it trusted** against the rig's physics (``ForeignRigSpec.equivalents``): a value the
    controller relies on outside 3 sigma of its truth makes the rig ``wrong_trusted``;
 3. **test it** with the commissioned rig file: 20 mm at 0.5 Hz, 2 mm at 1 Hz, 0.5 mm at 1 Hz (12 cycles, taper
@@ -69,19 +69,6 @@ def declared_rig(lab: dict) -> RigParameters:
     """The rig of that start file: everything the controller relies on beyond it is isorig's default until
     commissioning measures it."""
     return DEFAULT_RIG.with_changes(**start_rig_file_data(lab))
-
-
-def retry_bounds(problems: list[str], max_stroke_m: float, max_velocity_m_per_s: float) -> tuple[float, float] | None:
-    """The bounds of a second attempt after a refusal, or None when a second attempt cannot help: a record whose
-    fit or replay did not explain the motion gets twice the velocity bound (more motion over the rig's friction
-    and noise), within the bounds commissioning takes."""
-    words = " ".join(problems)
-    if not any(key in words for key in ("explains", "reproduces", "uncertain")):
-        return None
-    faster = min(2.0 * max_velocity_m_per_s, 0.04)
-    if faster <= max_velocity_m_per_s:
-        return None
-    return max_stroke_m, faster
 
 
 def judged_values(ident, spec, declared: RigParameters) -> dict:
@@ -172,11 +159,11 @@ def commission_and_test(run: ForeignRun) -> dict:
     row = {"seed": run.seed, "name": spec.name, "first_trusted": ident.trusted, "attempts": 1,
            "first_problems": list(ident.problems)}
     if not ident.trusted:
-        bounds = retry_bounds(ident.problems, run.max_stroke_m, run.max_velocity_m_per_s)
-        if bounds is not None:
-            ident = commission(spec, declared, *bounds)
+        retry = ident.second_attempt()
+        if retry is not None:
+            ident = commission(spec, declared, retry["max_stroke_m"], retry["max_velocity_m_per_s"])
             row["attempts"] = 2
-            row["retry_max_velocity_m_per_s"] = bounds[1]
+            row["retry_max_velocity_m_per_s"] = retry["max_velocity_m_per_s"]
     row["trusted"] = ident.trusted
     row["problems"] = list(ident.problems)
     row["commission_wall_s"] = time.perf_counter() - t0

@@ -33,6 +33,9 @@ STROKE_RANGE_M = (2e-4, 0.01)
 VELOCITY_RANGE_M_PER_S = (0.01, 0.1)  # below 10 mm/s a sticking table breaks away faster than the bound
 GUARD_SHARE = 0.75  # the excitation's own guard: this share of the stroke bound (the detector sits at the bound)
 MAX_RIG_TIME_S = 60.0
+#: a refused fit's second attempt (second_attempt): this many times the velocity bound, at most this, m/s
+RETRY_VELOCITY_SHARE = 2.0
+RETRY_MAX_VELOCITY_M_PER_S = 0.04
 
 #: what a fit must reach before its rig file is written (docs/commissioning.md, "When a fit is refused")
 MIN_FLOW_R2 = 0.98
@@ -232,6 +235,10 @@ class Identification:
     def trusted(self) -> bool:
         return self.rig is not None and not self.problems
 
+    def second_attempt(self) -> dict | None:
+        """What to change for a second run after a refusal (``second_attempt``), or None."""
+        return None if self.trusted else second_attempt(self.problems, self.conditions)
+
     def changed(self) -> dict:
         """The commissioned values that differ from the declared rig, by name."""
         if self.rig is None:
@@ -240,9 +247,28 @@ class Identification:
                 if getattr(self.rig, name) != getattr(self.declared, name)}
 
     def to_dict(self) -> dict:
-        return {"trusted": self.trusted, "problems": list(self.problems), "conditions": self.conditions.to_dict(),
+        return {"trusted": self.trusted, "problems": list(self.problems), "second_attempt": self.second_attempt(),
+                "conditions": self.conditions.to_dict(),
                 "record": dict(self.record), "fit": self.fit.to_dict() if self.fit else None,
                 "response": self.response.to_dict() if self.response else None, "changed": self.changed()}
+
+
+def second_attempt(problems: list[str], conditions: Conditions) -> dict | None:
+    """The bounds of a second commissioning run after a refusal, with why, or None when a second run at other
+    bounds cannot help: a fit or replay that did not explain the record, or values too uncertain for the
+    controller, get RETRY_VELOCITY_SHARE times the velocity bound (more motion over the rig's friction and its
+    readings' noise), up to RETRY_MAX_VELOCITY_M_PER_S; the stroke bound stays (docs/commissioning.md, "When a fit
+    is refused")."""
+    words = " ".join(problems)
+    if not any(key in words for key in ("explains", "reproduces", "uncertain")):
+        return None
+    faster = min(RETRY_VELOCITY_SHARE * conditions.max_velocity_m_per_s, RETRY_MAX_VELOCITY_M_PER_S)
+    if faster <= conditions.max_velocity_m_per_s * 1.001:
+        return None
+    return {"max_stroke_m": conditions.max_stroke_m, "max_velocity_m_per_s": faster,
+            "why": (f"the record at {1e3 * conditions.max_velocity_m_per_s:g} mm/s did not show the rig well enough "
+                    f"for a fit the controller can rely on; at {1e3 * faster:g} mm/s the motion stands further above "
+                    "the rig's friction and its readings' noise (keep the stroke bound; clear the table's path)")}
 
 
 def record_figures(samples: Samples, conditions: Conditions) -> dict:

@@ -200,3 +200,4 @@ def test_a_fit_that_fails_keeps_the_record_and_is_done_again_after_a_restart(tmp
     with TestClient(create_app(settings)) as client:
         res = wait_result(client, cid)
         assert res["state"] == "not_trusted" and "did not run to its end" in res["words"]
+        assert "second attempt" not in res["words"]  # other bounds cannot cure a run that never ended

@@ -1,0 +1,61 @@
+"""A refused commissioning says what to change for a second attempt (issue 32 item 3): the bounds and why, in the
+identification's dict, on the command line and in the service's words."""
+
+from types import SimpleNamespace
+
+import pytest
+
+from isorig.commands.identify_rig import report
+from sim.commission.identify import (
+    RETRY_MAX_VELOCITY_M_PER_S,
+    Conditions,
+    Identification,
+    second_attempt,
+)
+from sim.rig import DEFAULT_RIG
+
+UNEXPLAINED = "the flow balance (eq. 3, second line) explains 95.1 % of the table's motion; at least 98 % is needed"
+
+
+def conditions(max_velocity_m_per_s=0.02):
+    return Conditions("simulated", 1e7, 1.25e5, "IUT_a", 0.0, 0.004, max_velocity_m_per_s)
+
+
+@pytest.mark.parametrize("problem", [
+    UNEXPLAINED,
+    "the fitted rig, given the same commands, reproduces the table's velocity to 31 % RMS; at most 20 % is needed",
+    "flow_gain_m3_per_s_v_sqrt_pa is uncertain by +-22 % (one sigma); at most +-15 % is needed",
+])
+def test_a_fit_that_did_not_explain_the_record_is_offered_twice_the_velocity_bound(problem):
+    retry = second_attempt([problem], conditions(0.015))
+    assert retry["max_velocity_m_per_s"] == pytest.approx(0.03)
+    assert retry["max_stroke_m"] == 0.004
+    assert "30 mm/s" in retry["why"] and "15 mm/s" in retry["why"]
+
+
+def test_the_second_attempt_stays_within_its_cap_and_is_none_at_it():
+    assert second_attempt([UNEXPLAINED], conditions(0.03))["max_velocity_m_per_s"] == RETRY_MAX_VELOCITY_M_PER_S
+    assert second_attempt([UNEXPLAINED], conditions(RETRY_MAX_VELOCITY_M_PER_S)) is None
+
+
+def test_a_refusal_other_bounds_cannot_cure_offers_none():
+    stopped = ("the excitation did not run to its end (stopped, tripped, or the valve did not open both ways within "
+               "the command it may use): nothing is fitted from part of it")
+    assert second_attempt([stopped], conditions()) is None
+    assert second_attempt([], conditions()) is None
+
+
+def test_the_identification_carries_it_and_a_trusted_one_has_none():
+    refused = Identification(conditions(), DEFAULT_RIG, problems=[UNEXPLAINED])
+    assert refused.to_dict()["second_attempt"]["max_velocity_m_per_s"] == pytest.approx(0.04)
+    trusted = Identification(conditions(), DEFAULT_RIG, rig=DEFAULT_RIG)
+    assert trusted.second_attempt() is None and trusted.to_dict()["second_attempt"] is None
+
+
+def test_the_command_prints_the_flag_to_change(capsys, tmp_path):
+    ident = Identification(conditions(), DEFAULT_RIG, problems=[UNEXPLAINED])
+    args = SimpleNamespace(json=False, name=None)
+    assert report(args, ident, None, None, tmp_path / "rig.json") == 1
+    out = capsys.readouterr().out
+    assert "--max-velocity-m-per-s 0.04" in out and "no rig file written" in out
+    assert not (tmp_path / "rig.json").exists()
