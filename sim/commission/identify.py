@@ -22,13 +22,12 @@ from ..isolator import Isolator
 from ..loop import CONTROL_PERIOD_S
 from ..rig import RigError, RigParameters
 from ..samples import Samples
+from .bounds import DEFAULT_MAX_STROKE_M, DEFAULT_MAX_VELOCITY_M_PER_S
 from .fit import RigFit, fit_rig
 from .flow import LOWER, UPPER
 from .response import FrequencyResponse, dither_response
 from .signals import FitError, signals_from_samples
 
-DEFAULT_MAX_STROKE_M = 0.002
-DEFAULT_MAX_VELOCITY_M_PER_S = 0.02
 STROKE_RANGE_M = (2e-4, 0.01)
 VELOCITY_RANGE_M_PER_S = (0.01, 0.1)  # below 10 mm/s a sticking table breaks away faster than the bound
 GUARD_SHARE = 0.75  # the excitation's own guard: this share of the stroke bound (the detector sits at the bound)
