@@ -52,7 +52,7 @@ from sim.isolator import isolator_from_dict
 from sim.loop import CONTROL_PERIOD_S, ClosedLoop
 from sim.measurement import RIG_FAULT_BITS, Measurement, describe_status, measured_rows
 from sim.profiles import B_CYCLES, B_TAPER, blocks_from_dicts
-from sim.realtime import RealtimeSection, raise_priority, realtime_priority
+from sim.realtime import PeriodTrace, RealtimeSection, raise_priority, realtime_priority
 from sim.rig import DEFAULT_RIG
 from sim.samples import Samples
 from sim.tracking import cycle_phase, cycle_windows
@@ -288,6 +288,8 @@ class Run:
         self.lost_periods = 0
         self.next_link_report_s = 0.0
         self.priority = "normal"
+        # a rig in real time: where each period went, and what ran before each stall (sim.realtime.PeriodTrace)
+        self.trace = PeriodTrace(CONTROL_PERIOD_S) if self.rig.realtime else None
 
     # --- messages ------------------------------------------------------------------------------------
     def send(self, kind: str, payload) -> None:
@@ -396,6 +398,8 @@ class Run:
                 end_s = self.ramp_out()
                 self.event("operator", f"stop at t = {loop.time_s:.3f} s: ramping out, ends at t = {end_s:.3f} s",
                            {"action": "stop", "ends_at_s": end_s})
+            if self.trace is not None:
+                self.trace.lap("chunk")  # the chunk's rows released (queued) and the operator's command handled
             rows, command = self.chunk(chunk)
             self.after_answer("release", partial(self.release, rows))
             if len(rows) == 0:  # the rig cannot run on (a simulated rig diverged)
@@ -484,9 +488,12 @@ class Run:
             self.produced.append(self.compiled(loop, n))
         else:
             end = min(loop.period + n, loop.end_period)
+            trace = self.trace
             while loop.period < end:
+                wait_from = time.perf_counter()
                 if self.answered:
                     driver.wait_next_period()
+                got = time.perf_counter()
                 m = driver.read()
                 if self.period_base:  # the test's clock started after the host waited for the supply
                     m = dataclasses.replace(m, period=m.period - self.period_base,
@@ -498,9 +505,15 @@ class Run:
                 u, rows = loop.step(m)
                 self.produced.append(rows)
                 driver.write(u)
+                if trace is not None:
+                    trace.answered(wait_from, got, time.perf_counter(), getattr(driver, "first_sent_ns", None),
+                                   getattr(driver, "sent_ns", None))
                 self.answered = True
                 if self.after_answer_work:  # one piece of the worker's own work, while the rig's period goes on
-                    self.after_answer_work.popleft()[1]()
+                    kind, work = self.after_answer_work.popleft()
+                    work()
+                    if trace is not None:
+                        trace.lap(kind)
         return Samples.concatenate(self.produced[first:])
 
     def after_answer(self, kind: str, work) -> None:
@@ -635,6 +648,8 @@ class Run:
             if len(block) < m:
                 break
             command = self.poll_command()
+            if self.trace is not None:
+                self.trace.lap("block")  # the block's detectors, its rows gathered, the operator's command polled
             if command is not None:
                 break
         return self.take_produced(), command
@@ -703,6 +718,8 @@ class Run:
             stats = {"chunks": stats.get("chunks", 0), "realtime_rig": True}
         if self.supply_settle is not None:  # the host waited for the supply after ARM
             stats = {**stats, "supply_settle": dict(self.supply_settle)}
+        if self.trace is not None and self.trace.periods:
+            stats = {**stats, "period_trace": self.trace.summary()}
         return {**stats, "priority": self.priority, "realtime_section": self.realtime_section}
 
 

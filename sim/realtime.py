@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import time
 from contextlib import contextmanager
 
 
@@ -119,3 +120,116 @@ class RealtimeSection:
             unlock_memory()
         if self._was_enabled:
             gc.enable()
+
+
+#: a stall: the loop's answer came this many periods after the previous one, or later (one period late: a period
+#: the rig missed)
+STALL_PERIODS = 1.5
+MAX_STALLS_KEPT = 20  # the longest stalls are kept with what ran before each
+
+
+class PeriodTrace:
+    """Where the periods of a real-time loop went, in fixed memory (histograms, the longest stalls).
+
+    Per period: how long the loop waited for the rig's measurement (``wait``), took to answer it (``answer``:
+    read, step, write), and its own work after the answer until it waited again (``busy``), split into named
+    pieces by ``lap(kind)``. With the rig's send time on this machine's monotonic clock (a rig on loopback,
+    e.g. the emulator), also the measurement's age at the answer. An answer more than ``STALL_PERIODS`` after
+    the previous one is a stall, kept (the longest ``MAX_STALLS_KEPT``) with its cause, the largest share of
+    the gap: ``work:<kind>`` (the loop's own work since the last answer, by its largest piece), ``rig`` (the rig
+    sent late), ``woke late`` (the measurement was there and the loop waiting, but it did not run: the OS, another
+    thread holding the interpreter's lock), ``answer`` (reading, stepping and writing took that long)."""
+
+    def __init__(self, period_s: float):
+        from sim.latency import LatencyHistogram
+
+        self._hist = LatencyHistogram
+        self.period_s = period_s
+        self.ms: dict[str, LatencyHistogram] = {}
+        self.pieces: dict[str, float] = {}  # kind -> ms since the last answer
+        self.periods = 0
+        self.written: float | None = None  # perf_counter of the last answer
+        self.mark = 0.0  # the end of the last lap
+        self.sent_s: float | None = None  # the rig's send time of the last answered measurement
+        self.same_clock: bool | None = None
+        self.stalls: list[dict] = []
+        self.stall_count = 0
+        self.causes: dict[str, int] = {}
+
+    def _add(self, kind: str, ms: float) -> None:
+        h = self.ms.get(kind)
+        if h is None:
+            h = self.ms[kind] = self._hist()
+        h.add(ms)
+
+    def lap(self, kind: str, now: float | None = None) -> None:
+        """The loop's work since the last lap (or answer) was ``kind`` (``now``: time.perf_counter())."""
+        if self.written is None:  # before the first answer: start-up, not a period's work
+            return
+        now = time.perf_counter() if now is None else now
+        ms = (now - self.mark) * 1e3
+        self.mark = now
+        self.pieces[kind] = self.pieces.get(kind, 0.0) + ms
+        self._add(kind, ms)
+
+    def answered(self, wait_from: float, got: float, written: float, first_sent_ns: int | None = None,
+                 sent_ns: int | None = None) -> None:
+        """One period: the loop waited from ``wait_from``, had the measurement at ``got`` and wrote its answer at
+        ``written`` (time.perf_counter); ``first_sent_ns``/``sent_ns``: the rig's send time of the first and of the
+        newest measurement this wait took (time.perf_counter_ns on loopback), where known."""
+        self.periods += 1
+        self._add("wait", (got - wait_from) * 1e3)
+        self._add("answer", (written - got) * 1e3)
+        if self.same_clock is None and sent_ns is not None:  # a rig on this machine: its clock is ours
+            self.same_clock = 0 <= got - sent_ns * 1e-9 < 1.0
+        first_s = sent_s = None
+        if self.same_clock and sent_ns is not None:
+            sent_s = sent_ns * 1e-9
+            first_s = first_sent_ns * 1e-9 if first_sent_ns is not None else sent_s
+            self._add("age", (written - sent_s) * 1e3)
+        if self.written is not None:
+            if wait_from > self.mark:
+                self.pieces["other"] = self.pieces.get("other", 0.0) + (wait_from - self.mark) * 1e3
+            busy_s = wait_from - self.written
+            self._add("busy", busy_s * 1e3)
+            gap_s = written - self.written
+            if gap_s > STALL_PERIODS * self.period_s:
+                self._stall(gap_s, busy_s, wait_from, got, written, first_s)
+        self.pieces = {}
+        self.written = self.mark = written
+        self.sent_s = sent_s
+
+    def _stall(self, gap_s, busy_s, wait_from, got, written, first_s) -> None:
+        # the cause: the largest of the loop's own work, the rig's own lateness, the wait for the loop to run
+        # once the measurement was there, and the answer itself
+        work = max(self.pieces, key=self.pieces.get) if self.pieces else "other"
+        shares = {f"work:{work}": busy_s, "answer": written - got}
+        if first_s is not None:
+            shares["woke late"] = got - max(first_s, wait_from)
+            if self.sent_s is not None:
+                shares["rig"] = first_s - self.sent_s - self.period_s
+        cause = max(shares, key=shares.get)
+        self.stall_count += 1
+        self.causes[cause] = self.causes.get(cause, 0) + 1
+        record = {"period": self.periods, "at_s": round(written, 6),  # the monotonic clock: to set beside the rig's
+                  "stall_ms": round((gap_s - self.period_s) * 1e3, 3), "cause": cause,
+                  "busy_ms": round(busy_s * 1e3, 3), "wait_ms": round((got - wait_from) * 1e3, 3),
+                  "answer_ms": round((written - got) * 1e3, 3),
+                  "pieces_ms": {k: round(v, 3) for k, v in self.pieces.items()}}
+        if first_s is not None:
+            record["woke_after_ms"] = round((got - first_s) * 1e3, 3)
+            if self.sent_s is not None:
+                record["rig_gap_ms"] = round((first_s - self.sent_s) * 1e3, 3)
+        self.stalls.append(record)
+        if len(self.stalls) > MAX_STALLS_KEPT:
+            self.stalls.remove(min(self.stalls, key=lambda r: r["stall_ms"]))
+
+    def summary(self) -> dict:
+        """The figures, for a run's record: periods, stalls (count, longest, by cause, the longest kept with
+        what ran before each) and each kind's p99 and max in ms."""
+        longest = sorted(self.stalls, key=lambda r: -r["stall_ms"])
+        return {"periods": self.periods, "stalls": self.stall_count,
+                "stall_max_ms": longest[0]["stall_ms"] if longest else 0.0, "stall_causes": dict(self.causes),
+                "rig_clock_shared": bool(self.same_clock), "longest_stalls": longest,
+                "ms": {k: {"n": h.n, "p99": h.percentile_ms(99), "max": round(h.max_ms, 3)}
+                       for k, h in self.ms.items()}}

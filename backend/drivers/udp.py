@@ -81,6 +81,10 @@ class UdpRig(RigDriver):
         self.current: Measurement | None = None
         self.received_at = 0.0
         self.received_wall_s: float | None = None  # wall clock (time.time) of the last measurement
+        # the rig's send time (its monotonic clock, ns) of the newest measurement and of the first one the last
+        # wait took: on loopback the host's clock too (sim.realtime.PeriodTrace tells a late rig from a late host)
+        self.sent_ns: int | None = None
+        self.first_sent_ns: int | None = None
         self._reset_stats()
 
     @classmethod
@@ -248,6 +252,7 @@ class UdpRig(RigDriver):
         if f["command_latency_us"] and f["command_sequence"] == seq - 1:  # the rig's figure for our last answer
             self.round_trip.add(f["command_latency_us"] / 1e3)
         self.last_sequence = seq
+        self.sent_ns = packet.time_ns
         self.current = Measurement(seq, seq * self.period_s, f["position_m"], f["force_n"], f["load_pressure_pa"],
                                    f["supply_pressure_pa"], int(f["status"]))
 
@@ -279,6 +284,7 @@ class UdpRig(RigDriver):
                 raise RigFault(f"no measurement from the rig at {self.url} for {self.timeout_s:g} s "
                                f"(last sequence {last}): link lost")
             self._accept(packet)
+        self.first_sent_ns = self.sent_ns
         while True:  # measurements that queued up while the host was late: the newest counts, the rest are lost
             packet = self._receive(0.0)
             if packet is None:

@@ -44,6 +44,9 @@ def register(sub) -> None:
     p.add_argument("--cpu-hogs", type=int, default=0,
                    help="CPU-bound processes at normal priority running beside every part (default 0; the "
                         "watchdog target is measured with 2)")
+    p.add_argument("--host-priority", choices=("granted", "none"), default="granted",
+                   help="watchdog: the host's loop at the real-time priority it is granted (default), or none: run "
+                        "without CAP_SYS_NICE, as in a container (SCHED_OTHER, nice 0); the emulator keeps its own")
     p.add_argument("--json", action="store_true", help="print the figures as JSON")
     p.set_defaults(func=run)
 
@@ -171,11 +174,12 @@ def _link_drop(folder: Path, drops: int) -> list[dict]:
     return rows
 
 
-def _watchdog(folder: Path, tests: int, test_s: float) -> list[dict]:
+def _watchdog(folder: Path, tests: int, test_s: float, host_priority: str = "granted") -> list[dict]:
     """``tests`` tests of ``test_s`` through ``isorig simulate --rig`` on an emulator with the rig's 18 ms
     watchdog: how each ended, the watchdog's trips, the lateness of the host's answers as the rig saw them
-    (measurement sent -> command arrived), the periods the rig missed and the host lost, and the longest host
-    stall (when the host's link figures have it)."""
+    (measurement sent -> command arrived), the periods the rig missed and the host lost, the longest stall
+    of the host's answers and, from the loop's period trace (sim.realtime.PeriodTrace), the stalls by cause
+    and what ran before the longest. ``host_priority`` "none": the host runs without CAP_SYS_NICE."""
     rows = []
     frequency_hz = 0.5
     cycles = max(2, int(round(test_s * frequency_hz)))
@@ -186,24 +190,54 @@ def _watchdog(folder: Path, tests: int, test_s: float) -> list[dict]:
             proc = subprocess.run([sys.executable, "-m", "isorig", "simulate", "--rig", emulator.url, "--out",
                                    str(target), "--isolator", "IUT_a", "--supply-bar", "100", "--amplitude-m", "0.02",
                                    "--frequency-hz", str(frequency_hz), "--cycles", str(cycles)],
-                                  capture_output=True, text=True)
+                                  capture_output=True, text=True,
+                                  preexec_fn=_without_sys_nice if host_priority == "none" else None)
         finally:
             status = emulator.stop()
         summary_file = target / "summary.json"
         summary = json.loads(summary_file.read_text()) if summary_file.exists() else {}
         counters = status["counters"]
         link = summary.get("link") or {}
+        trace = (summary.get("pacing") or {}).get("period_trace") or {}
+        longest = (trace.get("longest_stalls") or [None])[0]
         rows.append({"test": i + 1, "exit": proc.returncode, "status": summary.get("status"),
                      "reason": summary.get("reason"), "watchdog_trips": len(status["watchdog_trips"]),
                      "lateness_p99_ms": status["command_latency"]["p99_ms"],
                      "lateness_max_ms": status["command_latency"]["max_ms"],
                      "periods_missed": counters["periods_missed"], "host_lost_periods": summary.get("lost_periods"),
-                     "host_stall_max_ms": link.get("host_stall_max_ms"),
+                     "host_stall_max_ms": link.get("host_stall_max_ms"), "stalls": trace.get("stalls"),
+                     "stall_causes": trace.get("stall_causes"), "longest_stall": longest,
+                     "rig_overruns": counters.get("overruns", 0), "rig_tick_lateness_max_ms":
+                         status["tick_lateness"].get("max_ms"),
                      "priority": (summary.get("pacing") or {}).get("priority")})
         r = rows[-1]
         print(f"[watchdog] {i + 1}/{tests}: {r['status']}, {r['watchdog_trips']} trip(s), p99 "
-              f"{r['lateness_p99_ms']:.3f} ms", file=sys.stderr)
+              f"{r['lateness_p99_ms']:.3f} ms, longest stall {_ms(r['host_stall_max_ms'])} ms "
+              f"({_cause(longest)}), {r['host_lost_periods']} period(s) lost", file=sys.stderr)
     return rows
+
+
+def _ms(value) -> str:
+    return "-" if value is None else f"{value:.2f}"
+
+
+def _cause(stall: dict | None) -> str:
+    """The longest stall's cause and what ran before it, in a few words."""
+    if not stall:
+        return "no stall"
+    pieces = ", ".join(f"{k} {v:.2f}" for k, v in sorted(stall["pieces_ms"].items(), key=lambda kv: -kv[1])[:2])
+    return f"{stall['cause']}; busy {stall['busy_ms']:.2f} ms ({pieces}), waited {stall['wait_ms']:.2f} ms"
+
+
+def _without_sys_nice() -> None:
+    """In the child before exec: CAP_SYS_NICE dropped from the bounding set (so neither SCHED_RR nor a negative
+    nice is granted, as in a container without it) and SCHED_OTHER, nice 0."""
+    import ctypes
+
+    pr_capbset_drop, cap_sys_nice = 24, 23  # <linux/prctl.h>, <linux/capability.h>
+    ctypes.CDLL(None, use_errno=True).prctl(pr_capbset_drop, cap_sys_nice, 0, 0, 0)
+    _normal_priority()
+    os.setpriority(os.PRIO_PROCESS, 0, 0)
 
 
 class CpuHogs:
@@ -250,7 +284,8 @@ def run(args) -> int:
         if "stream" in args.parts:
             results["stream"] = _stream(folder, args.duration_s, args.clients)
         if "watchdog" in args.parts:
-            results["watchdog"] = _watchdog(folder, args.tests, args.test_s)
+            results["watchdog"] = _watchdog(folder, args.tests, args.test_s, args.host_priority)
+            results["host_priority"] = args.host_priority
     results["load_average_end"] = os.getloadavg()
     if args.json:
         print(json.dumps(results, indent=2))
@@ -264,15 +299,24 @@ def _print(results: dict) -> None:
         rows = results["watchdog"]
         print(f"[watchdog] {len(rows)} tests on an 18 ms rig watchdog, {results['cpu_hogs']} CPU hog(s) beside "
               "[target: 0 trips, p99 lateness < 1 ms]")
-        print("  test  status      trips  p99 ms  max ms  rig missed  host lost  longest stall ms  priority")
+        print("  test  status      trips  p99 ms  max ms  rig missed  host lost  stalls  longest stall ms  priority")
         for r in rows:
-            stall = "-" if r["host_stall_max_ms"] is None else f"{r['host_stall_max_ms']:.2f}"
             print(f"  {r['test']:>4}  {str(r['status']):10s}  {r['watchdog_trips']:>5}  {r['lateness_p99_ms']:>6.3f}"
                   f"  {r['lateness_max_ms']:>6.2f}  {r['periods_missed']:>10}  {str(r['host_lost_periods']):>9}"
-                  f"  {stall:>16}  {r['priority']}")
+                  f"  {str(r.get('stalls')):>6}  {_ms(r['host_stall_max_ms']):>16}  {r['priority']}")
+        for r in rows:
+            print(f"  test {r['test']}: longest stall {_ms(r['host_stall_max_ms'])} ms: "
+                  f"{_cause(r.get('longest_stall'))}"
+                  f"; stalls by cause {r.get('stall_causes') or {}}; the rig's own overruns {r.get('rig_overruns')} "
+                  f"(its longest tick lateness {_ms(r.get('rig_tick_lateness_max_ms'))} ms)")
         trips = sum(r["watchdog_trips"] for r in rows)
         worst = max(r["lateness_p99_ms"] for r in rows)
-        print(f"  total: {trips} watchdog trip(s); worst p99 lateness {worst:.3f} ms")
+        stalls = [r["host_stall_max_ms"] for r in rows if r["host_stall_max_ms"] is not None]
+        lost = sum(r["host_lost_periods"] or 0 for r in rows)
+        missed = sum(r["periods_missed"] for r in rows)
+        print(f"  total: {trips} watchdog trip(s); worst p99 lateness {worst:.3f} ms; longest stall "
+              f"{_ms(max(stalls) if stalls else None)} ms [target: no period lost]: {lost} period(s) lost by the host, "
+              f"{missed} missed by the rig; host priority {results.get('host_priority', 'granted')}")
     if "tracking" in results:
         print("[tracking] last two cycles' RMS |y - r| / amplitude, default controller  [target: within 0.1 %]")
         print("  case                          simulated   emulator   difference  status")

@@ -1,0 +1,116 @@
+"""The loop's period trace (issue 33 item 6): every stall of a real-time loop is kept with what ran before it, so a
+piece of periodic work that overruns the period is found by name (sim.realtime.PeriodTrace, backend.worker)."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+from backend.drivers import SimulatedRig
+from backend.safety import default_limits
+from backend.worker import Run, scenario_from_job
+from sim.isolator import PRESETS
+from sim.profiles import SineProfile
+from sim.realtime import PeriodTrace
+from sim.rig import DEFAULT_RIG
+
+P = 1e-3
+
+
+def periods(trace, n, t0=0.0, sent0=0.0):
+    """``n`` on-time periods from ``t0``: the rig sends at k ms, the loop waits from 0.3 ms before, answers 0.1 ms
+    after; the rig's clock is the loop's."""
+    for k in range(n):
+        t = t0 + k * P
+        trace.answered(t - 3e-4, t + 2e-5, t + 1e-4, int((sent0 + k * P) * 1e9), int((sent0 + k * P) * 1e9))
+    return t0 + n * P
+
+
+def test_on_time_periods_make_no_stall():
+    trace = PeriodTrace(P)
+    periods(trace, 100, t0=10.0, sent0=10.0)
+    s = trace.summary()
+    assert s["periods"] == 100 and s["stalls"] == 0 and s["stall_max_ms"] == 0.0 and s["rig_clock_shared"]
+
+
+def test_a_piece_of_work_past_the_period_is_named():
+    """The release after period 49 took 6 ms: the next answer is 6 ms late, and the trace says it was the release."""
+    trace = PeriodTrace(P)
+    t = periods(trace, 50, t0=10.0, sent0=10.0)
+    written = t - P + 1e-4
+    trace.lap("check", written + 2e-4)
+    trace.lap("release", written + 6.2e-3)
+    # the loop waits again at +6.2 ms; the rig's measurements of +1..+6 ms queued, the newest is taken at once
+    trace.answered(written + 6.2e-3, written + 6.25e-3, written + 6.3e-3, int((t - 1e-4 + P) * 1e9),
+                   int((t + 5 * P) * 1e9))
+    s = trace.summary()
+    assert s["stalls"] == 1 and s["stall_causes"] == {"work:release": 1}
+    [stall] = s["longest_stalls"]
+    assert stall["stall_ms"] == 5.3 and stall["pieces_ms"] == {"check": 0.2, "release": 6.0}
+    assert s["ms"]["release"]["max"] == 6.0
+
+
+def test_a_late_rig_and_a_loop_that_did_not_run_are_told_apart():
+    trace = PeriodTrace(P)
+    t = periods(trace, 10, t0=10.0, sent0=10.0)
+    # the rig sent its next measurement 4 ms late; the loop was waiting and answered at once
+    trace.answered(t - 3e-4, t + 4e-3 + 2e-5, t + 4e-3 + 1e-4, int((t + 4e-3) * 1e9), int((t + 4e-3) * 1e9))
+    t = periods(trace, 10, t0=t + 5e-3, sent0=t + 5e-3)
+    # on time from the rig, but the loop ran 3 ms after it arrived (the OS, another thread holding the lock)
+    trace.answered(t - 3e-4, t + 3e-3, t + 3e-3 + 1e-4, int(t * 1e9), int(t * 1e9))
+    assert trace.summary()["stall_causes"] == {"rig": 1, "woke late": 1}
+
+
+def test_the_longest_stalls_are_kept_in_fixed_memory():
+    trace = PeriodTrace(P)
+    t = 0.0
+    for i in range(100):
+        trace.answered(t, t, t)
+        t += P * (2 + i % 7)
+    s = trace.summary()
+    assert s["stalls"] == 99 and len(s["longest_stalls"]) == 20 and s["stall_max_ms"] == 7.0
+    assert not s["rig_clock_shared"]
+
+
+class RealtimeRig(SimulatedRig):
+    """The simulated rig as if in real time: one period at a time, each answered (no compiled path)."""
+
+    run_compiled = None
+
+    def describe(self):
+        return dataclasses.replace(super().describe(), realtime=True)
+
+
+def test_the_worker_names_the_work_that_overran_a_period():
+    """On a rig in real time, a follow check that takes 30 ms once: the run's period trace keeps the stall it
+    made, caused by the check (after the answer of a period, Run.after_answer)."""
+    job = {"test_id": 1, "rig": "simulated", "speed": 1.0,
+           "scenario": {"isolator": PRESETS["IUT_a"].to_dict(), "supply_pa": 100e5,
+                        "profile": [SineProfile(0.01, 2.0, 2, 1).to_dict()], "controller": "servo"},
+           "limits": default_limits(DEFAULT_RIG).to_dict()}
+
+    class Pipe:
+        def send(self, _message):
+            pass
+
+        def poll(self, *_):
+            return False
+
+    run = Run(job, Pipe(), Pipe(), driver=RealtimeRig(scenario_from_job(job).isolator))
+    checks = []
+    judge = run.judge_following
+
+    def slow_once(block):
+        checks.append(len(block))
+        if len(checks) == 20:
+            time.sleep(0.03)
+        return judge(block)
+
+    run.judge_following = slow_once
+    status, _ = run.execute()
+    trace = run.pacing()["period_trace"]
+    assert status == "completed" and len(checks) > 20
+    assert trace["periods"] == run.loop.period
+    # the one the check made (on a loaded machine the OS may add a longer one of its own)
+    [stall] = [r for r in trace["longest_stalls"] if r["pieces_ms"].get("check", 0.0) >= 30.0]
+    assert stall["cause"] == "work:check" and stall["stall_ms"] >= 29.0
