@@ -186,7 +186,7 @@ export class History {
         actions.append(b);
       }
       const tr = el("tr", { class: "link", "data-id": String(t.id), "data-status": t.status },
-        el("td", { text: `#${t.id}` }),
+        el("td", {}, el("a", { class: "test-link", href: `#/tests/${t.id}`, title: `open test #${t.id}`, text: `#${t.id}` })),
         el("td", { class: `rig${t.rig_name === this.thisRig ? " this-rig" : ""}`, text: t.rig_name || "-" }),
         el("td", { text: fmtTime(t.created_at || t.started_at) }),
         el("td", { class: "who", text: t.specimen_id || "-" }),
@@ -200,7 +200,11 @@ export class History {
         ...(isProtocol(t) ? [el("td", { class: "muted", colspan: "2", text: "by level (test page)" })]
           : [el("td", { text: fmtU("stiffness", s.k_eff_n_per_m) }), el("td", { text: fmtU("energy", s.edc_j) })]),
         actions);
-      tr.addEventListener("click", () => { location.hash = `#/tests/${t.id}`; });
+      // the id is a link (a new tab, the keyboard, a copied address); a click anywhere else on the row opens it too
+      tr.addEventListener("click", (ev) => {
+        if (ev.target.closest("a, button") || String(window.getSelection() || "")) return;
+        location.hash = `#/tests/${t.id}`;
+      });
       tbody.append(tr);
     }
     $("history-empty").textContent = archived ? "No archived test matches." : "No test matches.";

@@ -30,6 +30,15 @@ const num = (v) => typeof v === "number" && Number.isFinite(v);
 
 export { metrics }; // window.__isorig: the figures the browser tests read
 
+/** The header's cycle from a record, as the service's status says it: the cycle under way while the test runs,
+ * the cycles done once it has ended; {} when the record does not say. */
+function cycleOf(rec) {
+  if (!rec || !Number.isFinite(rec.cycles_done) || !Number.isFinite(rec.cycles_total) || !rec.cycles_total) return {};
+  if (rec.status !== "running" && !FINAL.has(rec.status)) return {};
+  const running = rec.status === "running";
+  return { cycle: running ? Math.min(rec.cycles_done + 1, rec.cycles_total) : rec.cycles_done, cycles_total: rec.cycles_total };
+}
+
 export class LiveView {
   constructor({ onTest, onLink } = {}) {
     this.onTest = onTest || (() => {});
@@ -267,7 +276,7 @@ export class LiveView {
     state.test = this.test;
     this.renderHead();
     for (const e of (test && test.events) || []) this.noteTrip(e); // the banner below says the trip in words
-    if (test && test.status) this.onStatus({ status: test.status, test_id: id, reason: test.reason });
+    if (test && test.status) this.onStatus({ status: test.status, test_id: id, reason: test.reason, ...cycleOf(test) });
     this.loadLastCycle(id);
     if (test) this.loadStoredLoops(id, test.cycles_done);
     if (test) this.mergeEvents(test.events);
@@ -281,7 +290,8 @@ export class LiveView {
       this.test = rec;
       state.test = rec;
       this.mergeEvents(rec.events);
-      this.onStatus({ status: rec.status, test_id: testId, reason: rec.reason, progress: rec.progress });
+      // the record's cycles: the header said the last streamed cycle ("6 / 30") beside a record of 17 cycles
+      this.onStatus({ status: rec.status, test_id: testId, reason: rec.reason, progress: rec.progress, ...cycleOf(rec) });
       this.renderHeadline();
       if (FINAL.has(rec.status)) this.showEndedLoops(testId);
       changed("test");

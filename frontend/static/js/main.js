@@ -70,12 +70,25 @@ async function reloadRig() {
     const rig = await api.get("/api/rig");
     setup.rig = rig;
     state.rig = rig;
+    document.body.dataset.rigFile = (rig.rig_file && rig.rig_file.name) || "";
     setup.renderFieldMeta();
     setup.formChanged();
     rigLink.setInfo(rig);
     commission.setRig(rig);
     changed("rig");
   } catch { /* the next page load reads it */ }
+}
+
+/** A rig file applied from another console (or a script) changes what the set-up, the rig link and the
+ * Commissioning page assume: the rig-state poll names the rig file in force, and a change of it reads /api/rig
+ * again here too (before, only the console that applied it learnt of it; the others at their next reload). */
+let rigFileSeen = null;
+function followRigFile() {
+  const rf = state.rigState && state.rigState.rig_file;
+  if (!rf) return;
+  const key = JSON.stringify([rf.name, rf.source, rf.how, rf.applied_at, rf.commissioning_id]);
+  if (rigFileSeen !== null && key !== rigFileSeen) reloadRig();
+  rigFileSeen = key;
 }
 
 async function abort() {
@@ -193,6 +206,22 @@ function showAccount() {
   b.dataset.role = account.role || "";
 }
 
+/** The live loop stays whole above the fold (at 1366x768 it was cut off below it during a test): its plot is at
+ * most as tall as the window leaves below the test's header and readouts (at least 240 px). */
+function fitLoopToWindow() {
+  const box = $("plot-loop");
+  const fit = () => {
+    if (!box.offsetParent) return; // another view: measured when the live view shows again
+    const top = box.getBoundingClientRect().top + window.scrollY;
+    const room = Math.max(240, Math.floor(window.innerHeight - top - 18));
+    document.documentElement.style.setProperty("--loop-room", `${room}px`);
+  };
+  const ro = new ResizeObserver(fit);
+  for (const id of ["chrome", "live-head", "readouts", "view-live"]) ro.observe($(id));
+  window.addEventListener("resize", fit);
+  fit();
+}
+
 /** The sticky block (top bar, strip, banner) has a height the panels below must leave free. */
 function trackChromeHeight() {
   const chrome = $("chrome");
@@ -225,6 +254,7 @@ async function pollRigState() {
   };
   const timer = setInterval(poll, 2000);
   let running = false;
+  onState((what) => { if (what === "rigState") followRigFile(); });
   onState((what) => { // back in touch with the service (a reconnect, a restart), or a run ended: ask at once
     if (what === "conn" && state.conn) poll();
     if (what !== "status") return;
@@ -237,6 +267,7 @@ async function pollRigState() {
 
 async function main() {
   trackChromeHeight();
+  fitLoopToWindow();
   const units = $("units");
   units.value = system();
   units.addEventListener("change", () => setSystem(units.value));
@@ -273,6 +304,7 @@ async function main() {
   route();
   strip.render();
   await setup.init();
+  document.body.dataset.rigFile = (setup.rig && setup.rig.rig_file && setup.rig.rig_file.name) || "";
   rigLink.setInfo(setup.rig);
   rigLink.start();
   watchLiveVerdict();

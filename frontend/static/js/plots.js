@@ -75,6 +75,18 @@ function padRange(r, minSpan) {
 const LABEL_FONT = "12px system-ui, sans-serif";
 
 /**
+ * Tick labels with the digits their spacing needs: uPlot's own keep at most 3 decimals, so an axis in metres
+ * (SI units) with ticks 0.0001 apart read "0", "-0", "0" ... Never "-0".
+ */
+export function tickLabels(splits, incr) {
+  const step = Math.abs(incr) || 1;
+  const plain = String(+step.toPrecision(3)); // "0.0001", "0.00025", "2", "1e-7"
+  const decimals = plain.includes("e-") ? Math.min(12, -Math.floor(Math.log10(step)) + 2)
+    : (plain.split(".")[1] || "").length;
+  return splits.map((v) => (Math.abs(v) < step * 1e-6 ? "0" : v.toFixed(decimals)));
+}
+
+/**
  * A scrolling time plot with labelled axes. series: [{label, stroke, width, dash, show}]; the data are typed
  * arrays (NaN = no value) shared with the live buffer, already in display units. Later series are drawn on
  * top (the target, thin and dashed, goes last so it is never hidden under the measured trace).
@@ -89,6 +101,8 @@ export class TimePlot {
       { stroke: AXIS, grid: { stroke: GRID, width: 1 }, ticks: { stroke: GRID }, size: xAxis ? 30 : 6,
         show: xAxis, label: xAxis ? xLabel : undefined, labelSize: 16, labelFont: LABEL_FONT, labelGap: 0 },
       { scale: "y", stroke: AXIS, grid: { stroke: GRID, width: 1 }, ticks: { stroke: GRID }, size: 52,
+        values: (u, splits, axis, space, incr) => (this.yTicks = tickLabels(splits, incr)),
+        size: (u, values) => Math.max(52, 14 + 7 * Math.max(0, ...(values || []).map((v) => String(v).length))),
         label: yLabel, labelSize: 18, labelFont: LABEL_FONT, labelGap: 0 },
     ];
     const rect = el.getBoundingClientRect();
@@ -122,6 +136,7 @@ export class TimePlot {
     return {
       x: this.u.axes[0].show === false ? "" : this.u.axes[0].label,
       y: this.u.axes[1].label,
+      yTicks: this.yTicks || [], // the y axis's tick labels as last drawn
       series: this.u.series.slice(1).map((s) => ({ label: s.label, dash: s.dash || null, width: s.width })),
     };
   }

@@ -2,7 +2,7 @@
 // panel: its state, Approve / Reject for an approver who did not run the test, and for an approved record its
 // SHA-256 with a check against the record as it is now (GET /api/tests/{id}/approval).
 
-import { account, api, askLogin, refreshAccount } from "./api.js";
+import { account, api, askLogin, onAccount, refreshAccount } from "./api.js";
 import { confirmDialog } from "./dialogs.js";
 import { el, fmtTime } from "./ui.js";
 
@@ -47,6 +47,7 @@ export class ReviewPanel {
     $("t-approve").addEventListener("click", () => this.decide("approve"));
     $("t-reject").addEventListener("click", () => this.decide("reject"));
     $("t-verify").addEventListener("click", () => this.verify());
+    onAccount(() => { if (this.t) this.show(this.t); }); // a login or logout here: the hint and buttons follow it
   }
 
   /** Another test's page is loading: nothing of the previous test's review stays, nothing acts on it. */
