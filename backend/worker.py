@@ -353,6 +353,8 @@ class Run:
             if ended is not None:  # the operator ended it while the supply rose: nothing moved
                 status, reason = ended
                 return status, reason
+            if self.motion:
+                self.start_move_where_read()
             status, reason = self._run()
             return status, reason
         except RigFault as exc:
@@ -415,6 +417,43 @@ class Run:
         if loop.stopping:
             return "stopped", f"operator stop; ramped out to t = {loop.time_s:.3f} s"
         return "completed", None
+
+    def start_move_where_read(self) -> None:
+        """A manual move begins where the table reads now, armed, not where it read when the move was asked (a table
+        that settled since, or a reading taken before it came to rest): the move is planned again from this reading,
+        at the same speed to the same end, so it starts at rest with no error to close. The reading must be within
+        the start tolerance of the planned start (``check_start``), else nothing is sent. A rig in real time is
+        answered 0 V (the valve held closed) while the move is planned again, and the loop's period 0 is its next
+        measurement (a long move's target takes longer to plan than its watchdog waits)."""
+        from sim.motion import MotionError, move_target
+
+        driver = self.driver
+        m = driver.read()
+        self.check_start(m)
+        motion = self.job["scenario"]["motion"]
+        planned_m, here_m = float(motion["start_m"]), float(m.position_m)
+        if here_m == planned_m:
+            return
+        if self.rig.realtime:
+            driver.write(0.0)
+        try:
+            self.scenario.history = move_target(here_m, motion["end_m"], motion["speed_m_per_s"])
+        except MotionError as exc:
+            raise RigFault(f"the table reads {here_m * 1e3:.3f} mm at arming; the move from there: {exc}; "
+                           "nothing but 0 V was sent") from None
+        loop = self.loop
+        self.loop = ClosedLoop(loop.profile, loop.controller, loop.command_limit_v,
+                               table=self.scenario.target_table())
+        self.follow = follow_monitor(self.scenario, self.scenario.target_table())
+        self.start_target_m = self.loop.start_target_m
+        if self.rig.realtime:
+            driver.wait_next_period()
+            self.period_base = driver.read().period  # as after a wait for the supply (settle_supply)
+            self.compiled = None
+        self.event("status", f"the move starts where the table reads at arming, {here_m * 1e3:.3f} mm "
+                   f"({(here_m - planned_m) * 1e3:+.3f} mm from the {planned_m * 1e3:.3f} mm read when it was "
+                   f"asked), and lasts {self.loop.total_periods * CONTROL_PERIOD_S:.2f} s",
+                   {"planned_start_m": planned_m, "start_m": here_m}, time_s=0.0)
 
     def ramp_out(self) -> float:
         """The operator's stop: the target ramps out under control (the profile tapers out); the end time in s."""

@@ -587,6 +587,8 @@ class RigEmulator:
                 t0, k = now - self.period_s, 0
                 tick_start = t0
             self.integrate(tick_start)
+            if not self.armed:  # the sensors read every period, sent or not: their delay line holds no stale reading
+                self.plant.measure()
             if stall and self.last_command_time < due:
                 # after integrate: a command that arrived before the stall and is applied now dates from before it
                 self.last_command_time += stall
