@@ -254,7 +254,7 @@ def follow_monitor(scenario, table=None):
         reference = reference_for([], r)
     return FollowMonitor(reference, scenario.rig.position_latency_s, limits_for(scenario.controller),
                          advice_for(scenario.controller), getattr(scenario, "rig_commissioning", None),
-                         scenario.controller)
+                         scenario.controller, getattr(scenario, "effective_controller_options", dict)())
 
 
 def follow_monitor_like(monitor):
@@ -262,7 +262,7 @@ def follow_monitor_like(monitor):
     from .follow import FollowMonitor
 
     return FollowMonitor(monitor.reference, monitor.lag * CONTROL_PERIOD_S, monitor.limits, monitor.advice,
-                         monitor.commissioning, monitor.controller)
+                         monitor.commissioning, monitor.controller, monitor.controller_options)
 
 
 def verdict(trip: Trip | None, diverged: bool = False, time_s: float = 0.0) -> tuple[str, str | None]:
