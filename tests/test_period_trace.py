@@ -4,14 +4,21 @@ piece of periodic work that overruns the period is found by name (sim.realtime.P
 from __future__ import annotations
 
 import dataclasses
+import os
+import re
+import subprocess
+import sys
 import time
+
+import pytest
 
 from backend.drivers import SimulatedRig
 from backend.safety import default_limits
 from backend.worker import Run, scenario_from_job
+from isorig.commands.bench_rig import _without_sys_nice
 from sim.isolator import PRESETS
 from sim.profiles import SineProfile
-from sim.realtime import PeriodTrace
+from sim.realtime import SHORT_SLICE_S, PeriodTrace
 from sim.rig import DEFAULT_RIG
 
 P = 1e-3
@@ -114,3 +121,41 @@ def test_the_worker_names_the_work_that_overran_a_period():
     # the one the check made (on a loaded machine the OS may add a longer one of its own)
     [stall] = [r for r in trace["longest_stalls"] if r["pieces_ms"].get("check", 0.0) >= 30.0]
     assert stall["cause"] == "work:check" and stall["stall_ms"] >= 29.0
+
+
+def _kernel_has_own_slices() -> bool:
+    """Linux 6.12+ on x86_64 or aarch64: a fair task may ask for its own time slice (sched_setattr)."""
+    release = tuple(int(x) for x in os.uname().release.split(".")[:2] if x.isdigit())
+    return os.uname().machine in ("x86_64", "aarch64") and release >= (6, 12)
+
+
+@pytest.mark.skipif(not _kernel_has_own_slices(), reason="a time slice of one's own needs Linux 6.12+")
+def test_a_loop_without_cap_sys_nice_asks_for_a_short_slice_and_gives_it_back():
+    """Without CAP_SYS_NICE (a container) neither SCHED_RR nor nice -10 is granted: the loop asks for the kernel's
+    shortest time slice, which needs no privilege, so that its measurement preempts a CPU hog at once; a run in
+    a process that goes on gives it back (sim.realtime.realtime_priority)."""
+    code = ("import os\nfrom sim.realtime import realtime_priority, sched_slice_s\nbefore = sched_slice_s()\n"
+            "with realtime_priority(10) as granted:\n    inside = sched_slice_s()\n"
+            "print(granted, before, inside, sched_slice_s(), os.sched_getscheduler(0), sep='|')")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         preexec_fn=_without_sys_nice).stdout.strip()
+    granted, before, inside, after, policy = out.split("|")
+    assert granted.startswith(("normal", "nice")) and granted.endswith(", slice 0.1 ms")
+    assert float(inside) == SHORT_SLICE_S and float(after) == float(before) > SHORT_SLICE_S
+    assert int(policy) == os.SCHED_OTHER
+
+
+@pytest.mark.realtime  # a rig emulator and a CPU hog beside: run alone, after the others (scripts/test.sh)
+def test_bench_rig_prints_the_longest_stall_its_cause_and_the_periods_lost(capsys):
+    """``isorig bench-rig --parts watchdog --host-priority none``: the host runs without CAP_SYS_NICE (its
+    priority says so), and each test's longest stall is printed with its cause and the periods lost."""
+    from isorig.cli import main
+
+    assert main(["bench-rig", "--parts", "watchdog", "--tests", "1", "--test-s", "4", "--cpu-hogs", "1",
+                 "--host-priority", "none"]) == 0
+    out = capsys.readouterr().out
+    assert re.search(r"^\s+1\s+\w+\s+\d+\s+[\d.]+.*normal, slice 0\.1 ms$", out, re.M) or \
+        not _kernel_has_own_slices() and re.search(r"^\s+1\s+\w+.*normal$", out, re.M)
+    assert re.search(r"test 1: longest stall [\d.]+ ms: (no stall|[\w: ]+; busy [\d.]+ ms)", out)
+    assert re.search(r"longest stall [\d.]+ ms \[target: no period lost\]: \d+ period\(s\) lost by the host, \d+ "
+                     r"missed by the rig; host priority none", out)

@@ -237,7 +237,10 @@ def _without_sys_nice() -> None:
     pr_capbset_drop, cap_sys_nice = 24, 23  # <linux/prctl.h>, <linux/capability.h>
     ctypes.CDLL(None, use_errno=True).prctl(pr_capbset_drop, cap_sys_nice, 0, 0, 0)
     _normal_priority()
-    os.setpriority(os.PRIO_PROCESS, 0, 0)
+    try:
+        os.setpriority(os.PRIO_PROCESS, 0, 0)
+    except OSError:  # a nice above 0 stays where it is
+        pass
 
 
 class CpuHogs:
