@@ -125,3 +125,49 @@ def test_an_interrupted_tests_header_agrees_with_its_cycles(own_server, open_pag
     steady = rec["summary"]["steady_cycles"]
     assert f"mean of {steady} steady cycle" in page.inner_text("#l-keff-label") and steady <= done
     shots(page, artifacts, "day_interrupted_header")
+
+
+def test_a_commissioning_asks_for_the_login_first_and_every_console_follows_it(own_server, open_page, artifacts):
+    srv = own_server
+    other, _ = open_page(f"{srv.url}/", width=1366, height=768)  # another console, on the live view
+    first_rig = other.get_attribute("body", "data-rig-file")
+    assert first_rig, "the page names the rig file in force"
+    page, _ = open_page(f"{srv.url}/?viewer=off#/commission", width=1366, height=768)  # nobody logged in here
+    page.fill("#c-speed", "10")
+    page.fill("#c-stroke", "2")
+    page.wait_for_selector("#c-start:not([disabled])", timeout=120000)
+    page.click("#c-start")
+    # the login comes first, then the confirmation, which names the account that will run it
+    page.wait_for_selector("#login-dialog[open]", timeout=WAIT_MS)
+    assert not page.is_visible("#confirm-dialog")
+    log_in_dialog(page, OPERATOR)
+    page.wait_for_selector("#confirm-dialog[open]", timeout=WAIT_MS)
+    operator_row = page.locator("#confirm-body tr", has_text="operator").first.inner_text()
+    assert operator_row.split("\t")[-1].strip() == OPERATOR[0], operator_row  # it said "-" when nobody was in
+    shots(page, artifacts, "day_commissioning_confirm")
+    page.click("#confirm-ok")
+    said = poll(lambda: re.match(r"Commissioning #(\d+) started|Not started", page.inner_text("#c-message")), 120,
+                "the start's answer", shown=lambda: page.inner_text("#c-message"))
+    assert said.group(1), page.inner_text("#c-message")
+    cid = int(said.group(1))
+    item = page.locator("#c-earlier li", has=page.locator(f"a[href='#/commission/{cid}']"))
+    item.wait_for(timeout=WAIT_MS)
+    # the run and its fit end; the list follows without leaving the page
+    poll(lambda: srv.call("GET", f"/api/commissioning/{cid}")[1]["state"] not in ("ready", "running", "fitting"),
+         180, "the commissioning and its fit to end")
+    res = srv.call("GET", f"/api/commissioning/{cid}")[1]
+    ended = f"{res['status']} \u00b7 {res['state'].replace('_', ' ')}"  # "completed · trusted"
+    poll(lambda: item.inner_text().endswith(ended), 15, f"the list saying {ended!r}", shown=item.inner_text)
+    shots(page, artifacts, "day_commissioning_ended")
+    assert res["state"] == "trusted", res.get("words")
+    # applied here: the other console learns of it without a reload
+    page.wait_for_selector("#c-apply:not([disabled])", timeout=WAIT_MS)
+    page.click("#c-apply")
+    page.wait_for_selector("#confirm-dialog[open]", timeout=WAIT_MS)
+    page.click("#confirm-ok")
+    name = res["rig_file"]["name"]
+    poll(lambda: other.get_attribute("body", "data-rig-file") == name, 15, "the other console's rig file",
+         shown=lambda: other.get_attribute("body", "data-rig-file"))
+    assert name != first_rig
+    other.wait_for_selector(f"#s-rigfile:has-text('{name}')", timeout=WAIT_MS)
+    shots(other, artifacts, "day_other_console_rig_file")

@@ -8,7 +8,7 @@
 // (POST /api/commissioning/{id}/apply).
 
 import uPlot from "../vendor/uplot/uPlot.esm.js";
-import { NewestOnly, account, api, errorField, operatorPost } from "./api.js";
+import { NewestOnly, account, api, askLogin, errorField, operatorPost, refreshAccount } from "./api.js";
 import { confirmDialog, summaryTable } from "./dialogs.js";
 import { parseNumber } from "./parse.js";
 import { onState, sourceWords, state, tablePosition, testRunning } from "./state.js";
@@ -332,6 +332,16 @@ export class CommissionPage {
 
   async start() {
     this.say("", "");
+    // who commissions is asked before the confirmation, which names them (it said operator "-", then asked)
+    if (!account.name) await refreshAccount();
+    if (!account.name && !(await askLogin("commissioning moves the rig: log in as an operator"))) {
+      this.say("Not started: nobody is logged in on this console.", "");
+      return;
+    }
+    if (!["operator", "approver", "admin"].includes(account.role)) {
+      this.say(`Not started: ${account.name} is ${account.role}; commissioning needs the role operator or above.`, "error");
+      return;
+    }
     this.formChanged();
     clearTimeout(this.checkTimer); // this start asks now; a timer's check would supersede its answer
     await this.askCheck();
@@ -630,6 +640,12 @@ export class CommissionPage {
       return;
     }
     $("c-run-title").textContent = `Commissioning #${res.id}`;
+    // the earlier-commissionings list follows this one's status and state (it said "running" after the end)
+    const shown = `${res.id} ${res.status} ${res.state}`;
+    if (this.visible && this.listedFor !== shown) {
+      this.listedFor = shown;
+      this.listEarlier();
+    }
     $("c-run-what").textContent = `${res.status}${res.reason ? ` (${res.reason})` : ""} \u00b7 started ${fmtTime(res.started_at || res.created_at)}` +
       ` \u00b7 ${res.isolator === "none" ? "no specimen" : `specimen ${res.isolator}`} \u00b7 ${fmtU("pressure", res.supply_bar * 1e5)}` +
       ` \u00b7 vertical load ${fmtU("force", res.vertical_load_n, { sig: 4 })} \u00b7 rig told of: ${res.rig || "-"}` +
