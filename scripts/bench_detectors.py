@@ -7,6 +7,14 @@ numpy path fed as before the compiled follow judge (the figure before it) and ch
 
 Usage: .venv/bin/python scripts/bench_detectors.py [--runs 100] [--rounds 2] [--reference] [--campaign FILE]
 (--runs plants, each run with every controller of the campaign: 100 plants are 200 runs.)
+
+--oscillations (issue 32 item 5): the follow detector's delay on oscillations that start mid-test (our rig, the
+oil column's bulk modulus or mass changed at 4.3 s, the servo told the rig as it was) and its false trips on good
+runs (the paper's scenarios with mrac and servo, our rig with servo and pid, rigs told exactly, --runs plants of
+the campaign, and the commissioned foreign rigs of --foreign-seeds): each record is made once without detectors
+and judged by the monitor (nothing acts before the first trip, so it is the run's first trip) as it is and with
+the rule before the steady cycles' bound (steady_oscillation_share = oscillation_share). A good run is one whose
+tracking verdict is followed or outside_target; a trip on it is a false trip.
 """
 
 from __future__ import annotations
@@ -42,13 +50,162 @@ def trip_key(result):
     return None if trip is None else (trip.detector, trip.index, trip.time_s, trip.message, repr(trip.values))
 
 
+INJECTED_AT_S = 4.3
+INJECTIONS = {"bulk 2e8 Pa": {"bulk_modulus_pa": 2.0e8}, "bulk 2.5e8 Pa": {"bulk_modulus_pa": 2.5e8},
+              "bulk 3e8 Pa": {"bulk_modulus_pa": 3.0e8},
+              "5000 kg, 3e8 Pa": {"mass_kg": 5000.0, "bulk_modulus_pa": 3.0e8},
+              "3000 kg, 4.5e8 Pa": {"mass_kg": 3000.0, "bulk_modulus_pa": 4.5e8}}
+SINES = [(0.02, 0.5), (0.01, 1.0), (0.005, 0.5), (0.002, 1.0), (0.03, 1.0)]
+
+
+def judged_twice(scenario, samples):
+    """The follow monitor's first trip on a record, today's and with the rule before the steady cycles' bound."""
+    import dataclasses
+
+    from sim.detectors import follow_monitor
+
+    now = follow_monitor(scenario)
+    before = follow_monitor(scenario)
+    before.limits = dataclasses.replace(before.limits, steady_oscillation_share=before.limits.oscillation_share)
+    return now.feed(samples), before.feed(samples)
+
+
+def describe(trip) -> str:
+    if trip is None:
+        return "not stopped"
+    f = trip.values.get("frequency_hz")
+    return f"{trip.kind} at {trip.time_s:.3f} s" + (f" ({f:.0f} Hz)" if f else "")
+
+
+def good_runs(args) -> list:
+    """(label, scenario) of runs without a change mid-test: the paper's, our rig, rigs told exactly, the campaign's."""
+    import numpy as np
+
+    from sim.engine import Scenario
+    from sim.paper import paper_scenarios
+    from sim.rig import DEFAULT_RIG
+
+    runs = [(f"paper {s.label} {c}", s) for c in ("mrac", "servo") for s in paper_scenarios(c)]
+    for iso, bar in (("IUT_a", 100.0), ("IUT_b", 70.0)):
+        for a, f in [(0.02, 0.5), (0.002, 1.0), (0.0005, 1.0), (0.03, 1.0), (0.01, 2.0)]:
+            for c in ("servo", "pid"):
+                runs.append((f"{iso} {a * 1e3:g} mm {f:g} Hz {c}", Scenario.sine(iso, bar, a, f, 12, controller=c)))
+    told = {"soft": {"mass_kg": 3000.0, "bulk_modulus_pa": 4.5e8}, "heavy": {"mass_kg": 5000.0, "bulk_modulus_pa": 3e8},
+            "drawn": {"mass_kg": 1686.0, "bulk_modulus_pa": 3.9e8, "valve_natural_frequency_rad_s": 2 * np.pi * 52.7,
+                      "dead_zone_v": 0.75, "position_latency_s": 1.83e-3}}
+    for name, plant in told.items():
+        for a, f in [(0.02, 0.5), (0.002, 1.0), (0.0005, 1.0)]:
+            runs.append((f"told {name} {a * 1e3:g} mm {f:g} Hz", Scenario.sine(
+                "IUT_a", 100.0, a, f, 12, rig=DEFAULT_RIG.with_changes(**plant), plant_changes=plant)))
+    if args.runs:
+        runs += [(f"campaign {s.label}", s) for s in campaign_scenarios(args)]
+    return runs
+
+
+def foreign_runs(seeds) -> list:
+    """(label, scenario) of the foreign rigs commissioned as isorig compare --foreign-rigs does (the trusted ones)."""
+    from foreign_rigs import draw_rig
+    from sim.commission import foreign_campaign as fc
+    from sim.engine import Scenario
+
+    runs = []
+    for seed in seeds:
+        spec = draw_rig(seed)
+        run = fc.ForeignRun(seed)
+        ident = fc.commission(spec, fc.declared_rig(spec.lab_knows()), run.max_stroke_m, run.max_velocity_m_per_s)
+        if not ident.trusted:
+            print(f"  foreign rig {seed}: not commissioned on the first attempt, left out")
+            continue
+        section = fc.commissioning_section(ident, run.max_velocity_m_per_s)
+        for label, a, f, _target in run.cases:
+            runs.append((f"foreign {seed} {label}", Scenario.sine(
+                fc.load_isolator(fc.CONTROLLER_ISOLATOR), fc.SUPPLY_PA / 1e5, a, f, fc.TEST_CYCLES, rig=ident.rig,
+                vertical_load_n=float(spec.drawn["table.vertical_load_n"]), foreign_rig=spec,
+                rig_commissioning=section)))
+    return runs
+
+
+def oscillations(args) -> int:
+    """Print the detection delays on injected oscillations and the false trips on good runs."""
+    from sim.engine import Scenario, Simulation
+
+    print(f"oscillations that start at {INJECTED_AT_S} s (servo, IUT_a, 100 bar; told the rig as it was):")
+    delays, before_delays, late_or_missed = [], [], 0
+    for a, f in SINES:
+        for name, change in INJECTIONS.items():
+            s = Scenario.sine("IUT_a", 100.0, a, f, 8 if f <= 0.5 else 14,
+                              timed_changes=[(INJECTED_AT_S, k, v) for k, v in change.items()])
+            result = Simulation(s, validate=False).run()
+            now, before = judged_twice(s, result.samples)
+            if now is None and before is None:
+                print(f"  {a * 1e3:4g} mm {f:g} Hz, {name:18s}: not stopped (either rule)")
+                continue
+            d = None if now is None else now.time_s - INJECTED_AT_S
+            b = None if before is None else before.time_s - INJECTED_AT_S
+            delays.append(d)
+            before_delays.append(b)
+            late_or_missed += d is None or d > 2.0
+            print(f"  {a * 1e3:4g} mm {f:g} Hz, {name:18s}: {describe(now):32s} delay "
+                  f"{'-' if d is None else f'{d:.2f} s':7s} (before: {describe(before)}, "
+                  f"{'-' if b is None else f'{b:.2f} s'})")
+    stopped = [d for d in delays if d is not None]
+    new = sum(b is None for b in before_delays)
+    worst_before = max(x for x in before_delays if x is not None)
+    print(f"stopped {len(stopped)} of {len(delays)} (that either rule stops); delay from the change: max "
+          f"{max(stopped):.2f} s, median {sorted(stopped)[len(stopped) // 2]:.2f} s; later than 2 s or not stopped: "
+          f"{late_or_missed}, of them {new} the rule before did not stop at all (before: max {worst_before:.2f} s, "
+          f"later than 2 s or not stopped {sum(x is None or x > 2.0 for x in before_delays)})")
+
+    runs = good_runs(args)
+    if args.foreign_seeds:
+        runs += foreign_runs(args.foreign_seeds)
+    good = false_now = false_before = 0
+    changed = []
+    for label, s in runs:
+        result = Simulation(s, validate=False).run()
+        verdict = result.summary()["tracking_verdict"]["verdict"]
+        now, before = judged_twice(s, result.samples)
+        if verdict in ("followed", "outside_target"):
+            good += 1
+            false_now += now is not None
+            false_before += before is not None
+            if now is not None or before is not None:
+                print(f"  a good run stopped: {label} ({verdict}): {describe(now)}, before {describe(before)}")
+        if describe(now) != describe(before):
+            changed.append(f"  {label} ({verdict}): {describe(now)}, before {describe(before)}")
+    print(f"runs without a change mid-test: {len(runs)}; good runs (followed or outside the target): {good}; "
+          f"false trips among them: {false_now} (before: {false_before})")
+    print(f"runs whose first trip changed: {len(changed)}")
+    print("\n".join(changed))
+    return 0 if late_or_missed == 0 and false_now <= false_before else 1
+
+
+def campaign_scenarios(args) -> list:
+    """The scenarios of the campaign (--campaign, or the one docs/compare.md shows), --runs plants."""
+    from sim.campaign import load_campaign
+
+    if args.campaign:
+        campaign = load_campaign(args.campaign)
+    else:
+        with tempfile.TemporaryDirectory() as folder:
+            path = Path(folder) / "lab_spread.toml"
+            path.write_text(documented_campaign())
+            campaign = load_campaign(path)
+    campaign.runs = args.runs
+    return [point.scenario(campaign.cycles) for point in campaign.points()]
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--runs", type=int, default=100, help="plants drawn (each run with every controller)")
     p.add_argument("--rounds", type=int, default=2, help="passes of each kind, alternated (the best is shown)")
     p.add_argument("--reference", action="store_true", help="also time the per-block numpy path (before)")
     p.add_argument("--campaign", help="a campaign file (default: the one docs/compare.md shows)")
+    p.add_argument("--oscillations", action="store_true", help="the follow detector's delays and false trips")
+    p.add_argument("--foreign-seeds", type=int, nargs="*", default=[], help="with --oscillations: foreign rigs")
     args = p.parse_args(argv)
+    if args.oscillations:
+        return oscillations(args)
 
     from sim.campaign import load_campaign
     from sim.engine import Simulation, run_judged, warm_up

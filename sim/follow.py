@@ -91,8 +91,7 @@ def _option_value(controller: str, name: str, options: dict | None) -> float | N
     """The value the run used for a controller option: the run's own, else the controller's default."""
     if options and isinstance(options.get(name), (int, float)) and not isinstance(options.get(name), bool):
         return float(options[name])
-    from .controllers import servo
-    from .controllers import pid
+    from .controllers import pid, servo
 
     specs = {"servo": servo.OPTIONS, "pid": pid.OPTIONS}.get(controller, {})
     default = specs[name].default if name in specs else None
