@@ -231,6 +231,7 @@ class Run:
         self.driver = driver or make_driver(job.get("rig", SIMULATED), self.scenario, job.get("link"),
                                             job.get("table_position_m") or 0.0)
         self.motion = job["scenario"].get("motion") is not None  # a manual move: a stop holds where it is
+        self.move_guard = self.new_move_guard() if self.motion else None  # a table that runs away from it stops
         self.rig = self.driver.describe()
         if abs(self.rig.control_period_s - CONTROL_PERIOD_S) > 1e-9:
             raise ValueError(f"the rig {self.rig.name!r} runs at a control period of {self.rig.control_period_s:g} s; "
@@ -417,6 +418,23 @@ class Run:
         if loop.stopping:
             return "stopped", f"operator stop; ramped out to t = {loop.time_s:.3f} s"
         return "completed", None
+
+    def new_move_guard(self):
+        """A manual move's velocity guard (sim.motion.MoveGuard), at the move's speed."""
+        from sim.motion import MoveGuard
+
+        speed = self.job["scenario"]["motion"]["speed_m_per_s"]
+        return MoveGuard(speed, commissioned=self.scenario.rig_commissioning is not None)
+
+    def move_guard_trip(self, block: Samples, trip: Trip | None) -> Trip | None:
+        """The first of the limits' ``trip`` and the move guard's in this block (the guard judges every block of a
+        move until a trip, so its velocity spans the blocks)."""
+        if self.trip is not None:
+            return trip
+        guard = self.move_guard.check(block)
+        if guard is not None and (trip is None or guard.index <= trip.index):
+            return guard
+        return trip
 
     def start_move_where_read(self) -> None:
         """A manual move begins where the table reads now, armed, not where it read when the move was asked (a table
@@ -670,6 +688,8 @@ class Run:
             block = self.periods(m)
             done += len(block)
             trip = self.monitor.check(block, valve_close_only=self.trip is not None)
+            if self.move_guard is not None:
+                trip = self.move_guard_trip(block, trip)
             if self.trip is None and (trip is None or trip.action == "controlled_stop"):
                 guard = self.guard_trip(block)  # the target began braking before the limit: that comes first
                 trip = guard or trip

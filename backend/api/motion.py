@@ -2,8 +2,9 @@
 
 A move is recorded as a run of its own (profile kind ``move``): the same worker, loop, limits and stop paths
 as a test, the valve closed at its end, the reason recorded. It starts where the table rests (the rig's own
-reading for a UDP rig) and follows a minimum-jerk target at the asked peak speed (sim.motion); a stop holds
-the table where it is.
+reading for a UDP rig; the worker plans it again from the reading at arming) and follows a minimum-jerk target at
+the asked peak speed (sim.motion); a stop holds the table where it is, and the move's guard (sim.motion.MoveGuard)
+closes the valve on a table that runs away from it.
 """
 
 from __future__ import annotations

@@ -1,7 +1,9 @@
 """`isorig move`: move a rig's table to a position at a safe speed, without the service (manual motion).
 
 Same loop, limits and stop paths as a test (backend.worker.run_here); the target is a minimum-jerk move
-from where the rig says its table rests (sim.motion). Ctrl-C stops the move where it is (valve closed).
+from where the rig says its table rests (sim.motion; the worker plans it again from the reading at arming). Ctrl-C
+stops the move where it is (valve closed); a table that runs away from it is stopped by the move's guard
+(sim.motion.MoveGuard: valve closed at once).
 """
 
 from __future__ import annotations
@@ -47,7 +49,7 @@ def run(args) -> int:
     from backend.drivers import rig_kind
     from sim.engine import Scenario
     from sim.isolator import PRESETS
-    from sim.motion import MotionError, check_move, check_speed, move_target
+    from sim.motion import MotionError, check_move, check_speed, move_guard_m_per_s, move_target
     from sim.profiles import ProfileError
     from sim.rig import BAR_PA
 
@@ -79,7 +81,8 @@ def run(args) -> int:
     motion = {"start_m": start_m, "end_m": args.position_m, "speed_m_per_s": args.speed_m_per_s}
     job = rig_job(args.rig, scenario, security=options, motion=motion, history_target=None)
     print(f"moving the table on {args.rig} from {start_m * 1e3:.2f} mm to {args.position_m * 1e3:.2f} mm at "
-          f"{args.speed_m_per_s * 1e3:g} mm/s ({scenario.duration_s:.1f} s; Ctrl-C stops it where it is); rig: "
+          f"{args.speed_m_per_s * 1e3:g} mm/s ({scenario.duration_s:.1f} s; Ctrl-C stops it where it is; the valve "
+          f"closes if the table runs faster than {move_guard_m_per_s(args.speed_m_per_s) * 1e3:.3g} mm/s); rig: "
           f"{described.name} ({described.source})")
     _run, sent, status, reason, wall_s = run_job(job, interrupt="stop")
     samples = sent.samples()

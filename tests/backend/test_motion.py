@@ -165,3 +165,35 @@ def test_a_sine_can_run_about_where_the_table_rests(client):
     assert r.status_code == 409 and f"move the table to {at * 1e3:.2f} mm first" in r.json()["detail"]
     r = client.post("/api/tests?start=true", json=sine_test(profile={"start_m": 0.2}), headers=AUTH)
     assert r.status_code == 422 and r.json()["field"].endswith("start_m")
+
+
+def test_the_move_guard_trips_where_the_measured_velocity_first_passes_twice_the_speed_plus_5_mm_s():
+    """sim.motion.MoveGuard over a move's blocks: the velocity spans the blocks (5 ms of readings), the trip is the
+    first period beyond 2 x speed + 5 mm/s and closes the valve at once; a stop's open-loop rows are not judged."""
+    from sim.measurement import FLAG_OPEN_LOOP
+    from sim.motion import MOVE_GUARD, MoveGuard, move_guard_m_per_s
+    from sim.safety import measured_velocity
+    from sim.samples import Samples
+
+    assert move_guard_m_per_s(0.005) == pytest.approx(0.015) and move_guard_m_per_s(0.02) == pytest.approx(0.045)
+    n, dt = 60, 1e-3
+    v = np.linspace(0.0, 0.03, n)  # a table that runs away: 0 to 30 mm/s in 60 ms
+    y = 0.001 + np.concatenate([[0.0], np.cumsum(v[1:] * dt)])
+    rows = Samples.empty(n)
+    rows.array[:, :] = 0.0
+    for name, values in (("time_s", np.arange(n) * dt), ("measured_displacement_m", y), ("target_m", y)):
+        rows.array[:, rows.fields.index(name)] = values
+    expected = int(np.flatnonzero(np.abs(measured_velocity(y)) > 0.015)[0])
+    found = {}
+    for flags in (0, FLAG_OPEN_LOOP):
+        rows.array[:, rows.fields.index("flags")] = flags
+        guard = MoveGuard(0.005)
+        for k in range(0, n, 10):  # the worker's blocks of 10 periods
+            trip = guard.check(Samples(rows.array[k: k + 10]))
+            if trip is not None:
+                found[flags] = (k + trip.index, trip)
+                break
+    assert list(found) == [0]  # the open-loop rows of a stop: not judged
+    k, trip = found[0]
+    assert k == expected and trip.detector == MOVE_GUARD and trip.close_at_once and trip.action == "valve_close"
+    assert trip.values["velocity_m_per_s"] > 0.015 and "commission it" in trip.message

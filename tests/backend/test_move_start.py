@@ -1,6 +1,7 @@
-"""A manual move starts gently from rest where the table reads at arming, not from an older reading
-(backend.worker.Run.start_move_where_read), against the simulated rig in this process and the rig emulator in its
-own process."""
+"""A manual move starts gently from rest where the table reads at arming (not from an older reading), and a table
+that runs away from a move anyway is stopped by the move guard, valve closed, before the rig's velocity limit
+(sim.motion.MoveGuard, backend.worker.Run.start_move_where_read). Against the simulated rig in this process and
+the rig emulator in its own process."""
 
 from __future__ import annotations
 
@@ -12,13 +13,15 @@ import pytest
 from emulator import Emulator
 
 from backend.worker import WORKER_RR_PRIORITY, AbortSwitch, Collector, Run
+from foreign_rigs import draw_rig
 from isorig.commands.rig_run import resting_position_m, rig_job
+from sim.commission.foreign_campaign import declared_rig
 from sim.engine import Scenario
 from sim.isolator import PRESETS
-from sim.motion import move_target
+from sim.motion import MOVE_GUARD, move_guard_m_per_s, move_target
 from sim.realtime import realtime_priority
 from sim.rig import DEFAULT_RIG
-from sim.safety import measured_velocity, velocity_readings
+from sim.safety import default_limits, measured_velocity, velocity_readings
 
 #: what a move that starts at rest and follows its target may reach: its speed twice over plus 2 mm/s (a table
 #: that follows peaks within a few % of the speed; the start transient reached 56.8 mm/s on a 5 mm/s move)
@@ -119,3 +122,29 @@ def test_a_move_from_where_a_stop_left_the_table_starts_at_rest_on_the_emulator(
     finally:
         status = emulator.stop()
     assert not status["armed"] and status["command_v"] == 0.0
+
+
+FOREIGN_SEED = 8  # a double-rod, underlapped 127 Hz valve, 5177 kg: uncommissioned, a 5 mm/s move runs away
+
+
+@pytest.mark.realtime
+def test_the_move_guard_stops_a_runaway_on_an_uncommissioned_foreign_rig_before_its_velocity_limit(tmp_path):
+    """Told only what its lab knows (not commissioned), the servo's loop on this foreign rig is unstable: without
+    the guard a 5 mm/s move reached 127 mm/s, past the rig's 91 mm/s velocity limit, before the limit closed the
+    valve. The guard stops it at 15 mm/s, valve closed at once, the reason recorded, and the table never passes
+    the rig's limit on its way to rest."""
+    rig = declared_rig(draw_rig(FOREIGN_SEED).lab_knows())
+    rig_limit = default_limits(rig).velocity_m_per_s
+    emulator = Emulator(tmp_path, "--foreign-rig", str(FOREIGN_SEED))
+    try:
+        status, reason, s, _, trips = run_move(emulator.url, rig, 0.003, 0.005)
+    finally:
+        em = emulator.stop()
+    assert status == "aborted" and reason.startswith("move guard tripped"), reason
+    assert "commission it" in reason
+    guard = move_guard_m_per_s(0.005)
+    assert f"{guard * 1e3:.4g} mm/s" in reason
+    assert peak_velocity_m_per_s(s) < rig_limit  # never past the rig's limit, the coast to rest included
+    assert [t["values"]["detector"] for t in trips] == [MOVE_GUARD]
+    assert trips[0]["values"]["velocity_m_per_s"] == pytest.approx(guard, rel=2.0)  # stopped near the guard
+    assert s["voltage_v"][-1] == 0.0 and not em["armed"] and em["command_v"] == 0.0
