@@ -19,7 +19,8 @@ def _admin_list(server) -> list[dict]:
     import json
     import urllib.request
 
-    login = urllib.request.Request(f"{server.url}/api/session", method="POST", headers={"Content-Type": "application/json"},
+    login = urllib.request.Request(f"{server.url}/api/session", method="POST",
+                                   headers={"Content-Type": "application/json"},
                                    data=json.dumps({"name": ADMIN[0], "password": ADMIN[1]}).encode())
     with urllib.request.urlopen(login, timeout=30) as r:
         cookie = r.headers["set-cookie"].split(";", 1)[0]

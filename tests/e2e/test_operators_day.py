@@ -15,8 +15,25 @@ from .harness import OPERATOR, TOKEN, WAIT_MS, Server, log_in_dialog, poll, shot
 APPROVER = ("e2e-day-approver", "e2e-day-approver-password")
 
 
+def _start_slowly(srv: Server, body: dict, timeout_s: float = 180.0) -> int:
+    """server.start_test with time for a fresh service's first start on a loaded machine (its worker process is
+    made then; the harness's 30 s were not always enough)."""
+    import json
+    import urllib.request
+
+    def post(path: str, data: dict | None) -> dict:
+        req = urllib.request.Request(f"{srv.url}{path}", method="POST", data=json.dumps(data or {}).encode(),
+                                     headers={"Content-Type": "application/json", "Authorization": f"Bearer {TOKEN}"})
+        with urllib.request.urlopen(req, timeout=timeout_s) as r:
+            return json.loads(r.read())
+
+    test_id = post("/api/tests", body)["id"]
+    post(f"/api/tests/{test_id}/start", None)
+    return test_id
+
+
 def _ended_test(server, **kw) -> int:
-    test_id = server.start_test(sine_test(**{"cycles": 2, "speed": 4.0, **kw}))
+    test_id = _start_slowly(server, sine_test(**{"cycles": 2, "speed": 4.0, **kw}))
     assert server.wait_status(test_id, {"completed"}, timeout_s=60)["status"] == "completed"
     return test_id
 
@@ -58,7 +75,7 @@ def test_the_review_hint_follows_a_login_and_a_logout(server, open_page, artifac
 def test_the_live_view_during_a_test_in_si_units(server, open_page, artifacts, width, height):
     page, _ = open_page(f"{server.url}/", width=width, height=height)
     page.select_option("#units", "si")
-    test_id = server.start_test(sine_test(amplitude_m=0.01, frequency_hz=1.0, cycles=8, speed=1.0, isolator="IUT_a",
+    test_id = _start_slowly(server, sine_test(amplitude_m=0.01, frequency_hz=1.0, cycles=8, speed=1.0, isolator="IUT_a",
                                           supply_bar=100.0))
     try:
         page.wait_for_function(f"window.__isorig.testId === {test_id} && window.__isorig.samples > 1500",
@@ -78,23 +95,6 @@ def test_the_live_view_during_a_test_in_si_units(server, open_page, artifacts, w
     finally:
         server.call("POST", f"/api/tests/{test_id}/abort", token=True)
         server.wait_status(test_id, {"aborted", "completed"}, timeout_s=60)
-
-
-def _start_slowly(srv: Server, body: dict, timeout_s: float = 180.0) -> int:
-    """server.start_test with time for a fresh service's first start on a loaded machine (its worker process is
-    made then; the harness's 30 s were not always enough)."""
-    import json
-    import urllib.request
-
-    def post(path: str, data: dict | None) -> dict:
-        req = urllib.request.Request(f"{srv.url}{path}", method="POST", data=json.dumps(data or {}).encode(),
-                                     headers={"Content-Type": "application/json", "Authorization": f"Bearer {TOKEN}"})
-        with urllib.request.urlopen(req, timeout=timeout_s) as r:
-            return json.loads(r.read())
-
-    test_id = post("/api/tests", body)["id"]
-    post(f"/api/tests/{test_id}/start", None)
-    return test_id
 
 
 @pytest.fixture
