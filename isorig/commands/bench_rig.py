@@ -207,6 +207,7 @@ def _watchdog(folder: Path, tests: int, test_s: float, host_priority: str = "gra
                      "periods_missed": counters["periods_missed"], "host_lost_periods": summary.get("lost_periods"),
                      "host_stall_max_ms": link.get("host_stall_max_ms"), "stalls": trace.get("stalls"),
                      "stall_causes": trace.get("stall_causes"), "longest_stall": longest,
+                     "trips_at_s": [trip.get("test_time_s") for trip in status["watchdog_trips"]],
                      "rig_overruns": counters.get("overruns", 0), "rig_tick_lateness_max_ms":
                          status["tick_lateness"].get("max_ms"),
                      "priority": (summary.get("pacing") or {}).get("priority")})
@@ -312,6 +313,9 @@ def _print(results: dict) -> None:
                   f"{_cause(r.get('longest_stall'))}"
                   f"; stalls by cause {r.get('stall_causes') or {}}; the rig's own overruns {r.get('rig_overruns')} "
                   f"(its longest tick lateness {_ms(r.get('rig_tick_lateness_max_ms'))} ms)")
+            if r["watchdog_trips"] or r["status"] != "completed":
+                print(f"  test {r['test']}: {r['status']} ({r['reason']}); the rig's watchdog tripped at t = "
+                      f"{', '.join(f'{t:.3f}' for t in r.get('trips_at_s') or [])} s")
         trips = sum(r["watchdog_trips"] for r in rows)
         worst = max(r["lateness_p99_ms"] for r in rows)
         stalls = [r["host_stall_max_ms"] for r in rows if r["host_stall_max_ms"] is not None]
