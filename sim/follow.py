@@ -11,7 +11,8 @@ target (the target of ``L`` ago for a reading ``L`` late, as the servo aims) and
   multiple of the test frequency is tracking error, never an oscillation: the smaller of the RMS of the
   high-passed error and of it less its value one test period earlier) has an RMS above ``oscillation_share`` of
   the amplitude (at least ``floor_m``) over the last ``oscillation_window_s``, anywhere in the test after its
-  first ``oscillation_window_s``;
+  first ``oscillation_window_s``; in the steady cycles (``Reference.settled``, no period lost in the last second)
+  above ``steady_oscillation_share``, so an oscillation that starts mid-test is stopped within 2 s;
 - on **tracking** that the learning does not bring within ``rms_share``: at the end of each steady cycle of a
   sine block after its first ``learning_cycles``, the cycle's RMS error is above ``rms_share`` of the amplitude
   and either it fell by less than ``min_improvement`` since the cycle before, or ``improving_cycles`` more
