@@ -59,3 +59,27 @@ def test_the_command_prints_the_flag_to_change(capsys, tmp_path):
     out = capsys.readouterr().out
     assert "--max-velocity-m-per-s 0.04" in out and "no rig file written" in out
     assert not (tmp_path / "rig.json").exists()
+
+
+def test_the_commissioning_campaign_tells_its_tests_how_the_rig_was_commissioned(monkeypatch):
+    """sim.commission.campaign runs its tests with the commissioning's section (the follow monitor then names an
+    oscillation as the controller's, the verdict judges the latency within its uncertainty), as the service does."""
+    from sim.commission import campaign
+    from sim.isolator import load_isolator
+
+    seen = []
+
+    class Recorder:
+        def __init__(self, scenario, validate=True):
+            seen.append(scenario.rig_commissioning)
+            raise RuntimeError("recorded")
+
+    monkeypatch.setattr(campaign, "Simulation", Recorder)
+    run = campaign.CommissioningRun(0, {}, load_isolator("IUT_a"), 100.0, (), 1.25e5)
+    spec = campaign.TestSpec(0.002, 1.0, 4)
+    section = {"trusted": True, "max_velocity_m_per_s": 0.02,
+               "estimates": {"position_latency_s": {"value": 1e-3, "std": 1e-4}}}
+    for commissioning in (section, None):
+        with pytest.raises(RuntimeError, match="recorded"):
+            campaign.tested(run, DEFAULT_RIG, spec, commissioning)
+    assert seen == [section, None]

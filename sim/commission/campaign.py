@@ -25,6 +25,7 @@ import numpy as np
 from ..engine import Scenario, Simulation
 from ..isolator import Isolator
 from ..rig import DEFAULT_RIG, RigParameters
+from .foreign_campaign import commissioning_section
 from .identify import DEFAULT_MAX_STROKE_M, DEFAULT_MAX_VELOCITY_M_PER_S, Conditions, excitation_scenario, identify
 
 #: the targets of issue 20 (last two cycles' RMS |y - r| / amplitude after commissioning), by (amplitude, Hz)
@@ -78,11 +79,14 @@ def plant_changes_from(rig: RigParameters, truth: RigParameters) -> dict:
             if getattr(truth, name) != getattr(rig, name) and name != "vertical_load_n"}
 
 
-def tested(run: CommissioningRun, rig: RigParameters, spec: TestSpec) -> dict:
-    """One test on the drawn rig with the controller told ``rig``; with the follow monitor."""
+def tested(run: CommissioningRun, rig: RigParameters, spec: TestSpec, commissioning: dict | None = None) -> dict:
+    """One test on the drawn rig with the controller told ``rig`` (and how it was commissioned: the follow monitor
+    names an oscillation on a commissioned rig as the controller's, the verdict judges the latency within its
+    uncertainty); with the follow monitor."""
     s = Scenario.sine(run.isolator, run.supply_bar, spec.amplitude_m, spec.frequency_hz, spec.cycles, rig=rig,
                       vertical_load_n=run.vertical_load_n, plant_changes=plant_changes_from(rig, true_rig(run)),
                       noise_seed=run.noise_seed)
+    s.rig_commissioning = commissioning
     result = Simulation(s, validate=False).run(follow=True)
     summary = result.summary()
     last = summary.get("last_two_cycles", {}).get("rms_y_minus_r_over_amplitude")
@@ -132,7 +136,7 @@ def commission_and_test(run: CommissioningRun) -> dict:
             row["velocity_nrmse"] = ident.response.velocity_nrmse
     for spec in run.tests:
         if ident.rig is not None:
-            after = tested(run, ident.rig, spec)
+            after = tested(run, ident.rig, spec, commissioning_section(ident, run.max_velocity_m_per_s))
             row.update({f"after.{spec.label}.{k}": v for k, v in after.items()})
         without = tested(run, run.declared, spec)
         row.update({f"without.{spec.label}.{k}": v for k, v in without.items()})
