@@ -330,7 +330,7 @@ export class CommissionPage {
       : testRunning() ? "not while a run goes on" : applied ? "applied before; apply again to make it the rig in force" : "";
   }
 
-  async start() {
+  async start({ retryOf = null } = {}) {
     this.say("", "");
     // who commissions is asked before the confirmation, which names them (it said operator "-", then asked)
     if (!account.name) await refreshAccount();
@@ -345,12 +345,17 @@ export class CommissionPage {
     this.formChanged();
     clearTimeout(this.checkTimer); // this start asks now; a timer's check would supersede its answer
     await this.askCheck();
-    if (this.whyNot()) return;
+    const why = this.whyNot();
+    if (why) {
+      this.say(`Not started: Start needs ${why}.`, "error");
+      return;
+    }
     const b = this.form.body;
     const c = this.check;
     const where = tablePosition();
     const L = c.limits || {};
     const rows = summaryTable([
+      ...(retryOf ? [["second attempt", `of commissioning #${retryOf.id}, refused`, "the same, at the bounds its refusal suggests"]] : []),
       ["what moves", `\u00b1${fmtU("length", b.max_stroke_m)} about ${fmtU("length", c.start_m, { sign: true })}`,
         where ? `where the table rests (${sourceWords(where.source)})` : "where the table rests"],
       ["velocity", `below ${fmtU("velocity", b.max_velocity_m_per_s)}`],
@@ -363,7 +368,8 @@ export class CommissionPage {
       ["limits (valve close)", `|d| ${fmtU("length", L.displacement_m)}, |v| ${fmtU("velocity", L.velocity_m_per_s)}, |y-r| ${fmtU("length", L.tracking_error_m)}`],
       ["then", "the service fits the record (5 to 20 s)", "the rig in force changes only when you apply the result"],
     ]);
-    const answer = await confirmDialog({ title: "Commission the rig? The table will move.", body: rows, ok: "Start commissioning" });
+    const answer = await confirmDialog({ title: retryOf ? `Commission the rig again, below ${fmtU("velocity", b.max_velocity_m_per_s)}? The table will move.`
+      : "Commission the rig? The table will move.", body: rows, ok: "Start commissioning" });
     if (!answer) {
       this.say("Not started: cancelled.", "");
       return;
@@ -673,6 +679,7 @@ export class CommissionPage {
     list.innerHTML = "";
     for (const p of problems) list.append(el("li", { text: p }));
     list.classList.toggle("hidden", !problems.length);
+    this.renderSecondAttempt(res);
     this.renderFigures(res);
     this.renderTable(res);
     this.renderResponse(ident.response);
@@ -686,6 +693,46 @@ export class CommissionPage {
     const applied = res.applied;
     $("c-applied").textContent = applied ? `Made the service's rig by ${applied.by} at ${fmtTime(applied.at)} (${applied.path}).` : "";
     this.renderButtons();
+  }
+
+  /** A refusal a second run at other bounds can cure (identification.second_attempt: sim.commission.identify):
+   * why, and a button that fills the form with its bounds and starts through the same confirmation. */
+  renderSecondAttempt(res) {
+    let box = $("c-second");
+    if (!box) {
+      box = el("div", { id: "c-second", class: "note-box second-attempt hidden", "aria-live": "polite" });
+      $("c-problems").after(box);
+    }
+    box.innerHTML = "";
+    const retry = res.state === "not_trusted" ? (res.identification || {}).second_attempt : null;
+    const ok = retry && num(retry.max_stroke_m) && num(retry.max_velocity_m_per_s);
+    box.classList.toggle("hidden", !ok);
+    if (!ok) return;
+    const v = `${inputText("velocity", retry.max_velocity_m_per_s)} ${unit("velocity")}`;
+    const button = el("button", { id: "c-retry", type: "button", class: "primary", text: `Run again at ${v}...`,
+      title: `fills the form with \u00b1${fmtU("length", retry.max_stroke_m)} and ${v}, then asks before anything moves` });
+    button.addEventListener("click", () => this.runAgain(res));
+    box.append(el("b", { text: "A second attempt may help: " }), el("span", { class: "why-text", text: retry.why || "" }),
+      el("div", { class: "buttons" }, button));
+  }
+
+  /** Fill the form as commissioning `res` ran, with its second attempt's bounds, then Start (login and the
+   * confirmation as ever: nothing moves before the operator confirms). */
+  async runAgain(res) {
+    const retry = (res.identification || {}).second_attempt;
+    if (!retry) return;
+    const cond = res.conditions || {};
+    if (num(res.supply_bar)) $("c-supply").value = inputText("pressure", res.supply_bar * 1e5);
+    const iso = $("c-isolator");
+    if (res.isolator && [...iso.options].some((o) => o.value === res.isolator)) iso.value = res.isolator;
+    const load = num(cond.vertical_load_n) ? cond.vertical_load_n : res.vertical_load_n;
+    if (num(load)) $("c-vertical_load").value = inputText("force", load);
+    if (!$("c-speed").disabled && num(res.speed)) $("c-speed").value = String(res.speed);
+    $("c-stroke").value = inputText("length", retry.max_stroke_m);
+    $("c-velocity").value = inputText("velocity", retry.max_velocity_m_per_s);
+    this.formChanged();
+    $("commission-form").scrollIntoView({ block: "nearest" });
+    await this.start({ retryOf: res });
   }
 
   renderFigures(res) {
