@@ -371,7 +371,7 @@ def worst_still_window_std(samples, from_s=0.0, window_s=1.0, still_range_m=0.5e
     return worst, count
 
 
-@pytest.mark.parametrize("options", [STILL_VALVE, {}])
+@pytest.mark.parametrize("options", [STILL_VALVE, {}, {"still_hold_share": 1.0}])
 def test_a_still_target_gets_a_still_valve(options):
     """Issue 32, item 4: where the target barely moves the dead-zone inverse no longer switches with the sign of a
     tiny demand (a relay: on a sine's final hold a 39 Hz limit cycle of 25 um, command std 0.88 V; under a target
@@ -392,6 +392,10 @@ def test_a_still_target_gets_a_still_valve(options):
     error = (ringing["displacement_m"] - ringing["target_m"])[quiet]
     if not options:  # the default law, still_share 0: the relay
         assert held_std > 0.5 and ring_std > 0.5, (held_std, ring_std)
+        return
+    if options.get("still_hold_share") == 1.0:  # the held part alone: a still hold, the ringing followed by the relay
+        assert held_std <= 0.2 and ring_std > 0.5, (held_std, ring_std)
+        assert np.max(np.abs(hold["displacement_m"] - hold["target_m"])) < 10e-6
         return
     assert held_std <= 0.2 and ring_std <= 0.2, (held_std, ring_std)
     assert np.max(np.abs(hold["displacement_m"] - hold["target_m"])) < 10e-6  # the table stays where the sine ended

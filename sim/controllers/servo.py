@@ -94,7 +94,8 @@ P_FB_RAMP, P_EDGE_TRIM = 43, 44
 # a still target (docs/controller.md, "A still target, a still valve")
 (P_STILL_SWING, P_STILL_SWING_V, P_STILL_SPEED_T, P_STILL_SPEED, P_STILL_ACC_T, P_STILL_RATE, P_STILL_BAND,
  P_STILL_REST, P_STILL_SHARE) = range(56, 65)
-N_PARAMS = 65
+P_STILL_HOLD_SHARE = 65
+N_PARAMS = 66
 DELAY_LINE = 256  # periods of regressor and target history kept (valve estimate, position latency)
 
 # State indices; the delay line and the harmonic coefficients (real, imaginary) follow.
@@ -249,6 +250,9 @@ OPTIONS = {
     "still_share": Option(0.0, 0.0, 1.0, "-", meaning="1: where the target is still the dead zone's compensation "
                           "moves slowly and smoothly with the position error instead of switching with the "
                           "demand's sign (0: off, the switch everywhere)"),
+    "still_hold_share": Option(0.0, 0.0, 1.0, "-", meaning="1: where the target is held (slower than "
+                               "still_speed_m_per_s: a hold, a move's or a sine's end), this share of it, whatever "
+                               "still_share says (a held target has no motion to follow)"),
     "still_swing_m": Option(5e-4, 0.0, 0.1, "m", meaning="a target that reverses within swings smaller than this "
                             "(wholly; not at all from 1.5 times it) ..."),
     "still_swing_speed_m_per_s": Option(5e-3, 0.0, 1.0, "m/s", meaning="... at a recent peak speed below this (wholly; "
@@ -366,6 +370,7 @@ def make_servo(rig=None, **options) -> Controller:
     params[P_STILL_RATE] = o["still_command_rate_v_per_s"]
     params[P_STILL_BAND] = o["still_error_band_m"]
     params[P_STILL_SHARE] = o["still_share"]
+    params[P_STILL_HOLD_SHARE] = o["still_hold_share"]
     params[P_STILL_SWING_V] = o["still_swing_speed_m_per_s"]
     params[P_STILL_ACC_T] = o["still_acceleration_s"]
     params[P_STILL_REST] = o["still_rest_share"]
@@ -648,7 +653,7 @@ def target_stillness(p, s, r, rd, rdd, dt):
     travel = abs(s[S_SWING_EXT] - s[S_SWING_FROM])
     swing = max(s[S_SWING_LAST], s[S_SWING_PREV], travel)  # the last two and this one: one small swing is no rest
     s[S_SPEED_REC] = max(abs(rd), s[S_SPEED_REC] * np.exp(-dt / p[P_STILL_SPEED_T]))
-    still = 0.0
+    still = 0.0  # the ringing's stillness (still_share) ...
     if p[P_STILL_SWING] > 0.0 and p[P_STILL_SWING_V] > 0.0:
         # not while swings of some size grow before any has been large (a sine's taper-in, a ground motion's start;
         # a ringing that beats is still): from 1.2 times the one before (this one so far, or the last), from a
@@ -658,9 +663,10 @@ def target_stillness(p, s, r, rd, rdd, dt):
                    * (1.0 - _smoothstep(2.0 * (s[S_SWING_MAX] / p[P_STILL_SWING] - 1.0))))
         still = ((1.0 - _smoothstep(2.0 * (swing / p[P_STILL_SWING] - 1.0)))
                  * (1.0 - _smoothstep(s[S_SPEED_REC] / p[P_STILL_SWING_V] - 1.0)) * (1.0 - growing))
+    held = 0.0  # ... and the hold's (still_share, and at least still_hold_share)
     if p[P_STILL_SPEED] > 0.0:
-        still = max(still, 1.0 - _smoothstep((abs(rd) + p[P_STILL_ACC_T] * abs(rdd)) / p[P_STILL_SPEED] - 1.0))
-    return p[P_STILL_SHARE] * still
+        held = 1.0 - _smoothstep((abs(rd) + p[P_STILL_ACC_T] * abs(rdd)) / p[P_STILL_SPEED] - 1.0)
+    return max(p[P_STILL_SHARE] * max(still, held), p[P_STILL_HOLD_SHARE] * held)
 
 
 @njit(cache=True, error_model="numpy")
