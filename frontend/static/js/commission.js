@@ -38,6 +38,8 @@ const PARAMS = {
   mass_kg: ["moving mass", { lab: ["kg", 1], si: ["kg", 1] }],
   friction_force_n: ["friction (at this vertical load)", { lab: ["kN", 1e-3], si: ["N", 1] }],
   viscous_n_s_per_m: ["viscous damping", { lab: ["kN s/m", 1e-3], si: ["N s/m", 1] }],
+  presliding_m: ["pre-sliding distance (Dahl law; 0: Coulomb's)", { lab: ["mm", 1e3], si: ["m", 1] }],
+  bristle_damping_n_s_per_m: ["pre-sliding damping (Dahl law)", { lab: ["kN s/m", 1e-3], si: ["N s/m", 1] }],
 };
 
 function paramUnit(name, sys = system()) {
