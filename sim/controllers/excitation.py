@@ -15,13 +15,16 @@ Phases (the target r is the table's resting position y0, held constant; the guar
    to move (``velocity_start_m_per_s``) is the valve's opening edge in
    that direction; the next sweep in that direction starts just inside it. Once the valve is open the ramp
    is ``open_ramp_share`` times faster (the velocity rises quickly; the table stays within the guard).
+   A run whose sweeps do not find the valve both ways rests at the last command where the table rested.
 2. **Dither**, until ``sweep_max_s + dither_s`` (it takes the time the sweeps did not need): a position hold
    (``hold_gain_per_s``) plus a multisine velocity demand (log-spaced lines, whole multiples of the lowest;
    Schroeder phases, so its peak is low) through the valve inverse the sweeps found (edges and slopes each
-   way). A gate scales the dither: it halves whenever the measured velocity passes the gate's share of the
-   velocity bound or the table passes the guard, and recovers over ``gate_recovery_s``.
+   way). It begins with 0.3 s of closed valve (the last sweep may end moving, at the guard) and the hold's demand
+   limited as the return's while the dither fades in. A gate scales the dither: it halves whenever the measured
+   velocity passes the gate's share of the velocity bound or the table passes the guard, and recovers over
+   ``gate_recovery_s`` only while both stay below 85 % of those.
 3. **Return.** The hold alone brings the table back to y0 (the velocity demand limited) and keeps it there
-   to the end of the run. If the sweeps could not find the valve both ways, the command rests at 0 V instead.
+   to the end of the run. If the sweeps could not find the valve both ways, the command rests instead.
 
 Report: model_m = y0; ar_hat = the dither's gate (0-1); ay_hat = half the distance between the two edges
 found (the dead zone seen from the command, V); as_hat = the phase (0 sweeps, 1 dither, 2 return, 3 rest).
@@ -34,7 +37,19 @@ import math
 import numpy as np
 from numba import njit
 
-from .base import M_POSITION, M_TARGET, M_TIME, R_AR, R_AS, R_AY, R_MODEL, Adapted, Controller, Option, check_options
+from .base import (
+    M_POSITION,
+    M_TARGET,
+    M_TIME,
+    R_AR,
+    R_AS,
+    R_AY,
+    R_MODEL,
+    Adapted,
+    Controller,
+    Option,
+    check_options,
+)
 
 KIND = 4
 MAX_LINES = 64
@@ -52,7 +67,8 @@ N_PARAMS = P_PHASE + MAX_LINES
  S_GATE, S_T_PHASE, S_LAST_CUT, S_HEAD, S_HOLD) = range(17)  # S_HOLD: 1 once the valve is known (the rest holds)
 S_QUIET = 17  # periods the table has been at rest since this sweep began
 S_RING = 18  # the last 6 position readings (velocity over 5 periods)
-N_STATE = S_RING + 6
+S_U_REST = S_RING + 6  # the last command at which the table rested (where a run whose valve is not known rests)
+N_STATE = S_U_REST + 1
 
 PHASE_SWEEP, PHASE_DITHER, PHASE_RETURN, PHASE_REST = 0.0, 1.0, 2.0, 3.0
 
@@ -93,6 +109,9 @@ QUIET_PERIODS = 20  # a sweep takes the valve's edge only after the table rested
 REFERENCE_VELOCITY_M_PER_S = 0.02  # the open ramp's share is meant for this velocity bound
 REST_RAMP_SHARE = 0.3  # return and rest: the dead zone is crossed over +-this share of their velocity limit
 SWEEP_LEVELS = (0.3, 0.3, 0.5, 0.5, 0.7, 0.7)  # shares of max_velocity_m_per_s; later sweeps repeat the last
+SETTLE_S = 0.3  # the dither begins with the valve closed this long (the last sweep may end moving, at the guard)
+GATE_START = 1.0  # the dither's gate at the start (it fades in over 0.5 s); after a cut it grows back only while
+GATE_GROW_SHARE = 0.85  # ... the motion stays below this share of the gate's velocity and of the guard
 ADAPTED = (
     Adapted("model_m", "hold position", "m", "where the table rested when the excitation began"),
     Adapted("ar_hat", "dither gate", "-", "the share of the dither applied (it halves near a bound)"),
@@ -233,6 +252,8 @@ def excitation_step(p, s, meas, dt, report):
             s[S_QUIET] += 1.0
         elif s[S_QUIET] < QUIET_PERIODS:
             s[S_QUIET] = 0.0
+        if s[S_QUIET] == QUIET_PERIODS:
+            s[S_U_REST] = s[S_U]
         if s[S_OPENED] < 0.5 and s[S_QUIET] >= QUIET_PERIODS and d * v5 > p[P_VSTART]:
             s[S_OPENED] = 1.0
             if d > 0:
@@ -254,7 +275,7 @@ def excitation_step(p, s, meas, dt, report):
             if (k + 1 >= p[P_NSWEEP] and both) or t - s[S_T_PHASE] >= p[P_SWEEP_MAX_S]:
                 if both:
                     s[S_PHASE] = PHASE_DITHER
-                else:  # the valve did not open both ways: no dither on a valve not known, rest at 0 V
+                else:  # the valve did not open both ways: no dither on a valve not known, rest where it rested
                     s[S_PHASE] = PHASE_REST
                     s[S_HOLD] = 0.0
                 s[S_T_PHASE] = t
@@ -265,19 +286,28 @@ def excitation_step(p, s, meas, dt, report):
             s[S_U] += d * rate * dt
         u = s[S_U]
         if s[S_PHASE] != PHASE_SWEEP:
-            u = 0.5 * (s[S_EDGE_P] + s[S_EDGE_N]) if s[S_PHASE] == PHASE_DITHER else 0.0
+            u = 0.5 * (s[S_EDGE_P] + s[S_EDGE_N]) if s[S_PHASE] == PHASE_DITHER else s[S_U_REST]
     elif phase == PHASE_DITHER:
         tau = t - s[S_T_PHASE]
-        if (abs(v5) > p[P_GATE_V] or abs(y - y0) > p[P_GUARD]) and t - s[S_LAST_CUT] > 0.02:
-            s[S_GATE] *= 0.5
-            s[S_LAST_CUT] = t
+        if tau < SETTLE_S:  # the valve closed: the table comes to rest where the last sweep left it
+            u = 0.5 * (s[S_EDGE_P] + s[S_EDGE_N])
+            s[S_GATE] = GATE_START
         else:
-            s[S_GATE] = min(1.0, s[S_GATE] + dt / p[P_GATE_REC])
-        ramp_in = min(1.0, tau / 0.5)  # the dither fades in over 0.5 s
-        dither = 0.0
-        for i in range(int(p[P_NLINES])):
-            dither += p[P_AMP + i] * math.cos(2.0 * math.pi * p[P_FREQ + i] * tau + p[P_PHASE + i])
-        u = _inverse(p, s, s[S_GATE] * ramp_in * dither, p[P_HOLD] * (y0 - y))
+            tau -= SETTLE_S
+            if (abs(v5) > p[P_GATE_V] or abs(y - y0) > p[P_GUARD]) and t - s[S_LAST_CUT] > 0.02:
+                s[S_GATE] *= 0.5
+                s[S_LAST_CUT] = t
+            elif abs(v5) < GATE_GROW_SHARE * p[P_GATE_V] and abs(y - y0) < GATE_GROW_SHARE * p[P_GUARD]:
+                s[S_GATE] = min(1.0, s[S_GATE] + dt / p[P_GATE_REC])
+            ramp_in = min(1.0, tau / 0.5)  # the dither fades in over 0.5 s
+            dither = 0.0
+            for i in range(int(p[P_NLINES])):
+                dither += p[P_AMP + i] * math.cos(2.0 * math.pi * p[P_FREQ + i] * tau + p[P_PHASE + i])
+            # the hold's demand limited as the return's while the dither fades in (the last sweep may have left
+            # the table at the guard: the hold must not throw it back), then to the gate's velocity
+            limit = p[P_RET_V] if tau < 0.5 else p[P_GATE_V]
+            hold = min(limit, max(-limit, p[P_HOLD] * (y0 - y)))
+            u = _inverse(p, s, s[S_GATE] * ramp_in * dither, hold)
         if t >= p[P_T_DITHER]:
             s[S_PHASE] = PHASE_RETURN
             s[S_T_PHASE] = t
@@ -288,7 +318,7 @@ def excitation_step(p, s, meas, dt, report):
             s[S_T_PHASE] = t
             s[S_HOLD] = 1.0  # the valve is known: the hold goes on
     else:
-        u = 0.0
+        u = s[S_U_REST]
     report[R_MODEL] = y0
     report[R_AR] = s[S_GATE] if s[S_PHASE] == PHASE_DITHER else 0.0
     if np.isnan(s[S_EDGE_P]) or np.isnan(s[S_EDGE_N]):
