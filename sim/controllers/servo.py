@@ -95,6 +95,7 @@ P_FB_RAMP, P_EDGE_TRIM = 43, 44
 (P_STILL_SWING, P_STILL_SWING_V, P_STILL_SPEED_T, P_STILL_SPEED, P_STILL_ACC_T, P_STILL_RATE, P_STILL_BAND,
  P_STILL_REST, P_STILL_SHARE) = range(56, 65)
 P_STILL_HOLD_SHARE = 65
+STILL_FAST_RATE_SHARE = 20.0  # the still share's rate for an error of many bands, times still_command_rate_v_per_s
 N_PARAMS = 66
 DELAY_LINE = 256  # periods of regressor and target history kept (valve estimate, position latency)
 
@@ -120,7 +121,8 @@ S_THETA_PREV = S_PCYC + 1  # the target's phase of the last period
 # dead zone's compensated share (-1..1) of the last period
 (S_SWING_FROM, S_SWING_EXT, S_SWING_DIR, S_SWING_LAST, S_SWING_PREV, S_SWING_MAX, S_SPEED_REC, S_SIDE) = range(
     S_THETA_PREV + 1, S_THETA_PREV + 9)
-N_STATE = S_SIDE + 1
+S_HELD = S_SIDE + 1  # the held part of the target's stillness (0-1) this period, as still_hold_share weighs it
+N_STATE = S_HELD + 1
 
 
 def _nominal_rig(rig=None) -> dict:
@@ -245,12 +247,13 @@ OPTIONS = {
                                     "compresses the oil, (V_0 / (2 beta)) P_L', with the table's (0, the default: the "
                                     "table's velocity alone, what the loop gain is about; measured better)"),
     # a still target gets a still valve (issue 32; docs/controller.md, "A still target, a still valve")
-    # off by default: it holds a hybrid test's small motions instead of following them (J2 0.67 -> 1.54 %, and
-    # 1.02 -> 6.10 % for far_field_long x 0.6; docs/controller.md): a lab switches it on for quiet holds
+    # still_share (a ringing target too) off by default: it holds a hybrid test's small motions instead of following
+    # them (J2 0.67 -> 1.54 %, and 1.02 -> 6.10 % for far_field_long x 0.6; docs/controller.md); a held target gets
+    # it by default (still_hold_share)
     "still_share": Option(0.0, 0.0, 1.0, "-", meaning="1: where the target is still the dead zone's compensation "
                           "moves slowly and smoothly with the position error instead of switching with the "
                           "demand's sign (0: off, the switch everywhere)"),
-    "still_hold_share": Option(0.0, 0.0, 1.0, "-", meaning="1: where the target is held (slower than "
+    "still_hold_share": Option(1.0, 0.0, 1.0, "-", meaning="1: where the target is held (slower than "
                                "still_speed_m_per_s: a hold, a move's or a sine's end), this share of it, whatever "
                                "still_share says (a held target has no motion to follow)"),
     "still_swing_m": Option(5e-4, 0.0, 0.1, "m", meaning="a target that reverses within swings smaller than this "
@@ -666,6 +669,7 @@ def target_stillness(p, s, r, rd, rdd, dt):
     held = 0.0  # ... and the hold's (still_share, and at least still_hold_share)
     if p[P_STILL_SPEED] > 0.0:
         held = 1.0 - _smoothstep((abs(rd) + p[P_STILL_ACC_T] * abs(rdd)) / p[P_STILL_SPEED] - 1.0)
+    s[S_HELD] = p[P_STILL_HOLD_SHARE] * held
     return max(p[P_STILL_SHARE] * max(still, held), p[P_STILL_HOLD_SHARE] * held)
 
 
@@ -689,7 +693,11 @@ def still_dead_zone_share(p, s, ramp_at, still, e, dz_c, dt):
         if still >= 0.5:  # the error's side beyond the band; within it where it is, near the dead zone's middle
             rest = p[P_STILL_REST]
             goal = min(max(s[S_SIDE], -rest), rest) if abs(e) <= p[P_STILL_BAND] else (1.0 if e > 0.0 else -1.0)
-        step = dt * p[P_STILL_RATE] / (still ** 4 * max(dz_c, 1e-3))
+        # a held target (still_hold_share) with an error of many bands (a braked target's rest, a table left short)
+        # crosses the dead zone sooner: the rate grows as the square of the error in bands, up to
+        # STILL_FAST_RATE_SHARE times (not under a ringing target: its swings would make that a relay again)
+        fast = 1.0 + (min(max((abs(e) / p[P_STILL_BAND]) ** 2, 1.0), STILL_FAST_RATE_SHARE) - 1.0) * s[S_HELD]
+        step = dt * p[P_STILL_RATE] * fast / (still ** 4 * max(dz_c, 1e-3))
         share = s[S_SIDE] + min(max(goal - s[S_SIDE], -step), step)
     s[S_SIDE] = share
     return share
