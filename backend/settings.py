@@ -76,7 +76,8 @@ class Settings(BaseSettings):
     worker_start_method: str = Field(default="forkserver", description="multiprocessing start method: forkserver "
                                      "or spawn (never fork from the threaded server)")
     worker_realtime: bool = Field(default=True, description="ask for real-time scheduling of the rig worker "
-                                  "(SCHED_RR if permitted, else nice -10, else normal)")
+                                  "(SCHED_RR if permitted, else nice -10, else normal; and a 0.1 ms time slice, "
+                                  "which needs no privilege: sim.realtime.short_slice)")
     service_nice: int = Field(default=0, description="nice increment `isorig serve` applies to itself at start "
                               "(e.g. -10 on a shared machine: steadier streaming; needs root or CAP_SYS_NICE)")
     ws_per_message_deflate: bool = Field(default=False, description="compress websocket messages (saves "
