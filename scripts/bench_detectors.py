@@ -98,7 +98,7 @@ def good_runs(args) -> list:
             runs.append((f"told {name} {a * 1e3:g} mm {f:g} Hz", Scenario.sine(
                 "IUT_a", 100.0, a, f, 12, rig=DEFAULT_RIG.with_changes(**plant), plant_changes=plant)))
     if args.runs:
-        runs += [(f"campaign {s.label}", s) for s in campaign_scenarios(args)]
+        runs += [(f"campaign {s.label}", s) for s in campaign_scenarios(campaign_of(args))]
     return runs
 
 
@@ -180,8 +180,8 @@ def oscillations(args) -> int:
     return 0 if late_or_missed == 0 and false_now <= false_before else 1
 
 
-def campaign_scenarios(args) -> list:
-    """The scenarios of the campaign (--campaign, or the one docs/compare.md shows), --runs plants."""
+def campaign_of(args):
+    """The campaign (--campaign, or the one docs/compare.md shows), with --runs plants."""
     from sim.campaign import load_campaign
 
     if args.campaign:
@@ -192,6 +192,11 @@ def campaign_scenarios(args) -> list:
             path.write_text(documented_campaign())
             campaign = load_campaign(path)
     campaign.runs = args.runs
+    return campaign
+
+
+def campaign_scenarios(campaign) -> list:
+    """Every run of the campaign as a scenario."""
     return [point.scenario(campaign.cycles) for point in campaign.points()]
 
 
@@ -207,19 +212,11 @@ def main(argv=None) -> int:
     if args.oscillations:
         return oscillations(args)
 
-    from sim.campaign import load_campaign
     from sim.engine import Simulation, run_judged, warm_up
     from sim.safety import default_limits
 
-    if args.campaign:
-        campaign = load_campaign(args.campaign)
-    else:
-        with tempfile.TemporaryDirectory() as folder:
-            path = Path(folder) / "lab_spread.toml"
-            path.write_text(documented_campaign())
-            campaign = load_campaign(path)
-    campaign.runs = args.runs
-    scenarios = [point.scenario(campaign.cycles) for point in campaign.points()]
+    campaign = campaign_of(args)
+    scenarios = campaign_scenarios(campaign)
     warm_up()
     run_judged(scenarios[0])  # load the detectors' compiled code too
 
