@@ -6,6 +6,8 @@ import os
 import time
 from contextlib import contextmanager
 
+from .latency import LatencyHistogram
+
 
 def raise_priority(rr_priority: int) -> str:
     """Ask the OS to schedule this thread (and the threads it starts) ahead of ordinary ones, as far as it allows:
@@ -192,37 +194,6 @@ STALL_PERIODS = 1.5
 MAX_STALLS_KEPT = 20  # the longest stalls are kept with what ran before each
 
 
-class _Histogram:
-    """Milliseconds in 10 us bins up to 100 ms (as sim.latency.LatencyHistogram) in a Python list: an add costs
-    a list index, not a NumPy scalar's (~4 us on a loaded machine, four times a period)."""
-
-    BIN_MS, BINS = 0.01, 10_001
-
-    def __init__(self):
-        self.counts = [0] * self.BINS
-        self.n = 0
-        self.max_ms = 0.0
-
-    def add(self, ms: float) -> None:
-        if not ms >= 0.0:
-            ms = 0.0
-        i = int(ms * 100.0)
-        self.counts[i if i < self.BINS else -1] += 1
-        self.n += 1
-        if ms > self.max_ms:
-            self.max_ms = ms
-
-    def percentile_ms(self, q: float) -> float:
-        """The upper edge of the bin holding the q-th percentile, at most the maximum."""
-        from itertools import accumulate
-
-        rank = max(1, -(-int(q * self.n) // 100))
-        for i, total in enumerate(accumulate(self.counts)):
-            if total >= rank:
-                return round(min((i + 1) * self.BIN_MS, self.max_ms), 3)
-        return round(self.max_ms, 3)
-
-
 class PeriodTrace:
     """Where the periods of a real-time loop went, in fixed memory (histograms, the longest stalls).
 
@@ -237,7 +208,7 @@ class PeriodTrace:
 
     def __init__(self, period_s: float):
         self.period_s = period_s
-        self.ms: dict[str, _Histogram] = {}
+        self.ms: dict[str, LatencyHistogram] = {}
         self.pieces: dict[str, float] = {}  # kind -> ms since the last answer
         self.periods = 0
         self.written: float | None = None  # perf_counter of the last answer
@@ -251,7 +222,7 @@ class PeriodTrace:
     def _add(self, kind: str, ms: float) -> None:
         h = self.ms.get(kind)
         if h is None:
-            h = self.ms[kind] = _Histogram()
+            h = self.ms[kind] = LatencyHistogram()
         h.add(ms)
 
     def lap(self, kind: str, now: float | None = None) -> None:
@@ -323,5 +294,5 @@ class PeriodTrace:
         return {"periods": self.periods, "stalls": self.stall_count,
                 "stall_max_ms": longest[0]["stall_ms"] if longest else 0.0, "stall_causes": dict(self.causes),
                 "rig_clock_shared": bool(self.same_clock), "longest_stalls": longest,
-                "ms": {k: {"n": h.n, "p99": h.percentile_ms(99), "max": round(h.max_ms, 3)}
+                "ms": {k: {"n": h.n, "p99": round(h.percentile_ms(99), 3), "max": round(h.max_ms, 3)}
                        for k, h in self.ms.items()}}
