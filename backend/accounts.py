@@ -3,10 +3,10 @@
 Roles, each including the ones before it: ``viewer`` (reads), ``operator`` (runs tests, moves the rig, changes
 records that are not approved), ``approver`` (reviews and approves records), ``admin`` (accounts, lab settings).
 
-A person proves who they are with a password (hashed with argon2id, argon2-cffi's defaults) and gets a login
-session, a cookie the browser sends back; a script uses an API token (``isorig user token NAME``). Both are
-random secrets of 256 bits stored only as their SHA-256, so a copy of the database logs nobody in. A disabled
-account's sessions and tokens stop working at once.
+A person proves who they are with a password (hashed with argon2id, argon2-cffi's defaults; only the test suite
+makes cheaper hashes, ``TEST_CHEAP_HASHES_ENV`` below) and gets a login session, a cookie the browser sends back;
+a script uses an API token (``isorig user token NAME``). Both are random secrets of 256 bits stored only as their
+SHA-256, so a copy of the database logs nobody in. A disabled account's sessions and tokens stop working at once.
 """
 
 from __future__ import annotations
@@ -37,7 +37,32 @@ SESSION_PREFIX = "iss_"
 TOKEN_PREFIX = "ist_"
 SERVICE_ACCOUNT = "automation"  # the account ISORIG_OPERATOR_TOKEN acts as
 
-_hasher = PasswordHasher()
+# TEST ONLY: "1" makes argon2id hashes of one pass over 8 KiB (~0.1 ms instead of ~0.2 s of CPU), which the test
+# suite sets (tests/conftest.py) because its services and accounts hash passwords hundreds of times. Unset or empty
+# is production: argon2-cffi's defaults. Any other value is refused, so a typo never weakens a service silently. A
+# cheap hasher never rehashes a stored hash at login, so a production hash is never made cheaper (_rehashes).
+TEST_CHEAP_HASHES_ENV = "ISORIG_TEST_ONLY_CHEAP_PASSWORD_HASHES"
+
+
+def password_hasher(environ=os.environ) -> PasswordHasher:
+    """The password hasher ``environ`` asks for: argon2-cffi's defaults, or the test suite's cheap one (above)."""
+    value = environ.get(TEST_CHEAP_HASHES_ENV, "")
+    if value == "":
+        return PasswordHasher()
+    if value != "1":
+        raise RuntimeError(f"{TEST_CHEAP_HASHES_ENV}={value!r}: it is for the test suite only and takes 1 or nothing; "
+                           "a service runs without it")
+    return PasswordHasher(time_cost=1, memory_cost=8, parallelism=1)
+
+
+def _rehashes(hasher: PasswordHasher) -> bool:
+    """Whether logins rehash a stored hash made with other parameters: only with hashes at least as costly as
+    argon2-cffi's defaults (never down to the test suite's cheap ones)."""
+    default = PasswordHasher()
+    return hasher.time_cost >= default.time_cost and hasher.memory_cost >= default.memory_cost
+
+
+_hasher = password_hasher()
 
 
 class AccountError(ValueError):
@@ -208,7 +233,7 @@ def log_in(session: Session, name: str, password: str) -> tuple[UserAccount, str
         return None
     if user is None or user.password_hash is None or user.disabled_at is not None:
         return None
-    if _hasher.check_needs_rehash(user.password_hash):
+    if _rehashes(_hasher) and _hasher.check_needs_rehash(user.password_hash):
         user.password_hash = _hasher.hash(password)
     purge_ended_sessions(session)
     return user, _issue(session, user, "session")
