@@ -1,5 +1,5 @@
 """`isorig check-rig udp://HOST:PORT`: a lab's real-time I/O target against docs/rig-protocol.md, rule by rule
-(the check itself: backend/drivers/rig_check.py)."""
+(the check itself: backend/drivers/rig_check/)."""
 
 from __future__ import annotations
 
