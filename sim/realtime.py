@@ -204,10 +204,19 @@ class PeriodTrace:
     the previous one is a stall, kept (the longest ``MAX_STALLS_KEPT``) with its cause, the largest share of
     the gap: ``work:<kind>`` (the loop's own work since the last answer, by its largest piece), ``rig`` (the rig
     sent late), ``woke late`` (the measurement was there and the loop waiting, but it did not run: the OS, another
-    thread holding the interpreter's lock), ``answer`` (reading, stepping and writing took that long)."""
+    thread holding the interpreter's lock), ``answer`` (reading, stepping and writing took that long).
 
-    def __init__(self, period_s: float):
+    ``cpu_clock`` (default ``time.thread_time``, read once a period, ~2 us): the loop thread's own CPU time, so that
+    each stall also says whether the loop was computing (``cpu_ms``) or off its CPU while it could have run
+    (``off_cpu_ms``: preempted by the OS, or blocked on something other than the rig's measurement; the gap less
+    its CPU time and less the time it waited for a measurement the rig had not sent yet); the period's CPU time is
+    the ``cpu`` kind. None: no CPU figures."""
+
+    def __init__(self, period_s: float, cpu_clock=time.thread_time):
         self.period_s = period_s
+        self.cpu_clock = cpu_clock
+        self.cpu_s: float | None = None  # the loop thread's CPU time at the last answer
+        self.off_cpu_stalls = 0  # stalls in which the loop was off its CPU longer than it computed
         self.ms: dict[str, LatencyHistogram] = {}
         self.pieces: dict[str, float] = {}  # kind -> ms since the last answer
         self.periods = 0
@@ -241,6 +250,7 @@ class PeriodTrace:
         ``written`` (time.perf_counter); ``first_sent_ns``/``sent_ns``: the rig's send time of the first and of the
         newest measurement this wait took (time.perf_counter_ns on loopback), where known."""
         self.periods += 1
+        cpu_s = self.cpu_clock() if self.cpu_clock is not None else None
         self._add("wait", (got - wait_from) * 1e3)
         self._add("answer", (written - got) * 1e3)
         if self.same_clock is None and sent_ns is not None:  # a rig on this machine: its clock is ours
@@ -256,13 +266,18 @@ class PeriodTrace:
             busy_s = wait_from - self.written
             self._add("busy", busy_s * 1e3)
             gap_s = written - self.written
+            cpu_gap_s = None
+            if cpu_s is not None and self.cpu_s is not None:
+                cpu_gap_s = cpu_s - self.cpu_s
+                self._add("cpu", cpu_gap_s * 1e3)
             if gap_s > STALL_PERIODS * self.period_s:
-                self._stall(gap_s, busy_s, wait_from, got, written, first_s)
+                self._stall(gap_s, busy_s, wait_from, got, written, first_s, cpu_gap_s)
         self.pieces = {}
         self.written = self.mark = written
         self.sent_s = sent_s
+        self.cpu_s = cpu_s
 
-    def _stall(self, gap_s, busy_s, wait_from, got, written, first_s) -> None:
+    def _stall(self, gap_s, busy_s, wait_from, got, written, first_s, cpu_gap_s=None) -> None:
         # the cause: the largest of the loop's own work, the rig's own lateness, the wait for the loop to run
         # once the measurement was there, and the answer itself
         work = max(self.pieces, key=self.pieces.get) if self.pieces else "other"
@@ -283,6 +298,15 @@ class PeriodTrace:
             record["woke_after_ms"] = round((got - first_s) * 1e3, 3)
             if self.sent_s is not None:
                 record["rig_gap_ms"] = round((first_s - self.sent_s) * 1e3, 3)
+        if cpu_gap_s is not None:
+            # waiting for a measurement not sent yet is neither: the rig's time (all the wait, on another clock)
+            blocked_s = (min(max(first_s - wait_from, 0.0), got - wait_from) if first_s is not None
+                         else got - wait_from)
+            off_s = max(0.0, gap_s - cpu_gap_s - blocked_s)
+            record["cpu_ms"] = round(cpu_gap_s * 1e3, 3)
+            record["off_cpu_ms"] = round(off_s * 1e3, 3)
+            if off_s > cpu_gap_s:
+                self.off_cpu_stalls += 1
         self.stalls.append(record)
         if len(self.stalls) > MAX_STALLS_KEPT:
             self.stalls.remove(min(self.stalls, key=lambda r: r["stall_ms"]))
@@ -291,7 +315,7 @@ class PeriodTrace:
         """The figures, for a run's record: periods, stalls (count, longest, by cause, the longest kept with
         what ran before each) and each kind's p99 and max in ms."""
         longest = sorted(self.stalls, key=lambda r: -r["stall_ms"])
-        return {"periods": self.periods, "stalls": self.stall_count,
+        return {"periods": self.periods, "stalls": self.stall_count, "stalls_off_cpu": self.off_cpu_stalls,
                 "stall_max_ms": longest[0]["stall_ms"] if longest else 0.0, "stall_causes": dict(self.causes),
                 "rig_clock_shared": bool(self.same_clock), "longest_stalls": longest,
                 "ms": {k: {"n": h.n, "p99": round(h.percentile_ms(99), 3), "max": round(h.max_ms, 3)}

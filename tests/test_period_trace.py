@@ -172,3 +172,47 @@ def test_bench_rig_prints_the_longest_stall_its_cause_and_the_periods_lost(capsy
     assert re.search(r"test 1: longest stall [\d.]+ ms: (no stall|[\w: ]+; busy [\d.]+ ms)", out)
     assert re.search(r"longest stall [\d.]+ ms \[target: no period lost\]: \d+ period\(s\) lost by the host, \d+ "
                      r"missed by the rig; host priority none", out)
+
+
+class FakeCpu:
+    """A thread CPU clock the test sets: ``now`` s."""
+
+    def __init__(self):
+        self.now = 0.0
+
+    def __call__(self):
+        return self.now
+
+
+def test_a_stall_says_whether_the_loop_computed_or_was_off_its_cpu():
+    """Two 5 ms stalls of the answer: in one the loop computed all the while (its CPU clock went on), in the other
+    it ran 0.1 ms and was off its CPU the rest (preempted); only the second counts as the OS's."""
+    cpu = FakeCpu()
+    trace = PeriodTrace(P, cpu_clock=cpu)
+    t = 10.0
+    for k in range(10):
+        cpu.now += 1e-4
+        trace.answered(t + k * P - 3e-4, t + k * P + 2e-5, t + k * P + 1e-4, int((t + k * P) * 1e9),
+                       int((t + k * P) * 1e9))
+    t += 10 * P
+    cpu.now += 5.7e-3  # the loop computed all the 6 ms gap but the 0.3 ms it waited for the rig to send
+    trace.answered(t - 3e-4, t + 2e-5, t + 5.1e-3, int(t * 1e9), int(t * 1e9))
+    t += 6 * P
+    cpu.now += 1e-4  # the answer took 5 ms of wall time, 0.1 ms of CPU
+    trace.answered(t - 3e-4, t + 2e-5, t + 5.1e-3, int(t * 1e9), int(t * 1e9))
+    s = trace.summary()
+    assert s["stalls"] == 2 and s["stall_causes"] == {"answer": 2} and s["stalls_off_cpu"] == 1
+    computed, preempted = sorted(s["longest_stalls"], key=lambda r: r["period"])
+    assert computed["cpu_ms"] == pytest.approx(5.7, abs=1e-3) and computed["off_cpu_ms"] < 1e-3
+    assert preempted["cpu_ms"] == pytest.approx(0.1, abs=1e-3)
+    # the gap less the CPU less the time it waited for a measurement not sent yet (0.3 ms before it was sent)
+    assert preempted["off_cpu_ms"] == pytest.approx(6.0 - 0.1 - 0.3, abs=1e-3)
+    assert s["ms"]["cpu"]["max"] == pytest.approx(5.7, abs=0.011)
+
+
+def test_without_a_cpu_clock_the_stalls_have_no_cpu_figures():
+    trace = PeriodTrace(P, cpu_clock=None)
+    t = periods(trace, 10, t0=10.0, sent0=10.0)
+    trace.answered(t - 3e-4, t + 4e-3, t + 4.1e-3, int(t * 1e9), int(t * 1e9))
+    [stall] = trace.summary()["longest_stalls"]
+    assert "cpu_ms" not in stall and "cpu" not in trace.summary()["ms"]

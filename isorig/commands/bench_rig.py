@@ -17,6 +17,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
 import sys
@@ -200,10 +201,13 @@ def _watchdog(folder: Path, tests: int, test_s: float, host_priority: str = "gra
         link = summary.get("link") or {}
         trace = (summary.get("pacing") or {}).get("period_trace") or {}
         longest = (trace.get("longest_stalls") or [None])[0]
+        latency = status["command_latency"]  # {"n": 0} when no command arrived (a test that failed at once)
         rows.append({"test": i + 1, "exit": proc.returncode, "status": summary.get("status"),
                      "reason": summary.get("reason"), "watchdog_trips": len(status["watchdog_trips"]),
-                     "lateness_p99_ms": status["command_latency"]["p99_ms"],
-                     "lateness_max_ms": status["command_latency"]["max_ms"],
+                     "lateness_p99_ms": latency.get("p99_ms", math.nan),
+                     "lateness_max_ms": latency.get("max_ms", math.nan),
+                     "load_average": os.getloadavg()[0], "stalls_off_cpu": trace.get("stalls_off_cpu"),
+                     "cpu_per_period_p99_ms": (trace.get("ms") or {}).get("cpu", {}).get("p99"),
                      "periods_missed": counters["periods_missed"], "host_lost_periods": summary.get("lost_periods"),
                      "host_stall_max_ms": link.get("host_stall_max_ms"), "stalls": trace.get("stalls"),
                      "stall_causes": trace.get("stall_causes"), "longest_stall": longest,
@@ -214,7 +218,8 @@ def _watchdog(folder: Path, tests: int, test_s: float, host_priority: str = "gra
         r = rows[-1]
         print(f"[watchdog] {i + 1}/{tests}: {r['status']}, {r['watchdog_trips']} trip(s), p99 "
               f"{r['lateness_p99_ms']:.3f} ms, longest stall {_ms(r['host_stall_max_ms'])} ms "
-              f"({_cause(longest)}), {r['host_lost_periods']} period(s) lost", file=sys.stderr)
+              f"({_cause(longest)}), {r['host_lost_periods']} period(s) lost; load average "
+              f"{r['load_average']:.1f}", file=sys.stderr)
     return rows
 
 
@@ -227,7 +232,9 @@ def _cause(stall: dict | None) -> str:
     if not stall:
         return "no stall"
     pieces = ", ".join(f"{k} {v:.2f}" for k, v in sorted(stall["pieces_ms"].items(), key=lambda kv: -kv[1])[:2])
-    return f"{stall['cause']}; busy {stall['busy_ms']:.2f} ms ({pieces}), waited {stall['wait_ms']:.2f} ms"
+    cpu = (f"; the loop's CPU {stall['cpu_ms']:.2f} ms, off its CPU {stall['off_cpu_ms']:.2f} ms"
+           if "cpu_ms" in stall else "")
+    return f"{stall['cause']}; busy {stall['busy_ms']:.2f} ms ({pieces}), waited {stall['wait_ms']:.2f} ms{cpu}"
 
 
 def _without_sys_nice() -> None:
@@ -254,13 +261,24 @@ class CpuHogs:
     def __enter__(self) -> CpuHogs:
         code = "import os\nos.setpriority(os.PRIO_PROCESS, 0, 0)\nwhile True: pass"
         self.processes = [subprocess.Popen([sys.executable, "-c", code], start_new_session=True,
-                                           preexec_fn=_normal_priority) for _ in range(self.n)]
+                                           preexec_fn=_hog_preexec) for _ in range(self.n)]
         return self
 
     def __exit__(self, *_exc) -> None:
         for p in self.processes:
             p.kill()
             p.wait(5)
+
+
+def _hog_preexec() -> None:
+    """A hog starts at normal priority and is killed when the bench ends, however it ends (PR_SET_PDEATHSIG:
+    a bench killed by a signal left its hogs spinning in their own sessions, loading every later measurement)."""
+    import ctypes
+    import signal
+
+    pr_set_pdeathsig = 1  # <linux/prctl.h>
+    ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, signal.SIGKILL, 0, 0, 0)
+    _normal_priority()
 
 
 def _normal_priority() -> None:
@@ -303,21 +321,25 @@ def _print(results: dict) -> None:
         rows = results["watchdog"]
         print(f"[watchdog] {len(rows)} tests on an 18 ms rig watchdog, {results['cpu_hogs']} CPU hog(s) beside "
               "[target: 0 trips, p99 lateness < 1 ms]")
-        print("  test  status      trips  p99 ms  max ms  rig missed  host lost  stalls  longest stall ms  priority")
+        print("  test  status      trips  p99 ms  max ms  rig missed  host lost  stalls  longest stall ms  load  "
+              "priority")
         for r in rows:
             print(f"  {r['test']:>4}  {str(r['status']):10s}  {r['watchdog_trips']:>5}  {r['lateness_p99_ms']:>6.3f}"
                   f"  {r['lateness_max_ms']:>6.2f}  {r['periods_missed']:>10}  {str(r['host_lost_periods']):>9}"
-                  f"  {str(r.get('stalls')):>6}  {_ms(r['host_stall_max_ms']):>16}  {r['priority']}")
+                  f"  {str(r.get('stalls')):>6}  {_ms(r['host_stall_max_ms']):>16}  {r.get('load_average', 0):4.1f}"
+                  f"  {r['priority']}")
         for r in rows:
             print(f"  test {r['test']}: longest stall {_ms(r['host_stall_max_ms'])} ms: "
                   f"{_cause(r.get('longest_stall'))}"
-                  f"; stalls by cause {r.get('stall_causes') or {}}; the rig's own overruns {r.get('rig_overruns')} "
+                  f"; stalls by cause {r.get('stall_causes') or {}}, {r.get('stalls_off_cpu')} with the loop off its "
+                  f"CPU longer than it computed; its CPU per period p99 {r.get('cpu_per_period_p99_ms')} ms; the rig's "
+                  f"own overruns {r.get('rig_overruns')} "
                   f"(its longest tick lateness {_ms(r.get('rig_tick_lateness_max_ms'))} ms)")
             if r["watchdog_trips"] or r["status"] != "completed":
                 print(f"  test {r['test']}: {r['status']} ({r['reason']}); the rig's watchdog tripped at t = "
                       f"{', '.join(f'{t:.3f}' for t in r.get('trips_at_s') or [])} s")
         trips = sum(r["watchdog_trips"] for r in rows)
-        worst = max(r["lateness_p99_ms"] for r in rows)
+        worst = max((r["lateness_p99_ms"] for r in rows if not math.isnan(r["lateness_p99_ms"])), default=math.nan)
         stalls = [r["host_stall_max_ms"] for r in rows if r["host_stall_max_ms"] is not None]
         lost = sum(r["host_lost_periods"] or 0 for r in rows)
         missed = sum(r["periods_missed"] for r in rows)
