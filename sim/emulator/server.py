@@ -62,6 +62,10 @@ SUPPLY_LOW_FRACTION = 0.5
 SUPPLY_RISE_DONE = 1e-3  # a rising supply this close to its set point (share of it) is set to it: the rise ends
 STALE_PERIODS = 10  # a command answering a measurement older than this is stale
 SPIN_S = 2e-4  # the loop sleeps until this long before a tick, then polls
+#: a tick this late (share of a period) keeps its period from now instead of the old grid: the next tick on the old
+#: grid would send its measurement less than half a period after this one's (at once after a tick late by a whole
+#: period), before the host could answer this one, so the rig's own stall cost a period the host was blamed for
+SLIP_PERIODS = 0.5
 #: the status writer holds the GIL for ~3 ms (its JSON) twice a second; with CPython's default switch interval (5 ms)
 #: the tick loop, woken by a command, waited for it, and the command was timed that much late (set by the CLI)
 GIL_SWITCH_INTERVAL_S = 2e-4
@@ -207,7 +211,8 @@ class RigEmulator:
         self.stopped = False
         self.counters = {"ticks": 0, "arms": 0, "disarms": 0, "measurements_sent": 0, "measurements_dropped": 0,
                          "commands_applied": 0, "command_max_abs_v": 0.0, "commands_late": 0, "periods_missed": 0,
-                         "incoming_dropped": 0, "restarts": 0, "link_dropped": False, "overruns": 0, "ticks_lost": 0}
+                         "incoming_dropped": 0, "restarts": 0, "link_dropped": False, "overruns": 0, "ticks_lost": 0,
+                         "ticks_slipped": 0}
         self.rejected: dict[str, int] = {}
         self.latency = LatencyHistogram()  # per answered measurement: command arrival - measurement sent
         self.tick_lateness = LatencyHistogram()
@@ -577,12 +582,16 @@ class RigEmulator:
             late = now - due
             self.tick_lateness.add(late * 1e3)
             stall = 0.0
-            if late > 2 * self.period_s:
-                # this process was not scheduled for a while (its own stall, not the link's): like a real
-                # target, it does not catch up on the ticks it lost; the watchdog does not count the stall
+            if late > SLIP_PERIODS * self.period_s:
+                # this process was not scheduled for a while (its own stall, not the link's): like a real target
+                # after an overrun (docs/rig-protocol.md 1.6) it does not catch up, neither on the ticks it lost
+                # nor by sending the next measurement right after this one, and keeps its period from now on;
+                # the watchdog does not count the periods lost
                 lost = int(late / self.period_s)
-                self.counters["overruns"] += 1
-                self.counters["ticks_lost"] += lost
+                self.counters["ticks_slipped"] += 1
+                if lost:
+                    self.counters["overruns"] += 1
+                    self.counters["ticks_lost"] += lost
                 stall = lost * self.period_s
                 t0, k = now - self.period_s, 0
                 tick_start = t0

@@ -1,0 +1,72 @@
+"""A loop that keeps its period (issue 33 item 6): the rig emulator, late for a tick, keeps its period from there
+instead of sending the next measurement right after the late one (a period the host could not have answered)."""
+
+from __future__ import annotations
+
+import socket
+import sys
+import threading
+import time
+
+import pytest
+
+from sim.emulator import protocol as proto
+from sim.emulator.server import SLIP_PERIODS, EmulatorConfig, RigEmulator
+from sim.isolator import PRESETS
+
+P = 1e-3
+
+
+class LateRig(RigEmulator):
+    """The emulator, woken ``late_s`` late for the ticks in ``late_at`` (counted from ARM)."""
+
+    def __init__(self, config, late_at, late_s):
+        super().__init__(config)
+        self.late_at, self.late_s = set(late_at), late_s
+
+    def _pump_until(self, due):
+        super()._pump_until(due)
+        if self.armed and self.sequence + 1 in self.late_at:
+            end = time.perf_counter() + self.late_s
+            while time.perf_counter() < end:  # busy: as a process the OS did not run
+                pass
+
+
+@pytest.mark.realtime  # an emulator on the wall clock: run alone (scripts/test.sh)
+@pytest.mark.parametrize("late_periods", [0.8, 1.6])
+def test_a_late_tick_does_not_send_the_next_measurement_at_once(late_periods):
+    """Ticks 200, 400 and 600 wake ``late_periods`` late: each measurement still leaves at least half a period
+    after the one before (on the old grid the next one followed 0.2 ms after, or at once), numbered on by one,
+    and the emulator counts the slips."""
+    rig = LateRig(EmulatorConfig(PRESETS["IUT_a"], 0, watchdog_s=0.1), (200, 400, 600), late_periods * P)
+    switch = sys.getswitchinterval()
+    sys.setswitchinterval(1e-4)  # the rig's thread and this one share the interpreter
+    server = threading.Thread(target=rig.serve, daemon=True)
+    got = []
+    try:
+        server.start()
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as host:
+            host.connect(("127.0.0.1", rig.port))
+            host.settimeout(1.0)
+            session = 4242
+            host.send(proto.encode(proto.ARM, session, 0, 0, 100e5, 1e5))
+            while len(got) < 700:
+                m = proto.decode(host.recv(256))
+                if m.kind != proto.MEASUREMENT or m.session != session:
+                    continue
+                got.append(m)
+                host.send(proto.encode(proto.COMMAND, session, m.sequence, 0, 0.0))
+            host.send(proto.encode(proto.DISARM, session, 0, 0))
+    finally:
+        rig.stop()
+        server.join(5)
+        sys.setswitchinterval(switch)
+        rig.close()
+    assert [m.sequence for m in got] == list(range(700))
+    gaps_ms = {m.sequence: (m.time_ns - prev.time_ns) / 1e6 for prev, m in zip(got, got[1:], strict=False)}
+    for k in (200, 400, 600):
+        # the late tick's measurement left late; the next one a period after it, not on the old grid
+        assert gaps_ms[k] > (1 + late_periods - 0.2) and gaps_ms[k + 1] > SLIP_PERIODS, (k, gaps_ms[k], gaps_ms[k + 1])
+    counters = rig.status()["counters"]
+    assert counters["ticks_slipped"] >= 3
+    assert (counters["overruns"] >= 3) == (late_periods >= 1.0) or counters["overruns"] >= 3
