@@ -22,6 +22,7 @@ class LatencyHistogram:
         self.counts = [0] * (int(TOP_MS / BIN_MS) + 1)
         self.n = 0
         self.max_ms = 0.0
+        self.total_ms = 0.0  # for the mean
 
     def add(self, ms: float) -> None:
         if not ms >= 0.0:  # NaN or negative (a clock step): counted as 0
@@ -29,8 +30,14 @@ class LatencyHistogram:
         i = int(ms / BIN_MS)
         self.counts[i if i < len(self.counts) else -1] += 1
         self.n += 1
+        self.total_ms += ms
         if ms > self.max_ms:
             self.max_ms = ms
+
+    @property
+    def mean_ms(self) -> float:
+        """The mean of the values added (exact: their sum, not the bins'); NaN before the first."""
+        return self.total_ms / self.n if self.n else float("nan")
 
     def percentile_ms(self, q: float) -> float:
         """The upper edge of the bin holding the q-th percentile (0 < q <= 100)."""

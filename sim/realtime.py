@@ -318,5 +318,6 @@ class PeriodTrace:
         return {"periods": self.periods, "stalls": self.stall_count, "stalls_off_cpu": self.off_cpu_stalls,
                 "stall_max_ms": longest[0]["stall_ms"] if longest else 0.0, "stall_causes": dict(self.causes),
                 "rig_clock_shared": bool(self.same_clock), "longest_stalls": longest,
-                "ms": {k: {"n": h.n, "p99": round(h.percentile_ms(99), 3), "max": round(h.max_ms, 3)}
+                "ms": {k: {"n": h.n, "mean": round(h.mean_ms, 4), "p99": round(h.percentile_ms(99), 3),
+                           "max": round(h.max_ms, 3)}
                        for k, h in self.ms.items()}}

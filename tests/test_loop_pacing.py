@@ -70,3 +70,22 @@ def test_a_late_tick_does_not_send_the_next_measurement_at_once(late_periods):
     counters = rig.status()["counters"]
     assert counters["ticks_slipped"] >= 3
     assert (counters["overruns"] >= 3) == (late_periods >= 1.0) or counters["overruns"] >= 3
+
+
+def test_the_latency_histogram_keeps_the_exact_mean():
+    """sim.latency.LatencyHistogram: the mean is the values' (not the 10 us bins'), NaN and negatives counted as 0,
+    as in every other figure of it."""
+    import math
+
+    import numpy as np
+
+    from sim.latency import LatencyHistogram
+
+    values = np.random.default_rng(3).exponential(0.3, 5000)
+    h = LatencyHistogram()
+    assert math.isnan(h.mean_ms)
+    for v in values:
+        h.add(float(v))
+    h.add(float("nan"))
+    h.add(-1.0)
+    assert h.n == 5002 and h.mean_ms == pytest.approx(values.sum() / 5002, rel=1e-12)

@@ -208,6 +208,7 @@ def _watchdog(folder: Path, tests: int, test_s: float, host_priority: str = "gra
                      "lateness_max_ms": latency.get("max_ms", math.nan),
                      "load_average": os.getloadavg()[0], "stalls_off_cpu": trace.get("stalls_off_cpu"),
                      "cpu_per_period_p99_ms": (trace.get("ms") or {}).get("cpu", {}).get("p99"),
+                     "cpu_per_period_mean_ms": (trace.get("ms") or {}).get("cpu", {}).get("mean"),
                      "periods_missed": counters["periods_missed"], "host_lost_periods": summary.get("lost_periods"),
                      "host_stall_max_ms": link.get("host_stall_max_ms"), "stalls": trace.get("stalls"),
                      "stall_causes": trace.get("stall_causes"), "longest_stall": longest,
@@ -332,7 +333,8 @@ def _print(results: dict) -> None:
             print(f"  test {r['test']}: longest stall {_ms(r['host_stall_max_ms'])} ms: "
                   f"{_cause(r.get('longest_stall'))}"
                   f"; stalls by cause {r.get('stall_causes') or {}}, {r.get('stalls_off_cpu')} with the loop off its "
-                  f"CPU longer than it computed; its CPU per period p99 {r.get('cpu_per_period_p99_ms')} ms; the rig's "
+                  f"CPU longer than it computed; its CPU per period mean {r.get('cpu_per_period_mean_ms')} ms, p99 "
+                  f"{r.get('cpu_per_period_p99_ms')} ms; the rig's "
                   f"own overruns {r.get('rig_overruns')} "
                   f"(its longest tick lateness {_ms(r.get('rig_tick_lateness_max_ms'))} ms)")
             if r["watchdog_trips"] or r["status"] != "completed":
