@@ -54,6 +54,10 @@ def test_every_rule_has_a_check_a_probe_a_protocol_section_and_a_message(rig_che
         if rule.probe == "dropped":
             assert rule.arg in DROPS, rule.id
     assert set(CHECKS) == {rule.check_name for rule in RULES}  # no check without a rule
+    # the rules of one probe are next to each other: RigCheck runs a probe once for the rules it feeds
+    fed = [(rule.probe, rule.arg) for rule in RULES if rule.probe]
+    runs = [key for i, key in enumerate(fed) if i == 0 or fed[i - 1] != key]
+    assert len(runs) == len(set(runs)), [key for key in runs if runs.count(key) > 1]
     # one row name per rule of a run: the report's rows are told apart by name
     names = [(r.section, r.text.format(**context)) for r in RULES if rig_check.applies(r)]
     assert len(set(names)) == len(names)

@@ -44,7 +44,8 @@ CHANNELS = ("position_m", "force_n", "load_pressure_pa", "supply_pressure_pa")
 class Rule:
     """One rule: ``id``; ``section`` of docs/rig-protocol.md; ``text``, its name in the report; ``fails``, what it
     tells a lab when it fails; ``probe`` (probes.PROBES, with ``arg``) whose measurement ``check`` (CHECKS, the id
-    if not named) judges; ``when``: "v1", "v2" (the link's protocol version) or "motion" (--motion) only."""
+    if not named) judges ("": none, the exception that ended the check feeds it); ``when``: "v1", "v2" (the link's
+    protocol version) or "motion" (--motion) only. The rules of one probe (and arg) are next to each other."""
 
     id: str
     section: str
@@ -60,11 +61,11 @@ class Rule:
         return self.check or self.id
 
 
-def _drop(reason: str, what: str, section: str = "§5", when: str = "", arg: str | None = None) -> Rule:
+def _drop(reason: str, what: str, section: str = "§5", when: str = "") -> Rule:
     """A rule that datagrams in place of a command are dropped, counted and never applied (``probes.DROPS``)."""
     return Rule(f"drop-{reason}", section, f"drop {reason}: {what}",
                 f"each is dropped and counted once ({reason}), never applied, and the test goes on",
-                "dropped", arg or reason, when, check="dropped")
+                "dropped", reason, when, check="dropped")
 
 
 _WATCHDOG_FAILS = "must be within {watchdog_bounds} of the %s (10-20 ms, plus the link and one period)"
