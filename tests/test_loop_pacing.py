@@ -89,3 +89,40 @@ def test_the_latency_histogram_keeps_the_exact_mean():
     h.add(float("nan"))
     h.add(-1.0)
     assert h.n == 5002 and h.mean_ms == pytest.approx(values.sum() / 5002, rel=1e-12)
+
+
+def test_the_bench_hogs_die_with_the_bench():
+    """isorig bench-rig's CPU hogs are killed when the bench ends however it ends: a bench killed by SIGKILL left
+    two spinning in their own sessions, loading every measurement after it."""
+    import os
+    import signal
+    import subprocess
+
+    code = ("import time\nfrom isorig.commands.bench_rig import CpuHogs\nwith CpuHogs(1) as hogs:\n"
+            "    print(hogs.processes[0].pid, flush=True)\n    time.sleep(60)\n")
+    bench = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    hog = int(bench.stdout.readline())
+    try:
+        os.kill(hog, 0)  # spinning
+        bench.kill()
+        bench.wait(10)
+        end = time.monotonic() + 10
+        while time.monotonic() < end:
+            try:
+                os.waitpid(hog, os.WNOHANG)  # not our child: ECHILD; its parent's exit reparents it
+            except ChildProcessError:
+                pass
+            try:
+                os.kill(hog, 0)
+            except ProcessLookupError:
+                break
+            if open(f"/proc/{hog}/stat").read().split(") ")[1][0] == "Z":  # killed, not yet reaped
+                break
+            time.sleep(0.05)
+        else:
+            pytest.fail(f"the hog {hog} still runs 10 s after its bench was killed")
+    finally:
+        try:
+            os.kill(hog, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
