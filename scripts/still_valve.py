@@ -71,6 +71,19 @@ def quiet_windows(target_m: np.ndarray, command_v: np.ndarray, dt: float = CONTR
     return {"std_v": worst, "at_s": where, "windows": count, "settled_std_v": settled}
 
 
+def quiet_mask(target_m: np.ndarray, dt: float = CONTROL_PERIOD_S) -> np.ndarray:
+    """True at the samples that lie in a quiet window (quiet_windows: a 1 s window in which the target's range is
+    below QUIET_RANGE_M)."""
+    n = int(round(WINDOW_S / dt))
+    step = int(round(STEP_S / dt))
+    quiet = np.zeros(len(target_m), dtype=bool)
+    for i0 in range(0, max(len(target_m) - n, 0) + 1, step):
+        r = target_m[i0:i0 + n]
+        if np.all(np.isfinite(r)) and np.ptp(r) < QUIET_RANGE_M:
+            quiet[i0:i0 + n] = True
+    return quiet
+
+
 def hybrid_case(scale: float, ground_motion: str = "near_field_short", options: dict | None = None) -> dict:
     """(a) `isorig hybrid` on the simulated rig, as the command builds and runs it."""
     from isorig.commands.hybrid import _simulated
@@ -93,7 +106,11 @@ def hybrid_case(scale: float, ground_motion: str = "near_field_short", options: 
     # the quiet end: the windows after the target's largest displacement (a ground motion's start is quiet too)
     peak = int(np.argmax(np.abs(s["target_m"])))
     end = quiet_windows(s["target_m"][peak:], s["voltage_v"][peak:])
+    # how far the table is from the target there (a still valve holds the swings' centre: about their half-size)
+    error = (s["displacement_m"] - s["target_m"])[peak:][quiet_mask(s["target_m"][peak:])]
+    end_rms_um = 1e6 * float(np.sqrt(np.mean(error ** 2))) if error.size else float("nan")
     return {**q, "end_std_v": end["std_v"], "end_settled_std_v": end["settled_std_v"], "status": status,
+            "end_rms_error_um": end_rms_um,
             "j2_pct": res["criteria"]["j2_rms_percent"], "j3_pct": res["criteria"]["j3_peak_percent"],
             "peak_error_um": 1e6 * float(np.max(np.abs(s["displacement_m"] - s["target_m"])))}
 
@@ -176,7 +193,8 @@ def main() -> None:
             h = hybrid_case(scale, gm, options)
             print(f"  {gm} x{scale:g}: worst quiet-window command std {h['std_v']:.3f} V at {h['at_s']:.2f} s "
                   f"({h['windows']} windows; after a still second {h['settled_std_v']:.3f} V); after the peak "
-                  f"{h['end_std_v']:.3f} V (after a still second {h['end_settled_std_v']:.3f} V); {h['status']}, "
+                  f"{h['end_std_v']:.3f} V (after a still second {h['end_settled_std_v']:.3f} V), RMS |y - r| there "
+                  f"{h['end_rms_error_um']:.0f} um; {h['status']}, "
                   f"J2 {h['j2_pct']:.2f} %, J3 {h['j3_pct']:.2f} %, "
                   f"peak |y - r| {h['peak_error_um']:.0f} um")
     jobs = [("default", None, options)] + [(f"#{i}", drawn[i], options) for i in wanted]

@@ -10,7 +10,8 @@ tests the oil's compression flow fed forward). Design and stability argument: do
     u_l  = A_n (v / g) / (K_qn R(P_s - sgn(v) P_L))             inverse of the valve flow law, eq. (3) second line
     u    = u_l + DZ ramp(u_l / delta) - o + u_pf                dead-zone inverse (ramp over +-delta), null offset
            (time histories: ramp((u_l - u_fb) / delta + u_fb / delta_fb), u_fb the command of K_p e + c_0; where
-           the target is still, the ramp's share moves at most 0.5 V/s towards the error's side: no relay)
+           the target is still, the ramp's share moves at most 0.5 V/s towards the error's side: no relay; under a
+           ringing target, still_share, the side of the table's error from the centre of the swings)
     u_pf = -A_n k_pf HP(P_L) / (g K_qn R(P_s - sgn(v) P_L))     load-pressure feedback (soft oil columns only)
 
 R is the orifice law of the rig model: sqrt(dp), linear below the declared regularisation drop. g is the ratio of
@@ -95,8 +96,9 @@ P_FB_RAMP, P_EDGE_TRIM = 43, 44
 (P_STILL_SWING, P_STILL_SWING_V, P_STILL_SPEED_T, P_STILL_SPEED, P_STILL_ACC_T, P_STILL_RATE, P_STILL_BAND,
  P_STILL_REST, P_STILL_SHARE) = range(56, 65)
 P_STILL_HOLD_SHARE = 65
+P_STILL_CENTRE = 66
 STILL_FAST_RATE_SHARE = 20.0  # the still share's rate for an error of many bands, times still_command_rate_v_per_s
-N_PARAMS = 66
+N_PARAMS = 67
 DELAY_LINE = 256  # periods of regressor and target history kept (valve estimate, position latency)
 
 # State indices; the delay line and the harmonic coefficients (real, imaginary) follow.
@@ -122,7 +124,10 @@ S_THETA_PREV = S_PCYC + 1  # the target's phase of the last period
 (S_SWING_FROM, S_SWING_EXT, S_SWING_DIR, S_SWING_LAST, S_SWING_PREV, S_SWING_MAX, S_SPEED_REC, S_SIDE) = range(
     S_THETA_PREV + 1, S_THETA_PREV + 9)
 S_HELD = S_SIDE + 1  # the held part of the target's stillness (0-1) this period, as still_hold_share weighs it
-N_STATE = S_HELD + 1
+# the centre of the target's swings (m): the mean of the last two whole swings' midpoints, and the last midpoint; and
+# the ringing part of the stillness this period (0-1: still_share times the ringing's stillness where it is no hold)
+S_CENTRE, S_MID_LAST, S_RING = S_HELD + 1, S_HELD + 2, S_HELD + 3
+N_STATE = S_RING + 1
 
 
 def _nominal_rig(rig=None) -> dict:
@@ -256,6 +261,10 @@ OPTIONS = {
     "still_hold_share": Option(1.0, 0.0, 1.0, "-", meaning="1: where the target is held (slower than "
                                "still_speed_m_per_s: a hold, a move's or a sine's end), this share of it, whatever "
                                "still_share says (a held target has no motion to follow)"),
+    "still_centre_share": Option(1.0, 0.0, 1.0, "-", meaning="1: under a ringing target the dead zone's side "
+                                 "follows the table's error from the centre of the target's swings (the table holds "
+                                 "it), at the held target's faster rate for an error of many bands (0: the error "
+                                 "itself, at still_command_rate_v_per_s)"),
     "still_swing_m": Option(5e-4, 0.0, 0.1, "m", meaning="a target that reverses within swings smaller than this "
                             "(wholly; not at all from 1.5 times it) ..."),
     "still_swing_speed_m_per_s": Option(5e-3, 0.0, 1.0, "m/s", meaning="... at a recent peak speed below this (wholly; "
@@ -374,6 +383,7 @@ def make_servo(rig=None, **options) -> Controller:
     params[P_STILL_BAND] = o["still_error_band_m"]
     params[P_STILL_SHARE] = o["still_share"]
     params[P_STILL_HOLD_SHARE] = o["still_hold_share"]
+    params[P_STILL_CENTRE] = o["still_centre_share"]
     params[P_STILL_SWING_V] = o["still_swing_speed_m_per_s"]
     params[P_STILL_ACC_T] = o["still_acceleration_s"]
     params[P_STILL_REST] = o["still_rest_share"]
@@ -647,6 +657,11 @@ def target_stillness(p, s, r, rd, rdd, dt):
     elif (r - s[S_SWING_EXT]) * direction > 0.0:
         s[S_SWING_EXT] = r
     elif (s[S_SWING_EXT] - r) * direction > eps:
+        # the centre of a ringing target: the midpoints of a decaying ring's swings alternate about it, and the mean of
+        # two in a row cancels most of that
+        mid = 0.5 * (s[S_SWING_EXT] + s[S_SWING_FROM])
+        s[S_CENTRE] = 0.5 * (mid + s[S_MID_LAST])
+        s[S_MID_LAST] = mid
         s[S_SWING_PREV] = s[S_SWING_LAST] if s[S_SWING_PREV] >= 0.0 else 0.0  # (the first: one that grows)
         s[S_SWING_LAST] = abs(s[S_SWING_EXT] - s[S_SWING_FROM])
         s[S_SWING_MAX] = max(s[S_SWING_MAX], s[S_SWING_LAST])
@@ -670,6 +685,7 @@ def target_stillness(p, s, r, rd, rdd, dt):
     if p[P_STILL_SPEED] > 0.0:
         held = 1.0 - _smoothstep((abs(rd) + p[P_STILL_ACC_T] * abs(rdd)) / p[P_STILL_SPEED] - 1.0)
     s[S_HELD] = p[P_STILL_HOLD_SHARE] * held
+    s[S_RING] = p[P_STILL_SHARE] * still * (1.0 - held)
     return max(p[P_STILL_SHARE] * max(still, held), p[P_STILL_HOLD_SHARE] * held)
 
 
@@ -679,7 +695,8 @@ def still_dead_zone_share(p, s, ramp_at, still, e, dz_c, dt):
     inverse) where the target moves; where it is still (``still``, target_stillness) the whole side of a position
     error beyond still_error_band_m, within it where it is (at most still_rest_share), reached moving the
     command by at most still_command_rate_v_per_s (divided by ``still``^4; in between, the demand's side if
-    ``still`` < 1/2).
+    ``still`` < 1/2). Under a ringing target ``e`` is the table's error from the centre of the swings
+    (still_centre_share; servo_step), so the table holds that centre, not where the stillness caught it.
     A relay in a loop with a lag (the valve, friction, the oil's give) has a limit cycle at any loop gain: its
     describing function 4 DZ / (pi a) grows without bound as the amplitude a falls. Rate-limited, the share cannot
     cross the dead zone (2 DZ) within a swing of a ringing target: the valve stays closed or on one side, the table
@@ -695,8 +712,10 @@ def still_dead_zone_share(p, s, ramp_at, still, e, dz_c, dt):
             goal = min(max(s[S_SIDE], -rest), rest) if abs(e) <= p[P_STILL_BAND] else (1.0 if e > 0.0 else -1.0)
         # a held target (still_hold_share) with an error of many bands (a braked target's rest, a table left short)
         # crosses the dead zone sooner: the rate grows as the square of the error in bands, up to
-        # STILL_FAST_RATE_SHARE times (not under a ringing target: its swings would make that a relay again)
-        fast = 1.0 + (min(max((abs(e) / p[P_STILL_BAND]) ** 2, 1.0), STILL_FAST_RATE_SHARE) - 1.0) * s[S_HELD]
+        # STILL_FAST_RATE_SHARE times; under a ringing target so does the error from the swings' centre
+        # (still_centre_share; the error from the target itself would make that a relay again: it swings)
+        fast_share = max(s[S_HELD], p[P_STILL_CENTRE] * s[S_RING])
+        fast = 1.0 + (min(max((abs(e) / p[P_STILL_BAND]) ** 2, 1.0), STILL_FAST_RATE_SHARE) - 1.0) * fast_share
         step = dt * p[P_STILL_RATE] * fast / (still ** 4 * max(dz_c, 1e-3))
         share = s[S_SIDE] + min(max(goal - s[S_SIDE], -step), step)
     s[S_SIDE] = share
@@ -722,6 +741,8 @@ def _start(s, r, rd, y, p_meas):
             s[S_LINE_R + i] = r
         s[S_SWING_FROM] = r
         s[S_SWING_EXT] = r
+        s[S_CENTRE] = r
+        s[S_MID_LAST] = r
         s[S_STARTED] = 1.0
 
 
@@ -1168,9 +1189,11 @@ def servo_step(p, s, meas, dt, report):
     u_lin, ramp_at = valve_inverse_ramp(v / gain, p_load, p_supply, p[P_AREA], p[P_KQ], ramp, p[P_DP_MIN],
                                         p[P_DP_REG], v_fb / gain, p[P_FB_RAMP])
     dz_c = p[P_DZ_FRAC] * max(s[S_DZ_HAT] + s[S_EDGE], p[P_DZ_LO])  # the estimated dead zone, trimmed
-    # where the target is still, the dead zone's side moves slowly with the error instead of switching
+    # where the target is still, the dead zone's side moves slowly with the error instead of switching; under a
+    # ringing target with the table's error from the centre of the swings
     still = target_stillness(p, s, r, rd, rdd, dt)
-    ramp_at = still_dead_zone_share(p, s, ramp_at, still, e, dz_c, dt)
+    e_still = e + p[P_STILL_CENTRE] * s[S_RING] * (s[S_CENTRE] - r)
+    ramp_at = still_dead_zone_share(p, s, ramp_at, still, e_still, dz_c, dt)
     u = u_lin + dz_c * ramp_at - o_hat
     u = _pressure_feedback_command(p, u, v, v_pf, gain, p_load, p_supply)
     u, saturated, was_saturated = _saturate(p, s, u)
