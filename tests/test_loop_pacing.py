@@ -126,3 +126,57 @@ def test_the_bench_hogs_die_with_the_bench():
             os.kill(hog, signal.SIGKILL)
         except ProcessLookupError:
             pass
+
+
+@pytest.mark.parametrize("how", ["computes", "sleeps"])
+def test_the_stall_that_trips_the_watchdog_is_told(how):
+    """The stall that ends a test is answered by no command, so neither the period trace nor the command gaps see
+    it: the driver keeps it when the rig's last measurement says it disarmed itself (the watchdog), with the loop's
+    work before the wait split into its CPU time and the time it was off its CPU (UdpRig.stall_at_fault)."""
+    from backend.drivers import ArmConditions, RigFault
+    from backend.drivers.udp import UdpRig
+    from sim.measurement import STATUS_ARMED, STATUS_WATCHDOG
+
+    rig = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rig.bind(("127.0.0.1", 0))
+    rig.settimeout(2.0)
+    go = threading.Event()
+
+    def measurement(session, seq, status):
+        return proto.encode(proto.MEASUREMENT, session, seq, time.perf_counter_ns(), 0.0, 0.0, 0.0, 100e5, status,
+                            0, 0, 0, 0, 1_000_000)
+
+    def play():
+        data, host = rig.recvfrom(256)
+        session = proto.decode(data).session
+        rig.sendto(measurement(session, 0, STATUS_ARMED), host)
+        rig.recvfrom(256)  # the command for period 0
+        go.wait(5)
+        rig.sendto(measurement(session, 1, STATUS_WATCHDOG), host)
+
+    player = threading.Thread(target=play, daemon=True)
+    player.start()
+    driver = UdpRig("127.0.0.1", rig.getsockname()[1], timeout_s=1.0)
+    try:
+        driver.arm(ArmConditions(100e5))
+        driver.write(0.0)
+        if how == "computes":
+            end = time.thread_time() + 0.03
+            while time.thread_time() < end:  # 30 ms of the loop's own CPU time
+                pass
+        else:
+            time.sleep(0.03)  # 30 ms off its CPU
+        go.set()
+        with pytest.raises(RigFault, match="disarmed itself"):
+            driver.wait_next_period()
+        fatal = driver.link_stats()["stall_at_fault"]
+    finally:
+        driver.disarm(success=False)
+        player.join(5)
+        rig.close()
+    assert fatal["after_last_command_ms"] >= fatal["busy_ms"] >= 30.0
+    if how == "computes":
+        assert fatal["cpu_ms"] >= 30.0 and fatal["busy_off_cpu_ms"] < fatal["busy_ms"] - 25.0
+    else:
+        assert fatal["cpu_ms"] < 10.0 and fatal["busy_off_cpu_ms"] >= 20.0
+    assert fatal["rig_sent_after_command_ms"] >= 30.0  # the rig's own send time, on this clock

@@ -102,7 +102,10 @@ class UdpRig(RigDriver):
         self.round_trip = LatencyHistogram()  # as the rig saw it: measurement sent -> command arrived
         self.answer = LatencyHistogram()  # in this process: measurement received -> command sent
         self.last_command_t: float | None = None
+        self.last_command_cpu_s = 0.0  # this thread's CPU time (time.thread_time) at the last command
         self.command_gap_max_s = 0.0  # the longest time between two commands sent (host_stall_max_ms)
+        # the stall that ended the test, which no later command measures: a rig fault raised by a wait
+        self.stall_at_fault: dict | None = None
 
     def describe(self) -> RigDescription:
         return RigDescription(name=self.url, kind="udp", control_period_s=self.period_s,
@@ -273,14 +276,17 @@ class UdpRig(RigDriver):
         if self.last_command_t is not None:
             self.command_gap_max_s = max(self.command_gap_max_s, now - self.last_command_t)
         self.last_command_t = now
+        self.last_command_cpu_s = time.thread_time()
 
     def wait_next_period(self) -> None:
         if self.current is None:
             raise RigFault(f"the rig at {self.url} is not armed")
+        entered = time.perf_counter()
         last = self.current.period
         while self.current.period == last:
             packet = self._receive(self.received_at + self.timeout_s)
             if packet is None:
+                self._note_fault_stall(entered)
                 raise RigFault(f"no measurement from the rig at {self.url} for {self.timeout_s:g} s "
                                f"(last sequence {last}): link lost")
             self._accept(packet)
@@ -292,7 +298,26 @@ class UdpRig(RigDriver):
             self._accept(packet)
         status = self.current.status
         if not status & STATUS_ARMED:
+            self._note_fault_stall(entered)
             raise RigFault(f"the rig at {self.url} disarmed itself ({describe_status(status & RIG_FAULT_BITS)})")
+
+    def _note_fault_stall(self, entered: float) -> None:
+        """The wait that ends in a fault: how long since the last command, how much of it the loop spent before it
+        waited (its own work, ``busy_ms``), its CPU time over it and, the rest, off its CPU (preempted, or blocked
+        elsewhere) before it waited; the rig's measurement that said so (``rig_sent_after_command_ms``, on
+        loopback where the rig's clock is this one)."""
+        if self.last_command_t is None:
+            return
+        now = time.perf_counter()
+        busy_s = entered - self.last_command_t
+        cpu_s = time.thread_time() - self.last_command_cpu_s
+        record = {"after_last_command_ms": round((now - self.last_command_t) * 1e3, 3),
+                  "busy_ms": round(busy_s * 1e3, 3), "cpu_ms": round(cpu_s * 1e3, 3),
+                  "busy_off_cpu_ms": round(max(0.0, busy_s - cpu_s) * 1e3, 3)}
+        sent_s = (self.sent_ns or 0) * 1e-9
+        if 0 <= now - sent_s < 1.0:  # a rig on this machine: its send time on this clock
+            record["rig_sent_after_command_ms"] = round((sent_s - self.last_command_t) * 1e3, 3)
+        self.stall_at_fault = record
 
     def disarm(self, success: bool = True) -> None:
         if self.sock is not None:
@@ -311,6 +336,8 @@ class UdpRig(RigDriver):
                "rig_commands_missed": self.rig_counters["commands_missed"],
                "rig_packets_rejected": self.rig_counters["packets_rejected"], **self.security.describe(),
                "host_stall_max_ms": max(0.0, self.command_gap_max_s - self.period_s) * 1e3}
+        if self.stall_at_fault is not None:
+            out["stall_at_fault"] = dict(self.stall_at_fault)
         if self.round_trip.n:
             out.update(round_trip_p50_ms=self.round_trip.percentile_ms(50),
                        round_trip_p99_ms=self.round_trip.percentile_ms(99), round_trip_max_ms=self.round_trip.max_ms)

@@ -210,10 +210,12 @@ def _watchdog(folder: Path, tests: int, test_s: float, host_priority: str = "gra
                      "cpu_per_period_p99_ms": (trace.get("ms") or {}).get("cpu", {}).get("p99"),
                      "cpu_per_period_mean_ms": (trace.get("ms") or {}).get("cpu", {}).get("mean"),
                      "periods_missed": counters["periods_missed"], "host_lost_periods": summary.get("lost_periods"),
-                     "host_stall_max_ms": link.get("host_stall_max_ms"), "stalls": trace.get("stalls"),
+                     "host_stall_max_ms": link.get("host_stall_max_ms"), "stall_at_fault": link.get("stall_at_fault"),
+                     "stalls": trace.get("stalls"),
                      "stall_causes": trace.get("stall_causes"), "longest_stall": longest,
                      "trips_at_s": [trip.get("test_time_s") for trip in status["watchdog_trips"]],
-                     "rig_overruns": counters.get("overruns", 0), "rig_tick_lateness_max_ms":
+                     "rig_overruns": counters.get("overruns", 0), "rig_ticks_slipped": counters.get("ticks_slipped", 0),
+                     "rig_tick_lateness_max_ms":
                          status["tick_lateness"].get("max_ms"),
                      "priority": (summary.get("pacing") or {}).get("priority")})
         r = rows[-1]
@@ -335,11 +337,16 @@ def _print(results: dict) -> None:
                   f"; stalls by cause {r.get('stall_causes') or {}}, {r.get('stalls_off_cpu')} with the loop off its "
                   f"CPU longer than it computed; its CPU per period mean {r.get('cpu_per_period_mean_ms')} ms, p99 "
                   f"{r.get('cpu_per_period_p99_ms')} ms; the rig's "
-                  f"own overruns {r.get('rig_overruns')} "
+                  f"own overruns {r.get('rig_overruns')}, ticks slipped {r.get('rig_ticks_slipped')} "
                   f"(its longest tick lateness {_ms(r.get('rig_tick_lateness_max_ms'))} ms)")
             if r["watchdog_trips"] or r["status"] != "completed":
                 print(f"  test {r['test']}: {r['status']} ({r['reason']}); the rig's watchdog tripped at t = "
                       f"{', '.join(f'{t:.3f}' for t in r.get('trips_at_s') or [])} s")
+                fatal = r.get("stall_at_fault")
+                if fatal:  # the stall that ended it: no later command measured it
+                    print(f"  test {r['test']}: the stall that ended it: {fatal['after_last_command_ms']:.2f} ms after "
+                          f"the last command; the loop's work before it waited {fatal['busy_ms']:.2f} ms (CPU "
+                          f"{fatal['cpu_ms']:.2f} ms, off its CPU {fatal['busy_off_cpu_ms']:.2f} ms)")
         trips = sum(r["watchdog_trips"] for r in rows)
         worst = max((r["lateness_p99_ms"] for r in rows if not math.isnan(r["lateness_p99_ms"])), default=math.nan)
         stalls = [r["host_stall_max_ms"] for r in rows if r["host_stall_max_ms"] is not None]
