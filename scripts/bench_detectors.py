@@ -13,8 +13,9 @@ oil column's bulk modulus or mass changed at 4.3 s, the servo told the rig as it
 runs (the paper's scenarios with mrac and servo, our rig with servo and pid, rigs told exactly, --runs plants of
 the campaign, and the commissioned foreign rigs of --foreign-seeds): each record is made once without detectors
 and judged by the monitor (nothing acts before the first trip, so it is the run's first trip) as it is and with
-the rule before the steady cycles' bound (steady_oscillation_share = oscillation_share). A good run is one whose
-tracking verdict is followed or outside_target; a trip on it is a false trip.
+the rules before the tone rule (FollowLimits.tone_share = inf: an oscillation told by its size alone). A good run
+is one whose tracking verdict is followed or outside_target; a trip on it is a false trip. A stop by the tone rule
+is marked "tone".
 """
 
 from __future__ import annotations
@@ -59,14 +60,15 @@ SINES = [(0.02, 0.5), (0.01, 1.0), (0.005, 0.5), (0.002, 1.0), (0.03, 1.0)]
 
 
 def judged_twice(scenario, samples):
-    """The follow monitor's first trip on a record, today's and with the rule before the steady cycles' bound."""
+    """The follow monitor's first trip on a record, today's and with the rules before the tone rule (size alone)."""
     import dataclasses
+    import math
 
     from sim.detectors import follow_monitor
 
     now = follow_monitor(scenario)
     before = follow_monitor(scenario)
-    before.limits = dataclasses.replace(before.limits, steady_oscillation_share=before.limits.oscillation_share)
+    before.limits = dataclasses.replace(before.limits, tone_share=math.inf)
     return now.feed(samples), before.feed(samples)
 
 
@@ -74,7 +76,8 @@ def describe(trip) -> str:
     if trip is None:
         return "not stopped"
     f = trip.values.get("frequency_hz")
-    return f"{trip.kind} at {trip.time_s:.3f} s" + (f" ({f:.0f} Hz)" if f else "")
+    tone = trip.values.get("tone_correlation") is not None
+    return f"{trip.kind} at {trip.time_s:.3f} s" + (f" ({f:.0f} Hz{', tone' if tone else ''})" if f else "")
 
 
 def good_runs(args) -> list:
@@ -153,8 +156,9 @@ def oscillations(args) -> int:
     worst_before = max(x for x in before_delays if x is not None)
     print(f"stopped {len(stopped)} of {len(delays)} (that either rule stops); delay from the change: max "
           f"{max(stopped):.2f} s, median {sorted(stopped)[len(stopped) // 2]:.2f} s; later than 2 s or not stopped: "
-          f"{late_or_missed}, of them {new} the rule before did not stop at all (before: max {worst_before:.2f} s, "
-          f"later than 2 s or not stopped {sum(x is None or x > 2.0 for x in before_delays)})")
+          f"{late_or_missed}; {new} the rules before did not stop at all (before: max {worst_before:.2f} s, "
+          f"later than 2 s or not stopped {sum(x is None or x > 2.0 for x in before_delays)}); load average "
+          f"{os.getloadavg()[0]:.1f}")
 
     runs = good_runs(args)
     if args.foreign_seeds:
