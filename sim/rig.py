@@ -11,6 +11,17 @@ plus the Bouc-Wen variable w of eq. (4). Three additions keep the model physical
 documented where it lives: a stick band for the friction (the table can rest), the valve flow gain
 K_q written explicitly (the paper folds it into DZ), and a regularised orifice law below a small
 pressure drop (the square root has infinite slope at 0 and is undefined below it).
+
+A fourth describes a single-rod actuator (the paper's is double-rod): with A_B = alpha A_A the other side's area
+and P_L = P_A - alpha P_B (docs/rig-protocol.md 4.2), a valve whose lands meter alike gives, from the flow into
+one chamber and out of the other with the tank at 0,
+
+    A_A y' = K_q' DZ(v_e) sqrt(P_s - P_L)   (v_e > 0),     A_A y' = K_q' DZ(v_e) sqrt(alpha P_s + P_L)   (v_e < 0)
+
+with one K_q' = K_q / sqrt(1 + alpha^3) both ways: the second line of eq. (3) with P_s scaled by the supply share
+s(v_e) = alpha towards -y (``supply_share``); alpha = 1 is the paper's law. Fitting the paper's law to such a rig
+puts sqrt(alpha) into k_en (foreign rigs 57, 22, 3, fitted on their true spool position: k_en 0.69-0.73 for alpha
+0.56-0.62; with the share, 0.92-0.97).
 """
 
 from __future__ import annotations
@@ -57,6 +68,10 @@ class RigParameters:
     piston_area_m2: float = _p(0.01334, "m2", "calibrated",
                                "A_p, static balance of the step tests, one rig for Tables III-IV with one vertical "
                                "load per table (scripts/calibrate.py, docs/identification.md)", lo=1e-5, hi=10.0)
+    piston_area_b_m2: float = _p(0.0, "m2", "assumed",
+                                 "A_B, the area of the chamber that drives the table towards -y (a single-rod "
+                                 "actuator's other side, docs/rig-protocol.md 4.2); 0: equal to piston_area_m2 "
+                                 "(a double-rod actuator)", lo=0.0, hi=10.0)
     half_volume_m3: float = _p(2.5e-3, "m3", "assumed", "V_0, oil volume per side at mid-stroke", lo=1e-6, hi=10.0)
     bulk_modulus_pa: float = _p(1.0e9, "Pa", "assumed", "beta, effective with hoses", lo=1e7, hi=1e11)
     flow_gain_m3_per_s_v_sqrt_pa: float = _p(2.764e-7, "m3/(s V sqrt(Pa))", "calibrated",
@@ -95,6 +110,11 @@ class RigParameters:
                                       lo=0.0, hi=1e7)
 
     @property
+    def area_ratio_b(self) -> float:
+        """A_B / A_A: 1 on a double-rod actuator (piston_area_b_m2 = 0 says so)."""
+        return self.piston_area_b_m2 / self.piston_area_m2 if self.piston_area_b_m2 > 0.0 else 1.0
+
+    @property
     def friction_force_n(self) -> float:
         """mu N + F_c of eq. (1)."""
         return self.friction_coefficient * self.vertical_load_n + self.coulomb_force_n
@@ -122,6 +142,11 @@ class RigParameters:
             raise RigError("dead_zone_v", self.dead_zone_v, f"< command_limit_v = {self.command_limit_v:g} V",
                            f"dead_zone_v = {self.dead_zone_v:g} V is as wide as the command range "
                            f"(+-{self.command_limit_v:g} V): the valve could never open")
+        if self.piston_area_b_m2 > 0.0 and not (0.2 <= self.area_ratio_b <= 5.0):
+            raise RigError("piston_area_b_m2", self.piston_area_b_m2, f"0, or within [0.2, 5] x piston_area_m2 = "
+                           f"{self.piston_area_m2:g} m2", f"piston_area_b_m2 = {self.piston_area_b_m2:g} m2 is "
+                           f"{self.area_ratio_b:.3g} times piston_area_m2: a single-rod actuator's sides differ by "
+                           "less than 5 times (0 says the sides are equal)")
         if self.min_supply_pa >= self.max_supply_pa:
             raise RigError("min_supply_pa", self.min_supply_pa, f"< max_supply_pa = {self.max_supply_pa:g} Pa",
                            f"min_supply_pa = {self.min_supply_pa:g} Pa is not below max_supply_pa "
@@ -144,8 +169,8 @@ DEFAULT_RIG = RigParameters()
 # Packed parameter vector for the compiled right-hand side (indices are compile-time constants).
 P_MASS, P_FRICTION, P_VISCOUS, P_AREA, P_VOLUME, P_BETA, P_KQ, P_DZ = range(8)
 P_WV, P_XIV, P_KEP, P_KEN, P_VE0, P_DPREG, P_VSTICK, P_TSTICK = range(8, 16)
-P_SUPPLY, P_RHO, P_SIGMA, P_N, P_KD, P_KW, P_ULIM = range(16, 23)
-N_PLANT_PARAMS = 23
+P_SUPPLY, P_RHO, P_SIGMA, P_N, P_KD, P_KW, P_ULIM, P_AREA_RATIO_B = range(16, 24)
+N_PLANT_PARAMS = 24
 
 # State indices.
 X_Y, X_V, X_PL, X_VE, X_VED, X_W = range(6)
@@ -178,6 +203,7 @@ def pack_plant(rig: RigParameters, isolator: Isolator, supply_pa: float) -> np.n
     p[P_KD] = isolator.kd_n_per_m
     p[P_KW] = isolator.kw_n
     p[P_ULIM] = rig.command_limit_v
+    p[P_AREA_RATIO_B] = rig.area_ratio_b
     return p
 
 
@@ -213,14 +239,22 @@ def regularised_sqrt(dp, dp_reg):
     return dp / np.sqrt(dp_reg)
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def supply_share(v_e, area_ratio_b):
+    """s(v_e) of the valve law: 1 towards +y, A_B / A_A towards -y (module docstring)."""
+    return 1.0 if v_e > 0.0 else area_ratio_b
+
+
 @njit(cache=True, error_model="numpy")
 def load_flow(v_e, p_load, p):
-    """Q_L = K_q DZ(v_e) sqrt(P_s - sgn(v_e) P_L), eq. (3), second line, in m3/s."""
+    """Q_L = K_q DZ(v_e) sqrt(s P_s - sgn(v_e) P_L), eq. (3), second line, in m3/s; s = 1 on the paper's
+    double-rod actuator (``supply_share``, module docstring)."""
     opening = dead_zone(v_e, p[P_DZ])
     if opening == 0.0:
         return 0.0
     sgn = 1.0 if v_e > 0.0 else -1.0
-    return p[P_KQ] * opening * regularised_sqrt(p[P_SUPPLY] - sgn * p_load, p[P_DPREG])
+    return p[P_KQ] * opening * regularised_sqrt(supply_share(v_e, p[P_AREA_RATIO_B]) * p[P_SUPPLY] - sgn * p_load,
+                                                p[P_DPREG])
 
 
 @njit(cache=True, error_model="numpy")

@@ -106,9 +106,9 @@ def fit_rig(sig: Signals, declared: RigParameters, blocks: int = BLOCKS,
     valve law's disagreement between ``parts`` of it (boolean masks: the excitation's phases)."""
     if np.ptp(sig.y[sig.valid]) < 1e-5:
         raise FitError("the table moved less than 0.01 mm in the record: nothing to fit")
-    area, dp_reg = declared.piston_area_m2, declared.orifice_regularisation_pa
+    area, dp_reg, ratio = declared.piston_area_m2, declared.orifice_regularisation_pa, declared.area_ratio_b
     guess = latency_from_force(sig, area)
-    flow = fit_flow(sig, area, dp_reg, latency_guess_s=guess)
+    flow = fit_flow(sig, area, dp_reg, latency_guess_s=guess, area_ratio_b=ratio)
     force = fit_force(sig, area, flow.latency_s)
     full = _named(flow, force, declared)
     start = np.array([flow.dead_zone_v, flow.null_offset_v, flow.valve_hz, flow.valve_damping, flow.latency_s * 1e3,
@@ -117,7 +117,7 @@ def fit_rig(sig: Signals, declared: RigParameters, blocks: int = BLOCKS,
     leave_one_out = []
     for b in range(blocks):
         keep = sig.valid & (group != b)
-        f = fit_flow(sig, area, dp_reg, keep, start)
+        f = fit_flow(sig, area, dp_reg, keep, start, area_ratio_b=ratio)
         try:
             g = fit_force(sig, area, f.latency_s, keep, presliding_m=force.presliding_m)
         except FitError:
@@ -129,7 +129,7 @@ def fit_rig(sig: Signals, declared: RigParameters, blocks: int = BLOCKS,
         std = float(math.sqrt((blocks - 1) / blocks * np.sum((others - others.mean()) ** 2)))
         unit, meaning = UNITS[name]
         estimates[name] = Estimate(float(value), std, unit, meaning)
-    disagreement = part_disagreement(sig, area, dp_reg, flow, parts) if parts else {}
+    disagreement = part_disagreement(sig, area, dp_reg, flow, parts, ratio) if parts else {}
     # the latency from the flow balance (beside the valve's lag) and from the force balance (the mechanics
     # alone): what separates them is model error in one (foreign rigs 50 and 72: 0.16 and 0.27 ms apart,
     # the flow balance's 0.24 and 0.57 ms late)

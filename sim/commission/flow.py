@@ -1,9 +1,10 @@
 """The flow balance, eq. (3) second line, with the valve of eq. (3) third line and eq. (2):
 
-    A_p y' + C P_L' = K_q DZ(v_e) R(P_s - sgn(v_e) P_L),  C = V_0 / (2 beta)
+    A_p y' + C P_L' = K_q DZ(v_e) R(s P_s - sgn(v_e) P_L),  C = V_0 / (2 beta)
     v_e'' = -w_v^2 v_e - 2 xi_v w_v v_e' + w_v^2 v_c,     v_c = u + v_e0 (u >= 0), k_en u + v_e0 (u < 0)
 
-with R the orifice law of sim.rig (sqrt, linear below the declared regularisation drop); k_ep is 1 (it is
+with R the orifice law of sim.rig (sqrt, linear below the declared regularisation drop) and s the supply share of
+a single-rod actuator (1 towards +y, the declared A_B / A_A towards -y; sim.rig's docstring); k_ep is 1 (it is
 K_q's share), so K_q is the flow gain of a positive command and k_en K_q that of a negative one. It is linear
 in (K_q, C) once the dead zone, the null offset v_e0, the valve's w_v and xi_v, the position latency L and k_en
 are fixed: those six are found by non-linear least squares over the linear solution (variable projection),
@@ -77,11 +78,12 @@ class FlowFit:
     r2: float
 
 
-def _flow_regression(sig: Signals, mask: np.ndarray, area: float, dp_reg: float, theta: np.ndarray):
+def _flow_regression(sig: Signals, mask: np.ndarray, area: float, dp_reg: float, theta: np.ndarray,
+                     area_ratio_b: float = 1.0):
     """(K_q, C), the residual (m3/s) and the regressand for the non-linear parameters theta."""
     dz, null_v, valve_hz, damping, latency_ms, negative_gain = theta
     v_e = valve_voltage(sig.u, sig.dt_s, valve_hz, damping, null_v, negative_gain)
-    r = orifice(sig.p_supply - np.sign(v_e) * sig.p_load, dp_reg)
+    r = orifice(np.where(v_e > 0.0, 1.0, area_ratio_b) * sig.p_supply - np.sign(v_e) * sig.p_load, dp_reg)
     opening = np.maximum(v_e - dz, 0.0) + np.minimum(v_e + dz, 0.0)
     x = np.column_stack([lowpass(opening * r, sig.dt_s), -sig.p_load_rate_f])[mask]
     target = area * sig.at_latency(sig.v_f, latency_ms * 1e-3)[mask]
@@ -95,13 +97,14 @@ def _flow_regression(sig: Signals, mask: np.ndarray, area: float, dp_reg: float,
 
 
 def fit_flow(sig: Signals, area: float, dp_reg: float, mask: np.ndarray | None = None,
-             start: np.ndarray | None = None, latency_guess_s: float = 0.0) -> FlowFit:
-    """The flow balance (eq. 3, second line) with the valve (eq. 3, third line; eq. 2): see the module."""
+             start: np.ndarray | None = None, latency_guess_s: float = 0.0, area_ratio_b: float = 1.0) -> FlowFit:
+    """The flow balance (eq. 3, second line) with the valve (eq. 3, third line; eq. 2): see the module
+    (``area_ratio_b``: the declared A_B / A_A)."""
     mask = sig.valid if mask is None else mask
     scale = 1.0 / max(np.std(area * sig.v_f[mask]), 1e-12)
 
     def residual(theta):
-        return _flow_regression(sig, mask, area, dp_reg, theta)[1] * scale
+        return _flow_regression(sig, mask, area, dp_reg, theta, area_ratio_b)[1] * scale
 
     if start is None:
         grid = np.arange(0.0, min(UPPER[0], np.max(np.abs(sig.u)) + DEAD_ZONE_GRID_STEP_V), DEAD_ZONE_GRID_STEP_V)
@@ -117,7 +120,7 @@ def fit_flow(sig: Signals, area: float, dp_reg: float, mask: np.ndarray | None =
                                      diff_step=1e-3, max_nfev=MAX_EVALUATIONS, ftol=TOLERANCE, xtol=TOLERANCE)
         if best is None or sol.cost < best.cost:
             best = sol
-    coef, res, target = _flow_regression(sig, mask, area, dp_reg, best.x)
+    coef, res, target = _flow_regression(sig, mask, area, dp_reg, best.x, area_ratio_b)
     target_noise = (area * sig.noise["velocity_m_per_s"]) ** 2
     r2 = explained(res, target, target_noise + (coef[1] * sig.noise["load_pressure_rate_pa_per_s"]) ** 2, target_noise)
     dz, null_v, valve_hz, damping, latency_ms, negative_gain = best.x
@@ -130,7 +133,7 @@ VALVE_LAW_NAMES = ("dead_zone_v", "driver_offset_v", "driver_gain_negative", "fl
 
 
 def part_disagreement(sig: Signals, area: float, dp_reg: float, flow: FlowFit,
-                      parts: list[np.ndarray]) -> dict[str, float]:
+                      parts: list[np.ndarray], area_ratio_b: float = 1.0) -> dict[str, float]:
     """What the flow balance's model leaves out, as the valve law fitted on each part of the record alone (the
     valve sweeps, the dither: one experiment each) disagrees: |a - b| / sqrt(2) for each of VALVE_LAW_NAMES,
     the valve's dynamics and the latency held at the whole record's. A rig the model describes gives the same
@@ -150,12 +153,12 @@ def part_disagreement(sig: Signals, area: float, dp_reg: float, flow: FlowFit,
             return np.array([x[0], x[1], *fixed, x[2]])
 
         def residual(x, mask=mask, scale=scale):
-            return _flow_regression(sig, mask, area, dp_reg, theta(x))[1] * scale
+            return _flow_regression(sig, mask, area, dp_reg, theta(x), area_ratio_b)[1] * scale
 
         start = np.clip([flow.dead_zone_v, flow.null_offset_v, flow.negative_gain], LOWER[free], UPPER[free])
         sol = optimize.least_squares(residual, start, bounds=(LOWER[free], UPPER[free]), x_scale=SCALE[free],
                                      diff_step=1e-3, max_nfev=MAX_EVALUATIONS, ftol=TOLERANCE, xtol=TOLERANCE)
-        coef = _flow_regression(sig, mask, area, dp_reg, theta(sol.x))[0]
+        coef = _flow_regression(sig, mask, area, dp_reg, theta(sol.x), area_ratio_b)[0]
         laws.append(dict(zip(VALVE_LAW_NAMES, (sol.x[0], sol.x[1], sol.x[2], coef[0]), strict=True)))
     if len(laws) < 2:
         return {}

@@ -61,8 +61,13 @@ START_FIELDS = ("piston_area_m2", "half_volume_m3", "stroke_m", "pump_max_flow_m
 
 
 def start_rig_file_data(lab: dict) -> dict:
-    """The start rig file a lab writes from what it knows (catalogue and drawing values), as rig-file data."""
-    return {name: float(lab[name]) for name in START_FIELDS}
+    """The start rig file a lab writes from what it knows (catalogue and drawing values), as rig-file data: a
+    single-rod actuator's other side as piston_area_b_m2 (a double-rod's sides are equal: not written)."""
+    data = {name: float(lab[name]) for name in START_FIELDS}
+    other = float(lab.get("rod_side_area_m2", 0.0))
+    if other > 0.0 and abs(other - data["piston_area_m2"]) > 1e-9 * data["piston_area_m2"]:
+        data["piston_area_b_m2"] = other
+    return data
 
 
 def declared_rig(lab: dict) -> RigParameters:
