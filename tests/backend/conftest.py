@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import tempfile
 import time
 from pathlib import Path
 
@@ -63,8 +64,36 @@ def postgres():
         server.stop()
 
 
+_TEMPLATE: dict[str, bytes] = {}
+
+
+def migrated_database() -> bytes:
+    """An empty SQLite store already at the newest migration (the file's bytes), made once per test process from
+    this checkout's migrations: a service started on a copy has nothing to migrate (0.1-0.3 s of CPU less)."""
+    if "db" not in _TEMPLATE:
+        from backend import db
+
+        with tempfile.TemporaryDirectory() as tmp:
+            path = Path(tmp) / "isorig.db"
+            engine = db.make_engine(f"sqlite:///{path}")
+            try:
+                db.upgrade(engine)
+            finally:
+                engine.dispose()  # its last connection closed: the write-ahead log is back in the file
+            assert not path.with_name("isorig.db-wal").exists()
+            _TEMPLATE["db"] = path.read_bytes()
+    return _TEMPLATE["db"]
+
+
 @pytest.fixture
 def settings(tmp_path) -> Settings:
+    """The settings of a service on ``tmp_path``, whose store starts as a copy of an empty, migrated one (owner
+    only, as the service makes it). The tests of a fresh data directory, of the migrations and of the first start
+    use make_settings on a folder of their own, which starts empty."""
+    path = tmp_path / "isorig.db"
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(fd, "wb") as f:
+        f.write(migrated_database())
     return make_settings(tmp_path)
 
 
