@@ -3,6 +3,7 @@ identification's dict, on the command line and in the service's words."""
 
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
 from isorig.commands.identify_rig import report
@@ -10,9 +11,11 @@ from sim.commission.identify import (
     RETRY_MAX_VELOCITY_M_PER_S,
     Conditions,
     Identification,
+    identify,
     second_attempt,
 )
 from sim.rig import DEFAULT_RIG
+from sim.samples import Samples
 
 UNEXPLAINED = "the flow balance (eq. 3, second line) explains 95.1 % of the table's motion; at least 98 % is needed"
 
@@ -83,3 +86,38 @@ def test_the_commissioning_campaign_tells_its_tests_how_the_rig_was_commissioned
         with pytest.raises(RuntimeError, match="recorded"):
             campaign.tested(run, DEFAULT_RIG, spec, commissioning)
     assert seen == [section, None]
+
+
+AT_BOUND = ("the excitation did not run to its end (stopped, tripped, or the valve did not open both ways within the "
+            "command it may use): nothing is fitted from part of it; the table reached 20.3 mm/s against the velocity "
+            "bound of 20 mm/s: this rig's valve moves it faster than the excitation's sweeps allowed for")
+
+
+def test_an_excitation_stopped_at_its_velocity_bound_is_offered_twice_the_bound():
+    retry = second_attempt([AT_BOUND], conditions(0.02))
+    assert retry["max_velocity_m_per_s"] == pytest.approx(0.04) and retry["max_stroke_m"] == 0.004
+    assert "stopped at the velocity bound of 20 mm/s" in retry["why"] and "40 mm/s" in retry["why"]
+    assert second_attempt([AT_BOUND], conditions(RETRY_MAX_VELOCITY_M_PER_S)) is None
+
+
+def stopped_record(peak_velocity_m_per_s: float) -> Samples:
+    """A run cut short in its sweeps (phase 0 to the end) whose table moved at up to the velocity given."""
+    n = 400
+    s = Samples.empty(n)
+    t = np.arange(n) * 1e-3
+    s["time_s"] = t
+    s["flags"] = np.zeros(n)
+    s["as_hat"] = np.zeros(n)
+    s["voltage_v"] = np.zeros(n)
+    s["measured_displacement_m"] = np.minimum(t, 0.2) * peak_velocity_m_per_s  # a ramp, then at rest
+    return s
+
+
+def test_a_run_stopped_at_the_velocity_bound_says_so_and_one_stopped_otherwise_does_not():
+    c = conditions(0.02)
+    at_bound = identify(stopped_record(0.0203), DEFAULT_RIG, c)
+    assert not at_bound.trusted and at_bound.fit is None
+    assert "the table reached 20.3 mm/s against the velocity bound of 20 mm/s" in at_bound.problems[0]
+    assert at_bound.second_attempt()["max_velocity_m_per_s"] == pytest.approx(0.04)
+    slow = identify(stopped_record(0.008), DEFAULT_RIG, c)
+    assert "velocity bound" not in slow.problems[0] and slow.second_attempt() is None

@@ -35,6 +35,9 @@ MAX_RIG_TIME_S = 60.0
 #: a refused fit's second attempt (second_attempt): this many times the velocity bound, at most this, m/s
 RETRY_VELOCITY_SHARE = 2.0
 RETRY_MAX_VELOCITY_M_PER_S = 0.04
+#: a run that stopped with the table at this share of the velocity bound stopped at the bound (the velocity
+#: detector reads the same 5-period difference as record_figures)
+VELOCITY_STOP_SHARE = 0.95
 
 #: what a fit must reach before its rig file is written (docs/commissioning.md, "When a fit is refused")
 MIN_FLOW_R2 = 0.98
@@ -256,18 +259,25 @@ def second_attempt(problems: list[str], conditions: Conditions) -> dict | None:
     """The bounds of a second commissioning run after a refusal, with why, or None when a second run at other
     bounds cannot help: a fit or replay that did not explain the record, or values too uncertain for the
     controller, get RETRY_VELOCITY_SHARE times the velocity bound (more motion over the rig's friction and its
-    readings' noise), up to RETRY_MAX_VELOCITY_M_PER_S; the stroke bound stays (docs/commissioning.md, "When a fit
-    is refused")."""
+    readings' noise), up to RETRY_MAX_VELOCITY_M_PER_S, and so does an excitation stopped at the velocity bound
+    (a valve faster than its sweeps allowed for); the stroke bound stays (docs/commissioning.md, "When a fit is
+    refused")."""
     words = " ".join(problems)
-    if not any(key in words for key in ("explains", "reproduces", "uncertain")):
+    at_bound = "against the velocity bound" in words
+    if not at_bound and not any(key in words for key in ("explains", "reproduces", "uncertain")):
         return None
     faster = min(RETRY_VELOCITY_SHARE * conditions.max_velocity_m_per_s, RETRY_MAX_VELOCITY_M_PER_S)
     if faster <= conditions.max_velocity_m_per_s * 1.001:
         return None
-    return {"max_stroke_m": conditions.max_stroke_m, "max_velocity_m_per_s": faster,
-            "why": (f"the record at {1e3 * conditions.max_velocity_m_per_s:g} mm/s did not show the rig well enough "
-                    f"for a fit the controller can rely on; at {1e3 * faster:g} mm/s the motion stands further above "
-                    "the rig's friction and its readings' noise (keep the stroke bound; clear the table's path)")}
+    if at_bound:
+        why = (f"the excitation stopped at the velocity bound of {1e3 * conditions.max_velocity_m_per_s:g} mm/s: "
+               f"this rig's valve is faster than its sweeps allowed for; at {1e3 * faster:g} mm/s they have room "
+               "for it (keep the stroke bound; clear the table's path)")
+    else:
+        why = (f"the record at {1e3 * conditions.max_velocity_m_per_s:g} mm/s did not show the rig well enough "
+               f"for a fit the controller can rely on; at {1e3 * faster:g} mm/s the motion stands further above "
+               "the rig's friction and its readings' noise (keep the stroke bound; clear the table's path)")
+    return {"max_stroke_m": conditions.max_stroke_m, "max_velocity_m_per_s": faster, "why": why}
 
 
 def record_figures(samples: Samples, conditions: Conditions) -> dict:
@@ -302,8 +312,13 @@ def identify(samples: Samples, declared: RigParameters, conditions: Conditions,
 
     out = Identification(conditions, declared, record=record_figures(samples, conditions))
     if not out.record["completed"]:
-        out.problems.append("the excitation did not run to its end (stopped, tripped, or the valve did not open "
-                            "both ways within the command it may use): nothing is fitted from part of it")
+        text = ("the excitation did not run to its end (stopped, tripped, or the valve did not open both ways "
+                "within the command it may use): nothing is fitted from part of it")
+        peak, bound = out.record["peak_velocity_m_per_s"], conditions.max_velocity_m_per_s
+        if peak >= VELOCITY_STOP_SHARE * bound:
+            text += (f"; the table reached {1e3 * peak:.1f} mm/s against the velocity bound of {1e3 * bound:g} mm/s: "
+                     "this rig's valve moves it faster than the excitation's sweeps allowed for")
+        out.problems.append(text)
         return out
     if out.record["dither_s"] <= 0.0:
         out.problems.append("the valve sweeps did not find the valve's edges both ways, so the dither never ran: "
