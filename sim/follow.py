@@ -166,9 +166,9 @@ class FollowLimits:
     #: Hz at 20-45 um RMS, in bursts with the test's half cycles, about the 40 um floor (and, where it nearly
     #: repeats every 2 s test period, less its value a period earlier is smaller still): the size rule stopped it
     #: 5.7 s after the change, the tone rule 0.78 s. scripts/bench_detectors.py --oscillations: all 25 injected
-    #: cases stopped within 1.70 s (4 that the size rule never stopped: 10-60 um tones at 27-28 Hz), no first
-    #: trip changed over 240 runs without a change (128 good); in an offline pass over those runs' steady windows
-    #: above the tone's bound the correlation was at most 0.82 (a told rig's learning transient at 12 Hz)
+    #: cases stopped within 1.70 s (4 that the size rule never stopped: 27-28 Hz, 0.2-0.4 % of the amplitude),
+    #: no first trip changed over 240 runs without a change (128 good); the rule's margin there: at a correlation
+    #: of 0.85 or a 5 um floor no good run would be stopped, at 0.8 one (a told rig's learning transient, 12 Hz)
     tone_share: float = LAB_TARGET_SHARE
     tone_floor_m: float = 1e-5
     tone_correlation: float = 0.9
