@@ -93,7 +93,8 @@ RULES: tuple[Rule, ...] = (
          "an accepted ARM starts its session at measurement 0, ARMED, without COMMAND_MISSED, its counters from 0",
          "main_arm"),
     Rule("hello-position", "§3.5", "HELLO reports the table's position",
-         f"more than {POSITION_AGREE_M * 1e3:g} mm apart at rest", "main_arm"),
+         f"a HELLO reports the table's real position (within {POSITION_AGREE_M * 1e3:g} mm of the armed stream's at "
+         "rest)", "main_arm"),
     Rule("sequence", "§1.1", "sequence +1 per period",
          "the sequence rises by 1 each period: never repeated or back, at most 1 % lost", "steady"),
     Rule("period", "§1.1", "period: period_ns, and measurements that far apart",
@@ -169,7 +170,8 @@ RULES: tuple[Rule, ...] = (
          "force_n must rise with the displacement (the specimen's force, positive when it is deformed towards +y)",
          "move", when="motion"),
     Rule("hello-after-motion", "§3.5", "HELLO reports the position after the table moved",
-         "the HELLO's position is not the table's", "move", when="motion"),
+         f"a HELLO reports the table's real position, also after it moved (within {HELLO_FOLLOW_M * 1e3:g} mm of "
+         "the last measurement)", "move", when="motion"),
     Rule("ran-to-end", "§8", "the check ran to its end",
          "the rig must answer HELLO and accept ARM to the end of the check", ""),
     Rule("reply-address", "§2", "replies come from the address and port the host sent to",
