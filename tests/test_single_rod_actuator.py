@@ -10,7 +10,8 @@ from scipy import optimize
 
 from sim.commission.foreign_campaign import start_rig_file_data
 from sim.commission.identify import Conditions, excitation_scenario, identify
-from sim.engine import Simulation
+from sim.controllers.servo import valve_inverse
+from sim.engine import Scenario, Simulation
 from sim.isolator import PRESETS
 from sim.rig import BAR_PA, DEFAULT_RIG, P_DPREG, P_DZ, P_KQ, RigError, load_flow, pack_plant
 
@@ -99,3 +100,25 @@ def test_a_commissioning_told_the_sides_fits_the_valves_own_negative_gain():
     assert knowing.fit.flow_r2 >= blind.fit.flow_r2 - 1e-4
     assert knowing.rig is not None and knowing.rig.piston_area_b_m2 == pytest.approx(alpha * DEFAULT_RIG.piston_area_m2)
     assert np.isfinite(knowing.response.velocity_nrmse) and knowing.response.velocity_nrmse < 0.1
+
+
+def test_the_servos_inverse_is_the_plants_law_both_ways():
+    alpha = 0.5
+    rig = DEFAULT_RIG.with_changes(piston_area_b_m2=alpha * DEFAULT_RIG.piston_area_m2, dead_zone_v=0.0)
+    p = pack_plant(rig, PRESETS["IUT_a"], SUPPLY_PA)
+    for v in (0.02, -0.02, -0.1):
+        for p_load in (-2e6, 0.0, 3e6):
+            u = valve_inverse(v, p_load, SUPPLY_PA, rig.piston_area_m2, rig.flow_gain_m3_per_s_v_sqrt_pa, 0.0, 0.1,
+                              0.05, rig.orifice_regularisation_pa, rig.area_ratio_b)
+            assert load_flow(u, p_load, p) == pytest.approx(rig.piston_area_m2 * v, rel=1e-9), (v, p_load)
+
+
+@pytest.mark.parametrize("alpha", [0.5])
+def test_a_single_rod_rig_is_followed_as_well_as_a_double_rod_one(alpha):
+    """20 mm at 0.5 Hz on a rig whose other side is half the area, the servo told the rig: within the 0.1 %
+    target (0.116 % when the inverse took the double-rod law, 0.017 % with the rig's own)."""
+    rig = DEFAULT_RIG.with_changes(piston_area_b_m2=alpha * DEFAULT_RIG.piston_area_m2, position_latency_s=1e-3)
+    result = Simulation(Scenario.sine("IUT_a", 100.0, 0.02, 0.5, 12, rig=rig), validate=False).run(follow=True)
+    verdict = result.summary()["tracking_verdict"]
+    assert result.trip is None
+    assert verdict["rms_share"] < 0.0005

@@ -98,7 +98,8 @@ P_FB_RAMP, P_EDGE_TRIM = 43, 44
 P_STILL_HOLD_SHARE = 65
 P_STILL_CENTRE = 66
 STILL_FAST_RATE_SHARE = 20.0  # the still share's rate for an error of many bands, times still_command_rate_v_per_s
-N_PARAMS = 67
+P_AREA_RATIO_B = 67  # A_B / A_A of a single-rod actuator (1: double-rod)
+N_PARAMS = 68
 DELAY_LINE = 256  # periods of regressor and target history kept (valve estimate, position latency)
 
 # State indices; the delay line and the harmonic coefficients (real, imaginary) follow.
@@ -141,7 +142,7 @@ def _nominal_rig(rig=None) -> dict:
 #: the servo's options that default to the rig's value of the same name (what the lab's rig file says)
 RIG_OPTIONS = ("piston_area_m2", "flow_gain_m3_per_s_v_sqrt_pa", "dead_zone_v", "command_limit_v", "mass_kg",
                "half_volume_m3", "bulk_modulus_pa", "valve_natural_frequency_rad_s", "valve_damping_ratio",
-               "orifice_regularisation_pa", "driver_offset_v", "position_latency_s")
+               "orifice_regularisation_pa", "driver_offset_v", "position_latency_s", "piston_area_b_m2")
 SAMPLING_DELAY_S = 1.5e-3  # what the loop adds to the valve: half a 1 ms period of zero-order hold and one period
 
 
@@ -163,6 +164,9 @@ OPTIONS = {
                               "estimate of the offset starts"),
     "position_latency_s": Option(None, 0.0, 0.2, "s", meaning="declared delay of the position reading: the "
                                  "controller aims the table, not the late reading"),
+    "piston_area_b_m2": Option(None, 0.0, 10.0, "m2", meaning="nominal area of the side that pushes towards -y (a "
+                               "single-rod actuator's; 0: equal to piston_area_m2): the valve law's supply share "
+                               "towards -y (sim.rig)"),
     # fixed design constants, the same on every isolator (docs/controller.md)
     "kp_per_s": Option(30.0, 1e-3, 500.0, "1/s", meaning="position loop gain: velocity demand per metre of error"),
     "velocity_lead_s": Option(0.006, 0.0, 0.1, "s", meaning="feed-forward lead for the valve lag (r' + tau r'')"),
@@ -347,6 +351,7 @@ def make_servo(rig=None, **options) -> Controller:
     params[P_OVMIN] = o["null_offset_min_velocity_m_per_s"]
     params[P_OVT] = o["null_offset_min_target_velocity_m_per_s"]
     params[P_DP_REG] = o["orifice_regularisation_pa"]
+    params[P_AREA_RATIO_B] = o["piston_area_b_m2"] / o["piston_area_m2"] if o["piston_area_b_m2"] > 0.0 else 1.0
     # load-pressure feedback, designed on the declared rig (pressure_feedback_design)
     design = pressure_feedback_design(o)
     compliance = o["half_volume_m3"] / (2.0 * o["bulk_modulus_pa"])
@@ -524,21 +529,30 @@ def orifice_root(dp, dp_reg):
     return dp / np.sqrt(dp_reg)
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def side_supply(sgn, p_supply, area_ratio_b):
+    """s P_s of the valve law (sim.rig.supply_share): P_s towards +y, A_B / A_A times it towards -y."""
+    return p_supply if sgn > 0.0 else area_ratio_b * p_supply
+
+
 @njit(cache=True, error_model="numpy")
-def valve_inverse(v, p_load, p_supply, area, kq, dz, dz_ramp, dp_min_share, dp_reg=0.0):
+def valve_inverse(v, p_load, p_supply, area, kq, dz, dz_ramp, dp_min_share, dp_reg=0.0, area_ratio_b=1.0):
     """Command u that makes the nominal valve pass the flow area * v: inverse of eq. (3) with the dead zone."""
-    u_lin, ramp = valve_inverse_ramp(v, p_load, p_supply, area, kq, dz_ramp, dp_min_share, dp_reg, 0.0, 0.0)
+    u_lin, ramp = valve_inverse_ramp(v, p_load, p_supply, area, kq, dz_ramp, dp_min_share, dp_reg, 0.0, 0.0,
+                                     area_ratio_b)
     return u_lin + dz * ramp
 
 
 @njit(cache=True, error_model="numpy")
-def valve_inverse_ramp(v, p_load, p_supply, area, kq, dz_ramp, dp_min_share, dp_reg, v_fb, fb_ramp):
+def valve_inverse_ramp(v, p_load, p_supply, area, kq, dz_ramp, dp_min_share, dp_reg, v_fb, fb_ramp,
+                       area_ratio_b=1.0):
     """The two parts of ``valve_inverse``: the command u_l of the valve without dead zone, and the share (-1..1)
     of the dead zone added to it (the ramp; -1 or 1: the whole dead zone, the valve opens). Where ``fb_ramp`` is
     wider than ``dz_ramp``, the part ``v_fb`` of ``v`` (the position feedback's correction) ramps in over
-    ``fb_ramp``, the rest over ``dz_ramp``."""
+    ``fb_ramp``, the rest over ``dz_ramp``. ``area_ratio_b``: A_B / A_A, the supply's share towards -y of a
+    single-rod actuator's valve law (sim.rig's docstring)."""
     sgn = 1.0 if v >= 0.0 else -1.0
-    dp = p_supply - sgn * p_load
+    dp = side_supply(sgn, p_supply, area_ratio_b) - sgn * p_load
     dp_min = dp_min_share * p_supply
     if dp < dp_min:
         dp = dp_min
@@ -1037,7 +1051,7 @@ def _pressure_feedback_command(p, u, v, v_pf, gain, p_load, p_supply):
     moves the open valve, never switches the dead zone's side)."""
     if v_pf != 0.0:
         sgn_v = 1.0 if v >= 0.0 else -1.0
-        dp_v = max(p_supply - sgn_v * p_load, p[P_DP_MIN] * p_supply)
+        dp_v = max(side_supply(sgn_v, p_supply, p[P_AREA_RATIO_B]) - sgn_v * p_load, p[P_DP_MIN] * p_supply)
         u += p[P_AREA] * v_pf / (gain * p[P_KQ] * orifice_root(dp_v, p[P_DP_REG]))
     return u
 
@@ -1091,7 +1105,7 @@ def _record_regressors(p, s, u, o_hat, p_load, p_supply, head_new):
     opening = u + o_hat
     if abs(opening) > s[S_DZ_HAT]:
         sgn_u = 1.0 if opening > 0.0 else -1.0
-        dp = p_supply - sgn_u * p_load
+        dp = side_supply(sgn_u, p_supply, p[P_AREA_RATIO_B]) - sgn_u * p_load
         if dp < p[P_DP_MIN] * p_supply:
             dp = p[P_DP_MIN] * p_supply
         per_volt = p[P_KQ] * orifice_root(dp, p[P_DP_REG]) / p[P_AREA]
@@ -1187,7 +1201,7 @@ def servo_step(p, s, meas, dt, report):
     # is slow the dead zone's side follows the target's own motion, and a few micrometres of error at rest no
     # longer throw the spool across the whole dead zone (a relay: a limit cycle of about 20 Hz)
     u_lin, ramp_at = valve_inverse_ramp(v / gain, p_load, p_supply, p[P_AREA], p[P_KQ], ramp, p[P_DP_MIN],
-                                        p[P_DP_REG], v_fb / gain, p[P_FB_RAMP])
+                                        p[P_DP_REG], v_fb / gain, p[P_FB_RAMP], p[P_AREA_RATIO_B])
     dz_c = p[P_DZ_FRAC] * max(s[S_DZ_HAT] + s[S_EDGE], p[P_DZ_LO])  # the estimated dead zone, trimmed
     # where the target is still, the dead zone's side moves slowly with the error instead of switching; under a
     # ringing target with the table's error from the centre of the swings
