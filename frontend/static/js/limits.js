@@ -24,7 +24,8 @@ export const BY_KEY = Object.fromEntries(LIMITS.map((l) => [l.key, l]));
  */
 export const FOLLOW = { key: "follow", name: "follow detector", short: "follow", actions: ["controlled_stop", "indicate"],
   default: "controlled_stop" };
-const FOLLOW_THRESHOLDS = { rms_share: 0.01, oscillation_share: 0.02, floor_m: 4e-5, oscillation_window_s: 0.5, corner_hz: 10 };
+const FOLLOW_THRESHOLDS = { rms_share: 0.01, oscillation_share: 0.02, floor_m: 4e-5, oscillation_window_s: 0.5, corner_hz: 10,
+  steady_oscillation_share: 0.005, tone_share: 0.001, tone_floor_m: 1e-5, tone_correlation: 0.9 };
 const FOLLOW_HELP = {
   controlled_stop: "the table did not follow: a tracking stop brakes the target to rest under control, an oscillation closes the valve at once (the loop itself oscillates); the test ends aborted",
   indicate: "an event says what the detector saw and when, the test goes on (the tracking verdict still says how well the table followed)",
@@ -46,8 +47,10 @@ export function followThresholdsText(lim) {
   const f = { ...FOLLOW_THRESHOLDS, ...((lim && lim.follow) || {}) };
   const pc = (x) => `${+(100 * x).toPrecision(3)} %`;
   return `oscillation: RMS above ${f.corner_hz} Hz over ${f.oscillation_window_s} s > ${pc(f.oscillation_share)} of the ` +
-    `amplitude (at least ${fmtU("length", f.floor_m, { sig: 2 })}); tracking: RMS |y - r| of a steady cycle > ` +
-    `${pc(f.rms_share)} of the amplitude once the learning stalls`;
+    `amplitude (${pc(f.steady_oscillation_share)} in steady cycles; at least ${fmtU("length", f.floor_m, { sig: 2 })}), ` +
+    `or a tone of its own (repeating at its own period, correlation >= ${f.tone_correlation}) > ` +
+    `${pc(f.tone_share)} of the amplitude (at least ${fmtU("length", f.tone_floor_m, { sig: 2 })}); tracking: ` +
+    `RMS |y - r| of a steady cycle > ${pc(f.rms_share)} of the amplitude once the learning stalls`;
 }
 
 /** Built-in detectors the service trips on by itself (always valve close). */
