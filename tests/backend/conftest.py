@@ -103,12 +103,20 @@ def client(settings):
         yield c
 
 
-def wait_for(client, test_id: int, statuses=("completed", "stopped", "aborted", "interrupted", "failed"),
-             timeout_s: float = 30.0) -> dict:
+FINAL_STATUSES = ("completed", "stopped", "aborted", "interrupted", "failed")
+
+
+def wait_for(client, test_id: int, statuses=FINAL_STATUSES, timeout_s: float = 30.0) -> dict:
+    """The record once its status is one of ``statuses``; for a final status, also once the service's rig is no
+    longer running it (the worker writes the record's end before it lets the rig go: a start in between is
+    refused with "test N is running", seen at load 25)."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         record = client.get(f"/api/tests/{test_id}").json()
         if record["status"] in statuses:
+            if record["status"] in FINAL_STATUSES:
+                while client.get("/api/health").json().get("rig") == "running" and time.monotonic() < deadline:
+                    time.sleep(0.02)
             return record
         time.sleep(0.05)
     raise AssertionError(f"test {test_id} did not reach {statuses} within {timeout_s} s (last: {record['status']})")
