@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 
 
@@ -50,6 +51,17 @@ def _masked(url: str) -> str:
         return "<unparsable URL>"
 
 
+def cheap_hash_warning(environ) -> str | None:
+    """The line a service prints when the test suite's cheap password hashes are switched on (backend.accounts),
+    or None: a lab's service must not run with them, and must not do so silently."""
+    from backend.accounts import TEST_CHEAP_HASHES_ENV
+
+    if environ.get(TEST_CHEAP_HASHES_ENV, "") == "":
+        return None
+    return (f"isorig serve: WARNING: {TEST_CHEAP_HASHES_ENV}={environ[TEST_CHEAP_HASHES_ENV]} is set: passwords are "
+            "hashed as cheaply as the test suite does (one pass over 8 KiB); unset it for a lab's service")
+
+
 def run(args) -> int:
     import uvicorn
     from pydantic import ValidationError
@@ -78,8 +90,6 @@ def run(args) -> int:
     if not (0 < settings.port < 65536):
         raise UsageError(f"isorig serve: --port {settings.port} is outside 1-65535")
     if settings.service_nice:
-        import os
-
         try:
             os.nice(settings.service_nice)  # before any thread or worker exists: they all inherit it
         except OSError as exc:
@@ -108,6 +118,9 @@ def run(args) -> int:
           + (f", forwarded headers believed from {settings.forwarded_allow_ips}" if settings.forwarded_allow_ips
              else ""),
           file=sys.stderr, flush=True)
+    warning = cheap_hash_warning(os.environ)
+    if warning:
+        print(warning, file=sys.stderr, flush=True)
     uvicorn.run(app, host=settings.host, port=settings.port, log_level=args.log_level,
                 ws_per_message_deflate=settings.ws_per_message_deflate, **settings.proxy_options())
     return 0

@@ -69,3 +69,12 @@ def test_a_login_rehashes_up_to_production_and_never_down_to_the_cheap_hashes(tm
         _log_in(c, "cora")  # production rehashes a cheaper hash at its next login
         assert not production.check_needs_rehash(_stored_hash(c, "cora"))
         _log_in(c, "cora")
+
+
+def test_a_service_with_the_cheap_hashes_says_so_and_one_without_says_nothing():
+    from isorig.commands.serve import cheap_hash_warning
+
+    warning = cheap_hash_warning({accounts.TEST_CHEAP_HASHES_ENV: "1"})
+    assert accounts.TEST_CHEAP_HASHES_ENV in warning and "unset it" in warning and "WARNING" in warning
+    assert cheap_hash_warning({}) is None
+    assert cheap_hash_warning({accounts.TEST_CHEAP_HASHES_ENV: ""}) is None
