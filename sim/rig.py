@@ -48,6 +48,11 @@ def _p(value, unit, origin, note, lo=0.0, hi=math.inf):
     return field(default=value, metadata={"unit": unit, "origin": origin, "note": note, "min": lo, "max": hi})
 
 
+def area_ratio_b(piston_area_m2: float, piston_area_b_m2: float) -> float:
+    """A_B / A_A of the rig file's two areas: 1 on a double-rod actuator (piston_area_b_m2 = 0 says so)."""
+    return piston_area_b_m2 / piston_area_m2 if piston_area_b_m2 > 0.0 else 1.0
+
+
 @dataclass(frozen=True)
 class RigParameters:
     """Every rig parameter in one place, with unit and origin (paper / calibrated / assumed)."""
@@ -111,8 +116,8 @@ class RigParameters:
 
     @property
     def area_ratio_b(self) -> float:
-        """A_B / A_A: 1 on a double-rod actuator (piston_area_b_m2 = 0 says so)."""
-        return self.piston_area_b_m2 / self.piston_area_m2 if self.piston_area_b_m2 > 0.0 else 1.0
+        """A_B / A_A (``area_ratio_b``)."""
+        return area_ratio_b(self.piston_area_m2, self.piston_area_b_m2)
 
     @property
     def friction_force_n(self) -> float:

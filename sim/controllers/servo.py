@@ -64,6 +64,7 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
+from ..rig import area_ratio_b, supply_share
 from .base import (
     M_LOAD_PRESSURE,
     M_POSITION,
@@ -351,7 +352,7 @@ def make_servo(rig=None, **options) -> Controller:
     params[P_OVMIN] = o["null_offset_min_velocity_m_per_s"]
     params[P_OVT] = o["null_offset_min_target_velocity_m_per_s"]
     params[P_DP_REG] = o["orifice_regularisation_pa"]
-    params[P_AREA_RATIO_B] = o["piston_area_b_m2"] / o["piston_area_m2"] if o["piston_area_b_m2"] > 0.0 else 1.0
+    params[P_AREA_RATIO_B] = area_ratio_b(o["piston_area_m2"], o["piston_area_b_m2"])
     # load-pressure feedback, designed on the declared rig (pressure_feedback_design)
     design = pressure_feedback_design(o)
     compliance = o["half_volume_m3"] / (2.0 * o["bulk_modulus_pa"])
@@ -529,12 +530,6 @@ def orifice_root(dp, dp_reg):
     return dp / np.sqrt(dp_reg)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def side_supply(sgn, p_supply, area_ratio_b):
-    """s P_s of the valve law (sim.rig.supply_share): P_s towards +y, A_B / A_A times it towards -y."""
-    return p_supply if sgn > 0.0 else area_ratio_b * p_supply
-
-
 @njit(cache=True, error_model="numpy")
 def valve_inverse(v, p_load, p_supply, area, kq, dz, dz_ramp, dp_min_share, dp_reg=0.0, area_ratio_b=1.0):
     """Command u that makes the nominal valve pass the flow area * v: inverse of eq. (3) with the dead zone."""
@@ -552,7 +547,7 @@ def valve_inverse_ramp(v, p_load, p_supply, area, kq, dz_ramp, dp_min_share, dp_
     ``fb_ramp``, the rest over ``dz_ramp``. ``area_ratio_b``: A_B / A_A, the supply's share towards -y of a
     single-rod actuator's valve law (sim.rig's docstring)."""
     sgn = 1.0 if v >= 0.0 else -1.0
-    dp = side_supply(sgn, p_supply, area_ratio_b) - sgn * p_load
+    dp = supply_share(sgn, area_ratio_b) * p_supply - sgn * p_load
     dp_min = dp_min_share * p_supply
     if dp < dp_min:
         dp = dp_min
@@ -1051,7 +1046,7 @@ def _pressure_feedback_command(p, u, v, v_pf, gain, p_load, p_supply):
     moves the open valve, never switches the dead zone's side)."""
     if v_pf != 0.0:
         sgn_v = 1.0 if v >= 0.0 else -1.0
-        dp_v = max(side_supply(sgn_v, p_supply, p[P_AREA_RATIO_B]) - sgn_v * p_load, p[P_DP_MIN] * p_supply)
+        dp_v = max(supply_share(sgn_v, p[P_AREA_RATIO_B]) * p_supply - sgn_v * p_load, p[P_DP_MIN] * p_supply)
         u += p[P_AREA] * v_pf / (gain * p[P_KQ] * orifice_root(dp_v, p[P_DP_REG]))
     return u
 
@@ -1105,7 +1100,7 @@ def _record_regressors(p, s, u, o_hat, p_load, p_supply, head_new):
     opening = u + o_hat
     if abs(opening) > s[S_DZ_HAT]:
         sgn_u = 1.0 if opening > 0.0 else -1.0
-        dp = side_supply(sgn_u, p_supply, p[P_AREA_RATIO_B]) - sgn_u * p_load
+        dp = supply_share(sgn_u, p[P_AREA_RATIO_B]) * p_supply - sgn_u * p_load
         if dp < p[P_DP_MIN] * p_supply:
             dp = p[P_DP_MIN] * p_supply
         per_volt = p[P_KQ] * orifice_root(dp, p[P_DP_REG]) / p[P_AREA]
