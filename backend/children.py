@@ -27,6 +27,23 @@ import threading
 import time
 
 POLL_S = 0.5  # a kernel without pidfd_open: how often the watch looks
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+def end_with_parent(parent: int, signum: int) -> None:
+    """Called first thing in a child forked from a thread that lives as long as its parent (a command's main
+    thread; not the service's helpers, above): the kernel sends it ``signum`` when the parent dies
+    (``prctl(PR_SET_PDEATHSIG)``, Linux), and it exits at once if ``parent`` is gone already (it died before the
+    prctl took effect: the child was handed to another). Elsewhere only the second."""
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(signum), 0, 0, 0)
+        except (OSError, AttributeError):
+            pass  # no prctl: the caller's own checks (a closed pipe) still end it
+    if os.getppid() != parent:
+        os._exit(1)
 
 
 def exit_with(pid: int) -> bool:

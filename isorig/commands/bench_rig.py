@@ -19,12 +19,16 @@ from __future__ import annotations
 import json
 import math
 import os
+import signal
 import subprocess
 import sys
 import tempfile
 import time
 from datetime import datetime
+from functools import partial
 from pathlib import Path
+
+from backend.children import end_with_parent
 
 PARTS = ("stream", "tracking", "link-drop", "watchdog")
 DEFAULT_PARTS = ("stream", "tracking", "link-drop")  # "watchdog" takes --tests x --test-s: asked for by name
@@ -264,7 +268,7 @@ class CpuHogs:
     def __enter__(self) -> CpuHogs:
         code = "import os\nos.setpriority(os.PRIO_PROCESS, 0, 0)\nwhile True: pass"
         self.processes = [subprocess.Popen([sys.executable, "-c", code], start_new_session=True,
-                                           preexec_fn=_hog_preexec) for _ in range(self.n)]
+                                           preexec_fn=partial(_hog_preexec, os.getpid())) for _ in range(self.n)]
         return self
 
     def __exit__(self, *_exc) -> None:
@@ -273,14 +277,11 @@ class CpuHogs:
             p.wait(5)
 
 
-def _hog_preexec() -> None:
-    """A hog starts at normal priority and is killed when the bench ends, however it ends (PR_SET_PDEATHSIG:
-    a bench killed by a signal left its hogs spinning in their own sessions, loading every later measurement)."""
-    import ctypes
-    import signal
-
-    pr_set_pdeathsig = 1  # <linux/prctl.h>
-    ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, signal.SIGKILL, 0, 0, 0)
+def _hog_preexec(bench_pid: int) -> None:
+    """A hog starts at normal priority and is killed when the bench ends, however it ends (PR_SET_PDEATHSIG,
+    backend.children.end_with_parent: a bench killed by a signal left its hogs spinning in their own sessions,
+    loading every later measurement)."""
+    end_with_parent(bench_pid, signal.SIGKILL)
     _normal_priority()
 
 

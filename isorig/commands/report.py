@@ -542,23 +542,14 @@ def _child_setup(unused, parent: int) -> None:
         end.close()
 
 
-PR_SET_PDEATHSIG = 1  # linux/prctl.h
-
-
 def _end_with_parent(parent: int) -> None:
-    """Ask the kernel to SIGTERM this process when its parent dies; exit now if it is already dead."""
+    """Ask the kernel to SIGTERM this process when its parent dies; exit now if it is already dead
+    (backend.children.end_with_parent)."""
     import signal
-    import sys
 
-    if sys.platform.startswith("linux"):
-        try:
-            import ctypes
+    from backend.children import end_with_parent
 
-            ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
-        except (OSError, AttributeError):
-            pass  # no prctl: the sends below still end this process quietly when the parent is gone
-    if os.getppid() != parent:  # it died before prctl took effect: this process was handed to another
-        os._exit(1)
+    end_with_parent(parent, signal.SIGTERM)
 
 
 def _send(conn, message) -> None:
