@@ -11,6 +11,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from backend.app import create_app
+from backend.models import FINAL_STATUSES
 from backend.settings import Settings
 
 TOKEN = "test-operator-token"
@@ -101,9 +102,6 @@ def settings(tmp_path) -> Settings:
 def client(settings):
     with TestClient(create_app(settings)) as c:
         yield c
-
-
-FINAL_STATUSES = ("completed", "stopped", "aborted", "interrupted", "failed")
 
 
 def wait_for(client, test_id: int, statuses=FINAL_STATUSES, timeout_s: float = 30.0) -> dict:
