@@ -116,7 +116,9 @@ def test_an_interrupted_tests_header_agrees_with_its_cycles(own_server, open_pag
     srv.start()
     rec = srv.wait_status(test_id, {"interrupted", "aborted"}, timeout_s=30)
     page.wait_for_selector(f"#rig-status[data-status='{rec['status']}']", timeout=WAIT_MS)
-    page.wait_for_selector("#loop-note:has-text('bold')", timeout=WAIT_MS)
+    # the ended test's stored loops are drawn: the note's default text ("current cycle bold, ...") says bold too
+    page.wait_for_selector("#plot-loop[data-bold-cycle]", state="attached", timeout=WAIT_MS)
+    page.wait_for_selector("#loop-note:has-text('bold: the last steady cycle')", timeout=WAIT_MS)
     done, total = rec["cycles_done"], rec["cycles_total"]
     poll(lambda: page.inner_text("#l-cycle") == f"{done} / {total}", 10, f"the header saying {done} / {total}",
          shown=lambda: page.inner_text("#l-cycle"))
