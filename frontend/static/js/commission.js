@@ -1,7 +1,7 @@
 // The Commissioning page (#/commission, issue 20): measure the rig the controller is told of. A form (supply,
 // specimen, vertical load, the stroke and velocity bounds, in the console's units), what will move and why
 // before Start (POST /api/commissioning/check: the service's own figures), a confirmation, the run's progress
-// (its phase is the as_hat column: 0 valve sweeps, 1 dither, 2 return, 3 rest; ar_hat the dither's gate; then
+// (its phase is the as_hat column: 4 valve null, 0 valve sweeps, 1 dither, 2 return, 3 rest; ar_hat the dither's gate; then
 // the service fits the record), then the result (GET /api/commissioning/{id}): the verdict with each reason,
 // fitted against declared values with their uncertainties, the measured frequency response against the fitted
 // model's, the fit's figures, the rig file to download and "Make this the service's rig"
@@ -18,7 +18,7 @@ import { bindAccountField } from "./who.js";
 
 const $ = (id) => document.getElementById(id);
 const num = (v) => typeof v === "number" && Number.isFinite(v);
-const PHASES = ["valve sweeps", "dither", "return", "rest"]; // the excitation's as_hat (sim.controllers.excitation)
+const PHASES = ["valve sweeps", "dither", "return", "rest", "valve null"]; // the excitation's as_hat (sim.controllers.excitation)
 const STEPS = ["valve sweeps", "dither", "return", "fitting", "result"];
 const FINAL = new Set(["completed", "stopped", "aborted", "interrupted", "failed"]);
 const BUSY = new Set(["ready", "running", "fitting"]);
@@ -296,7 +296,7 @@ export class CommissionPage {
         `below ${fmtU("velocity", b.max_velocity_m_per_s)}, for at most ${dur ? `${dur.toFixed(0)} s` : "20 s"}` +
         `${dur && b.speed !== 1 ? ` (${fmtDuration(dur / b.speed)} at speed ${b.speed})` : ""}:` }),
       el("ol", {},
-        el("li", { text: "valve sweeps, slowly each way: the valve's dead zone, null and gain;" }),
+        el("li", { text: "the valve's null, the table held where it rests; then valve sweeps, slowly each way: the valve's dead zone, null and gain;" }),
         el("li", { text: "a small dither (1 to 100 Hz), the table held: the oil column, the moving mass, the friction, the sensor delay;" }),
         el("li", { text: "back to where it rested; the valve closes." })),
       el("p", { class: "muted", text: "Nothing is assumed about the valve (no test controller). Beyond these bounds the " +
@@ -588,7 +588,10 @@ export class CommissionPage {
     box.innerHTML = "";
     if (!c) return;
     let at;
-    if (c.status === "running" || c.status === "ready") at = this.phase === null ? 0 : Math.min(2, Math.max(0, Math.round(this.phase)));
+    if (c.status === "running" || c.status === "ready") {
+      const phase = this.phase === null ? 0 : Math.round(this.phase);
+      at = phase === 4 ? 0 : Math.min(2, Math.max(0, phase)); // the valve null belongs to the sweeps' step
+    }
     else if (c.state === "fitting") at = 3;
     else at = 4;
     STEPS.forEach((name, k) => {
