@@ -85,13 +85,13 @@ def _flow_regression(sig: Signals, mask: np.ndarray, area: float, dp_reg: float,
     v_e = valve_voltage(sig.u, sig.dt_s, valve_hz, damping, null_v, negative_gain)
     r = orifice(np.where(v_e > 0.0, 1.0, area_ratio_b) * sig.p_supply - np.sign(v_e) * sig.p_load, dp_reg)
     opening = np.maximum(v_e - dz, 0.0) + np.minimum(v_e + dz, 0.0)
-    x = np.column_stack([lowpass(opening * r, sig.dt_s), -sig.p_load_rate_f])[mask]
-    target = area * sig.at_latency(sig.v_f, latency_ms * 1e-3)[mask]
+    x = np.column_stack([lowpass(opening * r, sig.dt_s, sig.flow_corner_hz), -sig.p_load_rate_flow])[mask]
+    target = area * sig.at_latency(sig.v_flow, latency_ms * 1e-3)[mask]
     # normal equations (2 unknowns), with the P_L' noise's own share taken out of its column's sum of squares:
     # a regressor with noise in it pulls its coefficient, C, towards zero by var(signal) / var(signal + noise)
     # (bias-compensated least squares; the noise from the reading's content above NOISE_BAND_HZ)
     normal = x.T @ x
-    normal[1, 1] -= x.shape[0] * sig.noise["load_pressure_rate_pa_per_s"] ** 2
+    normal[1, 1] -= x.shape[0] * sig.noise["load_pressure_rate_flow_pa_per_s"] ** 2
     coef = np.linalg.lstsq(normal, x.T @ target, rcond=None)[0]
     return coef, target - x @ coef, target
 
@@ -101,7 +101,7 @@ def fit_flow(sig: Signals, area: float, dp_reg: float, mask: np.ndarray | None =
     """The flow balance (eq. 3, second line) with the valve (eq. 3, third line; eq. 2): see the module
     (``area_ratio_b``: the declared A_B / A_A)."""
     mask = sig.valid if mask is None else mask
-    scale = 1.0 / max(np.std(area * sig.v_f[mask]), 1e-12)
+    scale = 1.0 / max(np.std(area * sig.v_flow[mask]), 1e-12)
 
     def residual(theta):
         return _flow_regression(sig, mask, area, dp_reg, theta, area_ratio_b)[1] * scale
@@ -121,8 +121,9 @@ def fit_flow(sig: Signals, area: float, dp_reg: float, mask: np.ndarray | None =
         if best is None or sol.cost < best.cost:
             best = sol
     coef, res, target = _flow_regression(sig, mask, area, dp_reg, best.x, area_ratio_b)
-    target_noise = (area * sig.noise["velocity_m_per_s"]) ** 2
-    r2 = explained(res, target, target_noise + (coef[1] * sig.noise["load_pressure_rate_pa_per_s"]) ** 2, target_noise)
+    target_noise = (area * sig.noise["velocity_flow_m_per_s"]) ** 2
+    r2 = explained(res, target, target_noise + (coef[1] * sig.noise["load_pressure_rate_flow_pa_per_s"]) ** 2,
+                   target_noise)
     dz, null_v, valve_hz, damping, latency_ms, negative_gain = best.x
     return FlowFit(float(dz), float(null_v), float(valve_hz), float(damping), float(latency_ms * 1e-3),
                    float(negative_gain), float(coef[0]), float(coef[1]), r2)
@@ -147,7 +148,7 @@ def part_disagreement(sig: Signals, area: float, dp_reg: float, flow: FlowFit,
         mask = sig.valid & part
         if np.count_nonzero(mask) < int(1.0 / sig.dt_s):
             continue
-        scale = 1.0 / max(np.std(area * sig.v_f[mask]), 1e-12)
+        scale = 1.0 / max(np.std(area * sig.v_flow[mask]), 1e-12)
 
         def theta(x, fixed=fixed):
             return np.array([x[0], x[1], *fixed, x[2]])

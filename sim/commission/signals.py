@@ -21,6 +21,7 @@ from ..measurement import STATUS_COMMAND_MISSED, measured_rows
 from ..samples import Samples
 
 CORNER_HZ = 150.0  # the zero-phase low-pass before derivatives: above the oil column and most valves' bandwidth
+FLOW_CORNER_HZ = 80.0  # the flow balance's own low-pass: its P_L' is the noisiest regressor of either balance
 NOISE_BAND_HZ = 350.0  # a reading's content above this is its sensor's noise (the rig moves far below it)
 EDGE_S = 0.05  # the filter's start and end transients are not fitted
 ANOMALY_MARGIN_S = 0.015  # left out either side of a lost measurement or a late command
@@ -47,6 +48,10 @@ class Signals:
     a_f: np.ndarray = field(init=False)
     p_load_f: np.ndarray = field(init=False)
     p_load_rate_f: np.ndarray = field(init=False)
+    #: the flow balance's velocity and P_L', low-passed at FLOW_CORNER_HZ (``flow_corner_hz``)
+    v_flow: np.ndarray = field(init=False)
+    p_load_rate_flow: np.ndarray = field(init=False)
+    flow_corner_hz: float = field(init=False)
     force_f: np.ndarray = field(init=False)
     #: each reading's white noise, one sigma (m, Pa, N), and what it leaves in the low-passed derivatives
     noise: dict = field(init=False)
@@ -58,12 +63,17 @@ class Signals:
         self.p_load_f = lowpass(self.p_load, self.dt_s)
         self.p_load_rate_f = derivative(self.p_load_f, self.dt_s)
         self.force_f = lowpass(self.force, self.dt_s)
+        self.flow_corner_hz = FLOW_CORNER_HZ
+        self.v_flow = derivative(lowpass(self.y, self.dt_s, self.flow_corner_hz), self.dt_s)
+        self.p_load_rate_flow = derivative(lowpass(self.p_load, self.dt_s, self.flow_corner_hz), self.dt_s)
+        flow_gains = noise_gains(self.dt_s, self.flow_corner_hz)
         gains = noise_gains(self.dt_s)
         y, p, f = (noise_std(x, self.dt_s, self.valid) for x in (self.y, self.p_load, self.force))
         self.noise = {"position_m": y, "load_pressure_pa": p, "force_n": f,
                       "velocity_m_per_s": y * gains[1], "acceleration_m_per_s2": y * gains[2],
                       "load_pressure_f_pa": p * gains[0], "load_pressure_rate_pa_per_s": p * gains[1],
-                      "force_f_n": f * gains[0]}
+                      "force_f_n": f * gains[0], "velocity_flow_m_per_s": y * flow_gains[1],
+                      "load_pressure_rate_flow_pa_per_s": p * flow_gains[1]}
 
     def __len__(self) -> int:
         return self.u.size
@@ -86,8 +96,9 @@ def shifted(x: np.ndarray, periods: float) -> np.ndarray:
             - (f + 1) * f * (f - 2) / 2 * x1 + (f + 1) * f * (f - 1) / 6 * x2)
 
 
-def lowpass(x: np.ndarray, dt_s: float, corner_hz: float = CORNER_HZ) -> np.ndarray:
-    """Zero-phase 4th-order Butterworth low-pass (forwards and backwards)."""
+def lowpass(x: np.ndarray, dt_s: float, corner_hz: float | None = None) -> np.ndarray:
+    """Zero-phase 4th-order Butterworth low-pass (forwards and backwards), at ``corner_hz`` (CORNER_HZ)."""
+    corner_hz = CORNER_HZ if corner_hz is None else corner_hz
     sos = signal.butter(4, min(corner_hz, 0.45 / dt_s), fs=1.0 / dt_s, output="sos")
     return signal.sosfiltfilt(sos, x)
 
@@ -127,10 +138,10 @@ def _white_share_above(dt_s: float) -> float:
     return float(np.sum(signal.sosfiltfilt(sos, _impulse(dt_s)) ** 2))
 
 
-def noise_gains(dt_s: float) -> tuple[float, float, float]:
+def noise_gains(dt_s: float, corner_hz: float | None = None) -> tuple[float, float, float]:
     """How much of a unit white noise's sigma the fits' low-pass leaves in a reading, its derivative (1/s) and
     its second derivative (1/s^2): the square root of the summed squares of their impulse responses."""
-    h = lowpass(_impulse(dt_s), dt_s)
+    h = lowpass(_impulse(dt_s), dt_s, corner_hz)
     h1 = derivative(h, dt_s)
     h2 = derivative(h1, dt_s)
     return tuple(float(math.sqrt(np.sum(g ** 2))) for g in (h, h1, h2))
