@@ -47,9 +47,8 @@ def motion_words(conditions: commission.Conditions, duration_s: float) -> str:
     """What will move and why, in words (SI in the API; the console says it in its units)."""
     return (f"the table moves at most +-{conditions.max_stroke_m * 1e3:g} mm about where it rests "
             f"({conditions.start_m * 1e3:.2f} mm), below {conditions.max_velocity_m_per_s * 1e3:g} mm/s, for at most "
-            f"{duration_s:.0f} s: the valve's null with the table held, valve sweeps, then a small dither, then back to "
-            "where it rested; to measure the "
-            "valve, the oil column, the moving mass and the sensor delay")
+            f"{duration_s:.0f} s: the valve's null with the table held, valve sweeps, then a small dither, then back "
+            "to where it rested; to measure the valve, the oil column, the moving mass and the sensor delay")
 
 
 def build(session, body, request) -> dict:

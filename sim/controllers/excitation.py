@@ -34,7 +34,8 @@ Phases (the target r is the table's resting position y0, held constant; the guar
    to the end of the run. If the sweeps could not find the valve both ways, the command rests instead.
 
 Report: model_m = y0; ar_hat = the dither's gate (0-1); ay_hat = half the distance between the two edges
-found (the dead zone seen from the command, V); as_hat = the phase (4 valve null, 0 sweeps, 1 dither, 2 return, 3 rest: the codes 0-3 came first).
+found (the dead zone seen from the command, V); as_hat = the phase (4 valve null, 0 sweeps, 1 dither, 2 return,
+3 rest: the codes 0-3 came first).
 """
 
 from __future__ import annotations
