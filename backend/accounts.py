@@ -25,7 +25,7 @@ from argon2.exceptions import InvalidHashError, VerificationError
 from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
 
-from .models import Credential, UserAccount, utcnow
+from .models import Credential, UserAccount, as_utc, utcnow
 
 ROLES = ("viewer", "operator", "approver", "admin")
 FIRST_PASSWORD_FILE = "first-admin-password.txt"  # in the data directory: the first admin's password, mode 0600
@@ -262,17 +262,12 @@ def actor_for(session: Session, secret: str, kind: str) -> Actor | None:
                                                     Credential.kind == kind)).first()
     if cred is None or cred.revoked_at is not None:
         return None
-    if cred.expires_at is not None and _aware(cred.expires_at) <= datetime.now(UTC):
+    if cred.expires_at is not None and as_utc(cred.expires_at) <= datetime.now(UTC):
         return None
     user = cred.user
     if user.disabled_at is not None:
         return None
     return Actor(user.name, user.role, kind)
-
-
-def _aware(moment: datetime) -> datetime:
-    """SQLite gives back naive datetimes (stored as UTC)."""
-    return moment if moment.tzinfo is not None else moment.replace(tzinfo=UTC)
 
 
 @functools.cache

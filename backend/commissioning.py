@@ -28,7 +28,7 @@ from sim.rigfile import rig_file_data
 
 from . import store
 from .errors import ApiError
-from .models import FINAL_STATUSES, TestRecord
+from .models import FINAL_STATUSES, TestRecord, as_utc
 from .safety import make_limits
 from .store import clean_json
 
@@ -202,7 +202,7 @@ class Fitter:
             started = test.started_at or test.created_at
             driver = test.driver
             samples = store.load_samples(session, test_id)
-        started = started.replace(tzinfo=UTC) if started.tzinfo is None else started
+        started = as_utc(started)
         conditions = commission.Conditions(**spec["commissioning"])
         declared = DEFAULT_RIG.with_changes(**spec["rig_changes"]) if spec.get("rig_changes") else DEFAULT_RIG
         ident = commission.identify(samples, declared, conditions)

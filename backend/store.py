@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from datetime import UTC, datetime
+from datetime import datetime
 
 import numpy as np
 from sqlalchemy import delete, func, or_, select
@@ -21,7 +21,7 @@ from sqlalchemy.orm import Session
 from sim.samples import N_FIELDS, Samples, check_stored_width
 
 from .codec import ARRAYS_CODEC, SAMPLES_CODEC, decode_arrays, decode_samples, encode_arrays, encode_samples
-from .models import CycleRecord, EventRecord, SampleChunk, TestRecord, UserIsolator, utcnow
+from .models import CycleRecord, EventRecord, SampleChunk, TestRecord, UserIsolator, as_utc, utcnow
 
 
 @dataclass
@@ -38,11 +38,7 @@ class TestBundle:
 
 def _iso(value: datetime | None) -> str | None:
     """ISO 8601 in UTC (SQLite hands back naive datetimes; they were stored as UTC)."""
-    if value is None:
-        return None
-    if value.tzinfo is None:
-        value = value.replace(tzinfo=UTC)
-    return value.isoformat()
+    return None if value is None else as_utc(value).isoformat()
 
 
 def clean_json(value):

@@ -21,7 +21,7 @@ from sqlalchemy import func, select
 
 from .. import accounts, store
 from ..errors import ApiError
-from ..models import Credential, UserAccount, utcnow
+from ..models import Credential, UserAccount, as_utc, utcnow
 from ..schemas import ERROR_RESPONSES, StrictModel
 from .deps import AdminDep, SessionDep
 
@@ -60,7 +60,7 @@ def _describe(session, user: UserAccount) -> dict:
 
 
 def _iso(moment) -> str | None:
-    return accounts._aware(moment).isoformat() if moment is not None else None
+    return as_utc(moment).isoformat() if moment is not None else None
 
 
 def _user(session, name: str) -> UserAccount:
