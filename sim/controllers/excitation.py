@@ -252,7 +252,7 @@ def _null_hold(p, s, error_m, v5, dt):
 
 
 @njit(cache=True, error_model="numpy")
-def _start_sweep(p, s, direction, t):
+def _start_sweep(s, direction, t):
     """A sweep begins: the null's hold first (S_RAMPING 0), then the ramp from ``_ramp_start``."""
     s[S_DIR] = direction
     s[S_T_SWEEP] = t
@@ -291,8 +291,6 @@ def excitation_step(p, s, meas, dt, report):
         s[S_GATE] = 1.0
         s[S_T_PHASE] = t
         s[S_LAST_CUT] = -1.0
-        s[S_NULL] = 0.0
-        s[S_QUIET] = 0.0
     phase = s[S_PHASE]
     u = 0.0
     if phase == PHASE_NULL:
@@ -301,7 +299,7 @@ def excitation_step(p, s, meas, dt, report):
             s[S_PHASE] = PHASE_SWEEP
             s[S_T_PHASE] = t
             s[S_U_REST] = s[S_NULL]
-            _start_sweep(p, s, 1.0, t)
+            _start_sweep(s, 1.0, t)
     elif phase == PHASE_SWEEP and s[S_RAMPING] < 0.5:
         # before a sweep the null's hold brings the table back to rest where it rested (an underlapped valve's null
         # moves with the load: at a fixed command the specimen's pull would carry the table off)
@@ -348,7 +346,7 @@ def excitation_step(p, s, meas, dt, report):
                     s[S_HOLD] = 0.0
                 s[S_T_PHASE] = t
             else:
-                _start_sweep(p, s, -d, t)
+                _start_sweep(s, -d, t)
         else:
             rate = p[P_RAMP] * (p[P_OPEN_SHARE] if s[S_OPENED] > 0.5 else 1.0)
             s[S_U] += d * rate * dt
