@@ -26,6 +26,7 @@ from .rig import (
     P_FRICTION,
     P_KD,
     P_KW,
+    P_PLAY_HELD,
     P_SUPPLY,
     X_PL,
     X_V,
@@ -117,7 +118,9 @@ class SimulatedPlant:
     def rebuild(self, rig: RigParameters, isolator: Isolator) -> None:
         """The plant's parameters changed (a timed change in the middle of a test): state and history kept."""
         self.rig, self.isolator = rig, isolator
+        held = self.params[P_PLAY_HELD]  # the valve's play keeps where it holds the spool
         self.params = pack_plant(rig, isolator, self.supply_pa)
+        self.params[P_PLAY_HELD] = held
         self.sensors = pack_sensors(rig, self.control_period_s, int(self.sensors[5]))
 
     @property

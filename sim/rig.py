@@ -85,6 +85,14 @@ class RigParameters:
     dead_zone_v: float = _p(0.8621, "V", "calibrated",
                             "half width of DZ(v_e), spool overlap; rise of a_p with the step voltage (Tables III-IV)",
                             lo=0.0, hi=100.0)
+    underlap_v: float = _p(0.0, "V", "assumed",
+                           "half width round null where both metering lands are open (an underlapped valve: about "
+                           "twice the flow gain there, and a leak with P_L; sim.rig.load_flow); 0: none (a critically "
+                           "lapped valve, or an overlapped one: dead_zone_v)", lo=0.0, hi=100.0)
+    valve_play_v: float = _p(0.0, "V", "assumed",
+                             "the valve's play (backlash) between command and spool, full width: a command that "
+                             "reverses moves the spool only once it has come back this far (command_after_play)",
+                             lo=0.0, hi=5.0)
     valve_natural_frequency_rad_s: float = _p(2 * np.pi * 40.0, "rad/s", "assumed", "omega_mv, eq. (3)",
                                               lo=1.0, hi=1e5)
     valve_damping_ratio: float = _p(0.7, "-", "assumed", "xi_v, eq. (3)", lo=0.01, hi=10.0)
@@ -147,6 +155,10 @@ class RigParameters:
             raise RigError("dead_zone_v", self.dead_zone_v, f"< command_limit_v = {self.command_limit_v:g} V",
                            f"dead_zone_v = {self.dead_zone_v:g} V is as wide as the command range "
                            f"(+-{self.command_limit_v:g} V): the valve could never open")
+        if self.dead_zone_v > 0.0 and self.underlap_v > 0.0:
+            raise RigError("underlap_v", self.underlap_v, f"0 while dead_zone_v = {self.dead_zone_v:g} V",
+                           f"underlap_v = {self.underlap_v:g} V and dead_zone_v = {self.dead_zone_v:g} V: a valve's "
+                           "lands are either overlapped (a dead zone) or underlapped, not both; give one of them")
         if self.piston_area_b_m2 > 0.0 and not (0.2 <= self.area_ratio_b <= 5.0):
             raise RigError("piston_area_b_m2", self.piston_area_b_m2, f"0, or within [0.2, 5] x piston_area_m2 = "
                            f"{self.piston_area_m2:g} m2", f"piston_area_b_m2 = {self.piston_area_b_m2:g} m2 is "
@@ -175,7 +187,8 @@ DEFAULT_RIG = RigParameters()
 P_MASS, P_FRICTION, P_VISCOUS, P_AREA, P_VOLUME, P_BETA, P_KQ, P_DZ = range(8)
 P_WV, P_XIV, P_KEP, P_KEN, P_VE0, P_DPREG, P_VSTICK, P_TSTICK = range(8, 16)
 P_SUPPLY, P_RHO, P_SIGMA, P_N, P_KD, P_KW, P_ULIM, P_AREA_RATIO_B = range(16, 24)
-N_PLANT_PARAMS = 24
+P_UNDERLAP, P_PLAY, P_PLAY_HELD = range(24, 27)  # P_PLAY_HELD: the play's state, the command the spool follows
+N_PLANT_PARAMS = 27
 
 # State indices.
 X_Y, X_V, X_PL, X_VE, X_VED, X_W = range(6)
@@ -209,12 +222,33 @@ def pack_plant(rig: RigParameters, isolator: Isolator, supply_pa: float) -> np.n
     p[P_KW] = isolator.kw_n
     p[P_ULIM] = rig.command_limit_v
     p[P_AREA_RATIO_B] = rig.area_ratio_b
+    p[P_UNDERLAP] = rig.underlap_v
+    p[P_PLAY] = rig.valve_play_v
+    p[P_PLAY_HELD] = 0.0
     return p
 
 
 @njit(cache=True, error_model="numpy")
+def command_after_play(u, p):
+    """The command past the valve's play (valve_play_v, full width): it follows u once u has moved half the play
+    away from it; the held command is the plant's state, kept in p[P_PLAY_HELD] (0 V at the start)."""
+    half = 0.5 * p[P_PLAY]
+    if half <= 0.0:
+        return u
+    held = p[P_PLAY_HELD]
+    if u - held > half:
+        held = u - half
+    elif u - held < -half:
+        held = u + half
+    p[P_PLAY_HELD] = held
+    return held
+
+
+@njit(cache=True, error_model="numpy")
 def valve_command(u, p):
-    """v_c from the control action u, eq. (2)."""
+    """v_c from the control action u, eq. (2), past the valve's play (``command_after_play``; called once per
+    command, in order)."""
+    u = command_after_play(u, p)
     if u > 0.0:
         return p[P_KEP] * u + p[P_VE0]
     if u < 0.0:
@@ -253,7 +287,15 @@ def supply_share(v_e, area_ratio_b):
 @njit(cache=True, error_model="numpy")
 def load_flow(v_e, p_load, p):
     """Q_L = K_q DZ(v_e) sqrt(s P_s - sgn(v_e) P_L), eq. (3), second line, in m3/s; s = 1 on the paper's
-    double-rod actuator (``supply_share``, module docstring)."""
+    double-rod actuator (``supply_share``, module docstring). An underlapped valve (underlap_v = U > 0) has both
+    metering lands open round null: K_q [(v_e + U)+ sqrt(P_s - P_L) - (U - v_e)+ sqrt(s P_s + P_L)], the same
+    law beyond +-U with the opening shifted by U."""
+    underlap = p[P_UNDERLAP]
+    if underlap > 0.0:
+        towards_plus = max(v_e + underlap, 0.0) * regularised_sqrt(p[P_SUPPLY] - p_load, p[P_DPREG])
+        towards_minus = max(underlap - v_e, 0.0) * regularised_sqrt(p[P_AREA_RATIO_B] * p[P_SUPPLY] + p_load,
+                                                                   p[P_DPREG])
+        return p[P_KQ] * (towards_plus - towards_minus)
     opening = dead_zone(v_e, p[P_DZ])
     if opening == 0.0:
         return 0.0

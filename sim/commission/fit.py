@@ -72,6 +72,7 @@ def _named(flow: FlowFit, force: ForceFit, declared: RigParameters) -> dict[str,
         "driver_gain_negative": flow.negative_gain,
         "dead_zone_v": flow.dead_zone_v,
         "driver_offset_v": flow.null_offset_v,
+        "valve_play_v": flow.play_v,
         "valve_natural_frequency_rad_s": 2.0 * math.pi * flow.valve_hz,
         "valve_damping_ratio": flow.valve_damping,
         "bulk_modulus_pa": declared.half_volume_m3 / (2.0 * flow.compliance_m3_per_pa)
@@ -87,8 +88,9 @@ def _named(flow: FlowFit, force: ForceFit, declared: RigParameters) -> dict[str,
 
 UNITS = {"flow_gain_m3_per_s_v_sqrt_pa": ("m3/(s V sqrt(Pa))", "valve flow gain K_q, spool opening positive"),
          "driver_gain_negative": ("V/V", "k_en of eq. (2): a negative command's flow gain is k_en K_q"),
-         "dead_zone_v": ("V", "half width of the valve's dead zone DZ"),
+         "dead_zone_v": ("V", "half width of the valve's dead zone DZ (negative: the underlap, both lands open)"),
          "driver_offset_v": ("V", "valve null offset v_e0 (eq. 2)"),
+         "valve_play_v": ("V", "the valve's play (backlash) between command and spool, full width"),
          "valve_natural_frequency_rad_s": ("rad/s", "valve natural frequency w_v"),
          "valve_damping_ratio": ("-", "valve damping ratio xi_v"),
          "bulk_modulus_pa": ("Pa", "effective bulk modulus beta (the oil column's stiffness, with the declared V_0)"),
@@ -112,7 +114,7 @@ def fit_rig(sig: Signals, declared: RigParameters, blocks: int = BLOCKS,
     force = fit_force(sig, area, flow.latency_s)
     full = _named(flow, force, declared)
     start = np.array([flow.dead_zone_v, flow.null_offset_v, flow.valve_hz, flow.valve_damping, flow.latency_s * 1e3,
-                      flow.negative_gain])
+                      flow.negative_gain, flow.play_v])
     group = (np.arange(len(sig)) // max(1, int(round(CHUNK_S / sig.dt_s)))) % blocks
     leave_one_out = []
     for b in range(blocks):

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..rig import RigParameters
-from .flow import valve_voltage
+from .flow import after_play, valve_voltage
 from .force import dahl_state
 from .model import replay
 from .signals import Signals, derivative, lowpass
@@ -82,8 +82,10 @@ def replay_segments(sig: Signals, window: slice, rig: RigParameters,
     lag = rig.position_latency_s
     y0 = sig.at_latency(sig.y_f, lag)
     v0 = sig.at_latency(sig.v_f, lag)
-    v_e = valve_voltage(sig.u, dt, rig.valve_natural_frequency_rad_s / (2 * np.pi), rig.valve_damping_ratio,
+    u = after_play(sig.u, rig.valve_play_v)  # the play's state over the whole record; each segment replays past it
+    v_e = valve_voltage(u, dt, rig.valve_natural_frequency_rad_s / (2 * np.pi), rig.valve_damping_ratio,
                         rig.driver_offset_v, rig.driver_gain_negative)
+    without_play = rig.with_changes(valve_play_v=0.0)
     v_e_rate = derivative(v_e, dt)
     z0 = dahl_state(y0, dahl[1]) if dahl is not None else np.zeros_like(y0)
     v_model = np.empty(window.stop - window.start)
@@ -92,7 +94,7 @@ def replay_segments(sig: Signals, window: slice, rig: RigParameters,
     for a in range(window.start, window.stop, step):
         b = min(a + step, window.stop)
         _y, v_model[a - window.start: b - window.start], p_model[a - window.start: b - window.start] = replay(
-            rig, sig.u[a:b], sig.force[a:b], sig.p_supply[a:b], float(y0[a]), float(v0[a]), float(sig.p_load_f[a]),
+            without_play, u[a:b], sig.force[a:b], sig.p_supply[a:b], float(y0[a]), float(v0[a]), float(sig.p_load_f[a]),
             dt, float(v_e[a]), float(v_e_rate[a]), dahl, float(z0[a]))
     return v_model, p_model
 
@@ -109,7 +111,7 @@ def dither_response(sig: Signals, dither: slice, rig: RigParameters, lines_hz: n
         raise ValueError(f"the dither ran {periods} whole period(s) after its fade-in; at least {MIN_PERIODS} are "
                          "needed for a frequency response")
     window = slice(start, start + periods * n_period)
-    u = valve_opening(sig.u[window], rig)
+    u = valve_opening(after_play(sig.u, rig.valve_play_v)[window], rig)
     v_model, p_model = replay_segments(sig, window, rig, dahl)
     diverged = not np.all(np.isfinite(v_model))
     v_model = lowpass(np.nan_to_num(v_model, posinf=0.0, neginf=0.0), dt)

@@ -29,8 +29,9 @@ const RANGES = { stroke: [2e-4, 0.01], velocity: [0.01, 0.1] }; // sim.commissio
 const PARAMS = {
   flow_gain_m3_per_s_v_sqrt_pa: ["valve flow gain K_q", { lab: ["(l/min)/(V\u221abar)", 6e4 * Math.sqrt(1e5)], si: ["m3/(s V\u221aPa)", 1] }],
   driver_gain_negative: ["negative-side gain k_en", { lab: ["-", 1], si: ["-", 1] }],
-  dead_zone_v: ["valve dead zone (half width)", { lab: ["V", 1], si: ["V", 1] }],
+  dead_zone_v: ["valve dead zone (half width; negative: underlap)", { lab: ["V", 1], si: ["V", 1] }],
   driver_offset_v: ["valve null offset", { lab: ["V", 1], si: ["V", 1] }],
+  valve_play_v: ["valve play (backlash, full width)", { lab: ["V", 1], si: ["V", 1] }],
   valve_natural_frequency_rad_s: ["valve natural frequency", { lab: ["Hz", 1 / (2 * Math.PI)], si: ["rad/s", 1] }],
   valve_damping_ratio: ["valve damping ratio", { lab: ["-", 1], si: ["-", 1] }],
   bulk_modulus_pa: ["oil bulk modulus (the oil column)", { lab: ["MPa", 1e-6], si: ["Pa", 1] }],
