@@ -84,3 +84,12 @@ def test_the_rig_file_describes_both():
     names = {f.name: f for f in dataclasses.fields(DEFAULT_RIG)}
     for name in ("underlap_v", "valve_play_v"):
         assert names[name].metadata["unit"] == "V" and getattr(DEFAULT_RIG, name) == 0.0
+
+
+def test_a_commissioned_rig_file_keeps_the_underlap_and_the_play(tmp_path):
+    from sim.rigfile import load_rig_file, rig_file_data, write_rig_file
+
+    rig = DEFAULT_RIG.with_changes(dead_zone_v=0.0, underlap_v=0.19, valve_play_v=0.052)
+    path = write_rig_file(tmp_path / "commissioned.json", rig_file_data(rig, "rig 87"))
+    loaded = load_rig_file(path).parameters
+    assert (loaded.dead_zone_v, loaded.underlap_v, loaded.valve_play_v) == (0.0, 0.19, 0.052)
