@@ -26,14 +26,11 @@ def fit_row(seed: int) -> dict:
     """One rig: the excitation, the fit, the values against the truth."""
     import numpy as np
 
-    from foreign_rigs import draw_rig
     from sim.commission import foreign_campaign as fc
 
     np.seterr(all="ignore")
     started = time.perf_counter()
-    spec = draw_rig(seed)
-    declared = fc.declared_rig(spec.lab_knows())
-    ident = fc.commission(spec, declared, fc.DEFAULT_MAX_STROKE_M, fc.DEFAULT_MAX_VELOCITY_M_PER_S)
+    spec, declared, ident = fc.first_attempt(seed)
     row = {"seed": seed, "rig": spec.name, "trusted": ident.trusted, "problems": ident.problems,
            "seconds": round(time.perf_counter() - started, 1)}
     if ident.fit is not None:

@@ -20,12 +20,8 @@ NOISY_DOUBLE_ROD = 151
 
 @pytest.mark.parametrize("seed", [NOISY_SINGLE_ROD, NOISY_DOUBLE_ROD], ids=["single-rod", "double-rod"])
 def test_a_rig_read_with_noisy_pressure_transducers_is_commissioned_with_its_values(seed):
-    from foreign_rigs import draw_rig
-
-    spec = draw_rig(seed)
+    spec, declared, ident = fc.first_attempt(seed)
     assert spec.drawn["sensors.pressure_noise_pa"] > 1.4e4  # per transducer, one sigma
-    declared = fc.declared_rig(spec.lab_knows())
-    ident = fc.commission(spec, declared, fc.DEFAULT_MAX_STROKE_M, fc.DEFAULT_MAX_VELOCITY_M_PER_S)
     assert ident.fit is not None and ident.fit.flow_r2 >= 0.98, ident.problems
     assert ident.trusted, ident.problems
     values = fc.judged_values(ident, spec, declared)

@@ -15,11 +15,7 @@ UNDERLAPPED_RIG = 198
 
 
 def _commissioned(seed):
-    from foreign_rigs import draw_rig
-
-    spec = draw_rig(seed)
-    declared = fc.declared_rig(spec.lab_knows())
-    ident = fc.commission(spec, declared, fc.DEFAULT_MAX_STROKE_M, fc.DEFAULT_MAX_VELOCITY_M_PER_S)
+    spec, declared, ident = fc.first_attempt(seed)
     assert ident.fit is not None and ident.fit.flow_r2 >= 0.98, ident.problems
     assert ident.trusted, ident.problems
     values = fc.judged_values(ident, spec, declared)

@@ -152,15 +152,21 @@ def tested(spec, rig: RigParameters, amplitude_m: float, frequency_hz: float,
             "stopped_s": None if trip is None else trip.time_s, "stop_kind": kind}
 
 
+def first_attempt(seed: int, max_stroke_m: float = DEFAULT_MAX_STROKE_M,
+                  max_velocity_m_per_s: float = DEFAULT_MAX_VELOCITY_M_PER_S):
+    """Rig SEED drawn and commissioned once from what its lab knows: (spec, declared rig, identification)."""
+    from foreign_rigs import draw_rig
+
+    spec = draw_rig(seed)
+    declared = declared_rig(spec.lab_knows())
+    return spec, declared, commission(spec, declared, max_stroke_m, max_velocity_m_per_s)
+
+
 def commission_and_test(run: ForeignRun) -> dict:
     """A row: the rig, its commissioning (first attempt, and a second where the first suggests one), the judged
     values and the cases."""
-    from foreign_rigs import draw_rig
-
-    spec = draw_rig(run.seed)
-    declared = declared_rig(spec.lab_knows())
     t0 = time.perf_counter()
-    ident = commission(spec, declared, run.max_stroke_m, run.max_velocity_m_per_s)
+    spec, declared, ident = first_attempt(run.seed, run.max_stroke_m, run.max_velocity_m_per_s)
     row = {"seed": run.seed, "name": spec.name, "first_trusted": ident.trusted, "attempts": 1,
            "first_problems": list(ident.problems)}
     if not ident.trusted:
