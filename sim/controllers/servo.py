@@ -13,6 +13,8 @@ tests the oil's compression flow fed forward). Design and stability argument: do
            the target is still, the ramp's share moves at most 0.5 V/s towards the error's side: no relay; under a
            ringing target, still_share, the side of the table's error from the centre of the swings)
     u_pf = -A_n k_pf HP(P_L) / (g K_qn R(P_s - sgn(v) P_L))     load-pressure feedback (soft oil columns only)
+    u_s  = u + (b / 2) side                                     across the valve's play b (``_across_play``): the
+           command leads the spool by half the play the way u moves it, and keeps its side while u holds
 
 R is the orifice law of the rig model: sqrt(dp), linear below the declared regularisation drop. g is the ratio of
 the true to the nominal flow gain (K_q A_n / (K_qn A_p)), DZ the valve's dead zone and o its null offset (v_e0 of
@@ -100,7 +102,8 @@ P_STILL_HOLD_SHARE = 65
 P_STILL_CENTRE = 66
 STILL_FAST_RATE_SHARE = 20.0  # the still share's rate for an error of many bands, times still_command_rate_v_per_s
 P_AREA_RATIO_B = 67  # A_B / A_A of a single-rod actuator (1: double-rod)
-N_PARAMS = 68
+P_PLAY = 68  # the valve's play that the command crosses at each reversal, V (full width)
+N_PARAMS = 69
 DELAY_LINE = 256  # periods of regressor and target history kept (valve estimate, position latency)
 
 # State indices; the delay line and the harmonic coefficients (real, imaginary) follow.
@@ -129,7 +132,9 @@ S_HELD = S_SIDE + 1  # the held part of the target's stillness (0-1) this period
 # the centre of the target's swings (m): the mean of the last two whole swings' midpoints, and the last midpoint; and
 # the ringing part of the stillness this period (0-1: still_share times the ringing's stillness where it is no hold)
 S_CENTRE, S_MID_LAST, S_RING = S_HELD + 1, S_HELD + 2, S_HELD + 3
-N_STATE = S_RING + 1
+# the valve's play: the command the spool follows (V) and the side the command last led it on (-1, 0, 1)
+S_PLAY_HELD, S_PLAY_SIDE = S_RING + 1, S_RING + 2
+N_STATE = S_PLAY_SIDE + 1
 
 
 def _nominal_rig(rig=None) -> dict:
@@ -143,7 +148,8 @@ def _nominal_rig(rig=None) -> dict:
 #: the servo's options that default to the rig's value of the same name (what the lab's rig file says)
 RIG_OPTIONS = ("piston_area_m2", "flow_gain_m3_per_s_v_sqrt_pa", "dead_zone_v", "command_limit_v", "mass_kg",
                "half_volume_m3", "bulk_modulus_pa", "valve_natural_frequency_rad_s", "valve_damping_ratio",
-               "orifice_regularisation_pa", "driver_offset_v", "position_latency_s", "piston_area_b_m2")
+               "orifice_regularisation_pa", "driver_offset_v", "position_latency_s", "piston_area_b_m2",
+               "valve_play_v")
 SAMPLING_DELAY_S = 1.5e-3  # what the loop adds to the valve: half a 1 ms period of zero-order hold and one period
 
 
@@ -168,6 +174,8 @@ OPTIONS = {
     "piston_area_b_m2": Option(None, 0.0, 10.0, "m2", meaning="nominal area of the side that pushes towards -y (a "
                                "single-rod actuator's; 0: equal to piston_area_m2): the valve law's supply share "
                                "towards -y (sim.rig)"),
+    "valve_play_v": Option(None, 0.0, 5.0, "V", meaning="nominal valve play (backlash between command and spool, "
+                           "full width): the command crosses it at each reversal (0: none)"),
     # fixed design constants, the same on every isolator (docs/controller.md)
     "kp_per_s": Option(30.0, 1e-3, 500.0, "1/s", meaning="position loop gain: velocity demand per metre of error"),
     "velocity_lead_s": Option(0.006, 0.0, 0.1, "s", meaning="feed-forward lead for the valve lag (r' + tau r'')"),
@@ -353,6 +361,7 @@ def make_servo(rig=None, **options) -> Controller:
     params[P_OVT] = o["null_offset_min_target_velocity_m_per_s"]
     params[P_DP_REG] = o["orifice_regularisation_pa"]
     params[P_AREA_RATIO_B] = area_ratio_b(o["piston_area_m2"], o["piston_area_b_m2"])
+    params[P_PLAY] = o["valve_play_v"]
     # load-pressure feedback, designed on the declared rig (pressure_feedback_design)
     design = pressure_feedback_design(o)
     compliance = o["half_volume_m3"] / (2.0 * o["bulk_modulus_pa"])
@@ -1066,6 +1075,23 @@ def _saturate(p, s, u):
 
 
 @stage
+def _across_play(p, s, u):
+    """The command that moves the spool to u through the valve's play (sim.rig.command_after_play inverted): where
+    u asks the spool to move, the command leads it by half the play that way; where u holds it, the command keeps
+    the side it led on, so a still command stays still. Within the command limit."""
+    half = 0.5 * p[P_PLAY]
+    if half <= 0.0:
+        return u
+    held = s[S_PLAY_HELD]
+    if u > held:
+        s[S_PLAY_SIDE] = 1.0
+    elif u < held:
+        s[S_PLAY_SIDE] = -1.0
+    s[S_PLAY_HELD] = u
+    return min(p[P_ULIM], max(-p[P_ULIM], u + half * s[S_PLAY_SIDE]))
+
+
+@stage
 def _integral(p, s, e, ramp, ramp_at, gain, p_supply, was_saturated, dt):
     """c_0 += k_i K_p e dt (time histories), projected onto +-c0_max; on slow motions the dead zone's edge trim
     DZ_edge += k_i K_p e ramp dt A_n / (g K_qn sqrt(P_s)), never above 0 (docs/controller.md, "Time histories at
@@ -1217,4 +1243,4 @@ def servo_step(p, s, meas, dt, report):
     report[R_AR] = gain
     report[R_AY] = s[S_DZ_HAT]
     report[R_AS] = omega / (2.0 * np.pi)
-    return u
+    return _across_play(p, s, u)  # the spool sees u
