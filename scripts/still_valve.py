@@ -34,7 +34,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "scripts"))
+# appended, not first: scripts/foreign_rigs.py would hide the foreign_rigs package from a process that imports this
+# module (tests/test_still_valve_hybrid.py), and foreign_campaign's ``from foreign_rigs import draw_rig`` with it
+sys.path.append(str(ROOT / "scripts"))
 
 from sim.engine import Scenario, Simulation  # noqa: E402
 from sim.loop import CONTROL_PERIOD_S  # noqa: E402
