@@ -19,6 +19,7 @@ Every run is deterministic in the rig's seed. ``summary(rows)`` is the object ``
 from __future__ import annotations
 
 import math
+import textwrap
 import time
 from dataclasses import dataclass
 
@@ -300,7 +301,7 @@ def figure(rows: list[dict], title: str, cases: tuple = CASES):
                 reasons[key] = reasons.get(key, 0) + 1
     ranked = sorted(reasons.items(), key=lambda kv: kv[1])[-7:]
     ax1 = axes[0][1]
-    ax1.barh([k.replace("the ", "").replace(" of the measured forces", "")[:48] for k, _ in ranked],
+    ax1.barh([textwrap.fill(k.replace("the ", "").replace(" of the measured forces", ""), 34) for k, _ in ranked],
              [v for _, v in ranked], color="tab:gray")
     ax1.tick_params(axis="y", labelsize=7)
     ax1.set_xlabel("refused rigs giving this reason")
@@ -310,9 +311,9 @@ def figure(rows: list[dict], title: str, cases: tuple = CASES):
                      and r.get(f"{label}.stopped_s") is None])
         stopped = sum(1 for r in rows if r.get(f"{label}.stopped_s") is not None)
         if v.size:
-            ax.step(v, np.arange(1, v.size + 1) / max(trusted, 1), where="post", marker="o",
+            ax.step(v, np.arange(1, v.size + 1) / max(trusted, 1), where="post", marker="o", ms=2.5,
                     label=f"ran to the end ({v.size}); stopped: {stopped}")
-        ax.set_ylim(0.0, 1.02)
+        ax.set_ylim(0.0, 1.15)  # room above the curve for the legend
         ax.axvline(100 * target, color="k", lw=0.8, ls=":", label=f"target {100 * target:g} %")
         ax.set_xscale("log")
         ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
@@ -320,7 +321,7 @@ def figure(rows: list[dict], title: str, cases: tuple = CASES):
         ax.set_ylabel("share of the commissioned rigs")
         ax.set_title(label)
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7)
+        ax.legend(fontsize=7, loc="upper left", framealpha=0.9)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return fig
