@@ -45,3 +45,25 @@ def test_small_motion_on_a_valve_with_play_follows_once_the_servo_crosses_it():
     ignored = fc.tested(spec, ident.rig.with_changes(valve_play_v=0.0), 0.5e-3, 1.0, section)
     assert crossed["stop_kind"] is None and crossed["share"] <= 0.01, crossed
     assert ignored["stop_kind"] is not None or ignored["share"] > 2 * crossed["share"], ignored
+
+
+def test_through_an_underlapped_valve_the_servo_gets_the_flow_of_the_critically_lapped_law():
+    """sim.rig.load_flow of the command _across_underlap sends is what the critically lapped valve passes for the
+    command meant (round null about half of it, the lands' leak with P_L cancelled)."""
+    from sim.isolator import PRESETS
+    from sim.rig import BAR_PA, load_flow, pack_plant
+
+    underlap, offset, supply = 0.2, 0.03, 100 * BAR_PA
+    rig = DEFAULT_RIG.with_changes(dead_zone_v=0.0, underlap_v=underlap, driver_offset_v=offset,
+                                   piston_area_b_m2=0.6 * DEFAULT_RIG.piston_area_m2)
+    ctrl = make_controller("servo", rig=rig)
+    underlapped = pack_plant(rig, PRESETS["IUT_a"], supply)
+    critical = pack_plant(rig.with_changes(underlap_v=0.0), PRESETS["IUT_a"], supply)
+    for meant in np.linspace(-1.0, 1.0, 41):
+        for p_load in (-30 * BAR_PA, 0.0, 45 * BAR_PA):
+            sent = sv._across_underlap(ctrl.params, float(meant), offset, p_load, supply)
+            assert load_flow(sent + offset, p_load, underlapped) == pytest.approx(
+                load_flow(meant + offset, p_load, critical), rel=1e-9, abs=1e-15)
+    assert abs(sv._across_underlap(ctrl.params, 0.05, offset, 0.0, supply) + offset) < 0.05 + offset  # about half
+    plain = make_controller("servo", rig=DEFAULT_RIG)
+    assert sv._across_underlap(plain.params, 0.3, offset, 1e6, supply) == 0.3

@@ -13,8 +13,9 @@ tests the oil's compression flow fed forward). Design and stability argument: do
            the target is still, the ramp's share moves at most 0.5 V/s towards the error's side: no relay; under a
            ringing target, still_share, the side of the table's error from the centre of the swings)
     u_pf = -A_n k_pf HP(P_L) / (g K_qn R(P_s - sgn(v) P_L))     load-pressure feedback (soft oil columns only)
-    u_s  = u + (b / 2) side                                     across the valve's play b (``_across_play``): the
-           command leads the spool by half the play the way u moves it, and keeps its side while u holds
+    u_s  = U^-1(u) + (b / 2) side                               across an underlap U (``_across_underlap``: the
+           four-land law inverted round null) and the valve's play b (``_across_play``: the command leads the
+           spool by half the play the way u moves it, and keeps its side while u holds)
 
 R is the orifice law of the rig model: sqrt(dp), linear below the declared regularisation drop. g is the ratio of
 the true to the nominal flow gain (K_q A_n / (K_qn A_p)), DZ the valve's dead zone and o its null offset (v_e0 of
@@ -103,7 +104,8 @@ P_STILL_CENTRE = 66
 STILL_FAST_RATE_SHARE = 20.0  # the still share's rate for an error of many bands, times still_command_rate_v_per_s
 P_AREA_RATIO_B = 67  # A_B / A_A of a single-rod actuator (1: double-rod)
 P_PLAY = 68  # the valve's play that the command crosses at each reversal, V (full width)
-N_PARAMS = 69
+P_UNDERLAP = 69  # the valve's underlap, V: round null the command inverts the four-land law
+N_PARAMS = 70
 DELAY_LINE = 256  # periods of regressor and target history kept (valve estimate, position latency)
 
 # State indices; the delay line and the harmonic coefficients (real, imaginary) follow.
@@ -149,7 +151,7 @@ def _nominal_rig(rig=None) -> dict:
 RIG_OPTIONS = ("piston_area_m2", "flow_gain_m3_per_s_v_sqrt_pa", "dead_zone_v", "command_limit_v", "mass_kg",
                "half_volume_m3", "bulk_modulus_pa", "valve_natural_frequency_rad_s", "valve_damping_ratio",
                "orifice_regularisation_pa", "driver_offset_v", "position_latency_s", "piston_area_b_m2",
-               "valve_play_v")
+               "valve_play_v", "underlap_v")
 SAMPLING_DELAY_S = 1.5e-3  # what the loop adds to the valve: half a 1 ms period of zero-order hold and one period
 
 
@@ -176,6 +178,8 @@ OPTIONS = {
                                "towards -y (sim.rig)"),
     "valve_play_v": Option(None, 0.0, 5.0, "V", meaning="nominal valve play (backlash between command and spool, "
                            "full width): the command crosses it at each reversal (0: none)"),
+    "underlap_v": Option(None, 0.0, 5.0, "V", meaning="nominal valve underlap (both lands open round null, "
+                         "sim.rig.load_flow): the command inverts the four-land law there (0: none)"),
     # fixed design constants, the same on every isolator (docs/controller.md)
     "kp_per_s": Option(30.0, 1e-3, 500.0, "1/s", meaning="position loop gain: velocity demand per metre of error"),
     "velocity_lead_s": Option(0.006, 0.0, 0.1, "s", meaning="feed-forward lead for the valve lag (r' + tau r'')"),
@@ -362,6 +366,7 @@ def make_servo(rig=None, **options) -> Controller:
     params[P_DP_REG] = o["orifice_regularisation_pa"]
     params[P_AREA_RATIO_B] = area_ratio_b(o["piston_area_m2"], o["piston_area_b_m2"])
     params[P_PLAY] = o["valve_play_v"]
+    params[P_UNDERLAP] = o["underlap_v"]
     # load-pressure feedback, designed on the declared rig (pressure_feedback_design)
     design = pressure_feedback_design(o)
     compliance = o["half_volume_m3"] / (2.0 * o["bulk_modulus_pa"])
@@ -1075,6 +1080,28 @@ def _saturate(p, s, u):
 
 
 @stage
+def _across_underlap(p, u, o_hat, p_load, p_supply):
+    """The command whose flow through an underlapped valve (sim.rig.load_flow: both lands open within +-U of null)
+    is the flow the critically lapped law gives u: that law's inverse, about half of u round null and the lands'
+    leak with P_L cancelled; beyond +-U the opening shifted by U. The valve sees u + o_hat (eq. 2)."""
+    lap = p[P_UNDERLAP]
+    if lap <= 0.0:
+        return u
+    dp_min = p[P_DP_MIN] * p_supply
+    r_plus = orifice_root(max(p_supply - p_load, dp_min), p[P_DP_REG])
+    r_minus = orifice_root(max(p[P_AREA_RATIO_B] * p_supply + p_load, dp_min), p[P_DP_REG])
+    x = u + o_hat
+    q = x * (r_plus if x >= 0.0 else r_minus)  # what the critically lapped valve passes for x, over K_q
+    if q >= 2.0 * lap * r_plus:
+        v = q / r_plus - lap
+    elif q <= -2.0 * lap * r_minus:
+        v = q / r_minus + lap
+    else:
+        v = (q - lap * (r_plus - r_minus)) / (r_plus + r_minus)
+    return v - o_hat
+
+
+@stage
 def _across_play(p, s, u):
     """The command that moves the spool to u through the valve's play (sim.rig.command_after_play inverted): where
     u asks the spool to move, the command leads it by half the play that way; where u holds it, the command keeps
@@ -1243,4 +1270,4 @@ def servo_step(p, s, meas, dt, report):
     report[R_AR] = gain
     report[R_AY] = s[S_DZ_HAT]
     report[R_AS] = omega / (2.0 * np.pi)
-    return _across_play(p, s, u)  # the spool sees u
+    return _across_play(p, s, _across_underlap(p, u, o_hat, p_load, p_supply))  # the spool sees u
