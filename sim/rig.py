@@ -228,20 +228,26 @@ def pack_plant(rig: RigParameters, isolator: Isolator, supply_pa: float) -> np.n
     return p
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def past_play(u, held, half):
+    """The command the spool follows past a play of ``half`` each way, where it followed ``held`` before: held
+    until u moves more than half away from it, then u less half, that way (a backlash)."""
+    if u - held > half:
+        return u - half
+    if u - held < -half:
+        return u + half
+    return held
+
+
 @njit(cache=True, error_model="numpy")
 def command_after_play(u, p):
-    """The command past the valve's play (valve_play_v, full width): it follows u once u has moved half the play
-    away from it; the held command is the plant's state, kept in p[P_PLAY_HELD] (0 V at the start)."""
+    """The command past the valve's play (valve_play_v, full width; ``past_play``); the held command is the
+    plant's state, kept in p[P_PLAY_HELD] (0 V at the start)."""
     half = 0.5 * p[P_PLAY]
     if half <= 0.0:
         return u
-    held = p[P_PLAY_HELD]
-    if u - held > half:
-        held = u - half
-    elif u - held < -half:
-        held = u + half
-    p[P_PLAY_HELD] = held
-    return held
+    p[P_PLAY_HELD] = past_play(u, p[P_PLAY_HELD], half)
+    return p[P_PLAY_HELD]
 
 
 @njit(cache=True, error_model="numpy")

@@ -24,6 +24,7 @@ import numpy as np
 from numba import njit
 from scipy import optimize, signal
 
+from ..rig import past_play
 from .signals import Signals, explained, lowpass
 
 MAX_EVALUATIONS = 40  # per start of the non-linear fit (it converges in 10-30 on a rich record)
@@ -75,16 +76,12 @@ def valve_filter(w: float, damping: float, dt_s: float) -> tuple[np.ndarray, np.
 
 @njit(cache=True)
 def _after_play(u: np.ndarray, play_v: float) -> np.ndarray:
-    """The command past a valve's play (backlash) of ``play_v`` full width: it follows u once u has moved half
-    the play away from it (sim.rig.command_after_play, on a record; at rest on 0 V before it)."""
+    """The command past a valve's play (backlash) of ``play_v`` full width over a record (sim.rig.past_play, as
+    the plant's command_after_play applies it; at rest on 0 V before it)."""
     out = np.empty_like(u)
-    half = 0.5 * play_v
     held = 0.0
     for k in range(u.size):
-        if u[k] - held > half:
-            held = u[k] - half
-        elif u[k] - held < -half:
-            held = u[k] + half
+        held = past_play(u[k], held, 0.5 * play_v)
         out[k] = held
     return out
 

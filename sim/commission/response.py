@@ -72,9 +72,10 @@ def _line_response(u: np.ndarray, x: np.ndarray, n_period: int, bins: np.ndarray
     return cx.mean(axis=0) / cu.mean(axis=0)
 
 
-def replay_segments(sig: Signals, window: slice, rig: RigParameters,
+def replay_segments(sig: Signals, window: slice, rig: RigParameters, played: np.ndarray,
                     dahl: tuple[float, float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(velocity as read, load pressure) of the fitted rig's replay of the commands of ``window``, started
+    """(velocity as read, load pressure) of the fitted rig's replay of the commands of ``window`` (``played``: the
+    whole record's commands past the fitted valve's play, sim.commission.flow.after_play), started
     from the measured state (position and velocity moved back by the latency, load pressure, the valve as the
     fitted valve had it, the Dahl law's state from the measured motion) every ``SEGMENT_S``. ``dahl``: (F_c,
     delta, sigma_1) when the fit chose the Dahl friction law."""
@@ -82,8 +83,7 @@ def replay_segments(sig: Signals, window: slice, rig: RigParameters,
     lag = rig.position_latency_s
     y0 = sig.at_latency(sig.y_f, lag)
     v0 = sig.at_latency(sig.v_f, lag)
-    u = after_play(sig.u, rig.valve_play_v)  # the play's state over the whole record; each segment replays past it
-    v_e = valve_voltage(u, dt, rig.valve_natural_frequency_rad_s / (2 * np.pi), rig.valve_damping_ratio,
+    v_e = valve_voltage(played, dt, rig.valve_natural_frequency_rad_s / (2 * np.pi), rig.valve_damping_ratio,
                         rig.driver_offset_v, rig.driver_gain_negative)
     without_play = rig.with_changes(valve_play_v=0.0)
     v_e_rate = derivative(v_e, dt)
@@ -94,8 +94,8 @@ def replay_segments(sig: Signals, window: slice, rig: RigParameters,
     for a in range(window.start, window.stop, step):
         b = min(a + step, window.stop)
         _y, v_model[a - window.start: b - window.start], p_model[a - window.start: b - window.start] = replay(
-            without_play, u[a:b], sig.force[a:b], sig.p_supply[a:b], float(y0[a]), float(v0[a]), float(sig.p_load_f[a]),
-            dt, float(v_e[a]), float(v_e_rate[a]), dahl, float(z0[a]))
+            without_play, played[a:b], sig.force[a:b], sig.p_supply[a:b], float(y0[a]), float(v0[a]),
+            float(sig.p_load_f[a]), dt, float(v_e[a]), float(v_e_rate[a]), dahl, float(z0[a]))
     return v_model, p_model
 
 
@@ -111,8 +111,9 @@ def dither_response(sig: Signals, dither: slice, rig: RigParameters, lines_hz: n
         raise ValueError(f"the dither ran {periods} whole period(s) after its fade-in; at least {MIN_PERIODS} are "
                          "needed for a frequency response")
     window = slice(start, start + periods * n_period)
-    u = valve_opening(after_play(sig.u, rig.valve_play_v)[window], rig)
-    v_model, p_model = replay_segments(sig, window, rig, dahl)
+    played = after_play(sig.u, rig.valve_play_v)  # the play's state over the whole record, not the window's alone
+    u = valve_opening(played[window], rig)
+    v_model, p_model = replay_segments(sig, window, rig, played, dahl)
     diverged = not np.all(np.isfinite(v_model))
     v_model = lowpass(np.nan_to_num(v_model, posinf=0.0, neginf=0.0), dt)
     v_meas = sig.v_f[window]
