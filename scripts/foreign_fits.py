@@ -38,7 +38,8 @@ def fit_row(seed: int) -> dict:
         row.update(flow_r2=ident.fit.flow_r2, force_r2=ident.fit.force_r2,
                    values={k: list(v) for k, v in values.items()}, wrong=fc.wrong_values(values),
                    presliding_m=getattr(ident.fit.estimates.get("presliding_m"), "value", None),
-                   estimates={k: [e.value, e.std] for k, e in ident.fit.estimates.items()})
+                   estimates={k: [e.value, e.std] for k, e in ident.fit.estimates.items()},
+                   noise_shift=ident.fit.noise_shift, disagreement=ident.fit.disagreement)
     if ident.response is not None:
         row["replay_error"] = ident.response.velocity_nrmse
     return row

@@ -3,8 +3,9 @@ foreign rigs (written from the physics, not isorig's model) that a fit whose P_L
 
 There the P_L' noise came up to the signal of the oil column's flow term (C P_L'); least squares, even
 bias-compensated, then took part of it for latency and valve lag, and judged the balance unexplained. The flow
-balance now low-passes its own regressors at sim.commission.signals.FLOW_CORNER_HZ (80 Hz), its noise a fifth
-of what it was; the force balance keeps its 150 Hz.
+balance now low-passes its own regressors at sim.commission.signals.FLOW_CORNER_HZ (35 Hz), and its non-linear
+fit minimises the bias-compensated cost (sim.commission.flow._projected_residual); the force balance keeps its
+150 Hz.
 """
 
 import pytest

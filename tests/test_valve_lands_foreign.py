@@ -1,8 +1,10 @@
 """The fit of a valve with play and of an underlapped valve on foreign rigs (written from the physics, not isorig's
 model; issue 32): both were refused before sim.commission.flow fitted the play and a signed lap.
 
-- Rig 87: an overlapped 134 Hz valve with 0.05 V of play; the flow balance explained 96.2 % (98 % needed), the
-  flow gain +-27 %. Now 99.85 %, the play found at 0.052 +- 0.001 V.
+- Rig 143: an overlapped 33 Hz valve with 0.08 V of play; the flow balance explained 97.6 % (98 % needed). Now
+  99.98 %, the play found at 0.0796 +- 0.001 V. (Rig 87, a 134 Hz valve with 0.05 V of play, was this test's rig
+  until the fit judged each value's noise sensitivity (sim.commission.fit.noise_shifts): its play is found to
+  0.001 V, but its valve's frequency, 823 rad/s against a true 842, moves 17 % with the noise and is refused.)
 - Rig 198: an underlapped 34 Hz valve (its lands 0.18-0.22 V), no play; 97.1 %. Now 99.97 %, the lap -0.19 V.
 """
 
@@ -10,7 +12,7 @@ import pytest
 
 from sim.commission import foreign_campaign as fc
 
-PLAY_RIG = 87
+PLAY_RIG = 143
 UNDERLAPPED_RIG = 198
 
 
@@ -27,7 +29,7 @@ def _commissioned(seed):
 def test_a_valve_with_play_is_commissioned_with_its_play():
     spec, ident = _commissioned(PLAY_RIG)
     true_play = spec.drawn["valve.spool_play_v"]
-    assert true_play == pytest.approx(0.05)
+    assert true_play == pytest.approx(0.08)
     play = ident.fit.estimates["valve_play_v"]
     assert abs(play.value - true_play) <= max(3 * play.std, 0.1 * true_play), (play.value, play.std)
     assert ident.rig.valve_play_v == pytest.approx(play.value)

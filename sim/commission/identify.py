@@ -183,15 +183,16 @@ def friction_law(fit: RigFit) -> tuple[float, float, float] | None:
 def with_systematic(fit: RigFit) -> None:
     """Widen each estimate's jackknife spread (JACKKNIFE_WIDENING) and add the fit model's systematic allowance,
     what each balance leaves unexplained (MODEL_ERROR_PER_UNEXPLAINED, _FORCE), the valve law's disagreement between
-    the record's parts (sim.commission.flow.part_disagreement) and the latency's between the two balances (in
-    place)."""
+    the record's parts (sim.commission.flow.part_disagreement), the latency's between the two balances and how
+    far each value moves with the readings' noise doubled (sim.commission.fit.noise_shifts) (in place)."""
     unexplained = math.sqrt(max(0.0, 1.0 - fit.flow_r2)) if math.isfinite(fit.flow_r2) else 1.0
     unexplained_force = math.sqrt(max(0.0, 1.0 - fit.force_r2)) if math.isfinite(fit.force_r2) else 1.0
     for name, e in fit.estimates.items():
         floor = SYSTEMATIC_RELATIVE.get(name, 0.0) * abs(e.value) + SYSTEMATIC_ABSOLUTE.get(name, 0.0)
         model = math.hypot(MODEL_ERROR_PER_UNEXPLAINED.get(name, 0.0) * unexplained,
                            MODEL_ERROR_PER_UNEXPLAINED_FORCE.get(name, 0.0) * unexplained_force) * abs(e.value)
-        e.std = math.hypot(JACKKNIFE_WIDENING * e.std, floor, model, fit.disagreement.get(name, 0.0))
+        e.std = math.hypot(JACKKNIFE_WIDENING * e.std, floor, model, fit.disagreement.get(name, 0.0),
+                           fit.noise_shift.get(name, 0.0))
 
 
 

@@ -21,7 +21,7 @@ from ..measurement import STATUS_COMMAND_MISSED, measured_rows
 from ..samples import Samples
 
 CORNER_HZ = 150.0  # the zero-phase low-pass before derivatives: above the oil column and most valves' bandwidth
-FLOW_CORNER_HZ = 80.0  # the flow balance's own low-pass: its P_L' is the noisiest regressor of either balance
+FLOW_CORNER_HZ = 35.0  # the flow balance's own low-pass: its P_L' is the noisiest regressor of either balance
 NOISE_BAND_HZ = 350.0  # a reading's content above this is its sensor's noise (the rig moves far below it)
 EDGE_S = 0.05  # the filter's start and end transients are not fitted
 ANOMALY_MARGIN_S = 0.015  # left out either side of a lost measurement or a late command
