@@ -16,7 +16,8 @@ from sim.controllers import make_controller
 from sim.controllers import servo as sv
 from sim.rig import DEFAULT_RIG
 
-PLAY_RIG = 87  # a 0.05 V play: 0.5 mm at 1 Hz stopped (1.96 %) without the servo crossing it
+PLAY_RIG = 64  # a 0.05 V play: 0.5 mm at 1 Hz stopped (4.1 %) without the servo crossing it (rig 87, 1.96 %, was
+# this test's rig until its valve's frequency, which moves 17 % with the noise, refused it: tests/test_fit_noise.py)
 
 
 def test_the_spool_sees_the_command_the_servo_meant():
