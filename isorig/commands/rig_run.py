@@ -15,12 +15,17 @@ def rig_job(rig: str, scenario, link_timeout_s: float = 0.05, security: dict | N
     link's protection ``security`` (rig_key.link_options: the key file's path, never the key); ``extra`` adds
     to the job's scenario (``motion``, ``history_target``) or the job (``hybrid``)."""
     from backend.safety import default_limits
+    from sim.follow import commissioning_facts
 
+    # the rig file's commissioning goes with the job: the worker's follow monitor then blames an oscillation on the
+    # controller, not on a rig "not commissioned", and judges the latency within its uncertainty (foreign rig 204
+    # through UDP at e85e39a: "commission it", with the rig file it had just written)
     spec = {"isolator": scenario.isolator.to_dict(), "supply_pa": scenario.supply_pa,
             "vertical_load_n": scenario.effective_vertical_load_n,
             "profile": [b.to_dict() for b in scenario.profile], "controller": scenario.controller,
             "controller_options": scenario.controller_options, "history_target": scenario.history,
-            "rig_changes": scenario.describe()["rig_changes"]}
+            "rig_changes": scenario.describe()["rig_changes"],
+            "rig_commissioning": commissioning_facts(getattr(scenario, "rig_commissioning", None))}
     job = {"test_id": None, "rig": rig, "speed": 1.0,
            "link": {"period_s": 1e-3, "timeout_s": link_timeout_s, "arm_timeout_s": 2.0, **(security or {})},
            "scenario": spec, "limits": default_limits(scenario.rig).to_dict()}

@@ -148,3 +148,21 @@ def test_the_move_guard_stops_a_runaway_on_an_uncommissioned_foreign_rig_before_
     assert [t["values"]["detector"] for t in trips] == [MOVE_GUARD]
     assert trips[0]["values"]["velocity_m_per_s"] == pytest.approx(guard, rel=2.0)  # stopped near the guard
     assert s["voltage_v"][-1] == 0.0 and not em["armed"] and em["command_v"] == 0.0
+
+
+def test_a_rig_job_carries_the_rig_files_commissioning_to_the_worker():
+    """`isorig simulate --rig udp://... --rig-file F` ran the worker without F's commissioning: an oscillation on a
+    commissioned rig (foreign rig 204 through UDP) was reported as "commission it", and the verdict did not judge
+    the latency within its uncertainty."""
+    from backend.worker import scenario_from_job
+    from sim.engine import Scenario
+
+    scenario = Scenario.sine("IUT_a", 100, 0.002, 1.0, 3)
+    assert scenario_from_job(rig_job("udp://127.0.0.1:9", scenario)).rig_commissioning is None
+    scenario.rig_commissioning = {"trusted": True, "date": "2026-11-29T23:00:00+00:00", "max_velocity_m_per_s": 0.02,
+                                  "estimates": {"position_latency_s": {"value": 1.7e-3, "std": 1e-4}}}
+    facts = scenario_from_job(rig_job("udp://127.0.0.1:9", scenario)).rig_commissioning
+    assert facts is not None
+    assert facts["position_latency_s"] == 1.7e-3 and facts["position_latency_std_s"] == 1e-4
+    scenario.rig_commissioning = {"trusted": False}  # a refused fit is no commissioning
+    assert scenario_from_job(rig_job("udp://127.0.0.1:9", scenario)).rig_commissioning is None
