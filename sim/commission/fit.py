@@ -106,6 +106,16 @@ UNITS = {"flow_gain_m3_per_s_v_sqrt_pa": ("m3/(s V sqrt(Pa))", "valve flow gain 
          "bristle_damping_n_s_per_m": ("N s/m", "the pre-sliding's damping sigma_1 (Dahl law)")}
 
 
+def _whole_fit(sig: Signals, declared: RigParameters) -> tuple[float, FlowFit, ForceFit]:
+    """The force balance's latency (the flow balance's first guess), the flow balance, then the force balance at
+    the flow balance's latency, on the whole record."""
+    area = declared.piston_area_m2
+    guess = latency_from_force(sig, area)
+    flow = fit_flow(sig, area, declared.orifice_regularisation_pa, latency_guess_s=guess,
+                    area_ratio_b=declared.area_ratio_b)
+    return guess, flow, fit_force(sig, area, flow.latency_s)
+
+
 def fit_rig(sig: Signals, declared: RigParameters, blocks: int = BLOCKS,
             parts: list[np.ndarray] | None = None) -> RigFit:
     """Every parameter of ``UNITS`` with its jackknife uncertainty over ``blocks`` groups of the record, and the
@@ -113,9 +123,7 @@ def fit_rig(sig: Signals, declared: RigParameters, blocks: int = BLOCKS,
     if np.ptp(sig.y[sig.valid]) < 1e-5:
         raise FitError("the table moved less than 0.01 mm in the record: nothing to fit")
     area, dp_reg, ratio = declared.piston_area_m2, declared.orifice_regularisation_pa, declared.area_ratio_b
-    guess = latency_from_force(sig, area)
-    flow = fit_flow(sig, area, dp_reg, latency_guess_s=guess, area_ratio_b=ratio)
-    force = fit_force(sig, area, flow.latency_s)
+    guess, flow, force = _whole_fit(sig, declared)
     full = _named(flow, force, declared)
     start = np.array([flow.dead_zone_v, flow.null_offset_v, flow.valve_hz, flow.valve_damping, flow.latency_s * 1e3,
                       flow.negative_gain, flow.play_v])
@@ -156,11 +164,8 @@ def noise_shifts(sig: Signals, declared: RigParameters, full: dict[str, float]) 
     noisier = Signals(sig.dt_s, sig.u, sig.y + rng.normal(0.0, n["position_m"], size),
                       sig.p_load + rng.normal(0.0, n["load_pressure_pa"], size),
                       sig.force + rng.normal(0.0, n["force_n"], size), sig.p_supply, sig.valid)
-    area, dp_reg, ratio = declared.piston_area_m2, declared.orifice_regularisation_pa, declared.area_ratio_b
     try:
-        guess = latency_from_force(noisier, area)
-        flow = fit_flow(noisier, area, dp_reg, latency_guess_s=guess, area_ratio_b=ratio)
-        again = _named(flow, fit_force(noisier, area, flow.latency_s), declared)
+        again = _named(*_whole_fit(noisier, declared)[1:], declared)
     except FitError:
         return {}
     return {name: float(abs(again[name] - value)) for name, value in full.items()
