@@ -5,8 +5,9 @@ The script runs in a copy of itself whose `.venv/bin/python` only writes down th
 whose setup, ruff and apt-get do nothing), so the pytest commands checked are the script's own, word for word.
 Their selection (`-m`, `--ignore`) is then applied to one real collection of the whole suite, with each test's
 markers, by pytest's own marker-expression evaluator; an argument that selects in a way this test does not know
-fails it, so that a change of the script's selection is checked, never passed over. The collection takes
-seconds, so these two checks are themselves slow: the full run (CI) makes them, the quick tier does not."""
+fails it, so that a change of the script's selection is checked, never passed over. The collection is the
+session's own when it collected the whole suite (the script's runs: tests/conftest.py keeps it), else one made
+here, which takes seconds, so these two checks are marked slow: the full run (CI) makes them, the quick tier not."""
 
 from __future__ import annotations
 
@@ -92,8 +93,11 @@ def selected(argv: list[str], tests: dict[str, list[str]]) -> set[str]:
 
 
 @pytest.fixture(scope="module")
-def every_test(tmp_path_factory) -> dict[str, list[str]]:
-    """Every test of the suite (the testpaths of pyproject.toml, as the script's commands collect), its markers."""
+def every_test(tmp_path_factory, whole_suite) -> dict[str, list[str]]:
+    """Every test of the suite (the testpaths of pyproject.toml, as the script's commands collect), its markers:
+    this session's own collection where it was the whole suite (the script's runs), else one made here."""
+    if whole_suite is not None:
+        return whole_suite
     tmp = tmp_path_factory.mktemp("collect")
     (tmp / "quick_tier_dump.py").write_text(DUMP_PLUGIN)
     dump = tmp / "tests.json"
