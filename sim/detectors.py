@@ -254,7 +254,19 @@ def follow_monitor(scenario, table=None):
         reference = reference_for([], r)
     return FollowMonitor(reference, scenario.rig.position_latency_s, limits_for(scenario.controller),
                          advice_for(scenario.controller), getattr(scenario, "rig_commissioning", None),
-                         scenario.controller, getattr(scenario, "effective_controller_options", dict)())
+                         scenario.controller, options_in_force(scenario))
+
+
+def options_in_force(scenario) -> dict:
+    """The run's controller options, with the servo's position loop gain as its loop design lowered it
+    (sim.controllers.servo.loop_design): what the follow monitor's advice halves."""
+    from .controllers import make_controller
+
+    options = dict(getattr(scenario, "effective_controller_options", dict)())
+    if scenario.controller == "servo":
+        built = make_controller("servo", rig=scenario.rig, **options).options
+        options["kp_per_s"] = built["kp_in_force_per_s"]
+    return options
 
 
 def follow_monitor_like(monitor):

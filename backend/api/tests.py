@@ -111,7 +111,9 @@ def build_test(isolator, body: TestCreate, env: TestEnv) -> dict:
         raise ApiError(422, f"controller {body.controller!r} is unknown; allowed: {', '.join(CONTROLLER_NAMES)}",
                        "controller", body.controller, ", ".join(CONTROLLER_NAMES))
     options = dict(body.controller_options or {})
-    make_controller(body.controller, **options)  # ControllerOptionError (422) names the option and its range
+    # ControllerOptionError (422) names the option and its range; on the rig in force, so that a servo that cannot
+    # keep its loop's margin there (sim.controllers.servo.loop_design) is refused before anything moves
+    make_controller(body.controller, rig=env.rig, **options)
     if not (MIN_SPEED <= body.speed <= env.max_speed):  # the schema bounds it to [MIN_SPEED, MAX_SPEED_LIMIT]
         raise ApiError(422, f"speed = {body.speed:g} is outside [{MIN_SPEED:g}, {env.max_speed:g}] (this service's "
                             "max_speed)", "speed", body.speed, f"[{MIN_SPEED:g}, {env.max_speed:g}]")

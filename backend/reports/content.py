@@ -67,10 +67,10 @@ def controller_state(bundle) -> dict:
     specs, declared = {}, ()
     if name:
         try:  # the controller's effective parameters: its defaults overridden by the test's options
-            from sim.controllers import ADAPTED, OPTIONS, make_controller
+            from sim.controllers import ADAPTED, DESIGNED, OPTIONS, make_controller
             from sim.rig import DEFAULT_RIG
 
-            specs = OPTIONS.get(name, {})
+            specs = {**OPTIONS.get(name, {}), **DESIGNED.get(name, {})}
             declared = ADAPTED.get(name, ())
             rig = DEFAULT_RIG.with_changes(**(scenario.get("rig_changes") or {}))  # the lab's rig, as the test ran
             parameters = {k: v for k, v in make_controller(name, rig=rig, **in_force).options.items()

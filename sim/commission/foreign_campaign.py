@@ -139,12 +139,13 @@ def commissioning_section(ident, max_velocity_m_per_s: float) -> dict:
 
 
 def tested(spec, rig: RigParameters, amplitude_m: float, frequency_hz: float,
-           commissioning: dict | None = None) -> dict:
+           commissioning: dict | None = None, controller_options: dict | None = None) -> dict:
     """One sine on the foreign rig with the controller told ``rig`` (and its ``commissioning`` section: the verdict
     judges the latency within its uncertainty); with the service's follow monitor."""
     scenario = Scenario.sine(load_isolator(CONTROLLER_ISOLATOR), SUPPLY_PA / 1e5, amplitude_m, frequency_hz,
                              TEST_CYCLES, rig=rig, vertical_load_n=float(spec.drawn["table.vertical_load_n"]),
-                             foreign_rig=spec, rig_commissioning=commissioning)
+                             foreign_rig=spec, rig_commissioning=commissioning,
+                             controller_options=dict(controller_options or {}))
     result = Simulation(scenario, validate=False).run(follow=True)
     verdict = result.summary()["tracking_verdict"]
     trip = result.trip

@@ -62,6 +62,7 @@ as_hat = the target frequency the learning is locked to, in Hz (0 before the fir
 
 from __future__ import annotations
 
+import math
 from functools import lru_cache
 
 import numpy as np
@@ -80,6 +81,7 @@ from .base import (
     R_MODEL,
     Adapted,
     Controller,
+    ControllerOptionError,
     Option,
     check_options,
 )
@@ -181,7 +183,13 @@ OPTIONS = {
     "underlap_v": Option(None, 0.0, 5.0, "V", meaning="nominal valve underlap (both lands open round null, "
                          "sim.rig.load_flow): the command inverts the four-land law there (0: none)"),
     # fixed design constants, the same on every isolator (docs/controller.md)
-    "kp_per_s": Option(30.0, 1e-3, 500.0, "1/s", meaning="position loop gain: velocity demand per metre of error"),
+    "kp_per_s": Option(30.0, 1e-3, 500.0, "1/s", meaning="position loop gain: velocity demand per metre of error "
+                       "(the largest: lowered where the rig's loop would keep less than min_gain_margin)"),
+    "min_gain_margin": Option(2.0, 0.0, 20.0, "-", meaning="the position loop keeps this gain margin on the rig it is "
+                              "told of: kp_per_s is lowered until the linearised loop stays stable with the valve's "
+                              "flow this many times the estimate (0: kp_per_s as given)"),
+    "min_kp_share": Option(0.2, 0.01, 1.0, "-", meaning="... down to this share of kp_per_s: a rig that needs less is "
+                           "refused before anything moves"),
     "velocity_lead_s": Option(0.006, 0.0, 0.1, "s", meaning="feed-forward lead for the valve lag (r' + tau r'')"),
     "learning_lag_s": Option(0.007, 0.0, 0.05, "s", meaning="delay of the nominal loop model the learning inverts"),
     "learning_gain": Option(0.8, 0.0, 1.5, "-", meaning="share of each harmonic's error removed per cycle"),
@@ -304,6 +312,13 @@ OPTIONS = {
                                "zone (a share of the dead zone)"),
 }
 DEFAULTS = {name: spec.default for name, spec in OPTIONS.items()}
+#: what the servo's design adds to its options in force (``loop_design``): not set by anyone, reported
+DESIGNED = {
+    "kp_in_force_per_s": Option(None, unit="1/s", meaning="the position loop gain the servo runs with: kp_per_s, "
+                                "lowered where the rig's linearised loop would keep less than min_gain_margin"),
+    "gain_margin": Option(None, unit="-", meaning="the factor on the valve's flow at which the rig's linearised loop "
+                          "would lose stability, at that gain (50: at least)"),
+}
 #: what a time history (no repeating cycle to learn) runs with: no harmonic learning; an integral on the position
 #: error takes over the learned constant (the valve's null offset, the friction's asymmetry)
 HISTORY_MODE = {"learning_gain": 0.0, "integral_per_s": 1.0}
@@ -327,7 +342,11 @@ def make_servo(rig=None, **options) -> Controller:
     params[P_KQ] = o["flow_gain_m3_per_s_v_sqrt_pa"]
     params[P_DZ] = o["dead_zone_v"]
     params[P_ULIM] = o["command_limit_v"]
-    params[P_KP] = o["kp_per_s"]
+    # the position loop's gain and the load-pressure feedback, designed on the declared rig (loop_design)
+    design = loop_design(o)
+    o["kp_in_force_per_s"] = design["kp_per_s"]
+    o["gain_margin"] = design["gain_margin"]
+    params[P_KP] = design["kp_per_s"]
     params[P_TAU_V] = o["velocity_lead_s"]
     params[P_TAU_L] = o["learning_lag_s"]
     params[P_GAMMA] = o["learning_gain"]
@@ -367,8 +386,6 @@ def make_servo(rig=None, **options) -> Controller:
     params[P_AREA_RATIO_B] = area_ratio_b(o["piston_area_m2"], o["piston_area_b_m2"])
     params[P_PLAY] = o["valve_play_v"]
     params[P_UNDERLAP] = o["underlap_v"]
-    # load-pressure feedback, designed on the declared rig (pressure_feedback_design)
-    design = pressure_feedback_design(o)
     compliance = o["half_volume_m3"] / (2.0 * o["bulk_modulus_pa"])
     params[P_KPF] = design["gain_m_per_s_per_pa"]
     params[P_PF_WC] = design["corner_rad_s"]
@@ -436,36 +453,46 @@ def oil_column_rad_s(o: dict) -> float:
     return float(np.sqrt(2.0 * o["bulk_modulus_pa"] * o["piston_area_m2"] ** 2 / (o["half_volume_m3"] * o["mass_kg"])))
 
 
-def _pade(delay_s: float) -> tuple[np.poly1d, np.poly1d]:
-    """First-order Pade approximation of exp(-s delay): (numerator, denominator)."""
-    return np.poly1d([-0.5 * delay_s, 1.0]), np.poly1d([0.5 * delay_s, 1.0])
+def _pade(delay_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """First-order Pade approximation of exp(-s delay): (numerator, denominator), coefficients highest power first."""
+    return np.array([-0.5 * delay_s, 1.0]), np.array([0.5 * delay_s, 1.0])
 
 
-def linearised_poles(o: dict, damping: float, compliance_scale: float = 1.0) -> np.ndarray:
+def _product(*polynomials) -> np.ndarray:
+    """The product of polynomials (coefficient arrays, highest power first)."""
+    out = np.ones(1)
+    for p in polynomials:
+        out = np.convolve(out, p)
+    return out
+
+
+def linearised_poles(o: dict, damping: float, compliance_scale: float = 1.0, flow_scale: float = 1.0) -> np.ndarray:
     """Closed-loop poles of the servo's loop on the declared rig, eq. (3) linearised: the valve (second order, flow per
     velocity demand 1 after the inverse) with the sampling delay, the oil column (compliance V_0 / (2 beta)) on
     the mass m (isolator and friction left out: the worst case for damping), the position loop K_p on the reading
     (late by the declared latency) and the load-pressure feedback k_pf s / (s + w_c) P_L for the added damping
     ratio ``damping``. The natural damping of the valve's pressure-flow slope is left out too: the inverse with the
     measured P_L cancels it. ``compliance_scale``: the plant's oil compliance over the declared one (the feedback
-    stays designed on the declared rig)."""
+    stays designed on the declared rig); ``flow_scale``: the valve's flow per volt over what the servo takes it for
+    (the loop's gain, both feedbacks alike: ``gain_margin``)."""
     area, mass = o["piston_area_m2"], o["mass_kg"]
     compliance = o["half_volume_m3"] / (2.0 * o["bulk_modulus_pa"])
     wv, xv = o["valve_natural_frequency_rad_s"], o["valve_damping_ratio"]
-    s = np.poly1d([1.0, 0.0])
-    valve_n, valve_d = np.poly1d([wv * wv]), np.poly1d([1.0, 2.0 * xv * wv, wv * wv])
+    s = np.array([1.0, 0.0])
+    valve_n, valve_d = np.array([flow_scale * wv * wv]), np.array([1.0, 2.0 * xv * wv, wv * wv])
     dn, dd = _pade(SAMPLING_DELAY_S)
     ln, ld = _pade(o["position_latency_s"])
     kpf = 2.0 * damping * float(np.sqrt(compliance / mass))  # designed on the declared column
     compliance *= compliance_scale  # the plant's column: softer than declared for a scale above 1
     wc = o["pressure_feedback_corner_share"] * oil_column_rad_s(o)
-    hn, hd = np.poly1d([1.0, 0.0]), np.poly1d([1.0, wc])
+    hn, hd = np.array([1.0, 0.0]), np.array([1.0, wc])
     # q = V D (-K_p L y - k_pf H P),  C s P = A (q - s y),  m s^2 y = A P
-    g_n, g_d = valve_n * dn, valve_d * dd
-    mass_p = np.poly1d([mass, 0.0, 0.0])
-    char = (compliance * s * g_d * hd * ld * mass_p
-            + area * (g_n * (o["kp_per_s"] * ln * hd * area + kpf * hn * ld * mass_p) + s * g_d * hd * ld * area))
-    return np.roots(char.coeffs)
+    g_n, g_d = _product(valve_n, dn), _product(valve_d, dd)
+    mass_p = np.array([mass, 0.0, 0.0])
+    feedback = np.polyadd(o["kp_per_s"] * area * _product(ln, hd), kpf * _product(hn, ld, mass_p))
+    char = np.polyadd(compliance * _product(s, g_d, hd, ld, mass_p),
+                      area * np.polyadd(_product(g_n, feedback), area * _product(s, g_d, hd, ld)))
+    return np.roots(char)
 
 
 def smallest_damping_ratio(poles: np.ndarray) -> float:
@@ -533,6 +560,90 @@ def _design(values: tuple) -> tuple:
             ("gain_m_per_s_per_pa", 2.0 * best[1] * float(np.sqrt(compliance / o["mass_kg"]))),
             ("corner_rad_s", best[2] * wh), ("corner_share", best[2]),
             ("loop_damping_without", without), ("loop_damping", best[0]))
+
+
+#: the valve flow's factor up to which ``gain_margin`` looks for the loop's edge of stability
+GAIN_MARGIN_SEARCH_MAX = 50.0
+#: each step of ``loop_design`` lowers K_p by this factor
+DETUNE_STEP = 0.9
+#: below this gain margin at its best K_p the servo refuses a rig (``loop_design``)
+MIN_GAIN_MARGIN_TO_RUN = 1.5
+#: what ``loop_design`` reads of the options
+LOOP_KEYS = DESIGN_KEYS + ("min_gain_margin", "min_kp_share")
+
+
+class LoopMarginError(ControllerOptionError):
+    """A rig on which the servo's loop, at its best gain down to ``min_kp_share`` of kp_per_s, keeps a gain margin
+    below MIN_GAIN_MARGIN_TO_RUN (``loop_design``)."""
+
+
+def _stable(o: dict, design: dict, flow_scale: float) -> bool:
+    """Whether the linearised loop (``linearised_poles``: K_p and the pressure feedback of ``design``) is stable
+    with the valve's flow ``flow_scale`` times the estimate, on the declared column and one 1.5 times as compliant
+    (COMPLIANCE_SCALES)."""
+    oc = dict(o, pressure_feedback_corner_share=design["corner_share"])
+    return min(smallest_damping_ratio(linearised_poles(oc, design["damping"], c, flow_scale))
+               for c in COMPLIANCE_SCALES) > 0.0
+
+
+def gain_margin(o: dict, design: dict) -> float:
+    """The factor on the valve's flow at which the linearised loop loses stability (``_stable``): 0 if it is
+    unstable as declared, GAIN_MARGIN_SEARCH_MAX if it holds up to that. A rig's flow per volt varies with the
+    supply's sag, the lands and the load pressure about what the servo's estimate says, and a latency or a column
+    softer than told takes phase the same way: the margin is the room for all of them (docs/controller.md,
+    "Stability argument" 5)."""
+    if not _stable(o, design, 1.0):
+        return 0.0
+    lo, hi = 1.0, GAIN_MARGIN_SEARCH_MAX
+    if _stable(o, design, hi):
+        return hi
+    for _ in range(16):  # bisection in log: the edge to within 1.3 %
+        mid = math.sqrt(lo * hi)
+        lo, hi = (mid, hi) if _stable(o, design, mid) else (lo, mid)
+    return lo
+
+
+def loop_design(o: dict) -> dict:
+    """The position loop gain the servo runs with on the declared rig: kp_per_s, lowered by DETUNE_STEP (with the
+    pressure feedback designed again for each) until the loop keeps ``min_gain_margin`` (``gain_margin``), down to
+    ``min_kp_share`` of it; where no gain reaches the margin, the one with the largest. A rig whose best margin is
+    below MIN_GAIN_MARGIN_TO_RUN raises LoopMarginError: the servo cannot follow it safely as told. Measured on 41
+    commissioned foreign rigs (docs/controller.md, "Stability argument" 5): at K_p = 30 /s rigs 38, 52, 147 and 204
+    (margins 1.2-1.7) oscillated; rig 204 (oil column 13 Hz, latency 1.8 ms) runs at a margin of 2."""
+    return dict(_loop_design(tuple(float(o[k]) for k in LOOP_KEYS)))
+
+
+@lru_cache(maxsize=256)
+def _loop_design(values: tuple) -> tuple:
+    o = dict(zip(LOOP_KEYS, values, strict=True))
+    asked, needed = o["kp_per_s"], o["min_gain_margin"]
+    if not needed > 0.0:  # K_p as given, unchecked
+        design = pressure_feedback_design(o)
+        return (("kp_per_s", asked), ("gain_margin", gain_margin(o, design)), ("detuned", False), *design.items())
+    kp, best = asked, None
+    while True:
+        oc = dict(o, kp_per_s=kp)
+        design = pressure_feedback_design(oc)
+        if _stable(oc, design, 1.0) and _stable(oc, design, max(needed, 1.0)):
+            return (("kp_per_s", kp), ("gain_margin", gain_margin(oc, design)), ("detuned", kp < asked),
+                    *design.items())
+        margin = gain_margin(oc, design)
+        if best is None or margin > best[0]:
+            best = (margin, kp, design)
+        if kp * DETUNE_STEP < o["min_kp_share"] * asked:
+            break
+        kp *= DETUNE_STEP
+    margin, kp, design = best
+    if margin < MIN_GAIN_MARGIN_TO_RUN:
+        raise LoopMarginError(
+            "controller_options.kp_per_s", asked, f"a loop with a gain margin of at least {MIN_GAIN_MARGIN_TO_RUN:g}",
+            f"the servo's position loop cannot be made stable enough on this rig as told: its best gain margin, at "
+            f"kp_per_s = {kp:.3g} 1/s ({100 * kp / asked:.0f} % of {asked:g}), is {margin:.2f} (at least "
+            f"{MIN_GAIN_MARGIN_TO_RUN:g} is needed; the linearised loop with the oil column at "
+            f"{design['oil_column_hz']:.1f} Hz, the valve at {o['valve_natural_frequency_rad_s'] / (2 * math.pi):.0f} "
+            f"Hz and a position latency of {1e3 * o['position_latency_s']:.2f} ms). Lower kp_per_s, check the rig "
+            "file (commission the rig again: isorig identify rig), or run another controller")
+    return (("kp_per_s", kp), ("gain_margin", margin), ("detuned", kp < asked), *design.items())
 
 
 @njit(cache=True, error_model="numpy")

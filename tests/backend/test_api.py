@@ -236,6 +236,14 @@ def test_controller_options_travel_with_the_test_and_are_checked(client):
     assert r.status_code == 422 and "unknown pid option" in r.json()["detail"]
     check = client.post("/api/tests/check", json=sine_test(controller="mrac", controller_options={"x_clip": 2}))
     assert check.json()["ok"] is False and check.json()["field"] == "controller_options.x_clip"
+    # a servo loop that cannot keep its margin on the rig in force is refused before anything moves (loop_design)
+    unstable = {"kp_per_s": 200.0, "min_kp_share": 1.0}
+    r = client.post("/api/tests", json=sine_test(controller="servo", controller_options=unstable), headers=AUTH)
+    body = r.json()
+    assert r.status_code == 422 and body["field"] == "controller_options.kp_per_s", body
+    assert "cannot be made stable enough" in body["detail"] and "Lower kp_per_s" in body["detail"]
+    check = client.post("/api/tests/check", json=sine_test(controller="servo", controller_options=unstable)).json()
+    assert check["ok"] is False and check["field"] == "controller_options.kp_per_s"
     controllers = {c["name"]: c for c in client.get("/api/rig").json()["controllers"]}
     assert controllers["servo"]["default"] and controllers["mrac"]["adapted"][3]["unit"] == "m"
 
