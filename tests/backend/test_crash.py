@@ -102,7 +102,8 @@ def free_port() -> int:
 def serve(data_dir, **popen) -> tuple[subprocess.Popen, str]:
     """``isorig serve`` on a free port in its own process (simulated rig): the process and its base URL."""
     port = free_port()
-    env = {**os.environ, "ISORIG_OPERATOR_TOKEN": TOKEN, "ISORIG_VIEWER": "0"}
+    # no report warm-up (2.8 s of CPU a start): nothing here renders a report (test_report_warm_up.py tests it)
+    env = {**os.environ, "ISORIG_OPERATOR_TOKEN": TOKEN, "ISORIG_VIEWER": "0", "ISORIG_REPORT_WARM_UP": "false"}
     cmd = [sys.executable, "-m", "isorig", "serve", "--port", str(port), "--data-dir", str(data_dir),
            "--log-level", "warning"]
     server = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, text=True, **popen)

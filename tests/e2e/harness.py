@@ -74,6 +74,9 @@ class Server:
             "ISORIG_DATA_DIR": str(self.workdir),
             "ISORIG_OPERATOR_TOKEN": TOKEN,
             "ISORIG_VIEWER": "1" if self.viewer else "0",
+            # no report warm-up in the background (2.8 s of CPU a start; the few tests that render a report pay it
+            # there): test_report_warm_up.py tests it
+            "ISORIG_REPORT_WARM_UP": "false",
             "PYTHONUNBUFFERED": "1",
         })
         env.pop("ISORIG_RIG_NAME", None)
