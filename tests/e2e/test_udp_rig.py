@@ -24,9 +24,6 @@ from .harness import (
     wait_start_enabled,
 )
 
-# real time against the rig emulator in its own process: scripts/test.sh runs these alone, after the others
-pytestmark = pytest.mark.realtime
-
 VIEWPORTS = [(1366, 768), (1920, 1080)]
 MS = r"\d+(\.\d{1,2})? ms"  # a latency: at most 2 decimals
 
@@ -76,6 +73,7 @@ def test_simulated_rig_is_named(server, open_page, artifacts):
     assert page.is_hidden("#rig-details")
 
 
+@pytest.mark.realtime  # the rig emulator in its own process: run alone, after the others (scripts/test.sh)
 def test_udp_rig_link_health(open_page, artifacts, tmp_path):
     """A service on an emulated UDP rig: the rig and "connected", speed fixed at 1, a test's round trip and last
     sequence updating, then "not connected" (and Start explained) once the emulator stops."""
@@ -167,6 +165,7 @@ def test_udp_rig_link_health(open_page, artifacts, tmp_path):
             srv.stop()
 
 
+@pytest.mark.realtime  # the rig emulator in its own process: run alone, after the others (scripts/test.sh)
 def test_udp_rig_table_off_zero_keeps_start_disabled(open_page, artifacts, tmp_path):
     """An emulated rig restarts mid-test (`--restart-after-s 0.6`) and leaves its table mid-stroke: the strip
     shows where it rests (the rig's own reading), Start stays disabled saying why, and a start the service refuses
