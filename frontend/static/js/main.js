@@ -218,6 +218,7 @@ function fitLoopToWindow() {
   };
   const ro = new ResizeObserver(fit);
   for (const id of ["chrome", "live-head", "readouts", "view-live"]) ro.observe($(id));
+  ro.observe($("loop-note").parentElement); // the loop's heading: its note may take a second line (a ramp-out cycle)
   window.addEventListener("resize", fit);
   fit();
 }
@@ -275,6 +276,7 @@ async function main() {
   window.addEventListener("hashchange", route);
   $("abort").addEventListener("click", abort);
   $("alert-close").addEventListener("click", hideAlert);
+  $("alert-text").addEventListener("click", () => $("alert").classList.toggle("open"));
   onAccount(showAccount);
   $("account-button").addEventListener("click", async () => {
     if (account.name) await logOut();

@@ -63,14 +63,22 @@ export function setStatusBadge(status) {
 
 let alertTimer = null;
 
-/** Prominent banner. kind: "bad" (stays until dismissed), "warn", "info" (fades after 8 s). */
+/** Prominent banner, one line (a click shows it whole). kind: "bad" (stays until dismissed), "warn", "info" (fades
+ * after 8 s). */
 export function showAlert(text, kind = "bad") {
   const el = document.getElementById("alert");
-  document.getElementById("alert-text").textContent = text;
+  setAlertText(text);
   el.className = `alert ${kind === "bad" ? "" : kind}`;
   el.dataset.kind = kind;
   clearTimeout(alertTimer);
   if (kind !== "bad") alertTimer = setTimeout(() => el.classList.add("hidden"), 8000);
+}
+
+/** The banner's words, also its title (the line may be cut short on a narrow screen). */
+export function setAlertText(text) {
+  const words = document.getElementById("alert-text");
+  words.textContent = text;
+  words.title = text;
 }
 
 export function hideAlert() {

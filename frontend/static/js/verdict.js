@@ -3,7 +3,7 @@
 // in red with the service's advice (commission the rig) and a link to the Commissioning page.
 
 import { onState, state } from "./state.js";
-import { el } from "./ui.js";
+import { el, setAlertText } from "./ui.js";
 
 const $ = (id) => document.getElementById(id);
 const PILL = { followed: "followed", outside_target: "outside target", did_not_follow: "DID NOT FOLLOW", not_judged: "not judged" };
@@ -82,7 +82,7 @@ export function watchLiveVerdict() {
     const text = $("alert-text");
     const ours = !alert.classList.contains("hidden") && new RegExp(`^Test ${state.testId} (completed|stopped)$`).test(text.textContent);
     if (!ours) return;
-    text.textContent = `${text.textContent}; tracking error: ${v.words}`;
+    setAlertText(`${text.textContent}; tracking error: ${v.words}`);
     if (v.verdict === "did_not_follow") {
       alert.className = "alert warn";
       alert.dataset.kind = "warn";
