@@ -27,17 +27,11 @@ def rig_row(seed: int, without: str) -> dict | None:
     from sim.commission import foreign_campaign as fc
 
     np.seterr(all="ignore")
-    spec, _declared, ident = fc.first_attempt(seed)
-    velocity = fc.DEFAULT_MAX_VELOCITY_M_PER_S
+    lab = fc.commission_as_a_lab(fc.ForeignRun(seed))
+    spec, ident = lab.spec, lab.last
     if not ident.trusted:
-        retry = ident.second_attempt()
-        if retry is None:
-            return None
-        velocity = retry["max_velocity_m_per_s"]
-        spec, _declared, ident = fc.first_attempt(seed, retry["max_stroke_m"], velocity)
-        if not ident.trusted:
-            return None
-    section = fc.commissioning_section(ident, velocity)
+        return None
+    section = fc.commissioning_section(ident, lab.max_velocity_m_per_s)
     row = {"seed": seed, "valve_play_v": ident.rig.valve_play_v, "underlap_v": ident.rig.underlap_v}
     for label, amplitude_m, frequency_hz, _target in fc.CASES:
         if label not in CASES:

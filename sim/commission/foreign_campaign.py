@@ -164,19 +164,41 @@ def first_attempt(seed: int, max_stroke_m: float = DEFAULT_MAX_STROKE_M,
     return spec, declared, commission(spec, declared, max_stroke_m, max_velocity_m_per_s)
 
 
+@dataclass
+class LabCommissioning:
+    """A foreign rig commissioned as its lab would (``commission_as_a_lab``): the first attempt, and the last one
+    with the velocity bound it ran at."""
+
+    spec: object
+    declared: RigParameters
+    first: object  # sim.commission.identify.Identification
+    last: object
+    attempts: int
+    max_velocity_m_per_s: float
+
+
+def commission_as_a_lab(run: ForeignRun) -> LabCommissioning:
+    """Rig ``run.seed`` commissioned once at the run's bounds and, where the refusal suggests other bounds
+    (``Identification.second_attempt``), once more with them, as an operator would."""
+    spec, declared, first = first_attempt(run.seed, run.max_stroke_m, run.max_velocity_m_per_s)
+    out = LabCommissioning(spec, declared, first, first, 1, run.max_velocity_m_per_s)
+    retry = None if first.trusted else first.second_attempt()
+    if retry is not None:
+        out.last = commission(spec, declared, retry["max_stroke_m"], retry["max_velocity_m_per_s"])
+        out.attempts, out.max_velocity_m_per_s = 2, retry["max_velocity_m_per_s"]
+    return out
+
+
 def commission_and_test(run: ForeignRun) -> dict:
     """A row: the rig, its commissioning (first attempt, and a second where the first suggests one), the judged
     values and the cases."""
     t0 = time.perf_counter()
-    spec, declared, ident = first_attempt(run.seed, run.max_stroke_m, run.max_velocity_m_per_s)
-    row = {"seed": run.seed, "name": spec.name, "first_trusted": ident.trusted, "attempts": 1,
-           "first_problems": list(ident.problems)}
-    if not ident.trusted:
-        retry = ident.second_attempt()
-        if retry is not None:
-            ident = commission(spec, declared, retry["max_stroke_m"], retry["max_velocity_m_per_s"])
-            row["attempts"] = 2
-            row["retry_max_velocity_m_per_s"] = retry["max_velocity_m_per_s"]
+    lab = commission_as_a_lab(run)
+    spec, declared, ident = lab.spec, lab.declared, lab.last
+    row = {"seed": run.seed, "name": spec.name, "first_trusted": lab.first.trusted, "attempts": lab.attempts,
+           "first_problems": list(lab.first.problems)}
+    if lab.attempts == 2:
+        row["retry_max_velocity_m_per_s"] = lab.max_velocity_m_per_s
     row["trusted"] = ident.trusted
     row["problems"] = list(ident.problems)
     row["commission_wall_s"] = time.perf_counter() - t0
@@ -190,7 +212,7 @@ def commission_and_test(run: ForeignRun) -> dict:
         if ident.trusted:
             row["wrong"] = wrong_values(values)
     if ident.trusted:
-        section = commissioning_section(ident, row.get("retry_max_velocity_m_per_s", run.max_velocity_m_per_s))
+        section = commissioning_section(ident, lab.max_velocity_m_per_s)
         for label, amplitude_m, frequency_hz, _target in run.cases:
             row.update({f"{label}.{k}": v for k, v in
                         tested(spec, ident.rig, amplitude_m, frequency_hz, section).items()})
