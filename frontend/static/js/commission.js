@@ -13,7 +13,7 @@ import { confirmDialog, summaryTable } from "./dialogs.js";
 import { parseNumber } from "./parse.js";
 import { onState, sourceWords, state, tablePosition, testRunning } from "./state.js";
 import { el, fmtDuration, fmtTime, showAlert } from "./ui.js";
-import { fmtU, inputText, onUnits, sigDigits, system, toSI, unit } from "./units.js";
+import { factorIn, fmtU, inputText, onUnits, sigDigits, system, toSI, unit, unitIn } from "./units.js";
 import { bindAccountField } from "./who.js";
 
 const $ = (id) => document.getElementById(id);
@@ -24,6 +24,9 @@ const FINAL = new Set(["completed", "stopped", "aborted", "interrupted", "failed
 const BUSY = new Set(["ready", "running", "fitting"]);
 const DEFAULTS = { supply: 100e5, stroke: 0.002, velocity: 0.02 }; // SI: the service's defaults
 const RANGES = { stroke: [2e-4, 0.01], velocity: [0.01, 0.1] }; // sim.commission.identify STROKE/VELOCITY_RANGE
+
+// A quantity of the console's (units.js): its [unit, factor from SI] per unit system, as every page shows it.
+const asConsole = (quantity) => Object.fromEntries(["lab", "si"].map((sys) => [sys, [unitIn(quantity, sys), factorIn(quantity, sys)]]));
 
 // Each fitted quantity as a person reads it: label, and [unit, factor from SI] per unit system.
 const PARAMS = {
@@ -36,10 +39,10 @@ const PARAMS = {
   valve_damping_ratio: ["valve damping ratio", { lab: ["-", 1], si: ["-", 1] }],
   bulk_modulus_pa: ["oil bulk modulus (the oil column)", { lab: ["MPa", 1e-6], si: ["Pa", 1] }],
   position_latency_s: ["position sensor delay", { lab: ["ms", 1e3], si: ["s", 1] }],
-  mass_kg: ["moving mass", { lab: ["kg", 1], si: ["kg", 1] }],
-  friction_force_n: ["friction (at this vertical load)", { lab: ["kN", 1e-3], si: ["N", 1] }],
+  mass_kg: ["moving mass", asConsole("mass")],
+  friction_force_n: ["friction (at this vertical load)", asConsole("force")],
   viscous_n_s_per_m: ["viscous damping", { lab: ["kN s/m", 1e-3], si: ["N s/m", 1] }],
-  presliding_m: ["pre-sliding distance (Dahl law; 0: Coulomb's)", { lab: ["mm", 1e3], si: ["m", 1] }],
+  presliding_m: ["pre-sliding distance (Dahl law; 0: Coulomb's)", asConsole("length")],
   bristle_damping_n_s_per_m: ["pre-sliding damping (Dahl law)", { lab: ["kN s/m", 1e-3], si: ["N s/m", 1] }],
 };
 
@@ -66,6 +69,18 @@ function paramWithStd(name, si, std) {
   const dec = decimalsFor(name, std);
   if (!num(si)) return "-";
   return dec === null ? paramText(name, si) : (si * paramUnit(name)[1]).toFixed(dec);
+}
+
+/** How far a fitted value is from the declared one: in per cent, or from a declared 0 in the row's unit with the
+ * decimals its uncertainty allows ("+4.4 ms"; "0.000000 V" within its uncertainty of 0). */
+function changeText(name, si, declared, std) {
+  if (!num(declared) || !num(si)) return "-";
+  if (declared !== 0) return `${si >= declared ? "+" : ""}${(100 * (si - declared) / Math.abs(declared)).toFixed(1)} %`;
+  let text = paramWithStd(name, si - declared, std);
+  if (Number(text) === 0) text = text.replace(/^-/, "");
+  else if (si > declared) text = `+${text}`;
+  const [u] = paramUnit(name);
+  return u === "-" ? text : `${text} ${u}`;
 }
 
 /** The bounds and conditions typed into the form, in SI ({ok, body} or {ok: false, field, error}). */
@@ -766,21 +781,35 @@ export class CommissionPage {
     tbody.innerHTML = "";
     const est = ((res.identification || {}).fit || {}).estimates || {};
     const declared = res.declared || {};
+    // a refused fit's values are what the fit gave, not the rig's (they can be nonsense): said above the table, in
+    // the column's heading and on each value
+    const trusted = res.state === "trusted";
+    $("c-table-fitted").textContent = trusted ? "fitted" : "fitted (NOT TRUSTED)";
+    $("c-table-note").classList.toggle("hidden", trusted);
     for (const [name, e] of Object.entries(est)) {
       const [u] = paramUnit(name);
       const d = declared[name];
-      const change = num(d) && d !== 0 && num(e.value) ? `${e.value >= d ? "+" : ""}${(100 * (e.value - d) / Math.abs(d)).toFixed(1)} %`
-        : num(d) && num(e.value) ? paramText(name, e.value - d, 3) : "-";
-      const share = num(e.std) && num(e.value) && e.value !== 0 ? e.std / Math.abs(e.value) : Infinity;
+      // a value with no finite uncertainty is not determined: no number is shown for it as if it were one
+      const known = num(e.value) && num(e.std);
+      const share = known && e.value !== 0 ? e.std / Math.abs(e.value) : Infinity;
       const rel = share < 1 ? ` (${(100 * share).toFixed(share < 0.01 ? 2 : 1)} %)` : ""; // none for a value near 0
-      const changed = num(d) && num(e.value) && num(e.std) && Math.abs(e.value - d) > 2 * e.std;
+      const changed = known && num(d) && Math.abs(e.value - d) > 2 * e.std;
+      const fitted = el("td", { class: "num fitted", text: known ? paramWithStd(name, e.value, e.std) : "not determined" });
+      if (!known) {
+        fitted.classList.add("undetermined");
+        fitted.title = `${num(e.value) ? `the fit gave ${paramText(name, e.value)} ${u}` : "the fit gave no value"}, with no finite uncertainty`;
+      }
+      if (!trusted) {
+        fitted.dataset.trusted = "false";
+        fitted.title = fitted.title || "not trusted: the fit was refused";
+      }
       tbody.append(el("tr", { "data-name": name, ...(changed ? { class: "changed", title: "differs from the declared value by more than two uncertainties" } : {}) },
         el("td", {}, el("b", { text: (PARAMS[name] || [name])[0] }), el("small", { class: "muted", text: ` ${name}` })),
-        el("td", { class: "num", text: paramWithStd(name, e.value, e.std) }),
-        el("td", { class: "num", text: num(e.std) ? `\u00b1${paramWithStd(name, e.std, e.std)}${rel}` : "-" }),
+        fitted,
+        el("td", { class: "num", text: known ? `\u00b1${paramWithStd(name, e.std, e.std)}${rel}` : "none" }),
         el("td", { class: "num", text: paramWithStd(name, d, e.std) }),
-        el("td", { class: "num", text: change }),
-        el("td", { text: u })));
+        el("td", { class: "num", text: known ? changeText(name, e.value, d, e.std) : "-" }),
+        el("td", { class: "unit", text: u })));
     }
     if (!Object.keys(est).length) tbody.append(el("tr", {}, el("td", { colspan: "6", class: "muted", text: "nothing was fitted" })));
   }
@@ -791,8 +820,10 @@ export class CommissionPage {
     this.plots = [];
     const box = $("c-response");
     box.innerHTML = "";
-    $("c-response-panel").classList.toggle("hidden", !r);
-    if (!r || !Array.isArray(r.frequency_hz) || !r.frequency_hz.length) return;
+    const shown = Boolean(r && Array.isArray(r.frequency_hz) && r.frequency_hz.length);
+    $("c-response-panel").classList.toggle("hidden", !shown);
+    $("c-response-panel").parentElement.classList.toggle("no-response", !shown); // the table takes the whole width
+    if (!shown) return;
     const f = Float64Array.from(r.frequency_hz);
     const vf = system() === "si" ? 1 : 1e3;
     const pf = system() === "si" ? 1e-6 : 1e-5;

@@ -89,6 +89,11 @@ export function unit(quantity) {
   return q(quantity)[system()][0];
 }
 
+/** The display unit of a quantity in a given system ("lab" or "si"). */
+export function unitIn(quantity, sys) {
+  return q(quantity)[sys === "si" ? "si" : "lab"][0];
+}
+
 /** The factor SI -> display of a quantity in a given system ("lab" or "si"). */
 export function factorIn(quantity, sys) {
   return q(quantity)[sys === "si" ? "si" : "lab"][1];
