@@ -23,6 +23,8 @@ Phases (the target r is the table's resting position y0, held constant; the guar
    that direction; the next sweep in that direction starts just inside it. Once the valve is open the ramp
    is ``open_ramp_share`` times faster (the velocity rises quickly; the table stays within the guard).
    A run whose sweeps do not find the valve both ways rests at the last command where the table rested.
+   The sweeps learn the rig as they go: where the table went on past a sweep's level after the sweep ended, the
+   next levels are lowered so that the same overshoot stays within the bound (``_sweep_level``).
 2. **Dither**, until ``sweep_max_s + dither_s`` (it takes the time the sweeps did not need): a position hold
    (``hold_gain_per_s``) plus a multisine velocity demand (log-spaced lines, whole multiples of the lowest;
    Schroeder phases, so its peak is low) through the valve inverse the sweeps found (edges and slopes each
@@ -66,7 +68,8 @@ MAX_SWEEPS = 16
 (P_GUARD, P_RAMP, P_OPEN_SHARE, P_VSTART, P_UMAX, P_NSWEEP, P_MARGIN, P_HOLD, P_T_DITHER, P_T_RETURN,
  P_GATE_V, P_GATE_REC, P_RET_V, P_DZ_RAMP_V, P_NLINES, P_SWEEP_MAX_S, P_NULL_KP, P_NULL_KI, P_NULL_KD, P_NULL_MAX_S,
  P_NULL_STILL) = range(21)
-P_LEVELS = 21  # MAX_SWEEPS velocity levels (m/s), one per sweep
+P_VMAX = 21  # max_velocity_m_per_s (m/s)
+P_LEVELS = 22  # MAX_SWEEPS velocity levels (m/s), one per sweep
 P_FREQ = P_LEVELS + MAX_SWEEPS  # line frequencies (Hz)
 P_AMP = P_FREQ + MAX_LINES  # line velocity amplitudes (m/s)
 P_PHASE = P_AMP + MAX_LINES  # line phases (rad)
@@ -80,7 +83,10 @@ S_U_REST = S_RING + 6  # the last command at which the table rested (where a run
 S_NULL = S_U_REST + 1  # the valve null's integral: the command at which the table rests (V)
 S_T_SWEEP = S_NULL + 1  # when this sweep began (s)
 S_RAMPING = S_T_SWEEP + 1  # 1 once this sweep's ramp has begun
-N_STATE = S_RAMPING + 1
+# what the sweeps learn of the rig (``_sweep_level``): the level and direction of the sweep that ended last, the
+# peak velocity the table reached that way after it ended (m/s), and the largest peak over level seen so far
+S_LEVEL_ENDED, S_DIR_ENDED, S_PEAK, S_OVERSHOOT = S_RAMPING + 1, S_RAMPING + 2, S_RAMPING + 3, S_RAMPING + 4
+N_STATE = S_OVERSHOOT + 1
 
 PHASE_SWEEP, PHASE_DITHER, PHASE_RETURN, PHASE_REST, PHASE_NULL = 0.0, 1.0, 2.0, 3.0, 4.0
 
@@ -131,6 +137,11 @@ SETTLE_WAIT_S = 1.0  # before each sweep the null's hold brings the table to res
 REFERENCE_VELOCITY_M_PER_S = 0.02  # the open ramp's share is meant for this velocity bound
 REST_RAMP_SHARE = 0.3  # return and rest: the dead zone is crossed over +-this share of their velocity limit
 SWEEP_LEVELS = (0.3, 0.3, 0.5, 0.5, 0.7, 0.7)  # shares of max_velocity_m_per_s; later sweeps repeat the last
+#: a sweep's level is lowered so that, at the largest overshoot an earlier sweep showed (its peak velocity after it
+#: ended, over its level), its peak stays below this share of max_velocity_m_per_s ...
+SWEEP_PEAK_SHARE = 0.85
+#: ... but not below this share (the slope of the valve inverse is taken at twice velocity_start_share)
+SWEEP_LEVEL_FLOOR_SHARE = 0.15
 SETTLE_S = 0.3  # the dither begins with the valve closed this long (the last sweep may end moving, at the guard)
 GATE_START = 1.0  # the dither's gate at the start (it fades in over 0.5 s); after a cut it grows back only while
 GATE_GROW_SHARE = 0.85  # ... the motion stays below this share of the gate's velocity and of the guard
@@ -181,6 +192,7 @@ def make_excitation(rig=None, **options) -> Controller:
     p[P_RET_V] = o["return_velocity_share"] * v_max
     p[P_DZ_RAMP_V] = o["dead_zone_ramp_share"] * v_max
     p[P_SWEEP_MAX_S] = o["sweep_max_s"]
+    p[P_VMAX] = v_max
     for i in range(MAX_SWEEPS):
         p[P_LEVELS + i] = SWEEP_LEVELS[min(i, len(SWEEP_LEVELS) - 1)] * v_max
     f, rel = dither_lines(o["dither_min_hz"], o["dither_max_hz"], o["dither_lines"], o["dither_corner_hz"])
@@ -196,6 +208,7 @@ def make_excitation(rig=None, **options) -> Controller:
     p[P_PHASE:P_PHASE + n] = phases
     state = np.zeros(N_STATE)
     state[S_EDGE_P] = state[S_EDGE_N] = state[S_UHI_P] = state[S_UHI_N] = np.nan
+    state[S_OVERSHOOT] = 1.0
     return Controller("excitation", KIND, p, state, o)
 
 
@@ -280,6 +293,18 @@ def _ramp_start(p, s, direction):
 
 
 @njit(cache=True, error_model="numpy")
+def _sweep_level(p, s, k):
+    """Sweep k's velocity level: SWEEP_LEVELS' share of the bound, lowered where an earlier sweep overshot its own
+    (the valve closes a spool lag and a reading late, and the oil column springs back: on heavy, soft foreign rigs
+    with high-gain valves the table went on to 1.5-2.2 times a sweep's level and passed the velocity bound), so that
+    the largest overshoot seen keeps its peak at SWEEP_PEAK_SHARE of the bound; never below
+    SWEEP_LEVEL_FLOOR_SHARE of it."""
+    level = p[P_LEVELS + min(k, MAX_SWEEPS - 1)]
+    learned = SWEEP_PEAK_SHARE * p[P_VMAX] / s[S_OVERSHOOT]
+    return min(level, max(learned, SWEEP_LEVEL_FLOOR_SHARE * p[P_VMAX]))
+
+
+@njit(cache=True, error_model="numpy")
 def excitation_step(p, s, meas, dt, report):
     t = meas[M_TIME]
     y0 = meas[M_TARGET]
@@ -304,8 +329,11 @@ def excitation_step(p, s, meas, dt, report):
         # before a sweep the null's hold brings the table back to rest where it rested (an underlapped valve's null
         # moves with the load: at a fixed command the specimen's pull would carry the table off)
         u = _null_hold(p, s, y0 - y, v5, dt)
+        s[S_PEAK] = max(s[S_PEAK], s[S_DIR_ENDED] * v5)  # how far the last sweep's motion went on after it ended
         if s[S_QUIET] >= QUIET_PERIODS or t - s[S_T_SWEEP] >= SETTLE_WAIT_S:
             s[S_RAMPING] = 1.0
+            if s[S_LEVEL_ENDED] > 0.0:
+                s[S_OVERSHOOT] = max(s[S_OVERSHOOT], s[S_PEAK] / s[S_LEVEL_ENDED])
             if s[S_QUIET] >= QUIET_PERIODS:
                 s[S_U_REST] = s[S_NULL]
             _ramp_start(p, s, s[S_DIR])
@@ -326,9 +354,12 @@ def excitation_step(p, s, meas, dt, report):
                 s[S_EDGE_P] = s[S_U]
             else:
                 s[S_EDGE_N] = s[S_U]
-        ended = d * v5 >= p[P_LEVELS + min(k, MAX_SWEEPS - 1)] or d * (y - y0) >= p[P_GUARD] \
-            or abs(s[S_U]) >= p[P_UMAX]
+        level = _sweep_level(p, s, k)
+        ended = d * v5 >= level or d * (y - y0) >= p[P_GUARD] or abs(s[S_U]) >= p[P_UMAX]
         if ended:
+            s[S_LEVEL_ENDED] = level
+            s[S_DIR_ENDED] = d
+            s[S_PEAK] = d * v5
             if s[S_OPENED] > 0.5 and d * v5 > 2.0 * p[P_VSTART]:
                 if d > 0:
                     s[S_UHI_P] = s[S_U]
