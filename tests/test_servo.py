@@ -474,3 +474,17 @@ def test_the_position_loop_keeps_its_gain_margin_on_the_rig_it_is_told_of():
     with pytest.raises(sv.LoopMarginError, match="kp_per_s = 200") as refused:
         make_controller("servo", kp_per_s=200.0, min_kp_share=1.0)  # past the paper's loop's edge, not lowered
     assert refused.value.field == "controller_options.kp_per_s" and "Lower kp_per_s" in str(refused.value)
+
+
+def test_the_follow_monitors_advice_halves_the_gain_in_force():
+    """On a rig whose loop design lowered K_p, an oscillation's advice halves the gain the servo ran with, not the
+    30 /s it was asked for (sim.detectors.options_in_force)."""
+    from sim.detectors import follow_monitor
+    from sim.follow import controller_advice
+
+    rig = DEFAULT_RIG.with_changes(**RIG_204)
+    monitor = follow_monitor(Scenario.sine("IUT_a", 100.0, 0.002, 1.0, 3, rig=rig))
+    kp = make_controller("servo", rig=rig).options["kp_in_force_per_s"]
+    assert monitor.controller_options["kp_per_s"] == kp < 30.0
+    advice = controller_advice("servo", {"trusted": True, "date": "2026-11-30"}, 12.0, monitor.controller_options)
+    assert f"kp_per_s={kp / 2:.4g}, half the {kp:.4g} it ran with" in advice, advice
