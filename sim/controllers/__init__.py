@@ -18,9 +18,9 @@ DEFAULT_CONTROLLER = "servo"  # what `isorig simulate` and the dashboard use whe
 INTERNAL_FACTORIES = {"excitation": make_excitation}
 
 OPTIONS: dict[str, dict[str, Option]] = {"mrac": mrac.OPTIONS, "pid": pid.OPTIONS, "servo": servo.OPTIONS}
-#: what each controller reports in the model_m, ar_hat, ay_hat, as_hat columns: name, unit, meaning
 #: what a controller's design adds to its options in force (reported, never set)
 DESIGNED: dict[str, dict[str, Option]] = {"servo": servo.DESIGNED}
+#: what each controller reports in the model_m, ar_hat, ay_hat, as_hat columns: name, unit, meaning
 ADAPTED: dict[str, tuple[Adapted, ...]] = {"mrac": mrac.ADAPTED, "pid": pid.ADAPTED, "servo": servo.ADAPTED}
 #: column -> "name (unit)" for the adapted parameters (ar_hat, ay_hat, as_hat) of each controller
 ADAPTED_LABELS = {name: {a.column: f"{a.name} ({a.unit})" for a in adapted if a.column != "model_m"}
