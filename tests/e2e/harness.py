@@ -387,14 +387,18 @@ def started_test_id(page) -> int:
 
 def hold_back_answer(page, url_ends: str, ms: int = 1500, method: str = "GET") -> None:
     """Make the page's answers to ``method`` requests whose URL ends with ``url_ends`` reach it ``ms`` later (as on
-    a loaded service), so a newer request's answer comes first; ``window.__heldBackAnswered`` turns true once one
-    held back has been handed to the page. Set after the page has loaded: a change of hash keeps it."""
+    a loaded service), so a newer request's answer comes first; ``window.__heldBackAsked`` turns true when such a
+    request is sent, ``window.__heldBackAnswered`` once one held back has been handed to the page. Set after the
+    page has loaded: a change of hash keeps it."""
     page.evaluate("""([ends, ms, method]) => {
+      window.__heldBackAsked = false;
       window.__heldBackAnswered = false;
       const orig = window.fetch;
       window.fetch = async (url, opts) => {
+        const held = String(url).endsWith(ends) && ((opts && opts.method) || 'GET').toUpperCase() === method;
+        if (held) window.__heldBackAsked = true;
         const res = await orig(url, opts);
-        if (String(url).endsWith(ends) && ((opts && opts.method) || 'GET').toUpperCase() === method) {
+        if (held) {
           await new Promise((r) => setTimeout(r, ms));
           setTimeout(() => { window.__heldBackAnswered = true; }, 0);
         }

@@ -55,6 +55,9 @@ def test_an_approver_logs_in_and_approves_a_record(server, open_page, artifacts)
     # after the filtered one (as it may on a loaded service): the table must keep the filtered list
     hold_back_answer(page, "/api/tests?")
     page.goto(f"{server.url}/#/history")  # the same page: only its hash changes
+    # the filter is asked for once the unfiltered list has been: asked earlier, History rightly never sends the
+    # unfiltered one (its rig list was still loading), and there is no late answer to keep out (a loaded CI run)
+    page.wait_for_function("window.__heldBackAsked", timeout=WAIT_MS)
     page.select_option("#h-review", "approved")
     page.click("#history-filter button[type=submit]")
     page.wait_for_selector("#history-table[data-query='review=approved']", timeout=WAIT_MS)
