@@ -23,7 +23,7 @@ from ..loop import CONTROL_PERIOD_S
 from ..rig import RigError, RigParameters
 from ..samples import Samples
 from .bounds import DEFAULT_MAX_STROKE_M, DEFAULT_MAX_VELOCITY_M_PER_S
-from .fit import RigFit, fit_rig
+from .fit import ONE_BLAS_THREAD, RigFit, fit_rig
 from .flow import LOWER, UPPER
 from .response import FrequencyResponse, dither_response
 from .signals import FitError, signals_from_samples
@@ -331,9 +331,11 @@ def dither_slice(samples: Samples) -> slice | None:
     return slice(int(idx[0]), int(idx[-1]) + 1) if idx.size else None
 
 
+@ONE_BLAS_THREAD
 def identify(samples: Samples, declared: RigParameters, conditions: Conditions,
              options: dict | None = None) -> Identification:
-    """Fit the commissioning record ``samples`` (see the module docstring)."""
+    """Fit the commissioning record ``samples`` (see the module docstring), on one BLAS thread like the fit
+    (the replay's too: sim.commission.fit)."""
     from ..controllers.excitation import OPTIONS as EXCITATION_OPTIONS
 
     out = Identification(conditions, declared, record=record_figures(samples, conditions))
