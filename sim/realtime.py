@@ -321,3 +321,45 @@ class PeriodTrace:
                 "ms": {k: {"n": h.n, "mean": round(h.mean_ms, 4), "p99": round(h.percentile_ms(99), 3),
                            "max": round(h.max_ms, 3)}
                        for k, h in self.ms.items()}}
+
+
+def steal_s() -> float | None:
+    """The machine's steal time so far in s, all CPUs (``/proc/stat``): how long a hypervisor ran something else
+    while this virtual machine's CPUs had work; None where the system does not say."""
+    try:
+        with open("/proc/stat") as f:
+            fields = f.readline().split()
+        return int(fields[8]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+def bare_loop(period_s: float, duration_s: float) -> dict:
+    """A loop that does nothing but sleep until each period is due, as the control loop waits for its measurement:
+    how late the OS woke it (p99 and max, ms), its stalls (a wake more than ``STALL_PERIODS`` after the one
+    before) and the periods they lost, and the machine's steal time over the run. At the control loop's priority,
+    beside the same load, it is the floor under any loop's period on this machine: what no change to the loop's
+    own work can remove."""
+    lateness = LatencyHistogram()
+    steal_start = steal_s()
+    start = last = time.perf_counter()
+    due, stalls, lost, longest = start, 0, 0, 0.0
+    while last - start < duration_s:
+        due += period_s
+        now = time.perf_counter()
+        if due > now:
+            time.sleep(due - now)
+        now = time.perf_counter()
+        lateness.add(max(0.0, now - due) * 1e3)
+        gap = now - last
+        if gap > STALL_PERIODS * period_s:
+            stalls += 1
+            lost += int(round(gap / period_s)) - 1
+            longest = max(longest, (gap - period_s) * 1e3)
+            due = now  # like the rig after an overrun: no catching up
+        last = now
+    steal_end = steal_s()
+    steal = None if steal_start is None or steal_end is None else round((steal_end - steal_start) * 1e3, 1)
+    return {"seconds": round(last - start, 3), "periods": lateness.n,
+            "lateness_p99_ms": round(lateness.percentile_ms(99), 3), "lateness_max_ms": round(lateness.max_ms, 3),
+            "stalls": stalls, "lost_periods": lost, "stall_max_ms": round(longest, 3), "steal_ms": steal}

@@ -172,6 +172,31 @@ def test_bench_rig_prints_the_longest_stall_its_cause_and_the_periods_lost(capsy
     assert re.search(r"test 1: longest stall [\d.]+ ms: (no stall|[\w: ]+; busy [\d.]+ ms)", out)
     assert re.search(r"longest stall [\d.]+ ms \[target: no period lost\]: \d+ period\(s\) lost by the host, \d+ "
                      r"missed by the rig; host priority none", out)
+    # the machine's floor beside it: a loop that does nothing, at the same priority
+    floor = re.search(r"\[floor\] a loop that does nothing but wake every 1 ms, at the host's priority \(normal[^)]*\) "
+                      r"beside the same hogs, ([\d.]+) s: wake lateness p99 [\d.]+ ms, max [\d.]+ ms; \d+ stall\(s\), "
+                      r"longest [\d.]+ ms, \d+ period\(s\) lost; the machine's steal time ([\d.]+|-) ms", out)
+    assert floor and 3.9 < float(floor.group(1)) < 6, out
+
+
+def test_the_bare_loop_counts_a_stall_and_the_periods_it_lost(monkeypatch):
+    """sim.realtime.bare_loop, the floor under any loop's period: a wake 10 ms late is one stall of about 10 ms
+    that lost about 10 periods, and the other wakes are on time."""
+    import sim.realtime as rt
+
+    calls = {"n": 0}
+    sleep = time.sleep
+
+    def late_once(s):
+        calls["n"] += 1
+        sleep(s + (0.010 if calls["n"] == 50 else 0.0))
+
+    monkeypatch.setattr(rt.time, "sleep", late_once)
+    floor = rt.bare_loop(P, 0.3)
+    assert floor["stalls"] >= 1 and 9.5 <= floor["stall_max_ms"] < 40, floor
+    assert 8 <= floor["lost_periods"] < 60, floor
+    assert floor["lateness_max_ms"] >= 9.5 and 150 <= floor["periods"] <= 300, floor
+    assert floor["steal_ms"] is None or floor["steal_ms"] >= 0
 
 
 class FakeCpu:

@@ -185,12 +185,15 @@ def _watchdog(folder: Path, tests: int, test_s: float, host_priority: str = "gra
     (measurement sent -> command arrived), the periods the rig missed and the host lost, the longest stall
     of the host's answers and, from the loop's period trace (sim.realtime.PeriodTrace), the stalls by cause
     and what ran before the longest. ``host_priority`` "none": the host runs without CAP_SYS_NICE."""
+    from sim.realtime import steal_s
+
     rows = []
     frequency_hz = 0.5
     cycles = max(2, int(round(test_s * frequency_hz)))
     for i in range(tests):
         emulator = EmulatorProcess(folder, "--watchdog-ms", "18")
         target = folder / f"watchdog-{i}"
+        steal_start = steal_s()
         try:
             proc = subprocess.run([sys.executable, "-m", "isorig", "simulate", "--rig", emulator.url, "--out",
                                    str(target), "--isolator", "IUT_a", "--supply-bar", "100", "--amplitude-m", "0.02",
@@ -199,6 +202,7 @@ def _watchdog(folder: Path, tests: int, test_s: float, host_priority: str = "gra
                                   preexec_fn=_without_sys_nice if host_priority == "none" else None)
         finally:
             status = emulator.stop()
+        steal_end = steal_s()
         summary_file = target / "summary.json"
         summary = json.loads(summary_file.read_text()) if summary_file.exists() else {}
         counters = status["counters"]
@@ -221,13 +225,31 @@ def _watchdog(folder: Path, tests: int, test_s: float, host_priority: str = "gra
                      "rig_overruns": counters.get("overruns", 0), "rig_ticks_slipped": counters.get("ticks_slipped", 0),
                      "rig_tick_lateness_max_ms":
                          status["tick_lateness"].get("max_ms"),
-                     "priority": (summary.get("pacing") or {}).get("priority")})
+                     "priority": (summary.get("pacing") or {}).get("priority"),
+                     "steal_ms": None if steal_start is None or steal_end is None
+                     else round((steal_end - steal_start) * 1e3, 1)})
         r = rows[-1]
         print(f"[watchdog] {i + 1}/{tests}: {r['status']}, {r['watchdog_trips']} trip(s), p99 "
               f"{r['lateness_p99_ms']:.3f} ms, longest stall {_ms(r['host_stall_max_ms'])} ms "
               f"({_cause(longest)}), {r['host_lost_periods']} period(s) lost; load average "
               f"{r['load_average']:.1f}", file=sys.stderr)
     return rows
+
+
+def _floor(seconds: float, host_priority: str) -> dict:
+    """The machine's floor under the watchdog's tests: a loop that does nothing but wake every 1 ms period
+    (sim.realtime.bare_loop), in its own process at the priority the host's loop gets (``host_priority``), beside
+    the same CPU hogs, for ``seconds``. What it loses, no change to the control loop's own work can win back."""
+    from backend.worker import WORKER_RR_PRIORITY
+
+    code = ("import json, sys\nfrom sim.realtime import bare_loop, raise_priority\n"
+            f"granted = raise_priority({WORKER_RR_PRIORITY})\n"
+            f"print(json.dumps({{**bare_loop(1e-3, {seconds!r}), 'priority': granted}}))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=seconds + 60,
+                          preexec_fn=_without_sys_nice if host_priority == "none" else _normal_priority)
+    if proc.returncode != 0:
+        raise RuntimeError(f"the bare loop failed: {proc.stderr.strip()[-400:]}")
+    return json.loads(proc.stdout)
 
 
 def _ms(value) -> str:
@@ -310,6 +332,8 @@ def run(args) -> int:
         if "stream" in args.parts:
             results["stream"] = _stream(folder, args.duration_s, args.clients)
         if "watchdog" in args.parts:
+            print(f"[floor] a loop that does nothing, {args.test_s:g} s ...", file=sys.stderr)
+            results["floor"] = _floor(args.test_s, args.host_priority)
             results["watchdog"] = _watchdog(folder, args.tests, args.test_s, args.host_priority)
             results["host_priority"] = args.host_priority
     results["load_average_end"] = os.getloadavg()
@@ -326,12 +350,12 @@ def _print(results: dict) -> None:
         print(f"[watchdog] {len(rows)} tests on an 18 ms rig watchdog, {results['cpu_hogs']} CPU hog(s) beside "
               "[target: 0 trips, p99 lateness < 1 ms]")
         print("  test  status      trips  p99 ms  max ms  rig missed  host lost  stalls  longest stall ms  load  "
-              "priority")
+              "steal ms  priority")
         for r in rows:
             print(f"  {r['test']:>4}  {str(r['status']):10s}  {r['watchdog_trips']:>5}  {r['lateness_p99_ms']:>6.3f}"
                   f"  {r['lateness_max_ms']:>6.2f}  {r['periods_missed']:>10}  {str(r['host_lost_periods']):>9}"
                   f"  {str(r.get('stalls')):>6}  {_ms(r['host_stall_max_ms']):>16}  {r.get('load_average', 0):4.1f}"
-                  f"  {r['priority']}")
+                  f"  {_ms(r.get('steal_ms')):>8}  {r['priority']}")
         for r in rows:
             print(f"  test {r['test']}: longest stall {_ms(r['host_stall_max_ms'])} ms: "
                   f"{_cause(r.get('longest_stall'))}"
@@ -356,6 +380,13 @@ def _print(results: dict) -> None:
         print(f"  total: {trips} watchdog trip(s); worst p99 lateness {worst:.3f} ms; longest stall "
               f"{_ms(max(stalls) if stalls else None)} ms [target: no period lost]: {lost} period(s) lost by the host, "
               f"{missed} missed by the rig; host priority {results.get('host_priority', 'granted')}")
+    if "floor" in results:
+        f = results["floor"]
+        print(f"[floor] a loop that does nothing but wake every 1 ms, at the host's priority ({f['priority']}) beside "
+              f"the same hogs, {f['seconds']:g} s: wake lateness p99 {f['lateness_p99_ms']:.3f} ms, max "
+              f"{f['lateness_max_ms']:.2f} ms; {f['stalls']} stall(s), longest {f['stall_max_ms']:.2f} ms, "
+              f"{f['lost_periods']} period(s) lost; the machine's steal time {_ms(f['steal_ms'])} ms (what the control "
+              "loop cannot do better than)")
     if "tracking" in results:
         print("[tracking] last two cycles' RMS |y - r| / amplitude, default controller  [target: within 0.1 %]")
         print("  case                          simulated   emulator   difference  status")
