@@ -30,6 +30,7 @@ I/O never runs in the loop: a slow disk once stalled it for 131 ms). Timings are
 
 from __future__ import annotations
 
+import gc
 import heapq
 import json
 import math
@@ -639,7 +640,11 @@ class RigEmulator:
                 "hello_sources": self.hello_buckets.status(),
                 "command_latency": self.latency.summary(above_ms=self.period_s * 1e3),
                 "tick_lateness": self.tick_lateness.summary(above_ms=1.0),
-                "watchdog_trips": list(self.watchdog_trips)}
+                "watchdog_trips": list(self.watchdog_trips),
+                # the garbage collector of this process: the objects frozen at start (never scanned: `isorig
+                # rig-emulator`), the collections of each generation so far (a full one over everything took 9-12 ms)
+                "collector": {"frozen_objects": gc.get_freeze_count(),
+                              "collections": [g["collections"] for g in gc.get_stats()]}}
 
     def write_status(self) -> None:
         path = self.config.status_file
