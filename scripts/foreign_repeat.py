@@ -33,22 +33,17 @@ def repeat_row(seed: int, repeats: int) -> dict:
     """Rig ``seed`` commissioned ``repeats`` times, each with its own sensor noise."""
     import numpy as np
 
-    from foreign_rigs import draw_rig
-    from foreign_rigs import physics as ph
     from sim.commission import foreign_campaign as fc
 
     np.seterr(all="ignore")
     started = time.perf_counter()
     runs = []
     for k in range(repeats):
-        spec = draw_rig(seed)
-        spec.params[ph.P_SEED] = float(seed + k * NOISE_SEED_STEP)
-        declared = fc.declared_rig(spec.lab_knows())
-        ident = fc.commission(spec, declared, fc.DEFAULT_MAX_STROKE_M, fc.DEFAULT_MAX_VELOCITY_M_PER_S)
+        spec, declared, ident = fc.first_attempt(seed, noise_seed=seed + k * NOISE_SEED_STEP)
         run = {"trusted": ident.trusted, "problems": list(ident.problems)}
         if ident.fit is not None:
             values = fc.judged_values(ident, spec, declared)
-            run["values"] = {k: list(v) for k, v in values.items()}
+            run["values"] = {name: list(v) for name, v in values.items()}
             run["wrong"] = fc.wrong_values(values) if ident.trusted else []
         runs.append(run)
     trusted = [r for r in runs if r["trusted"]]
@@ -60,7 +55,7 @@ def repeat_row(seed: int, repeats: int) -> dict:
             vb, sb, _ = b["values"][name]
             z = abs(va - vb) / math.hypot(sa, sb) if math.hypot(sa, sb) > 0 else math.inf
             spread[name] = max(spread.get(name, 0.0), z)
-    return {"seed": seed, "rig": draw_rig(seed).name, "repeats": repeats, "trusted": len(trusted),
+    return {"seed": seed, "rig": spec.name, "repeats": repeats, "trusted": len(trusted),
             "runs": runs, "spread_sigmas": spread, "wrong": sorted({w for r in trusted for w in r["wrong"]}),
             "seconds": round(time.perf_counter() - started, 1)}
 

@@ -334,6 +334,12 @@ def steal_s() -> float | None:
         return None
 
 
+def steal_ms_since(start_s: float | None) -> float | None:
+    """The machine's steal time since ``steal_s()`` gave ``start_s``, in ms (None where either is unknown)."""
+    end_s = steal_s()
+    return None if start_s is None or end_s is None else round((end_s - start_s) * 1e3, 1)
+
+
 def bare_loop(period_s: float, duration_s: float) -> dict:
     """A loop that does nothing but sleep until each period is due, as the control loop waits for its measurement:
     how late the OS woke it (p99 and max, ms), its stalls (a wake more than ``STALL_PERIODS`` after the one
@@ -358,8 +364,7 @@ def bare_loop(period_s: float, duration_s: float) -> dict:
             longest = max(longest, (gap - period_s) * 1e3)
             due = now  # like the rig after an overrun: no catching up
         last = now
-    steal_end = steal_s()
-    steal = None if steal_start is None or steal_end is None else round((steal_end - steal_start) * 1e3, 1)
+    steal = steal_ms_since(steal_start)
     return {"seconds": round(last - start, 3), "periods": lateness.n,
             "lateness_p99_ms": round(lateness.percentile_ms(99), 3), "lateness_max_ms": round(lateness.max_ms, 3),
             "stalls": stalls, "lost_periods": lost, "stall_max_ms": round(longest, 3), "steal_ms": steal}

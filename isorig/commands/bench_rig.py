@@ -185,7 +185,7 @@ def _watchdog(folder: Path, tests: int, test_s: float, host_priority: str = "gra
     (measurement sent -> command arrived), the periods the rig missed and the host lost, the longest stall
     of the host's answers and, from the loop's period trace (sim.realtime.PeriodTrace), the stalls by cause
     and what ran before the longest. ``host_priority`` "none": the host runs without CAP_SYS_NICE."""
-    from sim.realtime import steal_s
+    from sim.realtime import steal_ms_since, steal_s
 
     rows = []
     frequency_hz = 0.5
@@ -202,7 +202,7 @@ def _watchdog(folder: Path, tests: int, test_s: float, host_priority: str = "gra
                                   preexec_fn=_without_sys_nice if host_priority == "none" else None)
         finally:
             status = emulator.stop()
-        steal_end = steal_s()
+        steal_ms = steal_ms_since(steal_start)
         summary_file = target / "summary.json"
         summary = json.loads(summary_file.read_text()) if summary_file.exists() else {}
         counters = status["counters"]
@@ -226,8 +226,7 @@ def _watchdog(folder: Path, tests: int, test_s: float, host_priority: str = "gra
                      "rig_tick_lateness_max_ms":
                          status["tick_lateness"].get("max_ms"),
                      "priority": (summary.get("pacing") or {}).get("priority"),
-                     "steal_ms": None if steal_start is None or steal_end is None
-                     else round((steal_end - steal_start) * 1e3, 1)})
+                     "steal_ms": steal_ms})
         r = rows[-1]
         print(f"[watchdog] {i + 1}/{tests}: {r['status']}, {r['watchdog_trips']} trip(s), p99 "
               f"{r['lateness_p99_ms']:.3f} ms, longest stall {_ms(r['host_stall_max_ms'])} ms "

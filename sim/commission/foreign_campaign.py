@@ -155,11 +155,16 @@ def tested(spec, rig: RigParameters, amplitude_m: float, frequency_hz: float,
 
 
 def first_attempt(seed: int, max_stroke_m: float = DEFAULT_MAX_STROKE_M,
-                  max_velocity_m_per_s: float = DEFAULT_MAX_VELOCITY_M_PER_S):
-    """Rig SEED drawn and commissioned once from what its lab knows: (spec, declared rig, identification)."""
+                  max_velocity_m_per_s: float = DEFAULT_MAX_VELOCITY_M_PER_S, noise_seed: int | None = None):
+    """Rig SEED drawn and commissioned once from what its lab knows: (spec, declared rig, identification).
+    ``noise_seed``: another realisation of its sensors' noise (default: the rig's own, SEED), as when a lab
+    commissions the same rig again (scripts/foreign_repeat.py)."""
     from foreign_rigs import draw_rig
+    from foreign_rigs import physics as ph
 
     spec = draw_rig(seed)
+    if noise_seed is not None:
+        spec.params[ph.P_SEED] = float(noise_seed)
     declared = declared_rig(spec.lab_knows())
     return spec, declared, commission(spec, declared, max_stroke_m, max_velocity_m_per_s)
 
