@@ -44,6 +44,10 @@ def register(sub) -> None:
     g.add_argument("--latency-ms", type=float, default=0.0, help="delay every measurement by this much")
     g.add_argument("--jitter-ms", type=float, default=0.0, help="... plus or minus up to this much (uniform)")
     g.add_argument("--drop-link-after-s", type=float, help="cut the link for good after this time")
+    g.add_argument("--outage-every-s", type=float, metavar="S",
+                   help="the link goes silent both ways for --outage-ms every S s (the first after S s): what a host "
+                        "stalled that long looks like, repeatably")
+    g.add_argument("--outage-ms", type=float, default=10.0, help="how long each outage lasts (default 10 ms)")
     g.add_argument("--restart-after-s", type=float,
                    help="restart after this time: session and host forgotten, valve closed, silent until a new ARM")
     g.add_argument("--sensor-fault", choices=("stuck", "nan", "out-of-range"),
@@ -97,7 +101,7 @@ def run(args) -> int:
         raise UsageError(f"isorig rig-emulator: {exc}") from None
     faults = Faults(args.packet_loss_pct, args.latency_ms, args.jitter_ms, args.drop_link_after_s,
                     args.restart_after_s, args.sensor_fault, args.sensor_fault_after_s, args.supply_loss_after_s,
-                    args.supply_rise_s)
+                    args.supply_rise_s, args.outage_every_s, args.outage_ms)
     rig, plant_name, plant_source = plant(args)
     foreign = None
     if args.foreign_rig is not None:

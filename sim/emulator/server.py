@@ -88,6 +88,17 @@ class Faults:
     #: a pump that takes time: after ARM the supply goes from where it was (the previous ARM's setting, or 0 at
     #: the first) towards the asked one with this time constant, instead of at once (None: at once)
     supply_rise_s: float | None = None
+    #: the link goes silent both ways for ``outage_ms`` every ``outage_every_s`` (the first at outage_every_s):
+    #: to the rig and to the host alike, this is what a host stalled that long (a shared machine's hiccup) looks
+    #: like, repeatably (None: never)
+    outage_every_s: float | None = None
+    outage_ms: float = 0.0
+
+    def outage(self, t: float | None) -> bool:
+        """True within an outage at test time ``t`` (s since the ARM; None: not armed)."""
+        if t is None or self.outage_every_s is None or t < self.outage_every_s:
+            return False
+        return t % self.outage_every_s < self.outage_ms / 1e3
 
     def check(self) -> None:
         """A clear ValueError for anything out of range."""
@@ -104,6 +115,11 @@ class Faults:
         if self.supply_rise_s is not None and not (math.isfinite(self.supply_rise_s) and
                                                    0.0 < self.supply_rise_s <= 3600.0):
             raise ValueError(f"supply rise = {self.supply_rise_s!r} s must be a time constant in (0, 3600] s")
+        if self.outage_every_s is not None and not (math.isfinite(self.outage_every_s) and self.outage_every_s > 0.0
+                                                    and math.isfinite(self.outage_ms)
+                                                    and 0.0 < self.outage_ms < 1e3 * self.outage_every_s):
+            raise ValueError(f"an outage of {self.outage_ms!r} ms every {self.outage_every_s!r} s: the interval must "
+                             "be a time > 0 s and the outage a time > 0 ms shorter than the interval")
         if self.sensor_fault is not None and self.sensor_fault not in SENSOR_FAULTS:
             raise ValueError(f"sensor fault {self.sensor_fault!r} is unknown; allowed: {', '.join(SENSOR_FAULTS)}")
 
@@ -212,8 +228,8 @@ class RigEmulator:
         self.stopped = False
         self.counters = {"ticks": 0, "arms": 0, "disarms": 0, "measurements_sent": 0, "measurements_dropped": 0,
                          "commands_applied": 0, "command_max_abs_v": 0.0, "commands_late": 0, "periods_missed": 0,
-                         "incoming_dropped": 0, "restarts": 0, "link_dropped": False, "overruns": 0, "ticks_lost": 0,
-                         "ticks_slipped": 0}
+                         "incoming_dropped": 0, "outage_dropped": 0, "restarts": 0, "link_dropped": False,
+                         "overruns": 0, "ticks_lost": 0, "ticks_slipped": 0}
         self.rejected: dict[str, int] = {}
         self.latency = LatencyHistogram()  # per answered measurement: command arrival - measurement sent
         self.tick_lateness = LatencyHistogram()
@@ -260,6 +276,9 @@ class RigEmulator:
 
     def receive(self, data: bytes, addr, arrival: float) -> None:
         if self.counters["link_dropped"]:
+            return
+        if self.faults.outage(self.test_time(arrival)):
+            self.counters["outage_dropped"] += 1
             return
         if self.faults.packet_loss_pct and self.random.random() * 100.0 < self.faults.packet_loss_pct:
             self.counters["incoming_dropped"] += 1
@@ -497,6 +516,9 @@ class RigEmulator:
             self.sent_ns.pop(seq - STALE_PERIODS - 1, None)
         if self.faults.packet_loss_pct and self.random.random() * 100.0 < self.faults.packet_loss_pct:
             self.counters["measurements_dropped"] += 1
+            return
+        if self.faults.outage(self.test_time(time.perf_counter())):
+            self.counters["outage_dropped"] += 1
             return
         delay = self.faults.latency_ms
         if self.faults.jitter_ms:

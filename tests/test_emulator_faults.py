@@ -1,0 +1,34 @@
+"""The rig emulator's fault injection (sim.emulator.server.Faults): the outage that stands for a stalled host."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+
+import pytest
+
+from sim.emulator.server import Faults
+
+
+def test_an_outage_repeats_from_its_interval_and_lasts_its_length():
+    faults = Faults(outage_every_s=0.7, outage_ms=15.0)
+    assert not faults.outage(None)  # not armed: no test time
+    assert [faults.outage(t) for t in (0.0, 0.01, 0.699)] == [False] * 3  # the first comes after one interval
+    assert [faults.outage(t) for t in (0.7, 0.714, 1.4, 1.41, 2.1049)] == [True] * 5
+    assert [faults.outage(t) for t in (0.7151, 1.0, 1.416, 2.116)] == [False] * 4
+    assert not Faults().outage(5.0)  # none asked
+
+
+@pytest.mark.parametrize("every_s, ms", [(0.0, 10.0), (-1.0, 10.0), (math.nan, 10.0), (0.7, 0.0), (0.01, 15.0),
+                                         (0.7, math.inf)])
+def test_an_outage_that_cannot_be_is_refused_with_what_is_allowed(every_s, ms):
+    with pytest.raises(ValueError, match="interval must be a time > 0 s and the outage a time > 0 ms shorter"):
+        Faults(outage_every_s=every_s, outage_ms=ms).check()
+
+
+def test_the_emulators_outage_flags_are_checked_at_the_door():
+    out = subprocess.run([sys.executable, "-m", "isorig", "rig-emulator", "--port", "0", "--outage-every-s", "0.01",
+                          "--outage-ms", "15"], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and "Traceback" not in out.stderr
+    assert "an outage of 15.0 ms every 0.01 s" in out.stderr
