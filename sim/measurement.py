@@ -34,6 +34,9 @@ FLAG_OPEN_LOOP = 1 << 9  # the controller was not stepped (command ramp of a con
 FLAG_PREDICTED = 1 << 10  # a lost period: the controller ran on a predicted reading (target less the last error)
 FLAG_BRAKE = 1 << 11  # a controlled stop: the target brakes to rest (sim.loop.brake_target), the controller in the loop
 FLAG_GUARD = 1 << 12  # the displacement guard began the stop here: the target would have carried the table past it
+#: within the settling of lost measurements or missed commands (sim.loop.HELD_PERIODS_PER_MISSED): the controller
+#: acted but learned nothing from this period (its error is the link's, not the rig's)
+FLAG_LEARNING_HELD = 1 << 13
 
 
 def measured_rows(flags) -> np.ndarray:
@@ -55,6 +58,8 @@ def describe_status(bits: int) -> str:
         names.append("reading predicted")
     if bits & FLAG_OPEN_LOOP:
         names.append("open loop")
+    if bits & FLAG_LEARNING_HELD:
+        names.append("learning held")
     return ", ".join(names) or "none"
 
 

@@ -69,7 +69,7 @@ def test_frequency_estimate_and_reported_model_on_a_plain_sine():
     for i in range(3000):
         t = i * CONTROL_PERIOD_S
         r, rd = target(t, blocks)
-        m[:] = (t, r, rd, r, 0.0, 1e7)
+        m[:6] = (t, r, rd, r, 0.0, 1e7)
         u, report = c.step(state, m, CONTROL_PERIOD_S)
         assert np.isfinite(u)
     assert report[R_AS] == pytest.approx(0.7, rel=1e-4)
@@ -125,7 +125,7 @@ def run_with_noisy_measurements(noise_position_m, noise_pressure_pa, cycles=5, f
     for i in range(n):
         t = i * CONTROL_PERIOD_S
         r, rd = target(t, blocks)
-        m[:] = (t, r, rd, x[X_Y] + noise_position_m * rng.standard_normal(),
+        m[:6] = (t, r, rd, x[X_Y] + noise_position_m * rng.standard_normal(),
                 x[X_PL] + noise_pressure_pa * rng.standard_normal(), plant[P_SUPPLY])
         u, _ = controller.step(state, m, CONTROL_PERIOD_S)
         saturated += abs(u) >= plant[P_ULIM]
@@ -187,7 +187,7 @@ def test_gain_estimate_reported_in_ar_hat():
     c = make_controller("servo")
     state = c.new_state()
     m = np.zeros(N_MEAS)
-    m[:] = (0.0, 0.0, 0.0, 0.0, 0.0, 1e7)
+    m[:6] = (0.0, 0.0, 0.0, 0.0, 0.0, 1e7)
     _, report = c.step(state, m, CONTROL_PERIOD_S)
     assert report[R_AR] == 1.0  # no data yet: the nominal values are believed
 

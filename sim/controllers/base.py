@@ -17,8 +17,10 @@ import numpy as np
 from ..errors import FieldError
 
 # Measurement vector passed to every controller each period.
-M_TIME, M_TARGET, M_TARGET_RATE, M_POSITION, M_LOAD_PRESSURE, M_SUPPLY_PRESSURE = range(6)
-N_MEAS = 6
+# M_HOLD_LEARNING: 1.0 where the loop was disturbed (a lost measurement or a missed command, and their settling:
+# sim.loop): a controller acts as usual but learns nothing from the period; else 0.0
+M_TIME, M_TARGET, M_TARGET_RATE, M_POSITION, M_LOAD_PRESSURE, M_SUPPLY_PRESSURE, M_HOLD_LEARNING = range(7)
+N_MEAS = 7
 
 # Report vector filled by every controller each period (NaN where a controller has no such thing).
 R_MODEL, R_AR, R_AY, R_AS = range(4)

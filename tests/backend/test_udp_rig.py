@@ -23,7 +23,14 @@ from backend.drivers.udp import UdpRig, parse_udp_url, probe
 from backend.worker import CHECK_PERIODS
 from sim.emulator import protocol as proto
 from sim.isolator import PRESETS
-from sim.measurement import FLAG_LOST, STATUS_ARMED, STATUS_COMMAND_MISSED, STATUS_WATCHDOG
+from sim.measurement import (
+    FLAG_LEARNING_HELD,
+    FLAG_LOST,
+    STATUS_ARMED,
+    STATUS_COMMAND_MISSED,
+    STATUS_WATCHDOG,
+    measured_rows,
+)
 
 # real time against the rig emulator in its own process: scripts/test.sh runs these alone, after the others
 pytestmark = pytest.mark.realtime
@@ -126,6 +133,23 @@ def test_probe_says_whether_the_rig_answers(tmp_path):
 
 # --- whole tests through the emulator ------------------------------------------------------------------------
 
+def settled_tracking(record: dict) -> tuple[float, int]:
+    """RMS |y - r| over the amplitude (10 mm) in the last two full cycles (2.5-3.5 s of the 8-cycle sine), over
+    the rows whose measurement arrived and where the loop was not settling from a stall (FLAG_LEARNING_HELD: on a
+    shared machine the host stalls now and then, and the table's error after a stall is the stall's, not the
+    controller's); and how many rows that is."""
+    t, flags = record["time_s"], record["flags"].astype(int)
+    rows = (t >= 2.5 - 1e-9) & (t < 3.5 - 1e-9) & measured_rows(flags) & (flags & FLAG_LEARNING_HELD == 0)
+    e = record["displacement_m"][rows] - record["target_m"][rows]
+    return float(np.sqrt(np.mean(e * e)) / 0.01), int(np.count_nonzero(rows))
+
+
+def local_tracking(tmp_path) -> float:
+    code, local, _ = simulate_on("simulated", tmp_path / "local", cycles=8)
+    assert code == 0
+    return local["last_two_cycles"]["rms_y_minus_r_over_amplitude"]
+
+
 def test_a_test_through_the_emulator_completes_and_tracks_like_the_simulated_rig(tmp_path):
     emulator = Emulator(tmp_path)
     try:
@@ -143,10 +167,31 @@ def test_a_test_through_the_emulator_completes_and_tracks_like_the_simulated_rig
     # what the emulator had loaded is frozen: a full collection over it stalled the rig's ticks by 9-12 ms
     assert status["collector"]["frozen_objects"] > 10_000, status["collector"]
     assert summary["link"]["received"] >= 3980 and summary["link"]["round_trip_p50_ms"] < 1.0
-    code, local, _ = simulate_on("simulated", tmp_path / "local", cycles=8)
-    assert code == 0
-    through = summary["last_two_cycles"]["rms_y_minus_r_over_amplitude"]
-    assert abs(through - local["last_two_cycles"]["rms_y_minus_r_over_amplitude"]) < 1e-3  # 0.1 % of amplitude
+    through, rows = settled_tracking(record)
+    assert rows >= 500, f"the host stalled through {1000 - rows} of the last 1000 periods: too disturbed to compare"
+    assert abs(through - local_tracking(tmp_path)) < 1e-3  # 0.1 % of amplitude
+
+
+def test_a_host_stalled_now_and_then_tracks_on_once_settled(tmp_path):
+    """The link silent for 15 ms every 0.7 s (the emulator's outage: what a host stalled that long looks like): the
+    rig holds its last command meanwhile and the table falls behind. The controller learns nothing from the error
+    that follows (FLAG_LEARNING_HELD); once settled the table tracks as without the stalls. Before the hold, the
+    settled rows of the last two cycles were 0.29-0.32 % off against 0.17 % (two runs)."""
+    emulator = Emulator(tmp_path, "--outage-every-s", "0.7", "--outage-ms", "15")
+    try:
+        code, summary, output = simulate_on(emulator.url, tmp_path / "udp", cycles=8)
+    finally:
+        status = emulator.stop()
+    assert code == 0, output
+    assert summary["status"] == "completed" and not status["watchdog_trips"]
+    assert status["counters"]["outage_dropped"] >= 5 * 15  # measurements and commands, five outages
+    record = read_record(tmp_path / "udp")
+    flags = record["flags"].astype(int)
+    lost = np.flatnonzero(flags & FLAG_LOST)
+    assert len(lost) >= 5 * 14 and np.all(flags[lost] & FLAG_LEARNING_HELD)
+    through, rows = settled_tracking(record)
+    assert rows >= 500, f"only {rows} of the last 1000 periods settled"
+    assert abs(through - local_tracking(tmp_path)) < 1e-3  # 0.1 % of amplitude
 
 
 def test_link_silent_longer_than_the_timeout(tmp_path):
