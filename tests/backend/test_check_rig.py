@@ -12,6 +12,7 @@ import os
 import select
 import signal
 import socket
+import statistics
 import subprocess
 import threading
 import time
@@ -100,7 +101,10 @@ def test_check_rig_passes_on_the_emulator_and_checks_every_rule(good):
     figures = report["figures"]
     assert figures["period_ns"] == 1_000_000 and 0.9 < figures["inter_arrival_median_ms"] < 1.1
     for way in ("last_command", "ARM", "stale_commands"):  # the emulator's 18 ms, its period and the link
-        assert all(18.0 <= t <= 24.0 for t in figures[f"watchdog_after_{way}_ms"]), figures
+        trips = figures[f"watchdog_after_{way}_ms"]
+        # never early; the median (what the rule judges: one late wake-up of a shared machine does not decide it,
+        # and one of three came late in a CI run) within a period and the link of 18 ms
+        assert len(trips) == 3 and min(trips) >= 18.0 and 18.0 <= statistics.median(trips) <= 24.0, (way, trips)
     status = good.fresh_status()
     # every drop reason reached the rig as that reason (its own counters by reason), and nothing moved: every
     # command was 0 V or refused
