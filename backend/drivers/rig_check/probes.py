@@ -490,6 +490,8 @@ def dropped(rc: RigCheck, s: Stream, what: str) -> Dropped:
     except Silent:
         s.armed = False
         return Dropped(n, None, len(datagrams), applied_if)
+    for rec in (n, *seen):  # read late, this check's own answers may have come stale and been counted too (a CI
+        s.on_time(rec)  # run: "future" +3 where one was sent): run again
     return Dropped(n, seen, len(datagrams), applied_if)
 
 
@@ -500,7 +502,10 @@ def stale(rc: RigCheck, s: Stream) -> Synced:
     good = s.answer(n)
     rc.link.send(good)  # a duplicate
     rc.link.send(rc.link.encode(proto.COMMAND, s.session, n.seq - 2, 0, 0.0))  # older than the one held
-    return Synced(n, s.sync())
+    seen = s.sync()
+    for rec in (n, *seen):  # as in ``dropped``: a late read would count this check's own stale answers
+        s.on_time(rec)
+    return Synced(n, seen)
 
 
 def disarm(rc: RigCheck, s: Stream) -> Disarmed:
