@@ -32,3 +32,12 @@ def test_the_emulators_outage_flags_are_checked_at_the_door():
                           "--outage-ms", "15"], capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and "Traceback" not in out.stderr
     assert "an outage of 15.0 ms every 0.01 s" in out.stderr
+
+
+def test_a_status_file_that_cannot_be_written_is_refused_at_start(tmp_path):
+    """The emulator ran on for an hour without a status file whose folder was missing (its writer thread died): the
+    start now says so and nothing runs."""
+    out = subprocess.run([sys.executable, "-m", "isorig", "rig-emulator", "--port", "0", "--status-file",
+                          str(tmp_path / "missing" / "status.json")], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and "Traceback" not in out.stderr
+    assert f"its folder {tmp_path / 'missing'} does not exist or cannot be written" in out.stderr

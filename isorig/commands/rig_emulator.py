@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import gc
+import os
 import signal
 import sys
 
@@ -102,6 +103,11 @@ def run(args) -> int:
     faults = Faults(args.packet_loss_pct, args.latency_ms, args.jitter_ms, args.drop_link_after_s,
                     args.restart_after_s, args.sensor_fault, args.sensor_fault_after_s, args.supply_loss_after_s,
                     args.supply_rise_s, args.outage_every_s, args.outage_ms)
+    if args.status_file:  # said now: a status writer that failed in its thread left a rig running, unwatched
+        folder = Path(args.status_file).resolve().parent
+        if not folder.is_dir() or not os.access(folder, os.W_OK):
+            raise UsageError(f"isorig rig-emulator: --status-file {args.status_file}: its folder {folder} does not "
+                             "exist or cannot be written")
     rig, plant_name, plant_source = plant(args)
     foreign = None
     if args.foreign_rig is not None:

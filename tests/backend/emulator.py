@@ -38,7 +38,11 @@ class Emulator:
         self.url = f"udp://127.0.0.1:{self.port}"
         forging = re.search(r"forging port (\d+)", line)  # --tap-port: the tap's port for forged datagrams
         self.forge_port = int(forging.group(1)) if forging else None
-        self.status()  # the status file exists once the loop runs
+        try:
+            self.status()  # the status file exists once the loop runs
+        except (OSError, ValueError):
+            self.proc.kill()  # never left running: a stray emulator's loop disturbed every real-time test after it
+            raise
 
     def status(self, timeout_s: float = 10.0) -> dict:
         deadline = time.monotonic() + timeout_s
