@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import subprocess
 import time
 
@@ -270,7 +271,10 @@ def test_a_pump_that_never_gets_there_ends_the_run_before_any_motion(tmp_path):
         took_s = time.monotonic() - t0
         assert code != 0, text
         assert f"within {SUPPLY_SETTLE_TIMEOUT_S:g} s after ARM" in text and "check the pump" in text, text
-        assert "the supply reached only 15" in text or "the supply reached only 16" in text, text
+        # the emulator's pump rises by its ticks, and a stalled tick is not caught up (a CI run: 14.9 bar, about
+        # 0.16 s of ticks lost): between 4 s (12.5 %) and the 5.3 s a late check may wait (16.2 %) of its rise
+        reached = re.search(r"the supply reached only ([\d.]+) bar", text)
+        assert reached and 12.4 <= float(reached.group(1)) <= 16.2, text
         assert took_s >= SUPPLY_SETTLE_TIMEOUT_S
         if summary is not None:
             assert summary["status"] == "failed", summary
