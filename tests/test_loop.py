@@ -202,12 +202,12 @@ def last_two_cycles_rms(samples: Samples) -> float:
 
 def test_a_stalled_host_holds_what_the_servo_learns_and_tracks_on():
     """Issue 33 (CI failed on it): a host stalled 15 ms left the table off its target, and the servo learned from
-    that error as if it were the valve's: its valve estimate and harmonics moved, and the tracking over the last two
-    cycles went from 0.17 % to 0.47 %. The periods lost or missed and 5 times as many after them are flagged
-    FLAG_LEARNING_HELD, and the controller learns nothing there."""
-    from sim.controllers.servo import S_C, S_C0, S_DZ_HAT, S_EDGE, S_GAIN, S_OFFSET
+    that error as if it were the cycle's: its harmonics moved, and the tracking over the last two cycles went from
+    0.17 % to 0.47 %. The periods lost or missed and 5 times as many after them are flagged FLAG_LEARNING_HELD, and
+    the learning law stands still there (the valve estimate goes on: holding it too was worse on foreign rigs)."""
+    from sim.controllers.servo import S_C, S_C0
 
-    learned = [S_GAIN, S_DZ_HAT, S_OFFSET, S_C0, S_EDGE, *range(S_C, S_C + 6)]
+    learned = [S_C0, *range(S_C, S_C + 6)]  # the learning law's c_0 and first harmonics (a sine: no integral)
     samples, states = stalled_run(700, 15)
     flags = samples["flags"].astype(int)
     held = np.flatnonzero(flags & FLAG_LEARNING_HELD)
@@ -222,7 +222,7 @@ def test_a_stalled_host_holds_what_the_servo_learns_and_tracks_on():
     assert np.max(np.abs(quiet)) > 0.0
     undisturbed = last_two_cycles_rms(stalled_run(0, 0)[0])
     stalled = last_two_cycles_rms(samples)
-    assert undisturbed < 0.002 and stalled < 0.0035, (undisturbed, stalled)  # measured 0.17 % and 0.25 % (0.47 %
+    assert undisturbed < 0.002 and stalled < 0.0035, (undisturbed, stalled)  # measured 0.17 % and 0.26 % (0.47 %
     # before the hold)
 
 

@@ -1341,12 +1341,10 @@ def servo_step(p, s, meas, dt, report):
     steady, v_est = _steady_envelope(p, s, rd_mid, rdd, omega_est, dt)
     steady, omega = _learned_frequency(s, steady, omega_est, dt)
     v_env, nh, fast, nh_fast = _harmonic_band(p, omega, rd_mid, rdd, p_supply)
-    # the valve estimate (g, DZ, o) from the flow the valve passed for the command sent tau_l + L ago; nothing is
-    # learned while the loop is disturbed (sim.loop.hold_learning: the rig held an older command than the one noted)
-    held = meas[M_HOLD_LEARNING] > 0.5
+    # the valve estimate (g, DZ, o) from the flow the valve passed for the command sent tau_l + L ago
     xd, wd, zd = _delayed_regressors(p, s, dt)
     vel = _valve_flow_velocity(p, s, y, p_meas, dt)
-    gain = s[S_GAIN] if held else _valve_estimate(p, s, xd, wd, zd, vel, omega, v_env, dt)
+    gain = _valve_estimate(p, s, xd, wd, zd, vel, omega, v_env, dt)
     # the velocity demand v: feed-forward, position feedback on r(t - L), learned and compression feed-forward
     r_seen, head_new = _target_seen(p, s, r, dt)
     e = r_seen - y
@@ -1374,11 +1372,12 @@ def servo_step(p, s, meas, dt, report):
     u = _pressure_feedback_command(p, u, v, v_pf, gain, p_load, p_supply)
     u, saturated, was_saturated = _saturate(p, s, u)
     # what the command teaches: the integral (time histories), the valve estimate's samples, the learning
-    if not held:
-        _integral(p, s, e, ramp, ramp_at, gain, p_supply, was_saturated, dt)
+    _integral(p, s, e, ramp, ramp_at, gain, p_supply, was_saturated, dt)
     _record_regressors(p, s, u, o_hat, p_load, p_supply, head_new)
     if fast >= 1.0:
         nh = nh_fast  # the harmonics of a fast test learn only once it is fully so
+    # the learning law holds while the loop is disturbed (sim.loop.hold_learning: a stall's error is not the cycle's)
+    held = meas[M_HOLD_LEARNING] > 0.5
     if steady and nh >= 1 and not saturated and not held:  # only on a steady sine, unsaturated, undisturbed
         _learning_update(p, s, e, theta, omega, v_env, nh, dt)
     report[R_MODEL] = r
