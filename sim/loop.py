@@ -44,7 +44,6 @@ from .measurement import (
     FLAG_LOST,
     FLAG_OPEN_LOOP,
     FLAG_PREDICTED,
-    STATUS_COMMAND_MISSED,
     Measurement,
 )
 from .profiles import (
@@ -95,13 +94,14 @@ BRAKE_HARDEST_FACTOR = 8.0  # to stay within a bound, a stop brakes up to this m
 L_DT, L_ULIM, L_GUARD_M, L_BRAKE_A, L_ERROR_DECAY = range(5)  # L_ERROR_DECAY: exp(-dt / RECENT_ERROR_S)
 N_LOOP_PARAMS = 5
 (LS_MODE, LS_RAMP_U0, LS_RAMP_K0, LS_RAMP_N, LS_LAST_U, LS_BRAKE_K0, LS_BRAKE_R0, LS_BRAKE_V0, LS_BRAKE_N,
- LS_RECENT_ERROR, LS_HOME_M, LS_RETURN_N, LS_LAST_ERROR, LS_HOLD_UNTIL, LS_MISSED_RUN) = range(15)
+ LS_RECENT_ERROR, LS_HOME_M, LS_RETURN_N, LS_LAST_ERROR, LS_HOLD_UNTIL, LS_LOST_RUN) = range(15)
 N_LOOP_STATE = 15
-#: a run of n periods lost or missed (the host stalled, the link went silent: the rig held the last command, the
-#: controller ran on predicted readings) holds the controller's learning for 5 n periods after it: the table's error
-#: then is the stall's, and learning from it moved the valve estimate and the harmonics for seconds. 15 periods lost
-#: every 0.7 s (sim path, 10 mm 2 Hz): last two cycles 0.47 % -> 0.25 % (2 n: 0.26 %, 10 n: 0.26 %)
-HELD_PERIODS_PER_MISSED = 5.0
+#: a run of n periods lost (the host stalled, the link went silent: the rig held the last command, the controller ran
+#: on predicted readings) holds the controller's learning for 5 n periods after it: the table's error then is the
+#: stall's, and the learning law took it for the cycle's. 15 periods lost every 0.7 s (sim path, 10 mm 2 Hz): last
+#: two cycles 0.47 % -> 0.26 %. A command that was only late (COMMAND_MISSED without a lost measurement: a round
+#: trip longer than a period flags every period) holds nothing
+HELD_PERIODS_PER_LOST = 5.0
 RETURN_SPEED_M_PER_S = 0.01  # a stop that brings the table home moves it at most this fast ...
 RETURN_MIN_S = 0.5  # ... and takes at least this long
 RECENT_ERROR_S = 0.5  # the guard's margin: the recent peak |y - r|, forgotten with this time constant ...
@@ -178,13 +178,13 @@ def note_error(position_m, r, ls, decay):
 
 @njit(cache=True, error_model="numpy")
 def hold_learning(k, status, ls):
-    """1.0 while period k is within a disturbance or its settling (HELD_PERIODS_PER_MISSED per period of the
-    run lost or missed), else 0.0."""
-    if status & (FLAG_PREDICTED | STATUS_COMMAND_MISSED):
-        ls[LS_MISSED_RUN] += 1.0
-        ls[LS_HOLD_UNTIL] = max(ls[LS_HOLD_UNTIL], k + 1.0 + HELD_PERIODS_PER_MISSED * ls[LS_MISSED_RUN])
+    """1.0 while period k is within a run of lost periods or its settling (HELD_PERIODS_PER_LOST per period of the
+    run), else 0.0."""
+    if status & FLAG_LOST:
+        ls[LS_LOST_RUN] += 1.0
+        ls[LS_HOLD_UNTIL] = max(ls[LS_HOLD_UNTIL], k + 1.0 + HELD_PERIODS_PER_LOST * ls[LS_LOST_RUN])
     else:
-        ls[LS_MISSED_RUN] = 0.0
+        ls[LS_LOST_RUN] = 0.0
     return 1.0 if k < ls[LS_HOLD_UNTIL] else 0.0
 
 

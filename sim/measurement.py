@@ -34,8 +34,8 @@ FLAG_OPEN_LOOP = 1 << 9  # the controller was not stepped (command ramp of a con
 FLAG_PREDICTED = 1 << 10  # a lost period: the controller ran on a predicted reading (target less the last error)
 FLAG_BRAKE = 1 << 11  # a controlled stop: the target brakes to rest (sim.loop.brake_target), the controller in the loop
 FLAG_GUARD = 1 << 12  # the displacement guard began the stop here: the target would have carried the table past it
-#: within the settling of lost measurements or missed commands (sim.loop.HELD_PERIODS_PER_MISSED): the controller
-#: acted but learned nothing from this period (its error is the link's, not the rig's)
+#: a lost period or within its settling (sim.loop.hold_learning): the controller acted but its learning law learned
+#: nothing from this period (the error is the stall's, not the cycle's)
 FLAG_LEARNING_HELD = 1 << 13
 
 

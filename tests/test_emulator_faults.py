@@ -27,11 +27,14 @@ def test_an_outage_that_cannot_be_is_refused_with_what_is_allowed(every_s, ms):
         Faults(outage_every_s=every_s, outage_ms=ms).check()
 
 
-def test_the_emulators_outage_flags_are_checked_at_the_door():
-    out = subprocess.run([sys.executable, "-m", "isorig", "rig-emulator", "--port", "0", "--outage-every-s", "0.01",
-                          "--outage-ms", "15"], capture_output=True, text=True, timeout=60)
+@pytest.mark.parametrize("flags, words", [(("--outage-every-s", "0.01", "--outage-ms", "15"),
+                                           "an outage of 15.0 ms every 0.01 s"),
+                                          (("--outage-ms", "15"), "--outage-ms needs --outage-every-s")])
+def test_the_emulators_outage_flags_are_checked_at_the_door(flags, words):
+    out = subprocess.run([sys.executable, "-m", "isorig", "rig-emulator", "--port", "0", *flags],
+                         capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and "Traceback" not in out.stderr
-    assert "an outage of 15.0 ms every 0.01 s" in out.stderr
+    assert words in out.stderr
 
 
 def test_a_status_file_that_cannot_be_written_is_refused_at_start(tmp_path):

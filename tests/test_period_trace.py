@@ -186,7 +186,7 @@ def test_the_bare_loop_counts_a_stall_and_the_periods_it_lost(monkeypatch):
     other work, lost 67 periods in 0.3 s in a CI run)."""
     import sim.realtime as rt
 
-    clock = {"now": 100.0, "sleeps": 0}
+    clock = {"now": 0.0, "sleeps": 0}
 
     def sleep(s):
         clock["sleeps"] += 1

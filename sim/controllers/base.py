@@ -17,8 +17,8 @@ import numpy as np
 from ..errors import FieldError
 
 # Measurement vector passed to every controller each period.
-# M_HOLD_LEARNING: 1.0 where the loop was disturbed (a lost measurement or a missed command, and their settling:
-# sim.loop): a controller acts as usual but learns nothing from the period; else 0.0
+# M_HOLD_LEARNING: 1.0 where the loop was disturbed (lost measurements and their settling: sim.loop.hold_learning):
+# a controller acts as usual but learns nothing from the period; else 0.0
 M_TIME, M_TARGET, M_TARGET_RATE, M_POSITION, M_LOAD_PRESSURE, M_SUPPLY_PRESSURE, M_HOLD_LEARNING = range(7)
 N_MEAS = 7
 

@@ -88,9 +88,9 @@ class Faults:
     #: a pump that takes time: after ARM the supply goes from where it was (the previous ARM's setting, or 0 at
     #: the first) towards the asked one with this time constant, instead of at once (None: at once)
     supply_rise_s: float | None = None
-    #: the link goes silent both ways for ``outage_ms`` every ``outage_every_s`` (the first at outage_every_s):
-    #: to the rig and to the host alike, this is what a host stalled that long (a shared machine's hiccup) looks
-    #: like, repeatably (None: never)
+    #: while armed, the link goes silent both ways for ``outage_ms`` every ``outage_every_s`` (the first at
+    #: outage_every_s): to the rig and to the host alike, this is what a host stalled that long (a shared machine's
+    #: hiccup) looks like, repeatably (None: never)
     outage_every_s: float | None = None
     outage_ms: float = 0.0
 
@@ -277,7 +277,7 @@ class RigEmulator:
     def receive(self, data: bytes, addr, arrival: float) -> None:
         if self.counters["link_dropped"]:
             return
-        if self.faults.outage(self.test_time(arrival)):
+        if self.armed and self.faults.outage(self.test_time(arrival)):  # a test's link: not the HELLOs before it
             self.counters["outage_dropped"] += 1
             return
         if self.faults.packet_loss_pct and self.random.random() * 100.0 < self.faults.packet_loss_pct:
@@ -517,7 +517,7 @@ class RigEmulator:
         if self.faults.packet_loss_pct and self.random.random() * 100.0 < self.faults.packet_loss_pct:
             self.counters["measurements_dropped"] += 1
             return
-        if self.faults.outage(self.test_time(time.perf_counter())):
+        if self.armed and self.faults.outage(self.test_time(time.perf_counter())):
             self.counters["outage_dropped"] += 1
             return
         delay = self.faults.latency_ms

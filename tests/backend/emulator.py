@@ -42,6 +42,7 @@ class Emulator:
             self.status()  # the status file exists once the loop runs
         except (OSError, ValueError):
             self.proc.kill()  # never left running: a stray emulator's loop disturbed every real-time test after it
+            self.proc.wait(5)
             raise
 
     def status(self, timeout_s: float = 10.0) -> dict:

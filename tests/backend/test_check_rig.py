@@ -149,7 +149,7 @@ def test_a_check_stalled_in_a_counting_probe_runs_it_again_instead_of_failing_th
     report = check_rig(good.url)
     assert stalled["done"]
     row = next(r for r in report.results if r.rule.startswith(rule))
-    assert row.ok and "run 2 times" in row.detail, (row, report.table())
+    assert row.ok and "run 2 times" in row.detail and "ms late" in row.detail, (row, report.table())
     assert report.ok, report.table()
 
 

@@ -176,14 +176,15 @@ def test_a_host_stalled_now_and_then_tracks_on_once_settled(tmp_path):
     """The link silent for 15 ms every 0.7 s (the emulator's outage: what a host stalled that long looks like): the
     rig holds its last command meanwhile and the table falls behind. The controller learns nothing from the error
     that follows (FLAG_LEARNING_HELD); once settled the table tracks as without the stalls. Before the hold, the
-    settled rows of the last two cycles were 0.29-0.32 % off against 0.17 % (two runs)."""
+    settled rows of the last two cycles were 0.29 % off against 0.17 % (one run)."""
     emulator = Emulator(tmp_path, "--outage-every-s", "0.7", "--outage-ms", "15")
     try:
         code, summary, output = simulate_on(emulator.url, tmp_path / "udp", cycles=8)
     finally:
         status = emulator.stop()
     assert code == 0, output
-    assert summary["status"] == "completed" and not status["watchdog_trips"]
+    # no trip in the test (a DISARM that falls into an outage is lost as on a real link: the watchdog then ends it)
+    assert summary["status"] == "completed" and all(t["test_time_s"] > 4.0 for t in status["watchdog_trips"])
     assert status["counters"]["outage_dropped"] >= 5 * 15  # measurements and commands, five outages
     record = read_record(tmp_path / "udp")
     flags = record["flags"].astype(int)
