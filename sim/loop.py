@@ -99,7 +99,7 @@ N_LOOP_STATE = 15
 #: a run of n periods lost (the host stalled, the link went silent: the rig held the last command, the controller ran
 #: on predicted readings) holds the controller's learning for 5 n periods after it: the table's error then is the
 #: stall's, and the learning law took it for the cycle's. 15 periods lost every 0.7 s (sim path, 10 mm 2 Hz): last
-#: two cycles 0.47 % -> 0.26 %. A command that was only late (COMMAND_MISSED without a lost measurement: a round
+#: two cycles 0.47 % -> 0.27 %. A command that was only late (COMMAND_MISSED without a lost measurement: a round
 #: trip longer than a period flags every period) holds nothing
 HELD_PERIODS_PER_LOST = 5.0
 RETURN_SPEED_M_PER_S = 0.01  # a stop that brings the table home moves it at most this fast ...
