@@ -44,3 +44,15 @@ def test_a_status_file_that_cannot_be_written_is_refused_at_start(tmp_path):
                           str(tmp_path / "missing" / "status.json")], capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and "Traceback" not in out.stderr
     assert f"its folder {tmp_path / 'missing'} does not exist or cannot be written" in out.stderr
+
+
+def test_the_start_line_says_the_outages(tmp_path):
+    """What the emulator plays is said when it starts: a lab reading its log sees the outages it asked for."""
+    proc = subprocess.Popen([sys.executable, "-m", "isorig", "rig-emulator", "--port", "0", "--outage-every-s", "0.7",
+                             "--outage-ms", "15"], stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
+    try:
+        line = proc.stderr.readline()
+    finally:
+        proc.kill()
+        proc.wait(5)
+    assert "udp://127.0.0.1:" in line and "OUTAGES of 15 ms every 0.7 s while armed" in line, line

@@ -145,6 +145,8 @@ def run(args) -> int:
     defects = f", DEFECTS {', '.join(config.defects)} (for testing check-rig)" if config.defects else ""
     if faults.supply_rise_s is not None:
         defects += f", pump rising to each ARM's supply with time constant {faults.supply_rise_s:g} s"
+    if faults.outage_every_s is not None:
+        defects += f", OUTAGES of {faults.outage_ms:g} ms every {faults.outage_every_s:g} s while armed"
     if emulator.forge_port is not None:
         defects += (f", TAPPED to 127.0.0.1:{config.tap_port}, forging port {emulator.forge_port} (for the "
                     "link-attack tests)")

@@ -10,7 +10,8 @@ does. Before ARM and after DISARM it only answers HELLO; the valve stays closed 
 
 Faults are injected by ``Faults`` (the ``isorig rig-emulator`` flags), timed from the ARM of the test:
 packet loss (each datagram, both ways), added latency and jitter on measurements, a link that drops for
-good, a restart (the rig forgets session and host: nothing moves until a new ARM), a position sensor
+good, outages that come again and again while armed (``Faults.outage``: what a stalled host looks like), a
+restart (the rig forgets session and host: nothing moves until a new ARM), a position sensor
 stuck, NaN or out of range (silent: the host must see it in the values), and supply pressure loss. A pump
 that needs time to reach a new set point (``Faults.supply_rise_s``: after ARM the supply rises, or falls, from
 where it was towards what ARM asked, with that time constant) plays the rig of issue 32 whose host judged the
