@@ -168,11 +168,11 @@ def test_a_lost_period_runs_on_a_predicted_reading_not_the_old_one(controller):
     assert np.max(np.abs(stale.controller_state - lossy.controller_state)) > 1e-9
 
 
-def stalled_run(every: int, lost: int, n: int = 4000) -> tuple[Samples, dict[int, np.ndarray]]:
+def stalled_run(every: int, lost: int, n: int = 4000, status: int = 0) -> tuple[Samples, dict[int, np.ndarray]]:
     """The servo on the simulated rig (10 mm, 2 Hz, 8 cycles) one period at a time, where every ``every`` periods
     ``lost`` measurements never reach the host and the rig holds its last command meanwhile (a host stalled that
-    long), its next measurement saying COMMAND_MISSED; and the controller's state after each step, by the step's
-    last period."""
+    long), its next measurement saying COMMAND_MISSED; every measurement carries ``status`` besides; and the
+    controller's state after each step, by the step's last period."""
     profile = [SineProfile(0.01, 2.0, 8, 1)]
     loop = ClosedLoop(profile, make_controller("servo", rig=DEFAULT_RIG), DEFAULT_RIG.command_limit_v)
     plant = SimulatedPlant(DEFAULT_RIG, PRESETS["IUT_a"], 100e5, 0)
@@ -185,7 +185,7 @@ def stalled_run(every: int, lost: int, n: int = 4000) -> tuple[Samples, dict[int
             continue
         if missed:
             m, missed = dataclasses.replace(m, status=m.status | STATUS_COMMAND_MISSED), False
-        u, rows = loop.step(m)
+        u, rows = loop.step(dataclasses.replace(m, status=m.status | status) if status else m)
         plant.advance(u)
         parts.append(rows)
         states[loop.period - 1] = loop.controller_state.copy()
@@ -232,18 +232,10 @@ def test_a_command_that_was_only_late_holds_no_learning():
     late, docs/rig-protocol.md 1.4): nothing was lost, so nothing is held, and the servo learns as it would."""
     from sim.controllers.servo import S_C
 
-    profile = [SineProfile(0.01, 2.0, 4, 1)]
-    loop = ClosedLoop(profile, make_controller("servo", rig=DEFAULT_RIG), DEFAULT_RIG.command_limit_v)
-    plant = SimulatedPlant(DEFAULT_RIG, PRESETS["IUT_a"], 100e5, 0)
-    parts = []
-    for _ in range(2000):
-        m = plant.measure()
-        u, rows = loop.step(dataclasses.replace(m, status=m.status | STATUS_COMMAND_MISSED))
-        plant.advance(u)
-        parts.append(rows)
-    flags = Samples.concatenate(parts)["flags"].astype(int)
+    samples, states = stalled_run(0, 0, n=2000, status=STATUS_COMMAND_MISSED)
+    flags = samples["flags"].astype(int)
     assert np.all(flags & STATUS_COMMAND_MISSED) and not np.any(flags & FLAG_LEARNING_HELD)
-    assert np.max(np.abs(loop.controller_state[S_C:S_C + 2])) > 0.0  # the first harmonic was learned
+    assert np.max(np.abs(states[1999][S_C:S_C + 2])) > 0.0  # the first harmonic was learned
 
 
 def test_command_ramp_is_open_loop_and_ends_the_loop():

@@ -48,7 +48,7 @@ def register(sub) -> None:
     g.add_argument("--outage-every-s", type=float, metavar="S",
                    help="the link goes silent both ways for --outage-ms every S s (the first after S s): what a host "
                         "stalled that long looks like, repeatably")
-    g.add_argument("--outage-ms", type=float, default=10.0,
+    g.add_argument("--outage-ms", type=float,
                    help="how long each outage lasts (default 10 ms; with --outage-every-s)")
     g.add_argument("--restart-after-s", type=float,
                    help="restart after this time: session and host forgotten, valve closed, silent until a new ARM")
@@ -101,11 +101,12 @@ def run(args) -> int:
         security = resolve_security(args.host, args.rig_key_file, args.rig_protocol)
     except ValueError as exc:
         raise UsageError(f"isorig rig-emulator: {exc}") from None
+    if args.outage_ms is not None and args.outage_every_s is None:
+        raise UsageError("isorig rig-emulator: --outage-ms needs --outage-every-s (how often the link goes silent)")
     faults = Faults(args.packet_loss_pct, args.latency_ms, args.jitter_ms, args.drop_link_after_s,
                     args.restart_after_s, args.sensor_fault, args.sensor_fault_after_s, args.supply_loss_after_s,
-                    args.supply_rise_s, args.outage_every_s, args.outage_ms)
-    if args.outage_ms != 10.0 and args.outage_every_s is None:
-        raise UsageError("isorig rig-emulator: --outage-ms needs --outage-every-s (how often the link goes silent)")
+                    args.supply_rise_s, args.outage_every_s,
+                    Faults.outage_ms if args.outage_ms is None else args.outage_ms)
     if args.status_file:  # said now: a status writer that failed in its thread left a rig running, unwatched
         folder = Path(args.status_file).resolve().parent
         if not folder.is_dir() or not os.access(folder, os.W_OK):

@@ -93,7 +93,7 @@ class Faults:
     #: outage_every_s): to the rig and to the host alike, this is what a host stalled that long (a shared machine's
     #: hiccup) looks like, repeatably (None: never)
     outage_every_s: float | None = None
-    outage_ms: float = 0.0
+    outage_ms: float = 10.0
 
     def outage(self, t: float | None) -> bool:
         """True within an outage at test time ``t`` (s since the ARM; None: not armed)."""

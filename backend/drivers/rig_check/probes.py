@@ -503,15 +503,19 @@ def _again_if_late(s: Stream, read: list[Received]) -> None:
         s.on_time(rec)
 
 
+#: what the stale probe sends that a rig must drop: a duplicate of the answer and an answer older than it
+STALE_SENT = 2
+
+
 def stale(rc: RigCheck, s: Stream) -> Synced:
-    """The answer to n, then it again and an answer to n - 2."""
+    """The answer to n, then it again and an answer to n - 2 (STALE_SENT)."""
     s.steady(3)
     n = s.next()
     good = s.answer(n)
     rc.link.send(good)  # a duplicate
     rc.link.send(rc.link.encode(proto.COMMAND, s.session, n.seq - 2, 0, 0.0))  # older than the one held
     seen = s.sync()
-    if not seen or seen[-1]["packets_rejected"] - n["packets_rejected"] != 2:  # the duplicate and the old one
+    if not seen or seen[-1]["packets_rejected"] - n["packets_rejected"] != STALE_SENT:
         _again_if_late(s, [n, *seen])
     return Synced(n, seen)
 

@@ -24,6 +24,7 @@ from .probes import (
     HELLO_FLOOD_SENT,
     HELLO_RATE_PER_S,
     STALE_PERIODS,
+    STALE_SENT,
     VALUE_FACTOR,
     Trip,
     watchdog_s,
@@ -465,7 +466,7 @@ def _drop_stale(m, rc):
     if not m.after:
         return Verdict(False, "", ["no valid command applied after them"])
     rose = _rejected_since(m)
-    problems = [f"packets_rejected rose by {rose}, not 2"] if rose != 2 else []
+    problems = [f"packets_rejected rose by {rose}, not {STALE_SENT}"] if rose != STALE_SENT else []
     if any(b["command_sequence"] < a["command_sequence"] for a, b in zip(m.after, m.after[1:], strict=False)):
         problems.append("command_sequence went backwards")
     return judged(problems, f"packets_rejected +{rose}")
