@@ -244,6 +244,7 @@ def follow_monitor(scenario, table=None):
     position latency, as the worker builds it; None for the commissioning excitation (it follows no target)."""
     from .controllers import INTERNAL_FACTORIES
     from .follow import FollowMonitor, advice_for, limits_for, reference_for
+    from .force_limit import ActuatorLimits
 
     if scenario.controller in INTERNAL_FACTORIES:
         return None
@@ -254,7 +255,7 @@ def follow_monitor(scenario, table=None):
         reference = reference_for([], r)
     return FollowMonitor(reference, scenario.rig.position_latency_s, limits_for(scenario.controller),
                          advice_for(scenario.controller), getattr(scenario, "rig_commissioning", None),
-                         scenario.controller, options_in_force(scenario))
+                         scenario.controller, options_in_force(scenario), ActuatorLimits.of_rig(scenario.rig))
 
 
 def options_in_force(scenario) -> dict:
@@ -274,7 +275,7 @@ def follow_monitor_like(monitor):
     from .follow import FollowMonitor
 
     return FollowMonitor(monitor.reference, monitor.lag * CONTROL_PERIOD_S, monitor.limits, monitor.advice,
-                         monitor.commissioning, monitor.controller, monitor.controller_options)
+                         monitor.commissioning, monitor.controller, monitor.controller_options, monitor.actuator)
 
 
 def verdict(trip: Trip | None, diverged: bool = False, time_s: float = 0.0) -> tuple[str, str | None]:

@@ -28,7 +28,8 @@ target (the target of ``L`` ago for a reading ``L`` late, as the servo aims) and
 amplitude), followed outside it, or did not follow (above ``rms_share``), over each block's last two steady
 cycles (the learning's converged cycles; fewer when a block has fewer), with a commissioned latency anywhere
 within its uncertainty (the worst figure counts). On a commissioned rig (``commissioning_facts``) an oscillation is
-named as the controller's own, with what to try. Pure numerics: the worker acts on a
+named as the controller's own, with what to try; a stop while the actuator was held at its force limit
+(sim.force_limit, over the last test period) is named as that (``values["cause"]``), whichever rule made it. Pure numerics: the worker acts on a
 trip (the valve closes at once: the controller is no longer trusted), the summaries carry the verdict.
 
 The monitor judges in one compiled call (``_judge_blocks``: a whole record cut into the worker's blocks, or one
@@ -50,6 +51,7 @@ from llvmlite import ir
 from numba import njit, types
 from numba.extending import intrinsic
 
+from .force_limit import ActuatorLimits, at_force_limit, diagnosis
 from .loop import CONTROL_PERIOD_S
 from .measurement import measured_rows
 
@@ -283,7 +285,7 @@ class FollowMonitor:
 
     def __init__(self, reference: Reference, latency_s: float = 0.0, limits: FollowLimits | None = None,
                  advice: str = ADVICE, commissioning: dict | None = None, controller: str = "servo",
-                 controller_options: dict | None = None):
+                 controller_options: dict | None = None, actuator: ActuatorLimits | None = None):
         self.reference = reference
         self.advice = advice
         #: the rig's commissioning (``commissioning_facts``): an oscillation on a commissioned rig is the loop's own
@@ -312,6 +314,12 @@ class FollowMonitor:
         self.last_fresh: tuple[int, float] | None = None  # (period, reading) of the last fresh measurement
         self.lost_recent = np.zeros(LOST_WINDOW_PERIODS, dtype=bool)  # which of the last periods were lost
         self.cycle_steady = False  # the cycle being summed is a steady one
+        #: what the actuator can give (sim.force_limit): a trip while it was held at its limit is put down to it
+        self.actuator = actuator
+        self.force_ring = np.zeros(0, dtype=np.int8)  # at_force_limit of the last rows (up to a test period)
+        self.force_keep = max(self.n_osc, int(np.max(reference.periods)) if len(reference.periods) else 0)
+        self.supply_pa = math.nan  # the last supply pressure read
+        self.force_taken = 0  # rows of the last compiled judge's call already kept
         warm_up()  # before the first check: a real-time worker builds its monitor before the rig is armed
 
     def resume(self) -> None:
@@ -324,6 +332,16 @@ class FollowMonitor:
             "tone_share": math.inf, "tone_floor_m": math.inf}
         self.limits = dataclasses.replace(self.limits, **off)
         self.tripped = None
+
+    def _keep_force_limit(self, rows) -> None:
+        """Keep whether the actuator was at its force limit in ``rows`` (the last ``force_keep`` rows)."""
+        if self.actuator is None or len(rows) == 0:
+            return
+        self.force_ring = np.concatenate([self.force_ring, at_force_limit(rows, self.actuator)])[-self.force_keep:]
+        supply = np.asarray(rows["supply_pressure_pa"], dtype=float)
+        supply = supply[np.isfinite(supply)]
+        if supply.size:
+            self.supply_pa = float(supply[-1])
 
     def _late_target(self, r: np.ndarray) -> np.ndarray:
         """r(t - L) for each row of this block, from the targets kept."""
@@ -396,6 +414,8 @@ class FollowMonitor:
         kind, at, value, bound, amplitude = self._judge(rows, block, rollback=False)
         if kind == NO_TRIP:
             return None
+        if at + 1 > self.force_taken:  # the rows up to the trip that the judge had not taken
+            self._keep_force_limit(rows[self.force_taken:at + 1])
         t = float(rows["time_s"][at])
         return self._trip(at, t, "tracking" if kind == TRACKING else "oscillation", value, bound, amplitude,
                           tone=kind == TONE)
@@ -443,10 +463,13 @@ class FollowMonitor:
         head = int(ist[_I_LOST_HEAD])
         self.lost_recent = np.concatenate([lost_ring[head:], lost_ring[:head]])
         self.r_hist = r_ext[taken:taken + h].copy()
+        self._keep_force_limit(rows[:taken])
+        self.force_taken = int(taken)
         return kind, at, value, bound, amplitude
 
     def _check_reference(self, rows) -> FollowTrip | None:
         """``check`` on the numpy path, block by block: the reference the compiled judge reproduces."""
+        self._keep_force_limit(rows)
         t = np.asarray(rows["time_s"], dtype=float)
         r = np.asarray(rows["target_m"], dtype=float)
         y = np.asarray(rows["measured_displacement_m"], dtype=float)
@@ -570,6 +593,9 @@ class FollowMonitor:
                     "learning is not bringing it down")
         lost = int(np.count_nonzero(self.lost_recent))
         advice = self.advice
+        # over the last test period (at least the oscillation's window): a stall at the limit is followed by the
+        # table's jerks as it catches up, which the oscillation rule may judge only after the limit is left
+        limited = diagnosis(self.force_ring, self.supply_pa, self.actuator) if self.actuator is not None else None
         if self.commissioning is not None:  # the rig is what the controller was told: not "commission it"
             if kind == "oscillation":
                 advice = controller_advice(self.controller, self.commissioning, f, self.controller_options)
@@ -585,10 +611,14 @@ class FollowMonitor:
             advice = (f"{lost} of the last {LOST_WINDOW_PERIODS} periods were lost on the link (a host that stalls "
                       "or a link that drops packets: see the link figures), so the controller held its command "
                       "through them; make the host's real-time path steadier before commissioning the rig")
+        if limited is not None:  # the rig had no more to give: neither the controller's nor the rig file's fault
+            advice = limited[1]
         message = f"the table does not follow its target at t = {t:.3f} s: {what}; {advice}"
         values = {"time_s": t, "kind": kind, "value_m": value, "limit_m": bound, "amplitude_m": amplitude,
                   "share": share, "frequency_hz": f, "lost_periods_last_s": lost,
-                  "commissioned": self.commissioning is not None, "tone_correlation": correlation}
+                  "commissioned": self.commissioning is not None, "tone_correlation": correlation,
+                  "cause": "force_limit" if limited is not None else None,
+                  "force_limit_share": None if limited is None else limited[0]}
         self.tripped = FollowTrip(i, t, kind, message, values)
         return self.tripped
 

@@ -149,7 +149,8 @@ def tested(spec, rig: RigParameters, amplitude_m: float, frequency_hz: float,
     result = Simulation(scenario, validate=False).run(follow=True)
     verdict = result.summary()["tracking_verdict"]
     trip = result.trip
-    kind = None if trip is None else trip.values.get("kind", trip.detector)
+    # a stop at the actuator's force limit (sim.force_limit) is counted as that, not as the detector that stopped it
+    kind = None if trip is None else trip.values.get("cause") or trip.values.get("kind", trip.detector)
     return {"share": verdict.get("rms_share"), "verdict": verdict["verdict"],
             "stopped_s": None if trip is None else trip.time_s, "stop_kind": kind}
 
@@ -245,8 +246,9 @@ def summary(rows: list[dict], cases: tuple = CASES) -> dict:
             "worst_pct": max(shares) if shares else None,
             "median_pct": float(np.median(shares)) if shares else None,
             "oscillation_stops": sum(1 for r in ran if r[f"{label}.stop_kind"] == "oscillation"),
+            "force_limit_stops": sum(1 for r in ran if r[f"{label}.stop_kind"] == "force_limit"),
             "other_stops": sum(1 for r in ran if r[f"{label}.stopped_s"] is not None
-                               and r[f"{label}.stop_kind"] != "oscillation"),
+                               and r[f"{label}.stop_kind"] not in ("oscillation", "force_limit")),
             "within_target": sum(1 for r in ran if r[f"{label}.stopped_s"] is None and r[f"{label}.share"] is not None
                                  and r[f"{label}.share"] <= target),
             "target_pct": 100.0 * target,
@@ -282,13 +284,14 @@ def markdown(rows: list[dict], cases: tuple = CASES) -> str:
              f"| trusted at the first attempt | {s['commissioned_first_attempt']} |",
              f"| trusted (with a second attempt where suggested) | {s['commissioned']} |",
              f"| trusted with a value outside 3 sigma of its truth | {s['wrong_trusted']} |", "",
-             "| case | runs | within target | median % | worst % | oscillation stops | other stops |",
-             "|---|---|---|---|---|---|---|"]
+             "| case | runs | within target | median % | worst % | oscillation stops | force-limit stops "
+             "| other stops |",
+             "|---|---|---|---|---|---|---|---|"]
     for label, c in s["cases"].items():
         med = "-" if c["median_pct"] is None else f"{c['median_pct']:.3g}"
         worst = "-" if c["worst_pct"] is None else f"{c['worst_pct']:.3g}"
         lines.append(f"| {label} (<= {c['target_pct']:g} %) | {c['runs']} | {c['within_target']} | {med} | {worst} | "
-                     f"{c['oscillation_stops']} | {c['other_stops']} |")
+                     f"{c['oscillation_stops']} | {c['force_limit_stops']} | {c['other_stops']} |")
     reasons: dict[str, int] = {}
     for r in rows:
         if not r["trusted"]:
