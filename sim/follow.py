@@ -337,6 +337,7 @@ class FollowMonitor:
         """Keep whether the actuator was at its force limit in ``rows`` (the last ``force_keep`` rows)."""
         if self.actuator is None or len(rows) == 0:
             return
+        rows = rows[-self.force_keep:]  # a whole record's (``feed``): only its end is kept
         self.force_ring = np.concatenate([self.force_ring, at_force_limit(rows, self.actuator)])[-self.force_keep:]
         supply = np.asarray(rows["supply_pressure_pa"], dtype=float)
         supply = supply[np.isfinite(supply)]
