@@ -29,8 +29,9 @@ amplitude), followed outside it, or did not follow (above ``rms_share``), over e
 cycles (the learning's converged cycles; fewer when a block has fewer), with a commissioned latency anywhere
 within its uncertainty (the worst figure counts). On a commissioned rig (``commissioning_facts``) an oscillation is
 named as the controller's own, with what to try; a stop while the actuator was held at its force limit
-(sim.force_limit, over the last test period) is named as that (``values["cause"]``), whichever rule made it. Pure numerics: the worker acts on a
-trip (the valve closes at once: the controller is no longer trusted), the summaries carry the verdict.
+(sim.force_limit, over the last test period) is named as that (``values["cause"]``), whichever rule made it.
+Pure numerics: the worker acts on a trip (the valve closes at once: the controller is no longer trusted), the
+summaries carry the verdict.
 
 The monitor judges in one compiled call (``_judge_blocks``: a whole record cut into the worker's blocks, or one
 block), bit for bit the per-block numpy path it replaced (``FollowMonitor._check_reference``, kept as the
