@@ -185,7 +185,10 @@ def test_a_host_stalled_now_and_then_tracks_on_once_settled(tmp_path):
     assert code == 0, output
     # no trip in the test (a DISARM that falls into an outage is lost as on a real link: the watchdog then ends it)
     assert summary["status"] == "completed" and all(t["test_time_s"] > 4.0 for t in status["watchdog_trips"])
-    assert status["counters"]["outage_dropped"] >= 5 * 15  # measurements and commands, five outages
+    # five outages (at 0.7-3.5 s of the 4 s test) of 14-15 ticks each (the 1 kHz ticks' phase against the 15 ms
+    # window): each tick's measurement is dropped; the host answers measurements only, so few commands fall in one
+    # (a clean-clone run dropped 73, which 5 * 15 failed)
+    assert status["counters"]["outage_dropped"] >= 5 * 14
     record = read_record(tmp_path / "udp")
     flags = record["flags"].astype(int)
     lost = np.flatnonzero(flags & FLAG_LOST)
