@@ -87,6 +87,7 @@ def test_bad_controller_option_is_one_line(tmp_path):
 
 
 @pytest.mark.realtime  # a rig emulator and a CPU hog: run alone, after the others (scripts/test.sh)
+@pytest.mark.strict_timing
 def test_bench_rig_watchdog_part_refuses_bad_figures_and_runs_a_short_test(tmp_path, capsys):
     """``isorig bench-rig --parts watchdog`` (issue 21's target: 0 trips at 18 ms, p99 < 1 ms, two CPU hogs
     beside) names what it needs, and prints one row per test and the totals."""

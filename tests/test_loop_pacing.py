@@ -33,6 +33,7 @@ class LateRig(RigEmulator):
 
 
 @pytest.mark.realtime  # an emulator on the wall clock: run alone (scripts/test.sh)
+@pytest.mark.strict_timing
 @pytest.mark.parametrize("late_periods", [0.8, 1.6])
 def test_a_late_tick_does_not_send_the_next_measurement_at_once(late_periods):
     """Ticks 200, 400 and 600 wake ``late_periods`` late: each measurement still leaves at least half a period

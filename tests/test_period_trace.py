@@ -160,6 +160,7 @@ def test_a_loop_without_cap_sys_nice_asks_for_a_short_slice_and_gives_it_back():
 
 
 @pytest.mark.realtime  # a rig emulator and a CPU hog beside: run alone, after the others (scripts/test.sh)
+@pytest.mark.strict_timing
 def test_bench_rig_prints_the_longest_stall_its_cause_and_the_periods_lost(capsys):
     """``isorig bench-rig --parts watchdog --host-priority none``: the host runs without CAP_SYS_NICE (its
     priority says so), and each test's longest stall is printed with its cause and the periods lost."""

@@ -29,6 +29,7 @@ def start_rig_file(path, seed: int) -> None:
     path.write_text(json.dumps(start_rig_file_data(draw_rig(seed).lab_knows())))
 
 
+@pytest.mark.strict_timing  # check-rig at an 18 ms watchdog
 def test_a_foreign_rig_keeps_the_protocol(tmp_path):
     emulator = Emulator(tmp_path, "--foreign-rig", str(SEED), "--rig-protocol", "1", watchdog_ms=18.0)
     try:

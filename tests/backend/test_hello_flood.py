@@ -24,7 +24,7 @@ from backend.drivers.udp import UdpRig, probe, start_position_problem
 from sim.emulator import auth
 
 # real time against the rig emulator in its own process: scripts/test.sh runs these alone, after the others
-pytestmark = pytest.mark.realtime
+pytestmark = [pytest.mark.realtime, pytest.mark.strict_timing]  # a flood of 10 000 datagrams a second
 
 STARTS = 10
 AMPLITUDE_M = 0.01  # simulate_on's
