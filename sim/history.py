@@ -612,7 +612,8 @@ def history_envelope_problem(target: HistoryTarget, rig: RigParameters, isolator
     - velocity: A_p |r'| <= Q_pump (pump flow);
     - force (and acceleration): k_d |r| + k_w + (mu N + F_c) + sigma |r'| + m |r''| <= A_p P_s, the isolator's
       largest force at that displacement, friction at the test's vertical load, viscous and inertial
-      forces. This is also the acceleration limit: the rig can give the table at most
+      forces; <= A_B P_s where the actuator pulls (k_d r + m r'' + sgn(r') (...) < 0) on a single-rod actuator.
+      This is also the acceleration limit: the rig can give the table at most
       (A_p P_s - the other terms) / m; no separate acceleration bound is applied;
     - valve: A_p |r'| <= 90 % of K_q (k_ep 10 V - dead zone) sqrt(P_s - P_L), with the load pressure in the
       direction of motion P_L = sgn(r') (k_d r + m r'' + sigma r') / A_p + (k_w + mu N + F_c) / A_p.
@@ -649,17 +650,23 @@ def history_envelope_problem(target: HistoryTarget, rig: RigParameters, isolator
                         f"{fits(q_pump / np.max(flow), ' the pump')}")
     fixed = isolator.kw_n + rig.friction_force_n
     force = isolator.kd_n_per_m * np.abs(r) + fixed + rig.viscous_n_s_per_m * np.abs(v) + rig.mass_kg * np.abs(a)
-    f_max = rig.max_force_n(supply_pa)
+    # the way the actuator's force goes (the isolator's spring, the inertia, and friction and damping against the
+    # motion): a single-rod actuator pulls towards -y with its rod side's area only
+    pulling = isolator.kd_n_per_m * r + rig.mass_kg * a + np.sign(v) * (fixed + rig.viscous_n_s_per_m * np.abs(v)) < 0
+    push, pull = rig.max_force_n(supply_pa), rig.max_pull_force_n(supply_pa)
+    f_max = np.where(pulling, pull, push)
     over = np.flatnonzero(force > f_max)
     if over.size:
         k = over[0]
         inertial = rig.mass_kg * abs(a[k])
-        return _refusal(target, k, force[k], f"A_p P_s = {f_max:.4g} N",
-                        f"the rig must push up to {force[k]:.4g} N (isolator {isolator.name} "
+        way, law = ("pull", "A_B P_s") if pulling[k] and pull != push else ("push", "A_p P_s")
+        return _refusal(target, k, force[k], f"{law} = {f_max[k]:.4g} N",
+                        f"the rig must {way} up to {force[k]:.4g} N (isolator {isolator.name} "
                         f"{isolator.kd_n_per_m * abs(r[k]) + isolator.kw_n:.4g} N at r = {r[k]:.4g} m, friction "
                         f"{rig.friction_force_n:.4g} N at a vertical load of {rig.vertical_load_n / 1e3:g} kN, "
                         f"viscous {rig.viscous_n_s_per_m * abs(v[k]):.4g} N, inertial m r'' = {inertial:.4g} N "
-                        f"at {a[k]:.4g} m/s2) but at most A_p P_s = {f_max:.4g} N at {supply_pa / BAR_PA:g} bar"
+                        f"at {a[k]:.4g} m/s2) but at most {law} = {f_max[k]:.4g} N at {supply_pa / BAR_PA:g} bar"
+                        f"{' (its rod side)' if law == 'A_B P_s' else ''}"
                         f"{scale_note}; lower the scale or the vertical load, or raise supply_bar")
     sign = np.sign(v)
     p_load = (sign * (isolator.kd_n_per_m * r + rig.mass_kg * a) + rig.viscous_n_s_per_m * np.abs(v)

@@ -191,7 +191,8 @@ def envelope_problem(block: SineProfile, rig: RigParameters, isolator: Isolator,
     """The first envelope limit a sine block violates, as a ProfileError, or None.
 
     Limits: stroke; pump flow A_p * 2 pi f A <= Q_pump; force kd (|offset| + A) + kw + friction at the
-    test's vertical load (mu N + F_c, eq. 1) + viscous and inertial forces <= A_p P_s; valve flow capacity at
+    test's vertical load (mu N + F_c, eq. 1) + viscous and inertial forces <= A_p P_s pushing and A_B P_s pulling
+    (a single-rod actuator's rod side; the same on a double-rod one); valve flow capacity at
     the load pressure of the peak-velocity point. ``rig`` carries the test's vertical load. ``advise``: the
     message ends with what would fit, checked against every limit (``_advice``).
     """
@@ -214,14 +215,18 @@ def envelope_problem(block: SineProfile, rig: RigParameters, isolator: Isolator,
                                  f"frequency_hz = {f:g} Hz) exceeds the pump's "
                                  f"{rig.pump_max_flow_m3_per_s / LITRE_PER_MIN_M3_S:.0f} l/min"))
     force = force_estimate_n(block, rig, isolator)
-    f_max = rig.max_force_n(supply_pa)
+    # a sine needs its force both ways: a single-rod actuator pulls with its rod side's area only
+    push, pull = rig.max_force_n(supply_pa), rig.max_pull_force_n(supply_pa)
+    f_max = min(push, pull)
     if force > f_max:
         at = f"amplitude_m = {a:g} m" + (f" about offset_m = {block.offset_m:g} m" if block.offset_m else "")
-        return ProfileError("amplitude_m", a, f"A_p P_s = {f_max / 1e3:.1f} kN",
+        can = (f"push at most A_p P_s = {push / 1e3:.1f} kN" if push <= pull else
+               f"pull at most A_B P_s = {pull / 1e3:.1f} kN with its rod side (push {push / 1e3:.1f} kN)")
+        return ProfileError("amplitude_m", a, f"{'A_p' if push <= pull else 'A_B'} P_s = {f_max / 1e3:.1f} kN",
                             then(f"the test needs up to {force / 1e3:.1f} kN (isolator {isolator.name} at {at}, "
                                  f"friction {rig.friction_force_n / 1e3:.1f} kN at a vertical load of "
-                                 f"{rig.vertical_load_n / 1e3:g} kN) but the rig can push at most A_p P_s = "
-                                 f"{f_max / 1e3:.1f} kN at {supply_pa / BAR_PA:g} bar; lower the amplitude, the "
+                                 f"{rig.vertical_load_n / 1e3:g} kN) but the rig can {can} at "
+                                 f"{supply_pa / BAR_PA:g} bar; lower the amplitude, the "
                                  f"offset or the vertical load, or raise supply_bar"))
     # valve capacity where the velocity peaks (d = 0): load pressure from hysteretic + friction forces
     p_load = (isolator.kw_n + rig.friction_force_n + rig.viscous_n_s_per_m * v_peak) / rig.piston_area_m2

@@ -133,8 +133,13 @@ class RigParameters:
         return self.friction_coefficient * self.vertical_load_n + self.coulomb_force_n
 
     def max_force_n(self, supply_pa: float) -> float:
-        """The largest force the cylinder can push: A_p P_s."""
+        """The largest force the cylinder can push towards +y: A_p P_s (its cap side at the supply)."""
         return self.piston_area_m2 * supply_pa
+
+    def max_pull_force_n(self, supply_pa: float) -> float:
+        """The largest force the cylinder can pull towards -y: A_B P_s (its rod side at the supply; A_p P_s on a
+        double-rod actuator)."""
+        return self.area_ratio_b * self.piston_area_m2 * supply_pa
 
     def with_changes(self, **changes) -> RigParameters:
         return replace(self, **changes)
