@@ -135,9 +135,12 @@ def test_the_quick_tier_passes_extra_arguments_to_pytest(tmp_path):
 @pytest.mark.slow  # a collection of the whole suite: scripts/test.sh --quick leaves it out
 def test_the_full_run_runs_every_test_once_slow_ones_included(tmp_path, every_test):
     runs = commands(tmp_path)
-    assert len(runs) == 2, runs  # in parallel, then the real-time ones alone
-    parallel, realtime = (selected(run, every_test) for run in runs)
-    assert parallel | realtime == set(every_test)
-    assert parallel & realtime == set()
-    assert realtime == {t for t, marks in every_test.items() if "realtime" in marks}
+    # in parallel, then the real-time ones two at a time, then those that judge tight timing one at a time
+    assert len(runs) == 3, runs
+    parallel, realtime, strict = (selected(run, every_test) for run in runs)
+    assert parallel | realtime | strict == set(every_test)
+    assert parallel & realtime == set() and parallel & strict == set() and realtime & strict == set()
+    assert realtime | strict == {t for t, marks in every_test.items() if "realtime" in marks}
+    assert strict == {t for t, marks in every_test.items() if "strict_timing" in marks}  # each one real-time too
+    assert strict and "-n" not in runs[2]  # one at a time
     assert {t for t, marks in every_test.items() if "slow" in marks} <= parallel
