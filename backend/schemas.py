@@ -243,7 +243,9 @@ class EnvelopeCheckOut(BaseModel):
     max_amplitude_m: float | None = Field(None, description="largest amplitude at this frequency (sine only)")
     max_frequency_hz: float | None = Field(None, description="highest frequency at this amplitude (sine only; "
                                            "null when no frequency fits the amplitude)")
-    max_force_n: float | None = Field(None, description="A_p P_s at this supply pressure")
+    max_force_n: float | None = Field(None, description="A_p P_s at this supply pressure: what the actuator pushes")
+    max_pull_force_n: float | None = Field(None, description="A_B P_s at this supply pressure: what a single-rod "
+                                           "actuator pulls with its rod side (A_p P_s on a double-rod one)")
     max_vertical_load_n: float | None = Field(None, description="the vertical jack's capacity, N")
     start_position_m: float | None = Field(None, description="where the target begins: the table must rest there "
                                            "(within the rig's start tolerance) for the test to start")

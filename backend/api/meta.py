@@ -85,6 +85,7 @@ def rig(request: Request) -> dict:
             "supply_bar_min": rig.min_supply_pa / BAR_PA,
             "supply_bar_max": rig.max_supply_pa / BAR_PA,
             "max_force_n": rig.max_force_n(rig.max_supply_pa),
+            "max_pull_force_n": rig.max_pull_force_n(rig.max_supply_pa),
             "vertical_load_n_default": rig.vertical_load_n,
             "max_vertical_load_n": rig.max_vertical_load_n,
             "pump_max_flow_l_per_min": rig.pump_max_flow_m3_per_s / LITRE_PER_MIN_M3_S,

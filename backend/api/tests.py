@@ -206,6 +206,7 @@ def envelope_check(body: TestCreate, isolator, isolator_refusal: dict | None, en
     supply_pa = body.supply_bar * BAR_PA
     if rig.min_supply_pa <= supply_pa <= rig.max_supply_pa:
         out["max_force_n"] = rig.max_force_n(supply_pa)
+        out["max_pull_force_n"] = rig.max_pull_force_n(supply_pa)
         out["max_vertical_load_n"] = rig.max_vertical_load_n
         if isinstance(body.profile, SineProfileIn) and isolator is not None:
             out["max_amplitude_m"] = max_amplitude_m(body.profile.frequency_hz, rig, isolator, supply_pa)

@@ -52,3 +52,20 @@ def test_a_rig_file_that_is_not_a_rig_stops_the_service_with_the_reason(tmp_path
         make_settings(tmp_path, rig_file=write_rig(tmp_path, dead_zone_v=20.0))
     with pytest.raises(ValidationError, match="cannot read the rig file"):
         make_settings(tmp_path, rig_file=tmp_path / "missing.json")
+
+
+def test_a_single_rod_rig_file_is_judged_by_what_its_rod_side_pulls(tmp_path):
+    """A rig file with the rod side's area: the service's envelope shows the force each way, and a sine the rod side
+    cannot pull is refused before it starts (before, it started and stalled at the force limit)."""
+    area = DEFAULT_RIG.piston_area_m2
+    rig_file = write_rig(tmp_path, piston_area_b_m2=0.5 * area)
+    with TestClient(create_app(make_settings(tmp_path, rig_file=rig_file))) as client:
+        envelope = client.get("/api/rig").json()["envelope"]
+        assert envelope["max_pull_force_n"] == pytest.approx(0.5 * envelope["max_force_n"])
+        test = sine_test(isolator="IUT_a", supply_bar=100, profile={"amplitude_m": 0.04, "frequency_hz": 0.5})
+        body = client.post("/api/tests/check", json=test).json()
+        assert body["ok"] is False and body["field"] == "amplitude_m" and body["limit"].startswith("A_B P_s")
+        assert "pull at most A_B P_s" in body["detail"] and "rod side" in body["detail"], body
+        assert body["max_pull_force_n"] == pytest.approx(0.5 * area * 100e5)
+        assert body["max_amplitude_m"] < 0.04  # what fits: the rod side's force, not the cap side's
+        assert client.post("/api/tests", json=test, headers=AUTH).status_code == 422

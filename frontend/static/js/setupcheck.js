@@ -100,7 +100,11 @@ export class CheckPart {
     this.lastCheck = result;
     const d = result.data || {};
     const limits = [];
-    if (num(d.max_force_n)) limits.push(`actuator force up to ${fmtU("force", d.max_force_n, { sig: 3 })} at this pressure`);
+    if (num(d.max_force_n)) {
+      const pull = num(d.max_pull_force_n) && d.max_pull_force_n < d.max_force_n
+        ? ` pushing, ${fmtU("force", d.max_pull_force_n, { sig: 3 })} pulling (its rod side)` : "";
+      limits.push(`actuator force up to ${fmtU("force", d.max_force_n, { sig: 3 })}${pull} at this pressure`);
+    }
     if (result.ok === false && num(d.max_amplitude_m)) limits.push(`amplitude up to ${fmtU("length", d.max_amplitude_m)} at this frequency`);
     if (result.ok === false && num(d.max_frequency_hz)) limits.push(`frequency up to ${fmtU("frequency", d.max_frequency_hz, { sig: 3 })} at this amplitude`);
     box.innerHTML = "";

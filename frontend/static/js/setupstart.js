@@ -12,6 +12,10 @@ import { fmtU } from "./units.js";
 
 const $ = (id) => document.getElementById(id);
 const num = (v) => typeof v === "number" && Number.isFinite(v);
+/** The force the actuator gives both ways at the check's pressure (a sine needs it both ways): the smaller of its
+ * push (A_p P_s) and its pull (A_B P_s: a single-rod actuator's rod side); undefined without the check's figures. */
+const bothWays = (d) => (d && num(d.max_force_n)
+  ? (num(d.max_pull_force_n) ? Math.min(d.max_force_n, d.max_pull_force_n) : d.max_force_n) : undefined);
 
 export class StartPart {
   /**
@@ -65,9 +69,9 @@ export class StartPart {
         out.push(`the estimated peak force ${fmtU("force", m.f, { sig: 3 })} is above the force limit of ` +
           `${fmtU("force", lim.force_n, { sig: 3 })}: ${outcome("force_n")} likely`);
       }
-      const maxF = this.lastCheck.data && this.lastCheck.data.max_force_n;
+      const maxF = bothWays(this.lastCheck.data);
       if (num(m.f) && num(maxF) && m.f > 0.9 * maxF) {
-        out.push(`the estimated peak force ${fmtU("force", m.f, { sig: 3 })} is near or above what the actuator gives at this pressure (${fmtU("force", maxF, { sig: 3 })})`);
+        out.push(`the estimated peak force ${fmtU("force", m.f, { sig: 3 })} is near or above what the actuator gives each way at this pressure (${fmtU("force", maxF, { sig: 3 })})`);
       }
       if (m.d < 1e-4) out.push(`the amplitude ${fmtU("length", m.d)} is very small: entered in the wrong unit?`);
     }
@@ -107,7 +111,7 @@ export class StartPart {
         : ""]);
     }
     if (m) {
-      const maxF = this.lastCheck.data && this.lastCheck.data.max_force_n;
+      const maxF = bothWays(this.lastCheck.data);
       const by = m.source === "service" ? "" : " (worked out in this console from the motion: the service's check gave no figures)";
       const v = this.values || {};
       const about = this.isSine() && num(v.offset) && v.offset !== 0 && num(v.amplitude) ? v.offset : null;
@@ -121,7 +125,7 @@ export class StartPart {
       rows.push(num(m.f)
         ? ["peak force (estimate)", `about ${fmtU("force", m.f, { sig: 3 })}`, "the service's upper estimate: isolator, " +
           "guide friction at the vertical load, viscous and inertia forces" +
-          (num(maxF) ? `; the actuator gives ${fmtU("force", maxF, { sig: 3 })} at this pressure` : "")]
+          (num(maxF) ? `; the actuator gives ${fmtU("force", maxF, { sig: 3 })} each way at this pressure` : "")]
         : ["peak force (estimate)", "not available", "the service's check gave no force estimate"]);
       const wall = m.duration / (body.speed || 1);
       rows.push(["duration", fmtDuration(m.duration), `${num(m.cycles) && m.cycles > 0 ? `${m.cycles} cycles, ` : ""}` +
