@@ -615,7 +615,8 @@ def history_envelope_problem(target: HistoryTarget, rig: RigParameters, isolator
       forces; <= A_B P_s where the actuator pulls (k_d r + m r'' + sgn(r') (...) < 0) on a single-rod actuator.
       This is also the acceleration limit: the rig can give the table at most
       (A_p P_s - the other terms) / m; no separate acceleration bound is applied;
-    - valve: A_p |r'| <= 90 % of K_q (k_ep 10 V - dead zone) sqrt(P_s - P_L), with the load pressure in the
+    - valve: A_p |r'| <= 90 % of K_q (k_ep 10 V - dead zone) sqrt(s P_s - P_L) (s = A_B / A_A towards -y on a
+      single-rod actuator, sim.rig.supply_share), with the load pressure in the
       direction of motion P_L = sgn(r') (k_d r + m r'' + sigma r') / A_p + (k_w + mu N + F_c) / A_p.
     ``rig`` carries the test's vertical load; check the supply itself with sim.profiles.check_supply. The
     error's ``field`` is "history", ``value`` the offending sample's quantity, ``limit`` the bound;
@@ -672,7 +673,8 @@ def history_envelope_problem(target: HistoryTarget, rig: RigParameters, isolator
     p_load = (sign * (isolator.kd_n_per_m * r + rig.mass_kg * a) + rig.viscous_n_s_per_m * np.abs(v)
               + fixed) / rig.piston_area_m2
     opening = rig.driver_gain_positive * rig.command_limit_v - rig.dead_zone_v
-    capacity = 0.9 * rig.flow_gain_m3_per_s_v_sqrt_pa * opening * np.sqrt(np.maximum(supply_pa - p_load, 0.0))
+    share = np.where(v < 0.0, rig.area_ratio_b, 1.0)  # the valve law's supply share (sim.rig.supply_share)
+    capacity = 0.9 * rig.flow_gain_m3_per_s_v_sqrt_pa * opening * np.sqrt(np.maximum(share * supply_pa - p_load, 0.0))
     over = np.flatnonzero((flow > capacity) & (flow > 0.0))
     if over.size:
         k = over[0]

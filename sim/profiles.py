@@ -193,7 +193,8 @@ def envelope_problem(block: SineProfile, rig: RigParameters, isolator: Isolator,
     Limits: stroke; pump flow A_p * 2 pi f A <= Q_pump; force kd (|offset| + A) + kw + friction at the
     test's vertical load (mu N + F_c, eq. 1) + viscous and inertial forces <= A_p P_s pushing and A_B P_s pulling
     (a single-rod actuator's rod side; the same on a double-rod one); valve flow capacity at
-    the load pressure of the peak-velocity point. ``rig`` carries the test's vertical load. ``advise``: the
+    the load pressure of the peak-velocity point, with the valve law's supply share towards -y (sim.rig.supply_share).
+    ``rig`` carries the test's vertical load. ``advise``: the
     message ends with what would fit, checked against every limit (``_advice``).
     """
     a, f = block.amplitude_m, block.frequency_hz
@@ -231,7 +232,9 @@ def envelope_problem(block: SineProfile, rig: RigParameters, isolator: Isolator,
     # valve capacity where the velocity peaks (d = 0): load pressure from hysteretic + friction forces
     p_load = (isolator.kw_n + rig.friction_force_n + rig.viscous_n_s_per_m * v_peak) / rig.piston_area_m2
     opening = rig.driver_gain_positive * rig.command_limit_v - rig.dead_zone_v
-    dp = max(supply_pa - p_load, 0.0)
+    # the drop across the valve's metering land: s P_s - P_L with the supply's share s of the valve law (sim.rig:
+    # A_B / A_A towards -y on a single-rod actuator); a sine runs both ways, so the smaller
+    dp = max(min(1.0, rig.area_ratio_b) * supply_pa - p_load, 0.0)
     valve_flow = rig.flow_gain_m3_per_s_v_sqrt_pa * opening * math.sqrt(dp)
     if flow > 0.9 * valve_flow:
         capacity = f"90 % of the valve capacity {valve_flow / LITRE_PER_MIN_M3_S:.0f} l/min"

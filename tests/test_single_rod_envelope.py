@@ -8,7 +8,7 @@ import pytest
 
 from sim.history import history_envelope_problem, prepare_history
 from sim.isolator import load_isolator
-from sim.profiles import SineProfile, envelope_problem, force_estimate_n, max_amplitude_m
+from sim.profiles import SineProfile, envelope_problem, force_estimate_n, max_amplitude_m, max_frequency_hz
 from sim.rig import BAR_PA, DEFAULT_RIG
 
 IUT_A = load_isolator("IUT_a")
@@ -47,3 +47,20 @@ def test_a_history_is_judged_by_the_way_it_pulls_or_pushes():
     pushing = prepare_history(t, 0.02 + 0.02 * np.sin(2 * np.pi * 0.5 * t - np.pi / 2), 1e-3)
     assert np.all(pushing.r_m >= -1e-6)
     assert history_envelope_problem(pushing, SINGLE, IUT_A, SUPPLY_PA) is None
+
+
+def test_the_valve_passes_less_towards_the_rod_side():
+    """The valve law's drop towards -y is (A_B / A_A) P_s - |P_L| on a single-rod actuator (sim.rig.supply_share):
+    a sine near the double-rod rig's valve limit is beyond the single-rod rig's, and a history's first sample
+    beyond it moves towards -y."""
+    f_double = max_frequency_hz(0.01, DEFAULT_RIG, IUT_A, SUPPLY_PA)
+    block = SineProfile(0.01, 0.97 * f_double, 3, 1)
+    assert envelope_problem(block, DEFAULT_RIG, IUT_A, SUPPLY_PA) is None
+    err = envelope_problem(block, SINGLE, IUT_A, SUPPLY_PA)
+    assert err is not None and err.field == "frequency_hz" and "valve capacity" in err.limit, str(err)
+    assert max_frequency_hz(0.01, SINGLE, IUT_A, SUPPLY_PA) < 0.97 * f_double
+    t = np.arange(0.0, 4.0 + 1e-9, 0.001)
+    history = prepare_history(t, 0.01 * np.sin(2 * np.pi * 0.97 * f_double * t), 1e-3)
+    assert history_envelope_problem(history, DEFAULT_RIG, IUT_A, SUPPLY_PA) is None
+    err = history_envelope_problem(history, SINGLE, IUT_A, SUPPLY_PA)
+    assert err is not None and "valve capacity" in err.limit and err.value < 0.0, str(err)  # moving towards -y
