@@ -320,7 +320,6 @@ class FollowMonitor:
         self.force_ring = np.zeros(0, dtype=np.int8)  # at_force_limit of the last rows (up to a test period)
         self.force_keep = max(self.n_osc, int(np.max(reference.periods)) if len(reference.periods) else 0)
         self.supply_pa = math.nan  # the last supply pressure read
-        self.force_taken = 0  # rows of the last compiled judge's call already kept
         warm_up()  # before the first check: a real-time worker builds its monitor before the rig is armed
 
     def resume(self) -> None:
@@ -413,18 +412,18 @@ class FollowMonitor:
 
     def _judged(self, rows, block: int) -> FollowTrip | None:
         """The compiled judge over ``rows`` in blocks of ``block``: its trip (``_trip``) or None."""
-        kind, at, value, bound, amplitude = self._judge(rows, block, rollback=False)
+        kind, at, value, bound, amplitude, taken = self._judge(rows, block, rollback=False)
         if kind == NO_TRIP:
             return None
-        if at + 1 > self.force_taken:  # the rows up to the trip that the judge had not taken
-            self._keep_force_limit(rows[self.force_taken:at + 1])
+        if at + 1 > taken:  # the rows up to the trip that the judge had not taken
+            self._keep_force_limit(rows[taken:at + 1])
         t = float(rows["time_s"][at])
         return self._trip(at, t, "tracking" if kind == TRACKING else "oscillation", value, bound, amplitude,
                           tone=kind == TONE)
 
-    def _judge(self, rows, block: int, rollback: bool) -> tuple[int, int, float, float, float]:
+    def _judge(self, rows, block: int, rollback: bool) -> tuple[int, int, float, float, float, int]:
         """Run ``_judge_blocks`` on ``rows`` from this monitor's state, and keep the state it ends in:
-        (kind, row, value, bound, amplitude) of the first trip (kind NO_TRIP: none)."""
+        (kind, row, value, bound, amplitude) of the first trip (kind NO_TRIP: none), and the rows it took."""
         t = np.asarray(rows["time_s"], dtype=float)
         k = np.round(t / CONTROL_PERIOD_S).astype(np.int64)
         lost = ~measured_rows(rows["flags"])
@@ -466,8 +465,7 @@ class FollowMonitor:
         self.lost_recent = np.concatenate([lost_ring[head:], lost_ring[:head]])
         self.r_hist = r_ext[taken:taken + h].copy()
         self._keep_force_limit(rows[:taken])
-        self.force_taken = int(taken)
-        return kind, at, value, bound, amplitude
+        return kind, at, value, bound, amplitude, int(taken)
 
     def _check_reference(self, rows) -> FollowTrip | None:
         """``check`` on the numpy path, block by block: the reference the compiled judge reproduces."""

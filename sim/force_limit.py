@@ -41,10 +41,8 @@ class ActuatorLimits:
 
     @classmethod
     def of_rig(cls, rig) -> ActuatorLimits:
-        """The limits of a sim.rig.RigParameters (a single-rod rig names its rod side's area)."""
-        area_b = float(getattr(rig, "piston_area_b_m2", 0.0) or 0.0)
-        ratio = area_b / rig.piston_area_m2 if area_b > 0.0 else 1.0
-        return cls(float(rig.command_limit_v), ratio, float(getattr(rig, "max_supply_pa", 0.0)) or None)
+        """The limits of a sim.rig.RigParameters (``area_ratio_b``: 1 on a double-rod rig)."""
+        return cls(float(rig.command_limit_v), float(rig.area_ratio_b), float(rig.max_supply_pa))
 
 
 def at_force_limit(rows, limits: ActuatorLimits) -> np.ndarray:
