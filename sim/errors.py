@@ -9,3 +9,18 @@ class FieldError(ValueError):
         self.field = field
         self.value = value
         self.limit = limit
+
+    def __reduce__(self):
+        """Pickled as its class, message and attributes, so that one raised in a worker process (sim.engine
+        run_batch, the campaign's pool) reaches the caller as itself: an exception's default pickling calls the
+        class with its message alone, which this ``__init__`` (and its subclasses' own) refuses, and the pool
+        then reported a worker "terminated abruptly" instead of the refusal's words."""
+        return _rebuilt, (type(self), self.args, dict(self.__dict__))
+
+
+def _rebuilt(kind: type, args: tuple, state: dict) -> FieldError:
+    """A FieldError (or subclass) from its class, message and attributes, without calling its ``__init__``."""
+    error = kind.__new__(kind)
+    Exception.__init__(error, *args)
+    error.__dict__.update(state)
+    return error

@@ -170,6 +170,24 @@ def test_batch_matches_serial_runs():
         np.testing.assert_array_equal(Simulation(s).run().samples.array, b.samples.array)
 
 
+def test_a_refusal_raised_in_a_batch_worker_reaches_the_caller_in_its_own_words():
+    """A controller the rig cannot carry is refused when the run is built, in the worker: the pool used to
+    report a worker "terminated abruptly" (a FieldError did not survive pickling)."""
+    import pickle
+
+    from sim.controllers.servo import LoopMarginError
+    from sim.history import HistoryError
+
+    too_stiff = {"kp_per_s": 500.0, "min_kp_share": 1.0}
+    scenarios = [Scenario.sine("IUT_a", 100.0, 0.01, 1.0, 2, controller_options=too_stiff) for _ in range(2)]
+    with pytest.raises(LoopMarginError) as refused:
+        run_batch(scenarios, processes=2)
+    assert refused.value.field == "controller_options.kp_per_s" and "gain margin" in str(refused.value)
+    again = pickle.loads(pickle.dumps(HistoryError("line 3: not a number", path="a.csv", line=3, value="x")))
+    assert (type(again), str(again), again.line, again.path, again.field, again.value) == (
+        HistoryError, "line 3: not a number", 3, "a.csv", "history", "x")
+
+
 def test_command_ramp_runs_open_loop_on_the_plant_and_leaves_the_controller_idle():
     from sim.plant import PLANT_SUBSTEPS
     from sim.rig import rk4_step, valve_command
