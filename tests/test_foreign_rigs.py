@@ -212,6 +212,24 @@ def test_commissioning_a_foreign_rig_gives_a_row_and_the_summary_counts_it():
     assert "| drawn | 1 |" in fc.markdown([row])
 
 
+def test_a_case_the_servo_refuses_before_anything_moves_is_a_row_not_the_campaigns_end():
+    """A loop the rig cannot carry (LoopMarginError when the run is built) ended the whole campaign; it is the
+    case's outcome, counted apart in the summary and the table."""
+    from foreign_rigs import draw_rig
+    from sim.commission import foreign_campaign as fc
+
+    spec = draw_rig(4)
+    rig = fc.declared_rig(spec.lab_knows())
+    out = fc.tested(spec, rig, 0.0005, 1.0, controller_options={"kp_per_s": 500.0, "min_kp_share": 1.0})
+    assert out["stop_kind"] == "refused" and out["stopped_s"] == 0.0 and out["share"] is None
+    assert "gain margin" in out["why"]
+    row = {"seed": 4, "first_trusted": True, "trusted": True, "wrong": [], "problems": [],
+           **{f"{label}.{k}": v for label, *_ in fc.CASES for k, v in out.items()}}
+    case = fc.summary([row])["cases"]["2mm_1Hz"]
+    assert (case["refused_before_start"], case["other_stops"], case["within_target"]) == (1, 0, 0)
+    assert "| refused before start |" in fc.markdown([row])
+
+
 def test_judging_the_values_a_fit_trusted():
     from sim.commission.foreign_campaign import wrong_values
 

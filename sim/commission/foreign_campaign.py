@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..controllers.servo import LoopMarginError
 from ..engine import Scenario, Simulation
 from ..isolator import load_isolator
 from ..rig import DEFAULT_RIG, RigParameters
@@ -141,12 +142,17 @@ def commissioning_section(ident, max_velocity_m_per_s: float) -> dict:
 def tested(spec, rig: RigParameters, amplitude_m: float, frequency_hz: float,
            commissioning: dict | None = None, controller_options: dict | None = None) -> dict:
     """One sine on the foreign rig with the controller told ``rig`` (and its ``commissioning`` section: the verdict
-    judges the latency within its uncertainty); with the service's follow monitor."""
+    judges the latency within its uncertainty); with the service's follow monitor. A rig on which the servo's loop
+    cannot be made stable enough as told (LoopMarginError, before anything moves) gives ``stop_kind`` "refused"
+    and the refusal's words (``why``), not an error that ends the campaign."""
     scenario = Scenario.sine(load_isolator(CONTROLLER_ISOLATOR), SUPPLY_PA / 1e5, amplitude_m, frequency_hz,
                              TEST_CYCLES, rig=rig, vertical_load_n=float(spec.drawn["table.vertical_load_n"]),
                              foreign_rig=spec, rig_commissioning=commissioning,
                              controller_options=dict(controller_options or {}))
-    result = Simulation(scenario, validate=False).run(follow=True)
+    try:
+        result = Simulation(scenario, validate=False).run(follow=True)
+    except LoopMarginError as refused:  # the servo refuses the rig as told before anything moves: a case's outcome
+        return {"share": None, "verdict": "refused", "stopped_s": 0.0, "stop_kind": "refused", "why": str(refused)}
     verdict = result.summary()["tracking_verdict"]
     trip = result.trip
     # a stop at the actuator's force limit (sim.force_limit) is counted as that, not as the detector that stopped it
@@ -247,8 +253,9 @@ def summary(rows: list[dict], cases: tuple = CASES) -> dict:
             "median_pct": float(np.median(shares)) if shares else None,
             "oscillation_stops": sum(1 for r in ran if r[f"{label}.stop_kind"] == "oscillation"),
             "force_limit_stops": sum(1 for r in ran if r[f"{label}.stop_kind"] == "force_limit"),
+            "refused_before_start": sum(1 for r in ran if r[f"{label}.stop_kind"] == "refused"),
             "other_stops": sum(1 for r in ran if r[f"{label}.stopped_s"] is not None
-                               and r[f"{label}.stop_kind"] not in ("oscillation", "force_limit")),
+                               and r[f"{label}.stop_kind"] not in ("oscillation", "force_limit", "refused")),
             "within_target": sum(1 for r in ran if r[f"{label}.stopped_s"] is None and r[f"{label}.share"] is not None
                                  and r[f"{label}.share"] <= target),
             "target_pct": 100.0 * target,
@@ -285,13 +292,14 @@ def markdown(rows: list[dict], cases: tuple = CASES) -> str:
              f"| trusted (with a second attempt where suggested) | {s['commissioned']} |",
              f"| trusted with a value outside 3 sigma of its truth | {s['wrong_trusted']} |", "",
              "| case | runs | within target | median % | worst % | oscillation stops | force-limit stops "
-             "| other stops |",
-             "|---|---|---|---|---|---|---|---|"]
+             "| refused before start | other stops |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for label, c in s["cases"].items():
         med = "-" if c["median_pct"] is None else f"{c['median_pct']:.3g}"
         worst = "-" if c["worst_pct"] is None else f"{c['worst_pct']:.3g}"
         lines.append(f"| {label} (<= {c['target_pct']:g} %) | {c['runs']} | {c['within_target']} | {med} | {worst} | "
-                     f"{c['oscillation_stops']} | {c['force_limit_stops']} | {c['other_stops']} |")
+                     f"{c['oscillation_stops']} | {c['force_limit_stops']} | {c['refused_before_start']} | "
+                     f"{c['other_stops']} |")
     reasons: dict[str, int] = {}
     for r in rows:
         if not r["trusted"]:
