@@ -85,9 +85,8 @@ def _trim() -> None:
 def _call(fn, args, trim=True):
     """In the worker: fn(*args), or what it raised in a form that survives pickling (an exception whose
     ``__init__`` takes other arguments than its message does not, unless it says how, as sim.errors.FieldError
-    does); then the
-    worker's size once its garbage is returned (``trim`` False: a small job, whose answer should not wait the
-    0.2-0.5 s of a full collection; the size still retires a worker grown too large)."""
+    does); then the worker's size once its garbage is returned (``trim`` False: a small job, whose answer should
+    not wait the 0.2-0.5 s of a full collection; the size still retires a worker grown too large)."""
     try:
         result = "ok", fn(*args)
     except Exception as exc:  # noqa: BLE001 - handed to the service as raised

@@ -55,7 +55,8 @@ def main(argv=None) -> int:
         if row is None:
             print(f"rig {seed}: not commissioned")
             continue
-        cases = "  ".join(f"{key} {100 * row[key][0]:.3f} %{' (' + row[key][1] + ' stop)' if row[key][1] else ''}"
+        cases = "  ".join(f"{key} refused before start" if row[key][0] is None else
+                          f"{key} {100 * row[key][0]:.3f} %{' (' + row[key][1] + ' stop)' if row[key][1] else ''}"
                           for key in (f"{label} {tag}" for label in CASES for tag in ("with", "without")))
         print(f"rig {seed}: play {row['valve_play_v']:.3f} V, underlap {row['underlap_v']:.3f} V  {cases}")
     return 0

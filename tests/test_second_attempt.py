@@ -121,3 +121,16 @@ def test_a_run_stopped_at_the_velocity_bound_says_so_and_one_stopped_otherwise_d
     assert at_bound.second_attempt()["max_velocity_m_per_s"] == pytest.approx(0.04)
     slow = identify(stopped_record(0.008), DEFAULT_RIG, c)
     assert "velocity bound" not in slow.problems[0] and slow.second_attempt() is None
+
+
+def test_a_test_the_servo_refuses_is_the_campaigns_row_not_its_end():
+    """A rig file on which the servo's loop keeps too little margin (LoopMarginError before anything moves) ended
+    the whole commissioning campaign; it is that test's outcome."""
+    from sim.commission import campaign
+    from sim.isolator import load_isolator
+
+    run = campaign.CommissioningRun(0, {}, load_isolator("IUT_a"), 100.0, (), 1.25e5)
+    told = DEFAULT_RIG.with_changes(position_latency_s=0.1)  # a reading 100 ms late: no loop gain keeps a margin
+    out = campaign.tested(run, told, campaign.TestSpec(0.002, 1.0, 4))
+    assert (out["stop_kind"], out["stopped_s"], out["last2_share"], out["verdict"]) == ("refused", 0.0, None, "refused")
+    assert "gain margin" in out["why"]

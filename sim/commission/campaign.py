@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..controllers.servo import LoopMarginError
 from ..engine import Scenario, Simulation
 from ..isolator import Isolator
 from ..rig import DEFAULT_RIG, RigParameters
@@ -82,12 +83,17 @@ def plant_changes_from(rig: RigParameters, truth: RigParameters) -> dict:
 def tested(run: CommissioningRun, rig: RigParameters, spec: TestSpec, commissioning: dict | None = None) -> dict:
     """One test on the drawn rig with the controller told ``rig`` (and how it was commissioned: the follow monitor
     names an oscillation on a commissioned rig as the controller's, the verdict judges the latency within its
-    uncertainty); with the follow monitor."""
+    uncertainty); with the follow monitor. A rig on which the servo refuses its loop (LoopMarginError, before
+    anything moves) gives ``stop_kind`` "refused" and the refusal's words, not an error that ends the campaign."""
     s = Scenario.sine(run.isolator, run.supply_bar, spec.amplitude_m, spec.frequency_hz, spec.cycles, rig=rig,
                       vertical_load_n=run.vertical_load_n, plant_changes=plant_changes_from(rig, true_rig(run)),
                       noise_seed=run.noise_seed)
     s.rig_commissioning = commissioning
-    result = Simulation(s, validate=False).run(follow=True)
+    try:
+        result = Simulation(s, validate=False).run(follow=True)
+    except LoopMarginError as refused:  # the servo refuses the rig as told before anything moves: the test's outcome
+        return {"last2_share": None, "verdict": "refused", "stopped_s": 0.0, "stop_kind": "refused",
+                "why": str(refused)}
     summary = result.summary()
     last = summary.get("last_two_cycles", {}).get("rms_y_minus_r_over_amplitude")
     trip = result.trip

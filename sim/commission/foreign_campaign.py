@@ -348,10 +348,11 @@ def figure(rows: list[dict], title: str, cases: tuple = CASES):
     for ax, (label, _a, _f, target) in zip(axes[0][2:], cases, strict=True):
         v = np.sort([100 * r[f"{label}.share"] for r in rows if r.get(f"{label}.share") is not None
                      and r.get(f"{label}.stopped_s") is None])
-        stopped = sum(1 for r in rows if r.get(f"{label}.stopped_s") is not None)
+        refused = sum(1 for r in rows if r.get(f"{label}.stop_kind") == "refused")
+        stopped = sum(1 for r in rows if r.get(f"{label}.stopped_s") is not None) - refused
         if v.size:
-            ax.step(v, np.arange(1, v.size + 1) / max(trusted, 1), where="post", marker="o", ms=2.5,
-                    label=f"ran to the end ({v.size}); stopped: {stopped}")
+            said = f"ran to the end ({v.size}); stopped: {stopped}" + (f"; refused: {refused}" if refused else "")
+            ax.step(v, np.arange(1, v.size + 1) / max(trusted, 1), where="post", marker="o", ms=2.5, label=said)
         ax.set_ylim(0.0, 1.15)  # room above the curve for the legend
         ax.axvline(100 * target, color="k", lw=0.8, ls=":", label=f"target {100 * target:g} %")
         ax.set_xscale("log")
