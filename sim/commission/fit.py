@@ -30,10 +30,7 @@ from .flow import FlowFit, fit_flow, part_disagreement
 from .force import ForceFit, fit_force, latency_from_force
 from .signals import FitError, Signals
 
-#: the jackknife's groups: 10 (9 degrees of freedom) scatter the stated sigma less from record to record than the
-#: 5 of before (4), so the widening for Student's t is 1.4 instead of 2 (identify.JACKKNIFE_WIDENING); the fit takes
-#: about a quarter longer (foreign rigs 0-299: 350 -> 431 s on two processes)
-BLOCKS = 10
+BLOCKS = 5
 CHUNK_S = 0.2
 NOISE_CHECK_SEED = 20261129  # the added noise of ``noise_shifts``: fixed, so that a record gets one verdict
 #: wraps a function so that it runs on one BLAS thread (module docstring); nested uses cost ~0.2 ms each
