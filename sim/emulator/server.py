@@ -651,7 +651,9 @@ class RigEmulator:
             self.forge_sock.close()
 
     def status(self) -> dict:
-        return {"pid": os.getpid(), "port": self.port, **self.security.describe(),
+        return {"pid": os.getpid(), "port": self.port, "written_monotonic_s": time.monotonic(),  # the clock of the
+                # whole machine (CLOCK_MONOTONIC): a reader knows whether the file was written after it asked
+                **self.security.describe(),
                 "isolator": self.config.isolator.name,
                 "plant": self.config.plant(), "defects": sorted(self.defects), "period_s": self.period_s,
                 "watchdog_s": self.config.watchdog_s, "faults": asdict(self.faults),
