@@ -35,6 +35,8 @@ import threading
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 
+from sim.errors import rebuilt_exception
+
 from .errors import ApiError
 
 log = logging.getLogger("isorig")
@@ -96,12 +98,9 @@ def _call(fn, args, trim=True):
     return (*result, _rss_bytes())
 
 
-def _rebuild(kind: type, args: tuple, state: dict, text: str) -> Exception:
+def _rebuild(kind: type, args: tuple, state: dict, text: str) -> BaseException:
     try:
-        exc = kind.__new__(kind)
-        Exception.__init__(exc, *args)
-        exc.__dict__.update(state)
-        return exc
+        return rebuilt_exception(kind, args, state)
     except Exception:  # noqa: BLE001 - a class that cannot be rebuilt: its message at least
         return RuntimeError(f"{kind.__name__}: {text}")
 

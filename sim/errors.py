@@ -15,11 +15,13 @@ class FieldError(ValueError):
         run_batch, the campaign's pool) reaches the caller as itself: an exception's default pickling calls the
         class with its message alone, which this ``__init__`` (and its subclasses' own) refuses, and the pool
         then reported a worker "terminated abruptly" instead of the refusal's words."""
-        return _rebuilt, (type(self), self.args, dict(self.__dict__))
+        return rebuilt_exception, (type(self), self.args, dict(self.__dict__))
 
 
-def _rebuilt(kind: type, args: tuple, state: dict) -> FieldError:
-    """A FieldError (or subclass) from its class, message and attributes, without calling its ``__init__``."""
+def rebuilt_exception(kind: type, args: tuple, state: dict) -> BaseException:
+    """An exception of class ``kind`` from its ``args`` and attributes, without calling its ``__init__`` (whose
+    arguments may be others than its message): FieldError's pickling, and the service's check pool
+    (backend.checks), which hands back what a worker raised."""
     error = kind.__new__(kind)
     Exception.__init__(error, *args)
     error.__dict__.update(state)
