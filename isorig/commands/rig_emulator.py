@@ -50,6 +50,9 @@ def register(sub) -> None:
                         "stalled that long looks like, repeatably")
     g.add_argument("--outage-ms", type=float,
                    help="how long each outage lasts (default 10 ms; with --outage-every-s)")
+    g.add_argument("--overrun-ms", type=float, default=0.0, metavar="MS",
+                   help="the rig itself stalls this long once, 30 ms after the ARM, in every other test (the first, "
+                        "third ...): a rig's own overrun (docs/rig-protocol.md 1.6), repeatably")
     g.add_argument("--restart-after-s", type=float,
                    help="restart after this time: session and host forgotten, valve closed, silent until a new ARM")
     g.add_argument("--sensor-fault", choices=("stuck", "nan", "out-of-range"),
@@ -106,7 +109,7 @@ def run(args) -> int:
     faults = Faults(args.packet_loss_pct, args.latency_ms, args.jitter_ms, args.drop_link_after_s,
                     args.restart_after_s, args.sensor_fault, args.sensor_fault_after_s, args.supply_loss_after_s,
                     args.supply_rise_s, args.outage_every_s,
-                    Faults.outage_ms if args.outage_ms is None else args.outage_ms)
+                    Faults.outage_ms if args.outage_ms is None else args.outage_ms, args.overrun_ms)
     if args.status_file:  # said now: a status writer that failed in its thread left a rig running, unwatched
         folder = Path(args.status_file).resolve().parent
         if not folder.is_dir() or not os.access(folder, os.W_OK):
@@ -146,6 +149,8 @@ def run(args) -> int:
     defects = f", DEFECTS {', '.join(config.defects)} (for testing check-rig)" if config.defects else ""
     if faults.supply_rise_s is not None:
         defects += f", pump rising to each ARM's supply with time constant {faults.supply_rise_s:g} s"
+    if faults.overrun_ms:
+        defects += f", OVERRUNS of {faults.overrun_ms:g} ms {faults.overrun_after_s * 1e3:g} ms after every other ARM"
     if faults.outage_every_s is not None:
         defects += f", OUTAGES of {faults.outage_ms:g} ms every {faults.outage_every_s:g} s while armed"
     if emulator.forge_port is not None:

@@ -10,7 +10,8 @@ does. Before ARM and after DISARM it only answers HELLO; the valve stays closed 
 
 Faults are injected by ``Faults`` (the ``isorig rig-emulator`` flags), timed from the ARM of the test:
 packet loss (each datagram, both ways), added latency and jitter on measurements, a link that drops for
-good, outages that come again and again while armed (``Faults.outage``: what a stalled host looks like), a
+good, outages that come again and again while armed (``Faults.outage``: what a stalled host looks like), the rig's
+own overrun in every other test (``Faults.overrun_ms``), a
 restart (the rig forgets session and host: nothing moves until a new ARM), a position sensor
 stuck, NaN or out of range (silent: the host must see it in the values), and supply pressure loss. A pump
 that needs time to reach a new set point (``Faults.supply_rise_s``: after ARM the supply rises, or falls, from
@@ -94,6 +95,11 @@ class Faults:
     #: hiccup) looks like, repeatably (None: never)
     outage_every_s: float | None = None
     outage_ms: float = 10.0
+    #: the rig itself overruns (docs/rig-protocol.md 1.6): its loop sleeps this long once, ``overrun_after_s``
+    #: after the ARM, in every other test (the first, third ...): what a shared machine does to the emulator now
+    #: and then, repeatably (0: never)
+    overrun_ms: float = 0.0
+    overrun_after_s: float = 0.030
 
     def outage(self, t: float | None) -> bool:
         """True within an outage at test time ``t`` (s since the ARM; None: not armed)."""
@@ -121,6 +127,10 @@ class Faults:
                                                     and 0.0 < self.outage_ms < 1e3 * self.outage_every_s):
             raise ValueError(f"an outage of {self.outage_ms!r} ms every {self.outage_every_s!r} s: the interval must "
                              "be a time > 0 s and the outage a time > 0 ms shorter than the interval")
+        if not (math.isfinite(self.overrun_ms) and 0.0 <= self.overrun_ms <= 1000.0) or \
+                not (math.isfinite(self.overrun_after_s) and self.overrun_after_s >= 0.0):
+            raise ValueError(f"an overrun of {self.overrun_ms!r} ms at {self.overrun_after_s!r} s: the overrun must be "
+                             "within [0, 1000] ms and its time >= 0 s")
         if self.sensor_fault is not None and self.sensor_fault not in SENSOR_FAULTS:
             raise ValueError(f"sensor fault {self.sensor_fault!r} is unknown; allowed: {', '.join(SENSOR_FAULTS)}")
 
@@ -253,6 +263,7 @@ class RigEmulator:
         self.supply_set_pa = 0.0
         self.vertical_load_n = None
         self.latched_status = 0
+        self.overran = False  # Faults.overrun_ms: done in this session
         self.missed = 0
         self.rejected_count = 0
         self.answered_this_period = False
@@ -601,6 +612,10 @@ class RigEmulator:
         while not self.stopped:
             tick_start = t0 + k * self.period_s
             due = tick_start + self.period_s
+            if self.faults.overrun_ms and self.armed and not self.overran and self.counters["arms"] % 2 == 1 \
+                    and self._fault_due(self.faults.overrun_after_s, time.perf_counter()):
+                self.overran = True
+                time.sleep(self.faults.overrun_ms / 1e3)  # the rig's own stall: nothing read, nothing sent
             self._pump_until(due)
             now = time.perf_counter()
             late = now - due

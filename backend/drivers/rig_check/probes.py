@@ -35,6 +35,8 @@ STALE_PERIODS = 10  # section 5
 VALUE_FACTOR = 1.2  # a command this far beyond the limit must be refused
 WATCHDOG_GIVE_UP_S = 0.3  # still armed this long after the last command: the rig has no watchdog
 WATCHDOG_TRIPS = 3  # the figure is their median: one late wake-up of a shared machine does not decide it
+RIG_STALL_S = 0.002  # a trip in whose window the rig overran this long (its clock) is timed again ...
+STALL_TRIES = 6  # ... this many times at most
 WATCHDOG_WAYS = ("last command", "ARM", "stale commands")  # what the watchdog's time runs from
 HELLO_BURST_SENT = 40  # version 2: HELLOs sent at once to see the rate limit (section 9.6) ...
 HELLO_BURST, HELLO_RATE_PER_S = 10, 100.0  # ... which answers about this many at once and per second
@@ -391,12 +393,21 @@ def hello_armed(rc: RigCheck, s: Stream) -> HelloArmed:
     return HelloArmed(s.session, latest, got, rec)
 
 
+def _counted(s: Stream, n: Received, after: list[Received], rejected: int) -> list[Received]:
+    """``after``, once it is sure the rig's count of dropped datagrams since ``n`` is the probe's: where it rose by
+    anything but ``rejected``, and this check read late, its own answers may have reached the rig stale and been
+    counted too (``_again_if_late``: the probe runs again)."""
+    if not after or after[-1]["packets_rejected"] - n["packets_rejected"] != rejected:
+        _again_if_late(s, [n, *after])
+    return after
+
+
 def hello_without_key_armed(rc: RigCheck, s: Stream) -> Synced:
     s.steady(3)
     n = s.last
     rc.link.drain(aux=True)
     rc.link.send(_keyless_hello(rc, time.perf_counter_ns()), aux=True)
-    after = s.sync()
+    after = _counted(s, n, s.sync(), 1)
     return Synced(n, after, answers=len(rc.link.drain(aux=True)))
 
 
@@ -404,7 +415,7 @@ def repeated_arm(rc: RigCheck, s: Stream) -> Synced:
     s.steady(3)
     n = s.last
     rc.link.send(s.arm_data)  # the host repeats its ARM (version 2: the same challenge)
-    return Synced(n, s.sync())
+    return Synced(n, _counted(s, n, s.sync(), 0))
 
 
 def busy(rc: RigCheck, s: Stream) -> Synced:
@@ -423,6 +434,8 @@ def busy(rc: RigCheck, s: Stream) -> Synced:
     took = s.foreign != foreign
     if took:
         Stream(rc, other).disarm()
+    else:
+        _counted(s, n, after, 1)
     return Synced(n, after, foreign=took)
 
 
@@ -590,9 +603,21 @@ def watchdog(rc: RigCheck) -> dict[str, list[Trip]]:
     return trips
 
 
+def rig_stall_s(recs: list[Received], period_s: float) -> float:
+    """How long the rig itself did not run between these consecutive measurements, by its own clock (time_ns):
+    the waits beyond 1.5 periods, less a period each (docs/rig-protocol.md 1.6: an overrun is one long wait)."""
+    gaps = [(b.packet.time_ns - a.packet.time_ns) * 1e-9 for a, b in zip(recs, recs[1:], strict=False)]
+    return sum(gap - period_s for gap in gaps if gap > 1.5 * period_s)
+
+
 def watchdog_trip(rc: RigCheck, since: str) -> Trip:
-    """Commands stop at ``since``: "last command", "ARM", or "stale commands" (duplicates and old ones go on)."""
-    for _attempt in range(TRIES):
+    """Commands stop at ``since``: "last command", "ARM", or "stale commands" (duplicates and old ones go on).
+
+    A trip is timed again when this check was late (the watchdog took the stream before ``since``) or when the
+    rig overran in the timed window (more than RIG_STALL_S, by its clock): its last measurement then comes when
+    the rig wakes, whenever its valve closed, and the figure would be the machine's, not the watchdog's."""
+    late = stalled = 0
+    while late < TRIES and stalled < STALL_TRIES:
         stream = Stream(rc)
         try:
             first = stream.arm(rc.timeout_s)
@@ -601,9 +626,11 @@ def watchdog_trip(rc: RigCheck, since: str) -> Trip:
                 stream.steady(20)
         except Disturbed:
             stream.disarm()  # this check was late and the watchdog took it: again
+            late += 1
             continue
         start = stream.arm_sent_t if since == "ARM" else stream.last_answer_t
         kept, prev = stream.last_answer_data, stream.last
+        window = [prev]
         try:
             while True:
                 if time.perf_counter() - start > WATCHDOG_GIVE_UP_S:
@@ -611,6 +638,7 @@ def watchdog_trip(rc: RigCheck, since: str) -> Trip:
                     return Trip(None, f"still armed {WATCHDOG_GIVE_UP_S * 1e3:g} ms after the {since}: no watchdog",
                                 no_watchdog=True)
                 prev = stream.next()
+                window.append(prev)
                 if since == "stale commands":
                     rc.link.send(kept)  # a duplicate of the last valid command
                     rc.link.send(rc.link.encode(proto.COMMAND, stream.session, 0, 0, 0.0))  # an old one
@@ -621,8 +649,17 @@ def watchdog_trip(rc: RigCheck, since: str) -> Trip:
             return Trip(None, f"the stream stopped without a WATCHDOG measurement ({exc})")
         after = rc.silent(SILENCE_S, "after the WATCHDOG measurement")
         answer = rc.hello()
+        stall = rig_stall_s([*window, final], rc.period_s) if stream.clock else 0.0
+        if stall > RIG_STALL_S:
+            stalled += 1
+            rc.figures["watchdog_trips_retimed_for_rig_stalls"] = \
+                rc.figures.get("watchdog_trips_retimed_for_rig_stalls", 0) + 1
+            continue
         # as if read at once: this process's lateness aside
         return Trip(final.t - final.late_s - start, final=final, previous=prev, after=len(after), hello=answer)
+    if stalled >= STALL_TRIES:
+        return Trip(None, f"the rig overran (stalled more than {RIG_STALL_S * 1e3:g} ms by its own clock) in "
+                          f"{STALL_TRIES} trips: the watchdog could not be timed")
     return Trip(None, f"this check was late {TRIES} times before the watchdog could be timed")
 
 
