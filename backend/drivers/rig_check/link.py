@@ -7,6 +7,7 @@ import secrets
 import select
 import socket
 import time
+from collections import deque
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -19,6 +20,7 @@ if TYPE_CHECKING:
 
 ARM_RESEND_S = 0.05  # as the host does
 SILENT_S = 0.25  # no measurement this long from an armed rig: the stream stopped
+RECENT_READS = 32  # a probe's count of dropped datagrams is checked against this check's lateness over as many reads
 LATE_S = 0.004  # a measurement read this late (this process was not scheduled): a timed probe is run again
 
 
@@ -196,6 +198,7 @@ class Stream:
         self.armed = False
         self.best_offset_ns: int | None = None  # arrival minus the rig's time_ns, the least seen
         self.clock = True  # the rig's time_ns advances like a clock (it is only for its own statistics)
+        self.recent: deque[Received] = deque(maxlen=RECENT_READS)  # the measurements read last, the latest last
 
     def arm(self, timeout_s: float) -> Received:
         """ARM (repeated every 50 ms, as the host does) until the first measurement of the session."""
@@ -244,6 +247,7 @@ class Stream:
                     self.best_offset_ns = offset
                 rec.late_s = (offset - self.best_offset_ns) * 1e-9
             self.last = rec
+            self.recent.append(rec)
             if not rec.status & STATUS_ARMED:
                 self.armed = False
                 raise Tripped(rec)

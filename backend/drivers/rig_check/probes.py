@@ -395,10 +395,11 @@ def hello_armed(rc: RigCheck, s: Stream) -> HelloArmed:
 
 def _counted(s: Stream, n: Received, after: list[Received], rejected: int) -> list[Received]:
     """``after``, once it is sure the rig's count of dropped datagrams since ``n`` is the probe's: where it rose by
-    anything but ``rejected``, and this check read late, its own answers may have reached the rig stale and been
-    counted too (``_again_if_late``: the probe runs again)."""
+    anything but ``rejected``, and this check read any of its last RECENT_READS measurements late (those before
+    ``n`` too: an answer to one of them that arrived stale is counted after ``n``), its own answers may have been
+    counted beside the probe's datagrams (``_again_if_late``: the probe runs again)."""
     if not after or after[-1]["packets_rejected"] - n["packets_rejected"] != rejected:
-        _again_if_late(s, [n, *after])
+        _again_if_late(s, list(s.recent))
     return after
 
 
@@ -691,7 +692,7 @@ def old_command(rc: RigCheck, s: Stream) -> OldCommand:
     held = s.skip(STALE_PERIODS + 2)
     target = held[0]  # the rig has sent held[-1] = target + 11 at least: more than 10 periods old
     rc.link.send(rc.link.encode(proto.COMMAND, s.session, target.seq, 0, 0.0))
-    return OldCommand(n, target, held[-1], s.sync())
+    return OldCommand(n, target, held[-1], _counted(s, n, s.sync(), 1))
 
 
 def _push(s: Stream, command_v: float, y0: float, until) -> tuple[list[Received], bool]:
