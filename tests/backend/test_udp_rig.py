@@ -20,6 +20,7 @@ from emulator import ISORIG, Emulator, read_record, simulate_on
 from backend.drivers import ArmConditions, RigFault, SimulatedRig
 from backend.drivers.check import DriverCheckError, check_driver
 from backend.drivers.udp import UdpRig, parse_udp_url, probe
+from backend.settings import Settings
 from backend.worker import CHECK_PERIODS
 from sim.emulator import protocol as proto
 from sim.isolator import PRESETS
@@ -187,8 +188,11 @@ def test_a_host_stalled_now_and_then_tracks_on_once_settled(tmp_path):
     assert summary["status"] == "completed" and all(t["test_time_s"] > 4.0 for t in status["watchdog_trips"])
     # five outages (at 0.7-3.5 s of the 4 s test) of 14-15 ticks each (the 1 kHz ticks' phase against the 15 ms
     # window): each tick's measurement is dropped; the host answers measurements only, so few commands fall in one
-    # (a clean-clone run dropped 73, which 5 * 15 failed)
-    assert status["counters"]["outage_dropped"] >= 5 * 14
+    # (a clean-clone run dropped 73, which 5 * 15 failed); a tick the emulator itself lost to an overrun (its loop
+    # late by a period or more) sends nothing to drop, so each lost tick may stand for one (a clean-clone run on a
+    # noisy machine: 68 dropped)
+    counters = status["counters"]
+    assert counters["outage_dropped"] + counters["ticks_lost"] >= 5 * 14 and counters["outage_dropped"] >= 5 * 10
     record = read_record(tmp_path / "udp")
     flags = record["flags"].astype(int)
     lost = np.flatnonzero(flags & FLAG_LOST)
@@ -562,7 +566,10 @@ def test_the_service_starts_no_test_while_the_rigs_table_is_off_zero(tmp_path):
             first = wait_for(client, r.json()["id"])
             assert first["status"] == "failed"
             position = emulator.fresh_status()["position_m"]
-            assert abs(position) > 0.005
+            # beyond the start tolerance (2 mm) with room to spare: the restart at 0.6 s of wall time leaves the table
+            # about 5 mm out, less where the emulator itself overran meanwhile (its world pauses; a clean-clone run on
+            # a noisy machine: 4.58 mm)
+            assert abs(position) > 2 * Settings.model_fields["rig_start_tolerance_m"].default
             state = client.get("/api/rig/state").json()
             assert state["table_position_m"] == pytest.approx(position, abs=1e-6)
             r = client.post("/api/tests?start=true", json=sine_test(speed=1.0), headers=AUTH)
