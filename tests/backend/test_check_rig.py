@@ -113,9 +113,11 @@ def matches(failures: set[tuple[str, str]], expected: set[tuple[str, str]]) -> b
 def test_check_rig_passes_on_the_emulator_and_checks_every_rule(good):
     lost_before = good.fresh_status()["counters"]["ticks_lost"]
     out = subprocess.run([*ISORIG, "check-rig", good.url, "--json"], capture_output=True, text=True, timeout=60)
+    assert out.stdout.lstrip().startswith("{"), out.stdout + out.stderr
     report = json.loads(out.stdout)
     lost = good.fresh_status()["counters"]["ticks_lost"] - lost_before
     failing = [(r["section"], r["rule"]) for r in report["rules"] if r["ok"] is False]
+    assert out.returncode == (1 if failing else 0), out.stderr  # the exit code says what the report says
     assert not unexplained_failures(failing, report["figures"], lost), failing_rows(out.stdout) + out.stderr
     assert report["passed"] + len(failing) == len(report["rules"]) >= 34
     assert {r["section"] for r in report["rules"]} == SECTIONS

@@ -394,12 +394,15 @@ def hello_armed(rc: RigCheck, s: Stream) -> HelloArmed:
 
 
 def _counted(s: Stream, n: Received, after: list[Received], rejected: int) -> list[Received]:
-    """``after``, once it is sure the rig's count of dropped datagrams since ``n`` is the probe's: where it rose by
-    anything but ``rejected``, and this check read any of its last RECENT_READS measurements late (those before
-    ``n`` too: an answer to one of them that arrived stale is counted after ``n``), its own answers may have been
-    counted beside the probe's datagrams (``_again_if_late``: the probe runs again)."""
+    """``after``, once it is sure the rig's count of dropped datagrams since ``n`` is the probe's. Where the count
+    rose by anything but ``rejected`` (or no command was seen applied) and this check read any of its last
+    RECENT_READS measurements late (those before ``n`` too: an answer to one of them that arrived stale is counted
+    after ``n``), its own answers may have been counted beside the probe's datagrams (CI runs: "future" +3 where one
+    was sent, "a command more than 10 periods old" +2): ``Disturbed``, and the probe runs again. Only where the count
+    is wrong, so that a late read with the right count is judged."""
     if not after or after[-1]["packets_rejected"] - n["packets_rejected"] != rejected:
-        _again_if_late(s, list(s.recent))
+        for rec in s.recent:
+            s.on_time(rec)
     return after
 
 
@@ -500,21 +503,12 @@ def dropped(rc: RigCheck, s: Stream, what: str) -> Dropped:
         rc.link.send(*data) if isinstance(data, tuple) else rc.link.send(data)
     applied_if = None if offset is None else n.seq + offset
     try:
-        seen = s.skip(2) + s.sync()
+        seen = s.skip(2)
+        seen += _counted(s, n, s.sync(), len(datagrams))
     except Silent:
         s.armed = False
         return Dropped(n, None, len(datagrams), applied_if)
-    if len(seen) == 2 or seen[-1]["packets_rejected"] - n["packets_rejected"] != len(datagrams):
-        _again_if_late(s, [n, *seen])
     return Dropped(n, seen, len(datagrams), applied_if)
-
-
-def _again_if_late(s: Stream, read: list[Received]) -> None:
-    """``Disturbed`` (the probe is run again) if this check read any of ``read`` late: its own answers may then
-    have reached the rig stale and been counted beside the probe's datagrams (a CI run: "future" +3 where one was
-    sent). Called only where the count came out wrong, so that a late read with the right count is judged."""
-    for rec in read:
-        s.on_time(rec)
 
 
 #: what the stale probe sends that a rig must drop: a duplicate of the answer and an answer older than it
@@ -528,10 +522,7 @@ def stale(rc: RigCheck, s: Stream) -> Synced:
     good = s.answer(n)
     rc.link.send(good)  # a duplicate
     rc.link.send(rc.link.encode(proto.COMMAND, s.session, n.seq - 2, 0, 0.0))  # older than the one held
-    seen = s.sync()
-    if not seen or seen[-1]["packets_rejected"] - n["packets_rejected"] != STALE_SENT:
-        _again_if_late(s, [n, *seen])
-    return Synced(n, seen)
+    return Synced(n, _counted(s, n, s.sync(), STALE_SENT))
 
 
 def disarm(rc: RigCheck, s: Stream) -> Disarmed:
