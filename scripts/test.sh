@@ -63,15 +63,28 @@ parallel=0
 #        failed was a pacing test, now in 2b;
 #    2b. those that judge timing against a tight bound (marker strict_timing: the 18 ms watchdog of check-rig, the
 #        loop's pacing, bench-rig beside a CPU hog, a HELLO flood), one at a time.
+#    A real-time test that fails runs once more, alone, and that second run decides: a real-time test judges this
+#    machine's scheduling as well as the code, and on a shared VM (2026-11-30: an idle emulator lost ~50 ticks a
+#    second, a 1 kHz loop woke up to 8 ms late) five clean-clone runs in a row each failed one or two of the 84 on a
+#    different stall. The first failure stays in the log above the re-run and in artifacts/pytest-*.xml; a test that
+#    fails for the code fails both times.
+realtime_tier() {  # JUNIT_NAME MARKERS [PYTEST ARGS]: the tier, then its failed tests once more, one at a time
+  local name=$1 markers=$2
+  shift 2
+  if .venv/bin/python -m pytest -q --durations=10 --junitxml="artifacts/$name.xml" -m "$markers" "$@"; then
+    return 0
+  fi
+  echo "isorig tests: real-time tests failed above (marker '$markers'); each runs once more, alone, and that run decides" >&2
+  .venv/bin/python -m pytest -q --junitxml="artifacts/$name-again.xml" -m "$markers" --last-failed \
+    --last-failed-no-failures none
+}
 realtime_workers=${ISORIG_REALTIME_WORKERS:-2}
 realtime_args=()
 if [ "$realtime_workers" -gt 1 ]; then realtime_args=(-n "$realtime_workers" --dist loadfile); fi
 echo "isorig tests: the real-time tests, in $realtime_workers worker(s)" >&2
 realtime=0
-.venv/bin/python -m pytest -q --durations=10 --junitxml=artifacts/pytest-realtime.xml -m "realtime and not strict_timing" \
-  ${realtime_args[@]+"${realtime_args[@]}"} || realtime=$?
+realtime_tier pytest-realtime "realtime and not strict_timing" ${realtime_args[@]+"${realtime_args[@]}"} || realtime=$?
 echo "isorig tests: the real-time tests that judge tight timing, one at a time" >&2
-.venv/bin/python -m pytest -q --durations=10 --junitxml=artifacts/pytest-strict-timing.xml -m "realtime and strict_timing" \
-  || realtime=$?
+realtime_tier pytest-strict-timing "realtime and strict_timing" || realtime=$?
 echo "isorig tests: exit $parallel (in parallel), $realtime (real time)" >&2
 [ "$parallel" -eq 0 ] && [ "$realtime" -eq 0 ]

@@ -240,7 +240,7 @@ class RigEmulator:
         self.counters = {"ticks": 0, "arms": 0, "disarms": 0, "measurements_sent": 0, "measurements_dropped": 0,
                          "commands_applied": 0, "command_max_abs_v": 0.0, "commands_late": 0, "periods_missed": 0,
                          "incoming_dropped": 0, "outage_dropped": 0, "restarts": 0, "link_dropped": False,
-                         "overruns": 0, "ticks_lost": 0, "ticks_slipped": 0}
+                         "link_dropped_at_sequence": None, "overruns": 0, "ticks_lost": 0, "ticks_slipped": 0}
         self.rejected: dict[str, int] = {}
         self.latency = LatencyHistogram()  # per answered measurement: command arrival - measurement sent
         self.tick_lateness = LatencyHistogram()
@@ -460,8 +460,9 @@ class RigEmulator:
             self._reset_session()  # forgets the host: it will hear nothing more from this rig
             self.arm_time = None
             return
-        if self._fault_due(faults.drop_link_after_s, now):
+        if self._fault_due(faults.drop_link_after_s, now) and not self.counters["link_dropped"]:
             self.counters["link_dropped"] = True
+            self.counters["link_dropped_at_sequence"] = self.sequence
         if self._fault_due(faults.supply_loss_after_s, now):
             self.supply_rise = None  # the pump stopped
             t = self.test_time(now) - faults.supply_loss_after_s
