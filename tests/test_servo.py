@@ -412,11 +412,12 @@ def test_a_still_target_gets_a_still_valve(options):
 #: valve (the integral, the edge trim, the feedback's ramp, the still share); soft_sine re-recorded when a held
 #: target got the still valve by default (still_hold_share 1: its last periods, the sine's end, changed);
 #: still_history's command re-recorded when the ringing's still valve took the table's error from the centre of the
-#: swings (still_centre_share 1; the estimates unchanged)
+#: swings (still_centre_share 1; the estimates unchanged); soft_sine re-recorded when small periodic motions got a
+#: share of the pressure feedback (pressure_feedback_small_share 0.6: its taper-in is one)
 PINNED_RUNS = {
-    "soft_sine": {"command_raw_v": ("c610633ef542d012", -1.0291597201407507),
-                  "ar_hat": ("c7e9ae213850ee03", 1.0292202418093306),
-                  "ay_hat": ("e9a160ff9afcd64e", 1.0196160343539584),
+    "soft_sine": {"command_raw_v": ("973199344756716d", -1.029470094810019),
+                  "ar_hat": ("9adb77b87abfbcb5", 0.9980874481365106),
+                  "ay_hat": ("5fdce953185944d7", 1.017193226701546),
                   "as_hat": ("0b71722925644e58", 1.005781538877336)},
     "still_history": {"command_raw_v": ("1ef813df25fa4e68", 0.15461201491742066),
                       "ar_hat": ("379c6c6ecaf7d80d", 0.9934333006408046),

@@ -108,7 +108,8 @@ STILL_FAST_RATE_SHARE = 20.0  # the still share's rate for an error of many band
 P_AREA_RATIO_B = 67  # A_B / A_A of a single-rod actuator (1: double-rod)
 P_PLAY = 68  # the valve's play that the command crosses at each reversal, V (full width)
 P_UNDERLAP = 69  # the valve's underlap, V: round null the command inverts the four-land law
-N_PARAMS = 70
+P_PF_SMALL, P_PF_FULL_V = 70, 71  # the pressure feedback's share on small motions; the velocity from which all of it
+N_PARAMS = 72
 DELAY_LINE = 256  # periods of regressor and target history kept (valve estimate, position latency)
 
 # State indices; the delay line and the harmonic coefficients (real, imaginary) follow.
@@ -271,6 +272,14 @@ OPTIONS = {
                                             "the linearised loop of the declared rig best (0: no pressure feedback)"),
     "pressure_feedback_corner_share": Option(0.5, 0.01, 1.0, "-", meaning="high-pass corner of the pressure "
                                              "feedback, share of the oil-column frequency"),
+    "pressure_feedback_small_share": Option(0.6, 0.0, 1.0, "-", meaning="on a periodic test whose peak target "
+                                            "velocity is below half of pressure_feedback_full_velocity_m_per_s, this "
+                                            "share of the load-pressure feedback (all of it from that velocity up, "
+                                            "in between in proportion): on small motions the load pressure is mostly "
+                                            "the guides' friction flipping at each reversal, which the feedback, a "
+                                            "leak, would hold back"),
+    "pressure_feedback_full_velocity_m_per_s": Option(0.01, 0.0, 10.0, "m/s", meaning="... see "
+                                                      "pressure_feedback_small_share"),
     "pressure_feedback_min_improvement": Option(0.02, 0.0, 1.0, "-", meaning="the pressure feedback is used only "
                                                 "where it raises the smallest damping ratio of the linearised loop "
                                                 "by at least this much"),
@@ -319,6 +328,9 @@ DESIGNED = {
                                 "lowered where the rig's linearised loop would keep less than min_gain_margin"),
     "gain_margin": Option(None, unit="-", meaning="the factor on the valve's flow at which the rig's linearised loop "
                           "would lose stability, at that gain (50: at least)"),
+    "pressure_feedback_small_share_in_force": Option(None, unit="-", meaning="the share of the load-pressure feedback "
+                                                     "on small periodic motions: pressure_feedback_small_share, raised "
+                                                     "where the loop would keep less gain margin with it"),
 }
 #: what a time history (no repeating cycle to learn) runs with: no harmonic learning; an integral on the position
 #: error takes over the learned constant (the valve's null offset, the friction's asymmetry)
@@ -410,6 +422,9 @@ def make_servo(rig=None, **options) -> Controller:
     params[P_COMP] = (o["compression_feedforward_share"] * compliance / o["piston_area_m2"]
                       if o["learning_gain"] > 0.0 else 0.0)
     params[P_CFMAX] = o["compression_max_hz"]
+    o["pressure_feedback_small_share_in_force"] = small_motion_share(o, design) if o["learning_gain"] > 0.0 else 1.0
+    params[P_PF_SMALL] = o["pressure_feedback_small_share_in_force"]
+    params[P_PF_FULL_V] = o["pressure_feedback_full_velocity_m_per_s"]
     params[P_CVMAX] = o["compression_max_velocity_m_per_s"]
     params[P_CGAIN] = o["compression_gain"]
     params[P_WV] = o["valve_natural_frequency_rad_s"]
@@ -585,6 +600,28 @@ def _stable(o: dict, design: dict, flow_scale: float) -> bool:
     oc = dict(o, pressure_feedback_corner_share=design["corner_share"])
     return min(smallest_damping_ratio(linearised_poles(oc, design["damping"], c, flow_scale))
                for c in COMPLIANCE_SCALES) > 0.0
+
+
+#: the steps by which ``small_motion_share`` raises the pressure feedback's share on small motions
+SMALL_SHARE_STEP = 0.1
+
+
+def small_motion_share(o: dict, design: dict) -> float:
+    """The share of the load-pressure feedback on small periodic motions (``_pressure_feedback_velocity``):
+    pressure_feedback_small_share, raised by SMALL_SHARE_STEP until the linearised loop at the gain in force keeps the
+    gain margin the design keeps with all of it (at most min_gain_margin); 1 where no smaller share does. A loop on a
+    rig as told that needs its whole pressure feedback keeps it on small motions too."""
+    share = o["pressure_feedback_small_share"]
+    if share >= 1.0 or design["damping"] <= 0.0:
+        return 1.0
+    needed = max(min(o["min_gain_margin"], design["gain_margin"]), 1.0)
+    oc = dict(o, kp_per_s=design["kp_per_s"])
+    while share < 1.0 - 1e-9:
+        weaker = dict(design, damping=design["damping"] * share)
+        if _stable(oc, weaker, 1.0) and _stable(oc, weaker, needed):
+            return float(round(share, 6))
+        share += SMALL_SHARE_STEP
+    return 1.0
 
 
 def gain_margin(o: dict, design: dict) -> float:
@@ -1143,14 +1180,20 @@ def _velocity_demand(p, s, rd, rdd, rddd, e, theta, omega, v_env, nh, fast, nh_f
 
 
 @stage
-def _pressure_feedback_velocity(p, s, p_meas, dt):
+def _pressure_feedback_velocity(p, s, p_meas, v_est, dt):
     """-k_pf HP(P_L), the load-pressure feedback as a velocity (first-order high-pass at w_c): a leak that damps
-    the oil column and leaves the test's frequencies alone."""
+    the oil column and leaves the test's frequencies alone. On a small periodic motion (the target's velocity
+    amplitude V_est below half of pressure_feedback_full_velocity_m_per_s) only pressure_feedback_small_share of it:
+    there the load pressure swings mostly with the guides' friction, whose flip at each reversal the leak holds
+    back, and the table sticks (docs/controller.md, "Small motions and the pressure feedback")."""
     v_pf = 0.0
     if p[P_KPF] > 0.0:
         a_hp = 1.0 / (1.0 + p[P_PF_WC] * dt)
         s[S_PL_HP] = a_hp * (s[S_PL_HP] + p_meas - s[S_PL_PREV])
-        v_pf = -p[P_KPF] * s[S_PL_HP]
+        share = 1.0
+        if p[P_PF_SMALL] < 1.0 and p[P_PF_FULL_V] > 0.0:
+            share = p[P_PF_SMALL] + (1.0 - p[P_PF_SMALL]) * min(max(2.0 * v_est / p[P_PF_FULL_V] - 1.0, 0.0), 1.0)
+        v_pf = -share * p[P_KPF] * s[S_PL_HP]
     s[S_PL_PREV] = p_meas
     return v_pf
 
@@ -1352,7 +1395,7 @@ def servo_step(p, s, meas, dt, report):
     if omega > 0.0:
         theta = np.arctan2(-rdd / omega, rd_mid) + 0.5 * omega * dt
     v, v_fb = _velocity_demand(p, s, rd, rdd, rddd, e, theta, omega, v_env, nh, fast, nh_fast, p_meas, steady, dt)
-    v_pf = _pressure_feedback_velocity(p, s, p_meas, dt)
+    v_pf = _pressure_feedback_velocity(p, s, p_meas, v_est, dt)
     # the command: valve-law inverse u_l, dead-zone inverse and null offset, pressure feedback, limit
     p_load = p[P_PL_SHARE] * p_meas
     ramp = _dead_zone_ramp(p, v_est, gain, p_supply)
