@@ -292,6 +292,12 @@ class Stream:
         if rec.late_s > LATE_S:
             raise Disturbed(f"this check read measurement {rec.seq} {rec.late_s * 1e3:.1f} ms late")
 
+    def recent_on_time(self) -> None:
+        """``Disturbed`` if any of the last RECENT_READS measurements was read late: the answers this check sent
+        meanwhile may have reached the rig stale and been counted with what a probe sent."""
+        for rec in self.recent:
+            self.on_time(rec)
+
     def disarm(self) -> None:
         packet = self.link.encode(proto.DISARM, self.session, 0, time.perf_counter_ns())
         for _ in range(3):

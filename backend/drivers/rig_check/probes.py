@@ -395,8 +395,7 @@ def hello_armed(rc: RigCheck, s: Stream) -> HelloArmed:
         # the HELLO's counters are those of the moment it is answered: an answer of this check's own that arrived
         # stale in between is counted there and not yet in the stream's measurement (a CI run: 5 against 4, this
         # check 6 periods behind); only a check that read on time may judge that
-        for r in s.recent:
-            s.on_time(r)
+        s.recent_on_time()
     return HelloArmed(s.session, latest, got, rec)
 
 
@@ -408,8 +407,7 @@ def _counted(s: Stream, n: Received, after: list[Received], rejected: int) -> li
     was sent, "a command more than 10 periods old" +2): ``Disturbed``, and the probe runs again. Only where the count
     is wrong, so that a late read with the right count is judged."""
     if not after or after[-1]["packets_rejected"] - n["packets_rejected"] != rejected:
-        for rec in s.recent:
-            s.on_time(rec)
+        s.recent_on_time()
     return after
 
 
