@@ -402,6 +402,10 @@ def make_servo(rig=None, **options) -> Controller:
     compliance = o["half_volume_m3"] / (2.0 * o["bulk_modulus_pa"])
     params[P_KPF] = design["gain_m_per_s_per_pa"]
     params[P_PF_WC] = design["corner_rad_s"]
+    # on a small periodic motion a share of it (a time history's HISTORY_MODE keeps all of it)
+    o["pressure_feedback_small_share_in_force"] = small_motion_share(o, design) if o["learning_gain"] > 0.0 else 1.0
+    params[P_PF_SMALL] = o["pressure_feedback_small_share_in_force"]
+    params[P_PF_FULL_V] = o["pressure_feedback_full_velocity_m_per_s"]
     params[P_LAT] = o["position_latency_s"]
     params[P_COMPLIANCE] = o["compressibility_share"] * compliance / o["piston_area_m2"]
     params[P_WH] = oil_column_rad_s(o)
@@ -422,9 +426,6 @@ def make_servo(rig=None, **options) -> Controller:
     params[P_COMP] = (o["compression_feedforward_share"] * compliance / o["piston_area_m2"]
                       if o["learning_gain"] > 0.0 else 0.0)
     params[P_CFMAX] = o["compression_max_hz"]
-    o["pressure_feedback_small_share_in_force"] = small_motion_share(o, design) if o["learning_gain"] > 0.0 else 1.0
-    params[P_PF_SMALL] = o["pressure_feedback_small_share_in_force"]
-    params[P_PF_FULL_V] = o["pressure_feedback_full_velocity_m_per_s"]
     params[P_CVMAX] = o["compression_max_velocity_m_per_s"]
     params[P_CGAIN] = o["compression_gain"]
     params[P_WV] = o["valve_natural_frequency_rad_s"]
