@@ -106,13 +106,20 @@ class Scenario:
         return int(round(self.duration_s / CONTROL_PERIOD_S))
 
     def effective_controller_options(self) -> dict:
-        """The options the controller runs with: for a time history (no repeating cycle to learn) the servo's
-        tracking mode, sim.controllers.servo.HISTORY_MODE, under what the test asks."""
-        if self.history is not None and self.controller == "servo":
-            from .controllers.servo import HISTORY_MODE
+        """The options the controller runs with: for the servo on a rig isorig commissioned (a trusted
+        ``rig_commissioning``) its commissioned mode, for a time history (no repeating cycle to learn) its tracking
+        mode (sim.controllers.servo COMMISSIONED_MODE, HISTORY_MODE), each under what the test asks."""
+        if self.controller != "servo":
+            return dict(self.controller_options)
+        from .controllers.servo import COMMISSIONED_MODE, HISTORY_MODE
+        from .follow import commissioning_facts
 
-            return {**HISTORY_MODE, **self.controller_options}
-        return dict(self.controller_options)
+        modes = {}
+        if commissioning_facts(self.rig_commissioning) is not None:
+            modes.update(COMMISSIONED_MODE)
+        if self.history is not None:
+            modes.update(HISTORY_MODE)
+        return {**modes, **self.controller_options}
 
     def target_table(self):
         """The table of (r, r', r'') per period for a time history (a copy: a stop fades it), else None."""
