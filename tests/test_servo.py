@@ -1,7 +1,6 @@
 """The learning servo controller: valve inverse, frequency estimate, convergence, high loop gain, noise,
 steady state of the compensation and a sudden change of the isolator's stiffness."""
 
-import hashlib
 
 import numpy as np
 import pytest
@@ -406,31 +405,62 @@ def test_a_still_target_gets_a_still_valve(options):
     assert np.max(np.abs(error)) < 0.2e-3  # within the ringing's +-0.15 mm and the band, not behind it
 
 
-#: sha-256 (first 16 hex digits) of two short runs' columns, and their last values, recorded on the single 326-line
-#: servo_step before it was split into its stages (issue 32, item 7): a soft column at 2 mm 1 Hz (the fast band, the
-#: compression feed-forward, the pressure feedback, the learning) and a time history ringing at rest with the still
-#: valve (the integral, the edge trim, the feedback's ramp, the still share); soft_sine re-recorded when a held
-#: target got the still valve by default (still_hold_share 1: its last periods, the sine's end, changed);
-#: still_history's command re-recorded when the ringing's still valve took the table's error from the centre of the
-#: swings (still_centre_share 1; the estimates unchanged); soft_sine re-recorded when small periodic motions got a
-#: share of the pressure feedback (pressure_feedback_small_share 0.6: its taper-in is one)
+#: two short runs' columns as recorded on the single 326-line servo_step before it was split into its stages (issue
+#: 32, item 7): each column's RMS and its values at 9 evenly spaced rows (the first, the last and 7 between): a soft
+#: column at 2 mm 1 Hz (the fast band, the compression feed-forward, the pressure feedback, the learning) and a time
+#: history ringing at rest with the still valve (the integral, the edge trim, the feedback's ramp, the still share);
+#: soft_sine re-recorded when a held target got the still valve by default (still_hold_share 1: its last periods,
+#: the sine's end, changed); still_history's command re-recorded when the ringing's still valve took the table's
+#: error from the centre of the swings (still_centre_share 1; the estimates unchanged); soft_sine re-recorded when
+#: small periodic motions got a share of the pressure feedback (pressure_feedback_small_share 0.6: its taper-in is
+#: one). Pinned to 1e-9, not bit for bit: the libm's exp and log (glibc picks its FMA or SSE2 code by the CPU) and
+#: numpy's SIMD loops change the last bits from one machine to the next (still_history's hash differed on an AMD
+#: EPYC; with glibc's non-FMA code every column moved by up to 4e-12 of its value), and a change of the law moves
+#: them by far more.
 PINNED_RUNS = {
-    "soft_sine": {"command_raw_v": ("973199344756716d", -1.029470094810019),
-                  "ar_hat": ("9adb77b87abfbcb5", 0.9980874481365106),
-                  "ay_hat": ("5fdce953185944d7", 1.017193226701546),
-                  "as_hat": ("0b71722925644e58", 1.005781538877336)},
-    "still_history": {"command_raw_v": ("1ef813df25fa4e68", 0.15461201491742066),
-                      "ar_hat": ("379c6c6ecaf7d80d", 0.9934333006408046),
-                      "ay_hat": ("5fb8f9ddaef95ffa", 0.8643229187966589),
-                      "as_hat": ("8cf968c8be029574", 1.997157478476424)},
+    "soft_sine": {
+        "command_raw_v": (1.086474289948847,
+                  [-0.02, -1.0286682968130225, -1.0623306672080688,
+                   1.1283063084571368, -1.2214257088073583, 1.1787908523872679,
+                   -1.0869222725021177, 0.9080240154493182, -1.029470094810019]),
+        "ar_hat": (1.0616216799590505,
+                  [1.0, 1.0, 1.0568711118708378,
+                   1.0572383485540147, 1.0816783276166464, 1.1355770545256556,
+                   1.0349970604400622, 1.014466421780397, 0.9980874481365106]),
+        "ay_hat": (1.023912057720766,
+                  [1.005, 1.005, 1.0184164143767398,
+                   1.0288006551908342, 1.0318427193360153, 1.0359792809071082,
+                   1.0261820703299298, 1.0193468471407987, 1.017193226701546]),
+        "as_hat": (0.7982128474598462,
+                  [0.0, 0.0, 0.0,
+                   0.0, 1.0197943710375763, 1.0045965384480477,
+                   1.005781538877336, 1.005781538877336, 1.005781538877336]),
+    },
+    "still_history": {
+        "command_raw_v": (0.8284871393789247,
+                  [-0.02, -1.0642218274735977, 1.1800481951075543,
+                   -1.0195840287083378, -0.9112099158068526, 0.8349688457816057,
+                   0.6100256370437924, 0.23095930775997026, 0.1546120149174206]),
+        "ar_hat": (0.991495531310524,
+                  [1.0, 1.0, 0.9912553945553839,
+                   0.9767868122193303, 0.9856430939057832, 0.9934333006408046,
+                   0.9934333006408046, 0.9934333006408046, 0.9934333006408046]),
+        "ay_hat": (0.8638886177201323,
+                  [0.8621, 0.8621, 0.8640725165814725,
+                   0.862278831967849, 0.8643163213471582, 0.8643229187966589,
+                   0.8643229187966589, 0.8643229187966589, 0.8643229187966589]),
+        "as_hat": (0.9663435045139768,
+                  [0.0, 0.0, 0.0,
+                   0.0, 0.0, 0.0,
+                   0.0, 1.9989777455870428, 1.9971574784764234]),
+    },
 }
 
 
 @pytest.mark.parametrize("run", sorted(PINNED_RUNS))
-def test_the_servo_law_is_pinned_bit_for_bit(run):
-    """A restructuring of servo_step (its stages, docs/controller.md) changes no bit of the command or of the
-    estimates. A deliberate change of the law, or another numba/LLVM/libm, re-records PINNED_RUNS (the last
-    values tell a change in the last bits from a change of the law)."""
+def test_the_servo_law_is_pinned(run):
+    """A restructuring of servo_step (its stages, docs/controller.md) changes the command and the estimates by no
+    more than the last bits. A deliberate change of the law re-records PINNED_RUNS."""
     if run == "soft_sine":
         rig = DEFAULT_RIG.with_changes(**SOFT_COLUMN_PLANT)
         # at the K_p it was recorded with (30 /s): the loop's margin would lower it on this column (loop_design)
@@ -440,11 +470,11 @@ def test_the_servo_law_is_pinned_bit_for_bit(run):
         scenario = Scenario(load_isolator("IUT_a"), 100 * BAR_PA, [], controller_options=STILL_VALVE,
                             history=burst_history(ringing_m=0.15e-3, rest_s=2.0))
     samples = Simulation(scenario).run().samples
-    got = {}
-    for column in PINNED_RUNS[run]:
-        values = np.ascontiguousarray(samples[column], dtype="<f8")
-        got[column] = (hashlib.sha256(values.tobytes()).hexdigest()[:16], float(values[-1]))
-    assert got == PINNED_RUNS[run]
+    for column, (rms, values) in PINNED_RUNS[run].items():
+        got = np.asarray(samples[column], dtype=float)
+        rows = np.linspace(0, len(got) - 1, len(values)).round().astype(int)
+        np.testing.assert_allclose(got[rows], values, rtol=1e-9, atol=1e-12, err_msg=column)
+        assert np.sqrt(np.mean(got * got)) == pytest.approx(rms, rel=1e-9), column
 
 
 #: foreign rig 204 as commissioned (sim.commission.foreign_campaign.first_attempt(204)): a 4750 kg table on a 13 Hz oil

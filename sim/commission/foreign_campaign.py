@@ -152,13 +152,18 @@ def tested(spec, rig: RigParameters, amplitude_m: float, frequency_hz: float,
     try:
         result = Simulation(scenario, validate=False).run(follow=True)
     except LoopMarginError as refused:  # the servo refuses the rig as told before anything moves: a case's outcome
-        return {"share": None, "verdict": "refused", "stopped_s": 0.0, "stop_kind": "refused", "why": str(refused)}
-    verdict = result.summary()["tracking_verdict"]
+        return {"share": None, "verdict": "refused", "stopped_s": 0.0, "stop_kind": "refused", "why": str(refused),
+                "table_share": None}
+    summary = result.summary()
+    verdict = summary["tracking_verdict"]
     trip = result.trip
     # a stop at the actuator's force limit (sim.force_limit) is counted as that, not as the detector that stopped it
     kind = None if trip is None else trip.values.get("cause") or trip.values.get("kind", trip.detector)
+    # the table's own figure: the simulation knows where the table was (sim.tracking's last two cycles, the true
+    # position against the target), which the verdict, judging the reading with the latency's uncertainty, may not
+    table = summary.get("last_two_cycles", {}).get("rms_y_minus_r_over_amplitude")
     return {"share": verdict.get("rms_share"), "verdict": verdict["verdict"],
-            "stopped_s": None if trip is None else trip.time_s, "stop_kind": kind}
+            "stopped_s": None if trip is None else trip.time_s, "stop_kind": kind, "table_share": table}
 
 
 def first_attempt(seed: int, max_stroke_m: float = DEFAULT_MAX_STROKE_M,
