@@ -13,6 +13,7 @@ from sim.commission import foreign_campaign as fc
 RIG = 84  # its fit differed between one and two BLAS threads
 
 
+@pytest.mark.slow  # two whole fits of a record (6 s): scripts/test.sh --quick leaves it out
 @pytest.mark.skipif((os.cpu_count() or 1) < 2, reason="one core: OpenBLAS runs one thread whatever it is told")
 def test_the_fit_is_the_same_on_one_and_on_two_blas_threads():
     fits = {}

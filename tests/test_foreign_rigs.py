@@ -192,6 +192,7 @@ def test_the_engine_plays_a_foreign_rig_the_same_compiled_and_period_by_period()
     assert np.ptp(compiled["displacement_m"]) > 1e-3  # it moved
 
 
+@pytest.mark.slow  # a whole commissioning and three tests (16 s): scripts/test.sh --quick leaves it out
 def test_commissioning_a_foreign_rig_gives_a_row_and_the_summary_counts_it():
     """One rig through sim.commission.foreign_campaign: commissioned from what its lab knows (or refused with the
     reasons), the judged values against the physics, the cases where it was trusted; the summary's keys are the

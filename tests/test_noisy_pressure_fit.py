@@ -19,6 +19,7 @@ NOISY_SINGLE_ROD = 149
 NOISY_DOUBLE_ROD = 151
 
 
+@pytest.mark.slow  # two whole commissionings (5-8 s each): scripts/test.sh --quick leaves them out
 @pytest.mark.parametrize("seed", [NOISY_SINGLE_ROD, NOISY_DOUBLE_ROD], ids=["single-rod", "double-rod"])
 def test_a_rig_read_with_noisy_pressure_transducers_is_commissioned_with_its_values(seed):
     spec, declared, ident = fc.first_attempt(seed)
