@@ -995,12 +995,11 @@ def _learned_frequency(s, steady, omega_est, dt):
     else:
         s[S_NEW_FREQ_S] = 0.0
     if steady:
-        if w_l > 0.0:
-            s[S_LEARNED_S] += dt
         if w_l <= 0.0:  # lock on
             s[S_OMEGA_LEARNED] = omega_est
         else:  # refine, over a quarter period: a short bend of the estimate (a taper's start) barely moves it
             s[S_OMEGA_LEARNED] = w_l + min(1.0, dt * omega_est / (0.5 * np.pi)) * (omega_est - w_l)
+            s[S_LEARNED_S] += dt
     return steady, s[S_OMEGA_LEARNED]
 
 
