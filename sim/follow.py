@@ -548,9 +548,8 @@ class FollowMonitor:
         lim = self.limits
         if self.steady_judged <= lim.learning_cycles:
             return None  # the learning's transient
-        keep = 1.0 - lim.min_improvement
-        gains = previous is not None and (share <= keep * previous
-                                          or (best_before is not None and best <= keep * keep * best_before))
+        held = (best_last is not None) + (best_before is not None)
+        gains = learning_gains(share, previous or 0.0, best, best_before or 0.0, held, lim.min_improvement)
         stuck = not gains or self.steady_judged > lim.learning_cycles + lim.improving_cycles
         if share > lim.rms_share and stuck:
             return self._trip(i, t, "tracking", share * a, lim.rms_share * a, a)
@@ -794,6 +793,18 @@ def _verdict(share: float, limits: FollowLimits, basis: str, advice: str) -> dic
 # ---------------------------------------------------------------------------------------------------------------
 # the compiled judge: ``FollowMonitor.check`` and ``feed`` over many blocks in one call, bit for bit the per-block
 # numpy path (``FollowMonitor._check_reference``), which stays as the reference tests/test_follow.py compares with
+
+@njit(cache=True, error_model="numpy")
+def learning_gains(share: float, previous: float, best: float, best_before: float, held: int,
+                   min_improvement: float) -> bool:
+    """The tracking rule's "the learning still gains ``min_improvement`` a cycle" (FollowLimits), for the monitor
+    and its compiled judge alike: the cycle's RMS ``share`` that much below the cycle before's (``previous``), or
+    the smallest share of the block's steady cycles so far (``best``, this one's included) (1 - min_improvement)^2
+    of the smallest of two cycles earlier (``best_before``). ``held``: how many of the two earlier figures the
+    block has (0: none; 1: ``previous``; 2: both)."""
+    keep = 1.0 - min_improvement
+    return held >= 1 and (share <= keep * previous or (held >= 2 and best <= keep * keep * best_before))
+
 
 #: the fast path's largest block: a block's sums of squares are numpy.dot's of at most this many numbers, which
 #: OpenBLAS adds one product at a time (from 16 on it adds them in SIMD lanes, in an order not reproduced here)
@@ -1053,9 +1064,7 @@ def _judge_blocks(k, y, r_ext, lost, span, cycle, steady, settled, block, rollba
                     ist[_I_BESTS] = min(held + 1, 2)
                     ist[_I_JUDGED] += 1
                     if ist[_I_JUDGED] > learning_cycles:
-                        keep = 1.0 - min_improvement
-                        gains = held >= 1 and (share <= keep * previous
-                                               or (held >= 2 and best <= keep * keep * best_before))
+                        gains = learning_gains(share, previous, best, best_before, held, min_improvement)
                         stuck = not gains or ist[_I_JUDGED] > learning_cycles + improving_cycles
                         if share > rms_share and stuck:
                             kind, at, value, bound, amplitude = TRACKING, s0, share * ab, rms_share * ab, ab
