@@ -52,18 +52,14 @@ def run_case(job: tuple) -> tuple[int, str, dict]:
 
 
 def figures(outcomes: dict, target: float) -> dict:
-    """The campaign's figures of one case (foreign_campaign.summary's)."""
-    import numpy as np
+    """The campaign's figures of one case (foreign_campaign.case_figures), and its stops by their detector's kind."""
+    from sim.commission.foreign_campaign import case_figures
 
-    shares = [o["share"] for o in outcomes.values() if o["share"] is not None]
     stops: dict = {}
     for o in outcomes.values():
         if o["stopped_s"] is not None:
             stops[o["stop_kind"]] = stops.get(o["stop_kind"], 0) + 1
-    within = sum(1 for o in outcomes.values()
-                 if o["stopped_s"] is None and o["share"] is not None and o["share"] <= target)
-    return {"runs": len(outcomes), "within_target": within,
-            "median_pct": 100.0 * float(np.median(shares)) if shares else None, "stops": stops}
+    return {**case_figures(list(outcomes.values()), target), "stops": stops}
 
 
 def option(text: str) -> tuple[str, float]:
@@ -106,7 +102,7 @@ def main() -> None:
         cache = {}
         if args.cache is not None and args.cache.exists():
             cache = {int(k): v for k, v in json.loads(args.cache.read_text()).items()}
-        missing = [s for s in seeds if str(s) not in map(str, cache)]
+        missing = [s for s in seeds if s not in cache]
         for done, (seed, entry) in enumerate(pool.map(commissioned, missing), 1):
             cache[seed] = entry
             print(f"commissioned {done}/{len(missing)}: rig {seed} {'trusted' if entry else 'refused'}",

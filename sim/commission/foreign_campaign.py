@@ -244,6 +244,26 @@ def run_chunk(runs: list[ForeignRun]) -> list[dict]:
     return [commission_and_test(r) for r in runs]
 
 
+def case_figures(outcomes: list[dict], target: float) -> dict:
+    """One case's figures over ``tested``'s outcomes (each with ``share``, ``stopped_s``, ``stop_kind``): the runs,
+    the worst and median share in %, the stops by the campaign's kinds, and how many ran to their end within
+    ``target``."""
+    shares = [100.0 * o["share"] for o in outcomes if o["share"] is not None]
+    kinds = [o["stop_kind"] for o in outcomes if o["stopped_s"] is not None]
+    return {
+        "runs": len(outcomes),
+        "worst_pct": max(shares) if shares else None,
+        "median_pct": float(np.median(shares)) if shares else None,
+        "oscillation_stops": kinds.count("oscillation"),
+        "force_limit_stops": kinds.count("force_limit"),
+        "refused_before_start": kinds.count("refused"),
+        "other_stops": sum(1 for k in kinds if k not in ("oscillation", "force_limit", "refused")),
+        "within_target": sum(1 for o in outcomes if o["stopped_s"] is None and o["share"] is not None
+                             and o["share"] <= target),
+        "target_pct": 100.0 * target,
+    }
+
+
 def summary(rows: list[dict], cases: tuple = CASES) -> dict:
     """The figures of ``isorig compare --foreign-rigs N --json`` (docs/commissioning.md, "Foreign rigs")."""
     out = {"rigs": len(rows), "commissioned_first_attempt": sum(1 for r in rows if r["first_trusted"]),
@@ -251,20 +271,8 @@ def summary(rows: list[dict], cases: tuple = CASES) -> dict:
            "wrong_trusted": sum(1 for r in rows if r["trusted"] and r["wrong"]), "cases": {}}
     for label, _a, _f, target in cases:
         ran = [r for r in rows if r["trusted"] and f"{label}.verdict" in r]
-        shares = [100.0 * r[f"{label}.share"] for r in ran if r[f"{label}.share"] is not None]
-        out["cases"][label] = {
-            "runs": len(ran),
-            "worst_pct": max(shares) if shares else None,
-            "median_pct": float(np.median(shares)) if shares else None,
-            "oscillation_stops": sum(1 for r in ran if r[f"{label}.stop_kind"] == "oscillation"),
-            "force_limit_stops": sum(1 for r in ran if r[f"{label}.stop_kind"] == "force_limit"),
-            "refused_before_start": sum(1 for r in ran if r[f"{label}.stop_kind"] == "refused"),
-            "other_stops": sum(1 for r in ran if r[f"{label}.stopped_s"] is not None
-                               and r[f"{label}.stop_kind"] not in ("oscillation", "force_limit", "refused")),
-            "within_target": sum(1 for r in ran if r[f"{label}.stopped_s"] is None and r[f"{label}.share"] is not None
-                                 and r[f"{label}.share"] <= target),
-            "target_pct": 100.0 * target,
-        }
+        out["cases"][label] = case_figures([{k: r[f"{label}.{k}"] for k in ("share", "stopped_s", "stop_kind")}
+                                            for r in ran], target)
     return out
 
 
