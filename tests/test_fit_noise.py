@@ -22,7 +22,8 @@ from sim.commission.identify import START_SHIFT_SHARE
 from sim.commission.signals import Signals
 
 OVERLAPPED_NOISY = 204  # overlapped valve, 0.087 bar per transducer, latency 1.69 ms
-NOISE_MOVES_THE_VALVE = 237  # its valve's frequency moves 428 rad/s with the noise doubled
+NOISE_MOVES_THE_VALVE = 321  # its valve's frequency (truth 316 rad/s) moves about 700 rad/s with the noise doubled
+NOISE_MOVED_THE_VALVE = 237  # before the flow fit settled (sim.commission.flow.fit_flow), the noise moved it 403 rad/s
 
 
 def _clean_record(seed, monkeypatch):
@@ -77,13 +78,24 @@ def test_an_overlapped_rig_with_noisy_transducers_is_commissioned_with_its_laten
 
 @pytest.mark.slow  # a whole commissioning: scripts/test.sh --quick leaves it out
 def test_a_value_the_noise_moves_is_stated_with_that_uncertainty():
-    """Rig 237's valve is fitted at 1424 rad/s (true 838); the jackknife alone said +-155 (trusted, 3.8 sigma
-    off). Fitted again with the noise doubled, it moves by hundreds of rad/s: the stated uncertainty holds that,
-    and the rig is refused for it rather than trusted with a wrong valve."""
+    """Rig 321's valve, fitted again with the noise doubled, moves by more than its own value: the stated
+    uncertainty holds that (so it is refused for it, or its truth lies within 3 sigma). Rig 237 was the example
+    until the flow fit settled: 1424 rad/s (true 838), +-155 from the jackknife alone, trusted 3.8 sigma off."""
     spec, declared, ident = fc.first_attempt(NOISE_MOVES_THE_VALVE)
     shift = ident.fit.noise_shift["valve_natural_frequency_rad_s"]
     value, std, truth = fc.judged_values(ident, spec, declared)["valve_natural_frequency_rad_s"]
     assert shift > 0.2 * truth, shift
     assert std >= shift
     assert abs(value - truth) <= 3.0 * std or not ident.trusted, (value, std, truth)
+    assert not ident.trusted or fc.wrong_values(fc.judged_values(ident, spec, declared)) == []
+
+
+@pytest.mark.slow  # a whole commissioning: scripts/test.sh --quick leaves it out
+def test_a_valve_the_noise_moved_is_fitted_once_the_fit_settles():
+    """Rig 237: where the variable projection stopped, its valve came out 1453 +- 436 rad/s against a true 838 and
+    moved 403 rad/s with the noise doubled; the alternation at C held settles it at the rig's own valve."""
+    spec, declared, ident = fc.first_attempt(NOISE_MOVED_THE_VALVE)
+    value, std, truth = fc.judged_values(ident, spec, declared)["valve_natural_frequency_rad_s"]
+    assert abs(value - truth) < 0.1 * truth, (value, std, truth)
+    assert ident.fit.noise_shift["valve_natural_frequency_rad_s"] < 0.1 * truth, ident.fit.noise_shift
     assert not ident.trusted or fc.wrong_values(fc.judged_values(ident, spec, declared)) == []

@@ -7,6 +7,11 @@ began. The jackknife's groups all begin at the whole fit's solution and cannot s
 overlapped 118 Hz valve at damping 0.94, its position read 0.56 ms late) was trusted with 0.113 +- 0.083 ms, 5.4
 sigma off, and its 20 mm verdict said 0.056 % where the table was 0.100 % off. The fit now starts again 0.5 ms
 either side of its latency (sim.commission.fit.start_shifts) and states half the largest move beside the rest.
+
+Why it stopped where it did: the variable projection's bias-compensated cost, minimised over the valve and the
+latency, is ill-posed (it falls without end as the compensated C grows: 7.0 where the fit stopped, 0.12 after 400
+evaluations). The fit now settles by alternating the non-linear parameters at C held with (K_q, C) at them
+(sim.commission.flow.fit_flow): rig 121's latency 0.567 ms from its grid and 0.566-0.574 from 0.5 ms either side.
 """
 
 import pytest
@@ -34,6 +39,17 @@ def test_a_latency_the_valve_took_a_share_of_is_stated_with_the_valley_and_judge
         run = fc.tested(spec, ident.rig, amplitude_m, frequency_hz, section)
         assert run["stopped_s"] is None, (label, run)
         assert run["share"] >= run["table_share"], (label, run)
+
+
+@pytest.mark.slow  # a whole commissioning: scripts/test.sh --quick leaves it out
+def test_the_flow_fit_settles_at_one_latency_from_either_side_of_the_valley():
+    """Before the alternation the fit stopped at 0.113 ms and, begun 0.5 ms later, at 0.551 (truth 0.560)."""
+    spec, declared, ident = fc.first_attempt(VALLEY_RIG)
+    value, _std, truth = fc.judged_values(ident, spec, declared)["position_latency_s"]
+    assert ident.fit.start_shift["position_latency_s"] < 3e-5, ident.fit.start_shift
+    assert abs(value - truth) < 3e-5, (value, truth)
+    valve, valve_std, valve_truth = fc.judged_values(ident, spec, declared)["valve_natural_frequency_rad_s"]
+    assert abs(valve - valve_truth) < 0.05 * valve_truth, (valve, valve_std, valve_truth)  # before: 631 against 738
 
 
 def test_the_valley_widens_the_latency_by_its_share_of_the_move():

@@ -8,11 +8,18 @@ a single-rod actuator (1 towards +y, the declared A_B / A_A towards -y; sim.rig'
 K_q's share), so K_q is the flow gain of a positive command and k_en K_q that of a negative one. It is linear
 in (K_q, C) once the dead zone, the null offset v_e0, the valve's w_v and xi_v, the position latency L, k_en and
 the valve's play are fixed: those seven are found by non-linear least squares over the linear solution (variable
-projection), started from a grid over the dead zone. The dead zone is a signed lap (``land_flow``): negative, the
-valve is underlapped, both its lands open round null (sim.rig.load_flow); the play is a backlash between the
-command and the spool (``after_play``). On foreign rigs 0-599 these two took the flow balance's median R^2 from
-0.986 to 0.996 and 0.983 to 0.997. ``part_disagreement`` fits the valve law on each experiment of the
-record alone: what the model leaves out shows as their disagreement.
+projection), started from a grid over the dead zone, and then by alternating: the seven at C held (a plain sum of
+squares), then (K_q, C) at them, until they settle. The variable projection's cost is the bias-compensated one
+(``_projected_residual``), and minimised over the seven it is ill-posed: the noise's share it takes out grows with
+C, so a longer run lowers it without end (foreign rig 121: 7.0 where the fit stopped, 0.12 after 400 evaluations)
+and where it stops depends on the run. At C held the noise's share does not move with the seven, and the alternation
+settles in 2-4 rounds at the same point from starts 0.5 ms either side (rig 121's latency 0.567, 0.566 and 0.574 ms
+against a true 0.560; where the variable projection alone had stopped at 0.113, 0.043 and 0.551).
+
+The dead zone is a signed lap (``land_flow``): negative, the valve is underlapped, both its lands open round null
+(sim.rig.load_flow); the play is a backlash between the command and the spool (``after_play``). On foreign rigs
+0-599 these two took the flow balance's median R^2 from 0.986 to 0.996 and 0.983 to 0.997. ``part_disagreement``
+fits the valve law on each experiment of the record alone: what the model leaves out shows as their disagreement.
 """
 
 from __future__ import annotations
@@ -31,6 +38,8 @@ MAX_EVALUATIONS = 40  # per start of the non-linear fit (it converges in 10-30 o
 TOLERANCE = 1e-5  # relative change of the cost and of the parameters at which it has converged
 DEAD_ZONE_GRID_STEP_V = 0.1
 UNDERLAP_GRID_STEPS = 3  # the grid also tries underlaps of 1-3 steps (foreign rigs: 0.05-0.3 V)
+ALTERNATIONS = 4  # at most: theta at C held, then (K_q, C) at that theta (``fit_flow``)
+ALTERNATION_SETTLED = 0.01  # the largest move of theta, in SCALE units, at which the alternation has settled
 
 #: bounds of the non-linear parameters: dead zone V (negative: an underlap), null offset V, valve Hz, valve
 #: damping, latency ms, k_en, the valve's play V
@@ -116,14 +125,20 @@ class FlowFit:
     play_v: float = 0.0
 
 
-def _flow_regression(sig: Signals, mask: np.ndarray, area: float, dp_reg: float, theta: np.ndarray,
-                     area_ratio_b: float = 1.0):
-    """(K_q, C), the residual (m3/s) and the regressand for the non-linear parameters theta."""
+def _flow_columns(sig: Signals, mask: np.ndarray, area: float, dp_reg: float, theta: np.ndarray,
+                  area_ratio_b: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """The regressors of (K_q, C) and the regressand A_p y' for the non-linear parameters theta."""
     dz, null_v, valve_hz, damping, latency_ms, negative_gain, play_v = theta
     v_e = valve_voltage(sig.u, sig.dt_s, valve_hz, damping, null_v, negative_gain, play_v)
     x = np.column_stack([lowpass(land_flow(v_e, sig.p_load, sig.p_supply, dz, dp_reg, area_ratio_b), sig.dt_s,
                                        sig.flow_corner_hz), -sig.p_load_rate_flow])[mask]
-    target = area * sig.at_latency(sig.v_flow, latency_ms * 1e-3)[mask]
+    return x, area * sig.at_latency(sig.v_flow, latency_ms * 1e-3)[mask]
+
+
+def _flow_regression(sig: Signals, mask: np.ndarray, area: float, dp_reg: float, theta: np.ndarray,
+                     area_ratio_b: float = 1.0):
+    """(K_q, C), the residual (m3/s) and the regressand for the non-linear parameters theta."""
+    x, target = _flow_columns(sig, mask, area, dp_reg, theta, area_ratio_b)
     # normal equations (2 unknowns), with the P_L' noise's own share taken out of its column's sum of squares:
     # a regressor with noise in it pulls its coefficient, C, towards zero by var(signal) / var(signal + noise)
     # (bias-compensated least squares; the noise from the reading's content above NOISE_BAND_HZ)
@@ -140,12 +155,24 @@ def _projected_residual(sig: Signals, mask: np.ndarray, area: float, dp_reg: flo
     holds the noise's share C^2 N sigma^2, which falls with C: minimising it pulls the non-linear parameters
     towards those that shrink C. On overlapped foreign rigs with pressure transducers' noise that put the latency
     0.3-0.5 ms late (rigs 84, 147, 204, 230; right without the noise). The compensated cost is the one whose
-    minimiser in (K_q, C) is ``_flow_regression``'s, so the variable projection stays consistent."""
+    minimiser in (K_q, C) is ``_flow_regression``'s, so the variable projection stays consistent. Over the
+    non-linear parameters it is ill-posed (the module docstring): ``fit_flow`` uses it for the first steps from its
+    grid only, and settles them with ``_residual_at_compliance``."""
     coef, res, _ = _flow_regression(sig, mask, area, dp_reg, theta, area_ratio_b)
     res = res * scale
     plain = float(res @ res)
     noise = res.size * (coef[1] * sig.noise["load_pressure_rate_flow_pa_per_s"] * scale) ** 2
     return res * math.sqrt(max(plain - noise, 1e-6 * plain) / max(plain, 1e-300))
+
+
+def _residual_at_compliance(sig: Signals, mask: np.ndarray, area: float, dp_reg: float, theta: np.ndarray,
+                            area_ratio_b: float, scale: float, compliance: float) -> np.ndarray:
+    """The flow balance's residual with C held at ``compliance`` and K_q its least-squares value: a plain sum of
+    squares whose noise share, C^2 N sigma^2, no longer moves with theta (``fit_flow``'s alternation)."""
+    x, target = _flow_columns(sig, mask, area, dp_reg, theta, area_ratio_b)
+    rest = target - compliance * x[:, 1]
+    gain = float(x[:, 0] @ rest) / max(float(x[:, 0] @ x[:, 0]), 1e-300)
+    return (rest - gain * x[:, 0]) * scale
 
 
 def fit_flow(sig: Signals, area: float, dp_reg: float, mask: np.ndarray | None = None,
@@ -165,19 +192,31 @@ def fit_flow(sig: Signals, area: float, dp_reg: float, mask: np.ndarray | None =
                  for dz in grid]
         best_dz = grid[int(np.argmin(costs))]
         starts = [np.array([best_dz, 0.0, hz, 0.7, latency_guess_s * 1e3, 1.0, 0.0]) for hz in (50.0, 120.0)]
+        best = None
+        for theta0 in starts:
+            sol = optimize.least_squares(residual, np.clip(theta0, LOWER, UPPER), bounds=(LOWER, UPPER),
+                                         x_scale=SCALE, diff_step=1e-3, max_nfev=MAX_EVALUATIONS, ftol=TOLERANCE,
+                                         xtol=TOLERANCE)
+            if best is None or sol.cost < best.cost:
+                best = sol
+        theta = best.x
     else:
-        starts = [np.asarray(start, dtype=float)]
-    best = None
-    for theta0 in starts:
-        sol = optimize.least_squares(residual, np.clip(theta0, LOWER, UPPER), bounds=(LOWER, UPPER), x_scale=SCALE,
-                                     diff_step=1e-3, max_nfev=MAX_EVALUATIONS, ftol=TOLERANCE, xtol=TOLERANCE)
-        if best is None or sol.cost < best.cost:
-            best = sol
-    coef, res, target = _flow_regression(sig, mask, area, dp_reg, best.x, area_ratio_b)
+        theta = np.clip(np.asarray(start, dtype=float), LOWER, UPPER)
+    for _ in range(ALTERNATIONS):
+        compliance = _flow_regression(sig, mask, area, dp_reg, theta, area_ratio_b)[0][1]
+        sol = optimize.least_squares(
+            lambda t, c=compliance: _residual_at_compliance(sig, mask, area, dp_reg, t, area_ratio_b, scale, c),
+            theta, bounds=(LOWER, UPPER), x_scale=SCALE, diff_step=1e-3, max_nfev=MAX_EVALUATIONS, ftol=TOLERANCE,
+            xtol=TOLERANCE)
+        moved = float(np.max(np.abs(sol.x - theta) / SCALE))
+        theta = sol.x
+        if moved < ALTERNATION_SETTLED:
+            break
+    coef, res, target = _flow_regression(sig, mask, area, dp_reg, theta, area_ratio_b)
     target_noise = (area * sig.noise["velocity_flow_m_per_s"]) ** 2
     r2 = explained(res, target, target_noise + (coef[1] * sig.noise["load_pressure_rate_flow_pa_per_s"]) ** 2,
                    target_noise)
-    dz, null_v, valve_hz, damping, latency_ms, negative_gain, play_v = best.x
+    dz, null_v, valve_hz, damping, latency_ms, negative_gain, play_v = theta
     return FlowFit(float(dz), float(null_v), float(valve_hz), float(damping), float(latency_ms * 1e-3),
                    float(negative_gain), float(coef[0]), float(coef[1]), r2, float(play_v))
 
