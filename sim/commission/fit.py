@@ -139,8 +139,7 @@ def fit_rig(sig: Signals, declared: RigParameters, blocks: int = BLOCKS,
     area, dp_reg, ratio = declared.piston_area_m2, declared.orifice_regularisation_pa, declared.area_ratio_b
     guess, flow, force = _whole_fit(sig, declared)
     full = _named(flow, force, declared)
-    start = np.array([flow.dead_zone_v, flow.null_offset_v, flow.valve_hz, flow.valve_damping, flow.latency_s * 1e3,
-                      flow.negative_gain, flow.play_v])
+    start = flow.theta
     group = (np.arange(len(sig)) // max(1, int(round(CHUNK_S / sig.dt_s)))) % blocks
     leave_one_out = []
     for b in range(blocks):
@@ -174,12 +173,10 @@ def start_shifts(sig: Signals, declared: RigParameters, flow: FlowFit) -> dict[s
     cubic term only), and where the fit stops in that valley depends on where it began; the jackknife's groups
     all begin at the whole fit's solution and cannot see it. Foreign rig 121: 0.113 +- 0.083 ms trusted against
     a true 0.560 ms; begun 0.5 ms later the fit stopped at 0.551 ms."""
-    start = np.array([flow.dead_zone_v, flow.null_offset_v, flow.valve_hz, flow.valve_damping, flow.latency_s * 1e3,
-                      flow.negative_gain, flow.play_v])
     moves = []
     for step_ms in (-VALLEY_STEP_MS, VALLEY_STEP_MS):
-        begun = start.copy()
-        begun[4] = max(0.0, start[4] + step_ms)
+        begun = flow.theta
+        begun[4] = max(0.0, begun[4] + step_ms)
         again = fit_flow(sig, declared.piston_area_m2, declared.orifice_regularisation_pa, start=begun,
                          area_ratio_b=declared.area_ratio_b)
         moves.append(abs(again.latency_s - flow.latency_s))

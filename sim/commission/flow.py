@@ -124,6 +124,12 @@ class FlowFit:
     r2: float
     play_v: float = 0.0
 
+    @property
+    def theta(self) -> np.ndarray:
+        """The seven non-linear parameters in ``fit_flow``'s order and units (a ``start`` for another fit)."""
+        return np.array([self.dead_zone_v, self.null_offset_v, self.valve_hz, self.valve_damping,
+                         self.latency_s * 1e3, self.negative_gain, self.play_v])
+
 
 def _flow_columns(sig: Signals, mask: np.ndarray, area: float, dp_reg: float, theta: np.ndarray,
                   area_ratio_b: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
