@@ -17,9 +17,15 @@ evaluations). The fit now settles by alternating the non-linear parameters at C 
 import pytest
 
 from sim.commission import foreign_campaign as fc
-from sim.commission.identify import START_SHIFT_SHARE, with_systematic
+from sim.commission.identify import (
+    LATENCY_PER_VALVE_LAG_UNEXPLAINED,
+    START_SHIFT_SHARE,
+    valve_lag_s,
+    with_systematic,
+)
 
 VALLEY_RIG = 121
+VALVE_LAG_RIG = 231
 
 
 @pytest.mark.slow  # a whole commissioning and a 20 mm run: scripts/test.sh --quick leaves it out
@@ -68,3 +74,43 @@ def test_the_valley_widens_the_latency_by_its_share_of_the_move():
     after = with_move.estimates["position_latency_s"].std
     assert after ** 2 == pytest.approx(before ** 2 + (START_SHIFT_SHARE * 4e-4) ** 2)
     assert with_move.estimates["mass_kg"].std == without.estimates["mass_kg"].std
+
+
+def test_the_latency_holds_the_valves_lag_as_far_as_the_flow_balance_leaves_it_unexplained():
+    """with_systematic adds LATENCY_PER_VALVE_LAG_UNEXPLAINED sqrt(1 - R^2) of the fitted valve's lag 2 xi / w, in
+    quadrature, to the latency alone; a flow balance that explains everything adds nothing."""
+    from sim.commission.fit import Estimate, RigFit
+    from sim.rig import DEFAULT_RIG
+
+    def fit(flow_r2):
+        estimates = {"position_latency_s": Estimate(1e-3, 1e-4, "s", ""), "mass_kg": Estimate(1000.0, 10.0, "kg", ""),
+                     "valve_natural_frequency_rad_s": Estimate(300.0, 1.0, "rad/s", ""),
+                     "valve_damping_ratio": Estimate(0.75, 0.01, "-", "")}
+        out = RigFit(estimates, flow_r2, 1.0, 1.0, DEFAULT_RIG)
+        with_systematic(out)
+        return out
+
+    exact, loose = fit(1.0), fit(0.99)
+    lag_s = 2.0 * 0.75 / 300.0
+    assert valve_lag_s(loose) == pytest.approx(lag_s)
+    before, after = exact.estimates["position_latency_s"].std, loose.estimates["position_latency_s"].std
+    assert after ** 2 == pytest.approx(before ** 2 + (LATENCY_PER_VALVE_LAG_UNEXPLAINED * 0.1 * lag_s) ** 2)
+    assert loose.estimates["mass_kg"].std == exact.estimates["mass_kg"].std
+
+
+@pytest.mark.slow  # a whole commissioning: scripts/test.sh --quick leaves it out
+def test_a_latency_the_valve_model_shifted_is_stated_with_the_valves_lag():
+    """Foreign rig 231 (an underlapped 51 Hz spool damped 0.87), commissioned at 40 mm/s as its first attempt's
+    refusal suggests: the flow balance took 0.63 ms of the valve's lag into the latency (2.62 +- 0.18 ms against a
+    true 1.99) and was trusted 3.5 sigma off. With the valve's lag in the latency's uncertainty its truth lies
+    within 3 sigma, trusted or not."""
+    from foreign_rigs import draw_rig
+
+    spec = draw_rig(VALVE_LAG_RIG)
+    declared = fc.declared_rig(spec.lab_knows())
+    ident = fc.commission(spec, declared, fc.DEFAULT_MAX_STROKE_M, 0.04)
+    assert ident.fit is not None, ident.problems
+    value, std, truth = fc.judged_values(ident, spec, declared)["position_latency_s"]
+    assert abs(value - truth) > 4e-4, (value, truth)  # the shift is still there: this test is about its statement
+    assert abs(value - truth) <= 3.0 * std, (value, std, truth)
+    assert not ident.trusted or fc.wrong_values(fc.judged_values(ident, spec, declared)) == []
