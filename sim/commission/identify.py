@@ -220,7 +220,6 @@ def valve_lag_s(fit: RigFit) -> float:
     return 2.0 * xi / w if math.isfinite(w) and math.isfinite(xi) and w > 0.0 and xi > 0.0 else 0.0
 
 
-
 def response_problems(response: FrequencyResponse | None) -> list[str]:
     """Why the dither or the fitted rig's replay of it says the fit is not the rig (empty: it may be)."""
     if response is None:
